@@ -1,0 +1,1 @@
+"""Camera calibration from planes: Zhang, single view, pose, pattern detection, interchange."""

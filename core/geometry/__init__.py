@@ -1,0 +1,1 @@
+"""Small shared geometry: rotations, point normalisation, the camera model."""
