@@ -1,0 +1,1 @@
+"""The registry's database: typed SQLAlchemy models, engine and session, Alembic migrations."""

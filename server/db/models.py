@@ -1,0 +1,195 @@
+"""The registry's tables. Matrices are stored as nested JSON lists (row-major), small by design;
+uploaded images go to a size-capped blob table."""
+
+from __future__ import annotations
+
+from datetime import datetime
+from typing import Any
+
+from sqlalchemy import (
+    JSON,
+    Boolean,
+    DateTime,
+    Float,
+    ForeignKey,
+    Integer,
+    LargeBinary,
+    String,
+    Text,
+)
+from sqlalchemy.orm import Mapped, mapped_column, relationship
+
+from server.db.base import Base, Timestamped
+
+# Status values of a calibration run.
+RUN_QUEUED = "queued"
+RUN_RUNNING = "running"
+RUN_SUCCEEDED = "succeeded"
+RUN_FAILED = "failed"
+RUN_INTERRUPTED = "interrupted"
+RUN_STATUSES = (RUN_QUEUED, RUN_RUNNING, RUN_SUCCEEDED, RUN_FAILED, RUN_INTERRUPTED)
+
+
+class Space(Timestamped, Base):
+    """A home (or a lab) holding rooms and devices."""
+
+    __tablename__ = "spaces"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    name: Mapped[str] = mapped_column(String(200))
+    description: Mapped[str] = mapped_column(Text, default="")
+
+
+class Room(Timestamped, Base):
+    """A room of a space with its floor polygon in world metres (z = 0 plane)."""
+
+    __tablename__ = "rooms"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    space_id: Mapped[int] = mapped_column(ForeignKey("spaces.id", ondelete="CASCADE"), index=True)
+    name: Mapped[str] = mapped_column(String(200))
+    polygon: Mapped[list[list[float]]] = mapped_column(JSON)
+
+
+class Camera(Timestamped, Base):
+    """A camera: image size, intrinsics K (3x3), OpenCV distortion (5), pose T_world_camera."""
+
+    __tablename__ = "cameras"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    space_id: Mapped[int | None] = mapped_column(
+        ForeignKey("spaces.id", ondelete="SET NULL"), index=True
+    )
+    name: Mapped[str] = mapped_column(String(200))
+    width: Mapped[int] = mapped_column(Integer)
+    height: Mapped[int] = mapped_column(Integer)
+    K: Mapped[list[list[float]] | None] = mapped_column(JSON)
+    dist: Mapped[list[float] | None] = mapped_column(JSON)
+    T_world_camera: Mapped[list[list[float]] | None] = mapped_column(JSON)
+    status: Mapped[str] = mapped_column(String(20), default="uncalibrated")
+    calibration_run_id: Mapped[int | None] = mapped_column(
+        ForeignKey("calibration_runs.id", ondelete="SET NULL", use_alter=True)
+    )
+
+
+class Projector(Timestamped, Base):
+    """A projector modelled as an inverse camera: image size, K, distortion, pose."""
+
+    __tablename__ = "projectors"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    space_id: Mapped[int | None] = mapped_column(
+        ForeignKey("spaces.id", ondelete="SET NULL"), index=True
+    )
+    name: Mapped[str] = mapped_column(String(200))
+    width: Mapped[int] = mapped_column(Integer)
+    height: Mapped[int] = mapped_column(Integer)
+    K: Mapped[list[list[float]] | None] = mapped_column(JSON)
+    dist: Mapped[list[float] | None] = mapped_column(JSON)
+    T_world_projector: Mapped[list[list[float]] | None] = mapped_column(JSON)
+
+
+class Robot(Timestamped, Base):
+    """A mobile manipulator: kinematic model, onboard and hand cameras, hand-eye transform."""
+
+    __tablename__ = "robots"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    space_id: Mapped[int | None] = mapped_column(
+        ForeignKey("spaces.id", ondelete="SET NULL"), index=True
+    )
+    name: Mapped[str] = mapped_column(String(200))
+    kinematic_model: Mapped[dict[str, Any]] = mapped_column(JSON, default=dict)
+    onboard_camera_id: Mapped[int | None] = mapped_column(
+        ForeignKey("cameras.id", ondelete="SET NULL")
+    )
+    hand_camera_id: Mapped[int | None] = mapped_column(
+        ForeignKey("cameras.id", ondelete="SET NULL")
+    )
+    T_hand_camera: Mapped[list[list[float]] | None] = mapped_column(JSON)
+
+
+class Landmark(Timestamped, Base):
+    """A printed landmark (e.g. a QR code): kind, payload, physical size, world pose if known."""
+
+    __tablename__ = "landmarks"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    space_id: Mapped[int | None] = mapped_column(
+        ForeignKey("spaces.id", ondelete="SET NULL"), index=True
+    )
+    kind: Mapped[str] = mapped_column(String(40))
+    payload: Mapped[str] = mapped_column(Text)
+    size_m: Mapped[float] = mapped_column(Float)
+    T_world_landmark: Mapped[list[list[float]] | None] = mapped_column(JSON)
+
+
+class CalibrationRun(Timestamped, Base):
+    """One calibration job: its inputs, status, result or error, and timings."""
+
+    __tablename__ = "calibration_runs"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    kind: Mapped[str] = mapped_column(String(40))
+    source: Mapped[str] = mapped_column(String(40))  # "correspondences" or "images"
+    status: Mapped[str] = mapped_column(String(20), default=RUN_QUEUED, index=True)
+    camera_id: Mapped[int | None] = mapped_column(
+        ForeignKey("cameras.id", ondelete="SET NULL"), index=True
+    )
+    inputs: Mapped[dict[str, Any]] = mapped_column(JSON)
+    options: Mapped[dict[str, Any]] = mapped_column(JSON, default=dict)
+    result: Mapped[dict[str, Any] | None] = mapped_column(JSON)
+    error: Mapped[str | None] = mapped_column(Text)
+    started_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True))
+    finished_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True))
+
+    files: Mapped[list[CalibrationRunFile]] = relationship(
+        back_populates="run", cascade="all, delete-orphan", passive_deletes=True
+    )
+
+
+class CalibrationRunFile(Timestamped, Base):
+    """An image uploaded for a run, kept as a blob (capped by the upload size limit)."""
+
+    __tablename__ = "calibration_run_files"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    run_id: Mapped[int] = mapped_column(
+        ForeignKey("calibration_runs.id", ondelete="CASCADE"), index=True
+    )
+    position: Mapped[int] = mapped_column(Integer)
+    filename: Mapped[str] = mapped_column(String(255))
+    content_type: Mapped[str] = mapped_column(String(100))
+    size: Mapped[int] = mapped_column(Integer)
+    data: Mapped[bytes] = mapped_column(LargeBinary)
+
+    run: Mapped[CalibrationRun] = relationship(back_populates="files")
+
+
+class CameraCalibration(Timestamped, Base):
+    """A calibration applied to a camera; the rows of one camera are its history."""
+
+    __tablename__ = "camera_calibrations"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    camera_id: Mapped[int] = mapped_column(ForeignKey("cameras.id", ondelete="CASCADE"), index=True)
+    calibration_run_id: Mapped[int | None] = mapped_column(
+        ForeignKey("calibration_runs.id", ondelete="SET NULL")
+    )
+    K: Mapped[list[list[float]]] = mapped_column(JSON)
+    dist: Mapped[list[float]] = mapped_column(JSON)
+    rms: Mapped[float | None] = mapped_column(Float)
+    image_width: Mapped[int] = mapped_column(Integer)
+    image_height: Mapped[int] = mapped_column(Integer)
+
+
+class ApiToken(Timestamped, Base):
+    """A bearer token, stored as its SHA-256 hex digest; the token itself is shown once."""
+
+    __tablename__ = "api_tokens"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    name: Mapped[str] = mapped_column(String(200))
+    token_hash: Mapped[str] = mapped_column(String(64), unique=True)
+    scopes: Mapped[list[str]] = mapped_column(JSON)
+    revoked: Mapped[bool] = mapped_column(Boolean, default=False)

@@ -1,0 +1,74 @@
+"""The service's settings: one pydantic-settings class read from INTSPACE_* variables and .env."""
+
+from __future__ import annotations
+
+from functools import cached_property
+from pathlib import Path
+from typing import Literal
+
+from pydantic import Field, SecretStr
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+
+class Settings(BaseSettings):
+    """Everything the service can be configured with; each field is INTSPACE_<NAME> in the env."""
+
+    model_config = SettingsConfigDict(
+        env_prefix="INTSPACE_", env_file=".env", extra="ignore", frozen=True
+    )
+
+    data_dir: Path = Field(Path("var"), description="Where the default SQLite file lives.")
+    database_url: SecretStr | None = Field(
+        None, description="Any SQLAlchemy URL; default: a SQLite file under data_dir."
+    )
+    admin_token: SecretStr | None = Field(
+        None, description="When set, this is the admin token and none is generated."
+    )
+    public_reads: bool = Field(False, description="Reads need no token.")
+    cors_origins: list[str] = Field(
+        default_factory=list, description="Origins allowed by CORS; empty closes CORS."
+    )
+
+    viser_enabled: bool = True
+    viser_port: int = Field(8080, ge=1, le=65535)
+    simulation: bool = Field(False, description="Run the digital twin so the space is alive.")
+
+    run_workers: int = Field(2, ge=1, le=64, description="Threads executing calibration runs.")
+    run_executor: Literal["local", "external"] = Field(
+        "local",
+        description="local: runs execute in this process; external: `intspace worker` "
+        "processes claim them from the database.",
+    )
+
+    max_request_bytes: int = Field(64 * 2**20, ge=1024, description="Whole request body cap.")
+    max_upload_file_bytes: int = Field(16 * 2**20, ge=1024, description="Per uploaded image.")
+    max_upload_files: int = Field(60, ge=1, description="Images per calibration upload.")
+    max_image_pixels: int = Field(40_000_000, ge=1, description="Decoded image size cap.")
+
+    @cached_property
+    def resolved_database_url(self) -> str:
+        """Return the database URL, the default SQLite file under data_dir when none is set."""
+        if self.database_url is not None:
+            return self.database_url.get_secret_value()
+        return f"sqlite:///{(self.data_dir / 'intspace.sqlite3').resolve()}"
+
+    @property
+    def database_backend(self) -> str:
+        """Return "sqlite" or "postgresql" (the SQLAlchemy dialect name)."""
+        from sqlalchemy.engine import make_url
+
+        return make_url(self.resolved_database_url).get_backend_name()
+
+    def masked(self) -> dict[str, object]:
+        """Return the settings with secrets (tokens, database password) masked, for printing."""
+        from sqlalchemy.engine import make_url
+
+        values: dict[str, object] = {}
+        for name in type(self).model_fields:
+            value = getattr(self, name)
+            if isinstance(value, SecretStr):
+                value = "**********"
+            values[name] = value
+        url = make_url(self.resolved_database_url)
+        values["database_url"] = url.render_as_string(hide_password=True)
+        return values
