@@ -1,0 +1,15 @@
+"""The live 3D scene of the space, served by viser on its own port.
+
+scene = SceneService("127.0.0.1", 8081)
+scene.start()
+scene.set_floor_plan([{"id": 1, "name": "Living room", "polygon": [[0, 0], [5, 0], [5, 4]]}])
+scene.upsert_camera({"id": 3, "name": "ceiling-1", "width": 640, "height": 480,
+                     "K": K, "T_world_camera": T})   # K, T may be None
+scene.remove_camera(3)
+scene.stop()
+"""
+
+from server.scene._geometry import Frustum, Pose
+from server.scene._service import CameraView, RoomView, SceneService
+
+__all__ = ["CameraView", "Frustum", "Pose", "RoomView", "SceneService"]

@@ -1,0 +1,453 @@
+"""The live 3D scene: a viser server showing the floor plan and every camera's frustum.
+
+Callers (the API, after a database commit) only record the desired state and wake a worker
+thread; the worker redraws what changed. So a call never waits on viser or on a slow client,
+bursts of updates to one camera collapse into one redraw, and the scene follows within a few
+milliseconds (the contract is "within a second").
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from core.errors import InvalidInput
+from server.scene._geometry import (
+    Frustum,
+    Pose,
+    as_polygon,
+    frustum_from_intrinsics,
+    polygon_centroid,
+    pose_from_transform,
+    triangulate_polygon,
+)
+
+log = logging.getLogger(__name__)
+
+# Colours (RGB). Calibrated cameras stand out in blue; a camera without intrinsics is amber (its
+# frustum angle is a guess); a camera without a pose is grey and parked beside the floor plan.
+_COLOR_CALIBRATED = (37, 99, 235)
+_COLOR_NO_INTRINSICS = (217, 119, 6)
+_COLOR_UNPOSED = (148, 150, 160)
+_COLOR_WALL = (51, 65, 85)
+_ROOM_FILLS = ((191, 219, 254), (187, 247, 208), (254, 215, 170), (233, 213, 255), (254, 202, 202))
+
+# Cameras without a pose wait in a row this far (m) outside the floor plan's -Y side, this far
+# apart, at this height, looking straight down (camera z = world -Z, camera x = world +X).
+_PARK_OFFSET = 1.0
+_PARK_SPACING = 0.9
+_PARK_HEIGHT = 1.2
+_LOOK_DOWN_WXYZ = (0.0, 1.0, 0.0, 0.0)  # half turn about world X
+
+
+@dataclass(frozen=True)
+class CameraView:
+    """How one camera is drawn: scene node, displayed pose, frustum and whether they are known."""
+
+    id: int
+    name: str
+    node: str
+    width: int
+    height: int
+    has_intrinsics: bool
+    has_pose: bool
+    pose: Pose
+    frustum: Frustum
+    label: str
+
+
+@dataclass(frozen=True)
+class RoomView:
+    """How one room is drawn: scene node, polygon (m, floor Z = 0) and label."""
+
+    id: int
+    name: str
+    node: str
+    polygon: tuple[tuple[float, float], ...]
+
+
+@dataclass(frozen=True)
+class _CameraSpec:
+    id: int
+    name: str
+    width: int
+    height: int
+    has_intrinsics: bool
+    frustum: Frustum
+    pose: Pose | None
+
+
+def _parse_camera(camera: Mapping[str, Any]) -> _CameraSpec:
+    try:
+        cam_id = int(camera["id"])
+        width = int(camera["width"])
+        height = int(camera["height"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise InvalidInput(
+            f"a camera needs integer 'id', 'width' and 'height'; got {exc!r}"
+        ) from None
+    K = camera.get("K")
+    T = camera.get("T_world_camera")
+    return _CameraSpec(
+        id=cam_id,
+        name=str(camera.get("name") or f"camera {cam_id}"),
+        width=width,
+        height=height,
+        has_intrinsics=K is not None,
+        frustum=frustum_from_intrinsics(K, width, height),
+        pose=None if T is None else pose_from_transform(T, f"camera {cam_id} T_world_camera"),
+    )
+
+
+def _parse_rooms(rooms: Sequence[Mapping[str, Any]]) -> list[RoomView]:
+    out = []
+    for i, room in enumerate(rooms):
+        try:
+            room_id = int(room["id"])
+        except (KeyError, TypeError, ValueError):
+            raise InvalidInput(f"room {i} needs an integer 'id'") from None
+        polygon = as_polygon(room.get("polygon"), f"room {room_id} polygon")
+        out.append(
+            RoomView(
+                id=room_id,
+                name=str(room.get("name") or f"room {room_id}"),
+                node=f"/floor/rooms/{room_id}",
+                polygon=tuple((float(x), float(y)) for x, y in polygon),
+            )
+        )
+    return out
+
+
+class SceneService:
+    """A viser server drawing the space; every public method is thread-safe and non-blocking.
+
+    State given before `start()` is kept and drawn when the server starts. Updates are applied
+    by one worker thread; `flush()` waits until everything asked so far is drawn.
+    """
+
+    def __init__(
+        self,
+        host: str = "127.0.0.1",
+        port: int = 8081,
+        *,
+        frustum_scale: float = 0.3,
+        verbose: bool = False,
+    ) -> None:
+        self._host = host
+        self._port = port
+        self._frustum_scale = frustum_scale
+        self._verbose = verbose
+        self._server: Any = None  # viser.ViserServer once started
+        self._cond = threading.Condition()
+        self._cameras: dict[int, _CameraSpec] = {}
+        self._rooms: list[RoomView] = []
+        self._dirty_cameras: set[int] = set()
+        self._dirty_floor = True
+        self._busy = False
+        self._stopping = False
+        self._worker: threading.Thread | None = None
+        # What the worker has drawn; read by cameras() / rooms() under _cond.
+        self._drawn_cameras: dict[int, CameraView] = {}
+        self._drawn_rooms: list[RoomView] = []
+
+    # -- lifecycle ---------------------------------------------------------------------------
+
+    def start(self) -> None:
+        """Start the viser server and the drawing thread (a second call does nothing)."""
+        import viser  # imported here: it is heavy, and only a running scene needs it
+
+        with self._cond:
+            if self._server is not None:
+                return
+            server = viser.ViserServer(host=self._host, port=self._port, verbose=self._verbose)
+            server.scene.set_up_direction("+z")
+            server.gui.configure_theme(
+                show_share_button=False, brand_color=_COLOR_CALIBRATED, control_width="small"
+            )
+            self._server = server
+            self._port = server.get_port()
+            self._stopping = False
+            self._dirty_floor = True
+            self._dirty_cameras = set(self._cameras)
+            self._drawn_cameras = {}
+            self._worker = threading.Thread(target=self._run, name="scene-worker", daemon=True)
+            self._worker.start()
+            self._cond.notify_all()
+
+    def stop(self) -> None:
+        """Stop the drawing thread and the viser server (safe to call when not started)."""
+        with self._cond:
+            server, worker = self._server, self._worker
+            self._stopping = True
+            self._cond.notify_all()
+        if worker is not None:
+            worker.join(timeout=5.0)
+        if server is not None:
+            server.stop()
+        with self._cond:
+            self._server = None
+            self._worker = None
+
+    @property
+    def running(self) -> bool:
+        """Return whether the viser server is up."""
+        return self._server is not None
+
+    @property
+    def port(self) -> int:
+        """Return the viser port (the one actually bound once started)."""
+        return self._port
+
+    @property
+    def url(self) -> str:
+        """Return the viser page's address, http://host:port/."""
+        host = "127.0.0.1" if self._host in ("0.0.0.0", "") else self._host
+        if ":" in host and not host.startswith("["):
+            host = f"[{host}]"
+        return f"http://{host}:{self._port}/"
+
+    @property
+    def server(self) -> Any:
+        """Return the underlying viser.ViserServer (None until started), e.g. to add GUI."""
+        return self._server
+
+    # -- state changes (any thread) ----------------------------------------------------------
+
+    def set_floor_plan(self, rooms: Sequence[Mapping[str, Any]]) -> None:
+        """Replace the floor plan by `rooms`: [{"id", "name", "polygon": [[x, y], ...]}] (m).
+
+        Raises InvalidInput (nothing changes) if a room has no id or a bad polygon.
+        """
+        parsed = _parse_rooms(rooms)
+        with self._cond:
+            self._rooms = parsed
+            self._dirty_floor = True
+            self._cond.notify_all()
+
+    def upsert_camera(self, camera: Mapping[str, Any]) -> None:
+        """Add or redraw a camera: {"id", "name", "width", "height", "K", "T_world_camera"}.
+
+        K is 3x3 (pixels) or None; T_world_camera is the 4x4 camera-to-world transform (OpenCV
+        camera axes: x right, y down, z forward; world Z up) or None, in which case the camera
+        is parked beside the floor plan and labelled "uncalibrated pose".
+        Raises InvalidInput (nothing changes) for a malformed K or a T that is not rigid.
+        """
+        spec = _parse_camera(camera)
+        with self._cond:
+            self._cameras[spec.id] = spec
+            self._dirty_cameras.add(spec.id)
+            self._cond.notify_all()
+
+    def remove_camera(self, id: int) -> None:
+        """Remove a camera from the scene (nothing happens if it is not there)."""
+        with self._cond:
+            self._cameras.pop(int(id), None)
+            self._dirty_cameras.add(int(id))
+            self._cond.notify_all()
+
+    def flush(self, timeout: float = 5.0) -> bool:
+        """Wait until every change asked so far is drawn; return False on timeout."""
+        with self._cond:
+            if self._server is None:
+                return not self._dirty_cameras and not self._dirty_floor
+            return self._cond.wait_for(
+                lambda: not (self._busy or self._dirty_cameras or self._dirty_floor),
+                timeout=timeout,
+            )
+
+    # -- what is drawn -----------------------------------------------------------------------
+
+    def cameras(self) -> dict[int, CameraView]:
+        """Return the cameras as currently drawn, by id."""
+        with self._cond:
+            return dict(self._drawn_cameras)
+
+    def rooms(self) -> list[RoomView]:
+        """Return the rooms as currently drawn."""
+        with self._cond:
+            return list(self._drawn_rooms)
+
+    # -- drawing (worker thread) -------------------------------------------------------------
+
+    def _run(self) -> None:
+        while True:
+            with self._cond:
+                self._cond.wait_for(
+                    lambda: self._stopping or self._dirty_cameras or self._dirty_floor
+                )
+                if self._stopping:
+                    return
+                dirty = self._dirty_cameras
+                floor_dirty = self._dirty_floor
+                self._dirty_cameras, self._dirty_floor = set(), False
+                cameras = dict(self._cameras)
+                rooms = list(self._rooms)
+                self._busy = True
+            try:
+                self._draw(dirty, floor_dirty, cameras, rooms)
+            except Exception:  # a drawing bug must not kill the scene for good
+                log.exception("redrawing the 3D scene failed")
+            finally:
+                with self._cond:
+                    self._busy = False
+                    self._cond.notify_all()
+
+    def _draw(
+        self,
+        dirty: set[int],
+        floor_dirty: bool,
+        cameras: dict[int, _CameraSpec],
+        rooms: list[RoomView],
+    ) -> None:
+        server = self._server
+        if server is None:
+            return
+        drawn = dict(self._drawn_cameras)
+        with server.atomic():
+            if floor_dirty:
+                self._draw_floor(server, rooms)
+                with self._cond:
+                    self._drawn_rooms = rooms
+            # Parked cameras are laid out by id; any change to who is parked, or to the floor
+            # plan they sit beside, moves them all.
+            parked = sorted(c.id for c in cameras.values() if c.pose is None)
+            was_parked = sorted(i for i, v in drawn.items() if not v.has_pose)
+            if floor_dirty or parked != was_parked:
+                dirty = dirty | set(parked)
+            origin = self._park_origin(rooms)
+            for cam_id in sorted(dirty):
+                spec = cameras.get(cam_id)
+                server.scene.remove_by_name(f"/cameras/{cam_id}")
+                if spec is None:
+                    drawn.pop(cam_id, None)
+                    continue
+                slot = parked.index(cam_id) if spec.pose is None else 0
+                drawn[cam_id] = self._draw_camera(server, spec, origin, slot)
+        with self._cond:
+            self._drawn_cameras = drawn
+
+    @staticmethod
+    def _park_origin(rooms: list[RoomView]) -> tuple[float, float]:
+        if not rooms:
+            return (0.0, -_PARK_OFFSET)
+        pts = np.array([p for r in rooms for p in r.polygon])
+        return (float(pts[:, 0].min()) + 0.5, float(pts[:, 1].min()) - _PARK_OFFSET)
+
+    def _draw_camera(
+        self, server: Any, spec: _CameraSpec, origin: tuple[float, float], slot: int
+    ) -> CameraView:
+        node = f"/cameras/{spec.id}"
+        if spec.pose is None:
+            pose = Pose(
+                wxyz=_LOOK_DOWN_WXYZ,
+                position=(origin[0] + slot * _PARK_SPACING, origin[1], _PARK_HEIGHT),
+            )
+            color = _COLOR_UNPOSED
+            label = f"{spec.name} (uncalibrated pose)"
+        else:
+            pose = spec.pose
+            color = _COLOR_CALIBRATED if spec.has_intrinsics else _COLOR_NO_INTRINSICS
+            label = spec.name if spec.has_intrinsics else f"{spec.name} (no intrinsics)"
+        server.scene.add_frame(
+            node,
+            wxyz=pose.wxyz,
+            position=pose.position,
+            show_axes=spec.pose is not None,
+            axes_length=0.6 * self._frustum_scale,
+            axes_radius=0.02 * self._frustum_scale,
+        )
+        server.scene.add_camera_frustum(
+            f"{node}/frustum",
+            fov=spec.frustum.fov,
+            aspect=spec.frustum.aspect,
+            scale=self._frustum_scale,
+            color=color,
+            thickness=2.0,
+            thickness_units="screen",
+            variant="filled" if spec.pose is not None else "wireframe",
+        )
+        # Above the frame in camera coordinates is -y (image up).
+        server.scene.add_label(
+            f"{node}/label",
+            label,
+            position=(0.0, -0.12, 0.0),
+            anchor="bottom-center",
+            font_screen_scale=0.9,
+        )
+        return CameraView(
+            id=spec.id,
+            name=spec.name,
+            node=node,
+            width=spec.width,
+            height=spec.height,
+            has_intrinsics=spec.has_intrinsics,
+            has_pose=spec.pose is not None,
+            pose=pose,
+            frustum=spec.frustum,
+            label=label,
+        )
+
+    def _draw_floor(self, server: Any, rooms: list[RoomView]) -> None:
+        server.scene.remove_by_name("/floor")
+        if rooms:
+            pts = np.array([p for r in rooms for p in r.polygon])
+            lo, hi = pts.min(axis=0) - 1.0, pts.max(axis=0) + 1.0
+        else:
+            lo, hi = np.array([-5.0, -5.0]), np.array([5.0, 5.0])
+        lo, hi = np.floor(lo), np.ceil(hi)
+        center = (hi + lo) / 2.0
+        size = hi - lo
+        server.scene.add_grid(
+            "/floor/grid",
+            width=float(size[0]),
+            height=float(size[1]),
+            plane="xy",
+            cell_size=0.5,
+            section_size=1.0,
+            cell_color=(220, 224, 230),
+            section_color=(170, 176, 186),
+            position=(float(center[0]), float(center[1]), -0.002),
+        )
+        for i, room in enumerate(rooms):
+            poly = np.array(room.polygon)
+            n = len(poly)
+            ring = np.stack([poly, np.roll(poly, -1, axis=0)], axis=1)  # (N, 2, 2)
+            segments = np.concatenate([ring, np.full((n, 2, 1), 0.004)], axis=2)
+            server.scene.add_line_segments(
+                f"{room.node}/walls",
+                points=segments,
+                colors=_COLOR_WALL,
+                thickness=3.0,
+                thickness_units="screen",
+            )
+            server.scene.add_mesh_simple(
+                f"{room.node}/fill",
+                vertices=np.concatenate([poly, np.zeros((n, 1))], axis=1),
+                faces=triangulate_polygon(poly),
+                color=_ROOM_FILLS[i % len(_ROOM_FILLS)],
+                opacity=0.55,
+                side="double",
+                cast_shadow=False,
+                receive_shadow=False,
+            )
+            cx, cy = polygon_centroid(poly)
+            server.scene.add_label(
+                f"{room.node}/label",
+                room.name,
+                position=(float(cx), float(cy), 0.02),
+                anchor="center-center",
+            )
+        # Frame the whole plan from a corner, a bit above; clients that connect later use this.
+        span = float(max(size.max(), 4.0))
+        server.initial_camera.look_at = (float(center[0]), float(center[1]), 0.0)
+        server.initial_camera.position = (
+            float(center[0]) - 0.35 * span,
+            float(center[1]) - 0.95 * span,
+            0.85 * span,
+        )
+        server.initial_camera.up = (0.0, 0.0, 1.0)
