@@ -151,62 +151,101 @@ def project_points(
             "project_points needs object_points (..., N, 3), rvec and tvec (..., 3), K (3, 3); "
             f"got {X.shape}, {rv.shape}, {tv.shape}, {Km.shape}"
         )
-    fx, s, cx = Km[0, 0], Km[0, 1], Km[0, 2]
-    fy, cy = Km[1, 1], Km[1, 2]
-    k1, k2, p1, p2, k3 = as_distortion(dist)
+    intr = np.array([Km[0, 0], Km[1, 1], Km[0, 2], Km[1, 2], Km[0, 1]])
+    pts, depth, J = _project(X, rv, tv, intr, as_distortion(dist), jacobians)
+    if J is None:
+        return Projection(points=pts, depth=depth)
+    return Projection(
+        points=pts,
+        depth=depth,
+        d_intrinsics=J[..., 0:5],
+        d_distortion=J[..., 5:10],
+        d_pose=J[..., 10:16],
+    )
 
+
+def _project(
+    X: Array, rv: Array, tv: Array, intr: Array, dist: Array, jacobians: bool
+) -> tuple[Array, Array, Array | None]:
+    """Return pixels (..., N, 2), depths (..., N) and, if asked, the Jacobian (..., N, 2, 16)
+    with columns (fx, fy, cx, cy, skew, k1, k2, p1, p2, k3, rvec, t).
+
+    The hot path of every calibration: written as few whole-array numpy operations as possible
+    (no per-point Python, no stacking of many small arrays), filling one Jacobian array.
+    """
+    fx, fy, cx, cy, s = (float(v) for v in intr)
+    k1, k2, p1, p2, k3 = (float(v) for v in dist)
     R = rotvec_to_matrix(rv)
-    RX = np.einsum("...ij,...nj->...ni", R, X)
+    RX = X @ np.swapaxes(R, -1, -2)
     Xc = RX + tv[..., None, :]
-    iz = 1.0 / Xc[..., 2]
+    depth = Xc[..., 2]
+    iz = 1.0 / depth
     x = Xc[..., 0] * iz
     y = Xc[..., 1] * iz
-    xx, yy, xy = x * x, y * y, x * y
+    xx = x * x
+    yy = y * y
+    xy2 = 2.0 * x * y
     r2 = xx + yy
-    r4 = r2 * r2
     rad = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    xd = x * rad + 2.0 * p1 * xy + p2 * (r2 + 2.0 * xx)
-    yd = y * rad + p1 * (r2 + 2.0 * yy) + 2.0 * p2 * xy
-    u = fx * xd + s * yd + cx
-    v = fy * yd + cy
-    pts = np.stack([u, v], -1)
+    xd = x * rad + p1 * xy2 + p2 * (r2 + 2.0 * xx)
+    yd = y * rad + p1 * (r2 + 2.0 * yy) + p2 * xy2
+    pts = np.empty((*x.shape, 2))
+    pts[..., 0] = fx * xd + s * yd + cx
+    pts[..., 1] = fy * yd + cy
     if not jacobians:
-        return Projection(points=pts, depth=Xc[..., 2])
+        return pts, depth, None
 
-    shape = x.shape
-    one = np.ones(shape)
-    zero = np.zeros(shape)
-    # d(u, v) / d(fx, fy, cx, cy, s)
-    d_int = np.stack(
-        [np.stack([xd, zero, one, zero, yd], -1), np.stack([zero, yd, zero, one, zero], -1)], -2
-    )
-    # d(x_d, y_d) / d(k1, k2, p1, p2, k3), then through [[fx, s], [0, fy]].
-    r6 = r4 * r2
-    dx_dk = np.stack([x * r2, x * r4, 2.0 * xy, r2 + 2.0 * xx, x * r6], -1)
-    dy_dk = np.stack([y * r2, y * r4, r2 + 2.0 * yy, 2.0 * xy, y * r6], -1)
-    d_dist = np.stack([fx * dx_dk + s * dy_dk, fy * dy_dk], -2)
-    # d(x_d, y_d) / d(x, y)
-    drad = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)
-    a11 = rad + 2.0 * xx * drad + 2.0 * p1 * y + 6.0 * p2 * x
-    a12 = 2.0 * xy * drad + 2.0 * p1 * x + 2.0 * p2 * y
-    a22 = rad + 2.0 * yy * drad + 6.0 * p1 * y + 2.0 * p2 * x
-    # d(u, v) / d(x, y) = [[fx, s], [0, fy]] @ [[a11, a12], [a12, a22]]
-    b11 = fx * a11 + s * a12
-    b12 = fx * a12 + s * a22
-    b21 = fy * a12
-    b22 = fy * a22
-    # d(u, v) / d Xc = d(u, v)/d(x, y) @ [[iz, 0, -x iz], [0, iz, -y iz]]
-    du = np.stack([b11 * iz, b12 * iz, -(b11 * x + b12 * y) * iz], -1)
-    dv = np.stack([b21 * iz, b22 * iz, -(b21 * x + b22 * y) * iz], -1)
-    dXc = np.stack([du, dv], -2)  # (..., N, 2, 3)
-    # d Xc / d rvec = -[R X]x J_l(rvec); a row m of dXc times -[a]x is (a x m)^T.
-    Jl = left_jacobian_so3(rv)  # (..., 3, 3)
-    cross = np.cross(RX[..., None, :], dXc)  # (..., N, 2, 3)
-    d_rvec = cross @ Jl[..., None, :, :]
-    d_pose = np.concatenate([d_rvec, dXc], -1)
-    return Projection(
-        points=pts, depth=Xc[..., 2], d_intrinsics=d_int, d_distortion=d_dist, d_pose=d_pose
-    )
+    J = np.zeros((*x.shape, 2, 16))
+    ju, jv = J[..., 0, :], J[..., 1, :]
+    # Intrinsics (fx, fy, cx, cy, skew).
+    ju[..., 0] = xd
+    ju[..., 2] = 1.0
+    ju[..., 4] = yd
+    jv[..., 1] = yd
+    jv[..., 3] = 1.0
+    # Distortion (k1, k2, p1, p2, k3) through [[fx, s], [0, fy]].
+    r4 = r2 * r2
+    ux = fx * x + s * y
+    vy = fy * y
+    ju[..., 5] = ux * r2
+    ju[..., 6] = ux * r4
+    ju[..., 9] = ux * (r4 * r2)
+    jv[..., 5] = vy * r2
+    jv[..., 6] = vy * r4
+    jv[..., 9] = vy * (r4 * r2)
+    ryy = r2 + 2.0 * yy
+    rxx = r2 + 2.0 * xx
+    ju[..., 7] = fx * xy2 + s * ryy
+    ju[..., 8] = fx * rxx + s * xy2
+    jv[..., 7] = fy * ryy
+    jv[..., 8] = fy * xy2
+    # d(x_d, y_d) / d(x, y) = [[a11, a12], [a12, a22]].
+    drad2 = 2.0 * (k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2))
+    a11 = rad + xx * drad2 + 2.0 * p1 * y + 6.0 * p2 * x
+    a12 = 0.5 * xy2 * drad2 + 2.0 * (p1 * x + p2 * y)
+    a22 = rad + yy * drad2 + 6.0 * p1 * y + 2.0 * p2 * x
+    # d(u, v) / d(x, y) = [[fx, s], [0, fy]] @ A, then / d Xc through (x, y) = (X, Y) / Z.
+    b11 = (fx * a11 + s * a12) * iz
+    b12 = (fx * a12 + s * a22) * iz
+    b21 = (fy * a12) * iz
+    b22 = (fy * a22) * iz
+    ju[..., 13] = b11
+    ju[..., 14] = b12
+    ju[..., 15] = -(b11 * x + b12 * y)
+    jv[..., 13] = b21
+    jv[..., 14] = b22
+    jv[..., 15] = -(b21 * x + b22 * y)
+    # d Xc / d rvec = -[R X]x J_l(rvec): a row d of d(u,v)/d Xc maps to (R X x d)^T J_l.
+    d = J[..., 13:16]
+    a = RX[..., None, :]
+    c = np.empty(d.shape)
+    c[..., 0] = a[..., 1] * d[..., 2] - a[..., 2] * d[..., 1]
+    c[..., 1] = a[..., 2] * d[..., 0] - a[..., 0] * d[..., 2]
+    c[..., 2] = a[..., 0] * d[..., 1] - a[..., 1] * d[..., 0]
+    batch = x.shape[:-1]
+    Jl = left_jacobian_so3(rv)
+    J[..., 10:13] = (c.reshape(*batch, -1, 3) @ Jl).reshape(d.shape)
+    return pts, depth, J
 
 
 def undistort_points(
@@ -306,8 +345,13 @@ class ReprojectionProblem:
         self.X = object_points  # (m, N, 3)
         self.uv = image_points  # (m, N, 2)
         self.w = mask.astype(np.float64)[..., None]  # (m, N, 1)
+        self.padded = not bool(np.all(mask))
         self.base = base
         self.P = selection
+        # A plain selection (one 1 per column, in a row of its own) is applied by indexing.
+        plain = np.all((selection == 0) | (selection == 1)) and np.all(selection.sum(0) == 1)
+        plain = plain and np.all(selection.sum(1) <= 1)
+        self.columns = np.argmax(selection, 0) if plain and selection.shape[1] else None
         m, n = mask.shape
         self.shape = (m, 2 * n)
 
@@ -315,25 +359,27 @@ class ReprojectionProblem:
         """Return the 10 camera parameters for global parameters g."""
         return self.base + self.P @ g
 
-    def _project(self, g: Array, loc: Array, jac: bool) -> Projection:
+    def _project(self, g: Array, loc: Array, jac: bool) -> tuple[Array, Array | None]:
         f = self.full(g)
-        return project_points(
-            self.X, loc[:, :3], loc[:, 3:], intrinsics_to_matrix(f[:5]), f[5:], jacobians=jac
-        )
+        pts, _, J = _project(self.X, loc[:, :3], loc[:, 3:], f[:5], f[5:], jac)
+        res = pts - self.uv
+        if self.padded:
+            res *= self.w
+            if J is not None:
+                J *= self.w[..., None]
+        return res.reshape(self.shape), J
 
     def residuals(self, x_global: Array, x_local: Array) -> Array:
         """Return the residuals, shape (m, 2 N_max), pixels."""
-        pr = self._project(x_global, x_local, False)
-        return ((pr.points - self.uv) * self.w).reshape(self.shape)
+        return self._project(x_global, x_local, False)[0]
 
     def jacobians(self, x_global: Array, x_local: Array) -> tuple[Array, Array, Array]:
         """Return residuals (m, 2N), d/d global (m, 2N, p) and d/d pose (m, 2N, 6)."""
-        pr = self._project(x_global, x_local, True)
-        assert pr.d_intrinsics is not None and pr.d_distortion is not None
-        assert pr.d_pose is not None
-        res = ((pr.points - self.uv) * self.w).reshape(self.shape)
-        w = self.w[..., None]
-        jf = np.concatenate([pr.d_intrinsics, pr.d_distortion], -1) * w
-        jg = (jf @ self.P).reshape(*self.shape, self.P.shape[1])
-        jl = (pr.d_pose * w).reshape(*self.shape, 6)
-        return res, jg, jl
+        res, J = self._project(x_global, x_local, True)
+        assert J is not None
+        m, r = self.shape
+        if self.columns is not None:
+            jg = J[..., self.columns].reshape(m, r, -1)
+        else:
+            jg = (J[..., :10] @ self.P).reshape(m, r, -1)
+        return res, jg, J[..., 10:].reshape(m, r, 6)
