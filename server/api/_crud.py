@@ -1,0 +1,45 @@
+"""Helpers the resource routers share: fetch-or-404, reference checks, paginated listings."""
+
+from __future__ import annotations
+
+from typing import Any, TypeVar
+
+from fastapi import HTTPException, status
+from sqlalchemy import Select, func, select
+from sqlalchemy.orm import Session
+
+from server.api.deps import Pagination
+from server.api.errors import FieldProblem
+from server.db.base import Base
+
+M = TypeVar("M", bound=Base)
+
+
+def get_or_404(session: Session, model: type[M], id: int, what: str) -> M:
+    """Return the row `id` of `model`, raising 404 naming `what` when there is none."""
+    row = session.get(model, id)
+    if row is None:
+        raise HTTPException(status.HTTP_404_NOT_FOUND, detail=f"no {what} with id {id}")
+    return row
+
+
+def check_references(session: Session, references: dict[str, tuple[type[Base], Any]]) -> None:
+    """Raise 422 naming the field when a referenced id (field -> (model, id)) does not exist;
+    None ids are fine (no reference)."""
+    for field, (model, id) in references.items():
+        if id is not None and session.get(model, id) is None:
+            table = model.__tablename__.rstrip("s")
+            raise FieldProblem(422, field, f"no {table} with id {id}")
+
+
+def paginate(session: Session, stmt: Select[Any], page: Pagination) -> dict[str, Any]:
+    """Return {items, total, limit, offset} for `stmt` (ordered by the caller)."""
+    total = session.scalar(select(func.count()).select_from(stmt.order_by(None).subquery()))
+    items = session.scalars(stmt.limit(page.limit).offset(page.offset)).all()
+    return {"items": items, "total": total or 0, "limit": page.limit, "offset": page.offset}
+
+
+def apply_changes(row: Base, changes: dict[str, Any]) -> None:
+    """Set the given attributes on `row`."""
+    for key, value in changes.items():
+        setattr(row, key, value)

@@ -1,0 +1,222 @@
+"""Calibration runs: submitted (202), executed off the event loop, read back, applied."""
+
+from __future__ import annotations
+
+import re
+from typing import Annotated
+
+from fastapi import APIRouter, Depends, File, Form, HTTPException, Path, Query, UploadFile, status
+from sqlalchemy import select
+
+from server.api._crud import check_references, get_or_404, paginate
+from server.api.deps import (
+    PageDep,
+    ReadAccess,
+    SceneDep,
+    SessionDep,
+    SettingsDep,
+    WriteAccess,
+    get_executor,
+)
+from server.api.errors import PROBLEM_RESPONSES, FieldProblem
+from server.db.base import utcnow
+from server.db.models import (
+    RUN_SUCCEEDED,
+    CalibrationRun,
+    CalibrationRunFile,
+    Camera,
+    CameraCalibration,
+)
+from server.schemas.calibration import (
+    CalibrationRunRead,
+    DistortionModel,
+    IntrinsicsRunCreate,
+    RunStatus,
+)
+from server.schemas.common import MAX_ID, Page
+from server.schemas.registry import CameraRead
+from server.services.calibration import decode_image
+from server.services.runs import RunExecutor
+
+router = APIRouter(
+    prefix="/calibration-runs", tags=["calibration runs"], responses=PROBLEM_RESPONSES
+)
+RunId = Annotated[int, Path(ge=1, le=MAX_ID)]
+ExecutorDep = Annotated[RunExecutor | None, Depends(get_executor)]
+_PATTERN = re.compile(r"^\s*(\d{1,3})\s*[xX]\s*(\d{1,3})\s*$")
+
+
+def _queue(session, executor: RunExecutor | None, run: CalibrationRun) -> CalibrationRun:
+    session.add(run)
+    session.commit()
+    if executor is not None:
+        executor.submit(run.id)
+    return run
+
+
+@router.post(
+    "",
+    response_model=CalibrationRunRead,
+    status_code=status.HTTP_202_ACCEPTED,
+    dependencies=[WriteAccess],
+)
+def create_calibration_run(body: IntrinsicsRunCreate, session: SessionDep, executor: ExecutorDep):
+    """Queue a calibration from point correspondences; poll GET /calibration-runs/{id}."""
+    check_references(session, {"camera_id": (Camera, body.camera_id)})
+    run = CalibrationRun(
+        kind=body.kind,
+        source="correspondences",
+        camera_id=body.camera_id,
+        inputs=body.model_dump(include={"image_size", "object_points", "image_points"}),
+        options=body.options.model_dump(),
+    )
+    return _queue(session, executor, run)
+
+
+@router.post(
+    "/upload",
+    response_model=CalibrationRunRead,
+    status_code=status.HTTP_202_ACCEPTED,
+    dependencies=[WriteAccess],
+)
+def upload_calibration_run(
+    session: SessionDep,
+    settings: SettingsDep,
+    executor: ExecutorDep,
+    camera_id: Annotated[int, Form(ge=1, le=MAX_ID)],
+    files: Annotated[list[UploadFile], File(description="Photos of the chessboard.")],
+    chessboard: Annotated[
+        str, Form(max_length=20, description="Inner corners, columns x rows, e.g. 9x6.")
+    ] = "9x6",
+    square: Annotated[float, Form(gt=0, le=10, allow_inf_nan=False, description="metres")] = 0.025,
+    distortion: Annotated[DistortionModel, Form()] = "k1k2p1p2",
+    skew: Annotated[bool, Form()] = False,
+):
+    """Queue an intrinsic calibration from photos of a chessboard (PNG, JPEG, ...; every
+    image the same size). Photos where the board is not found are skipped by the run."""
+    match = _PATTERN.match(chessboard)
+    if match is None or min(int(match[1]), int(match[2])) < 2:
+        raise FieldProblem(
+            422, "chessboard", "give the inner corners as COLSxROWS, e.g. 9x6", "form"
+        )
+    cols, rows = int(match[1]), int(match[2])
+    check_references(session, {"camera_id": (Camera, camera_id)})
+    if len(files) > settings.max_upload_files:
+        raise FieldProblem(
+            413, "files", f"at most {settings.max_upload_files} images per run", "form"
+        )
+
+    blobs: list[CalibrationRunFile] = []
+    size: tuple[int, int] | None = None
+    for position, upload in enumerate(files):
+        name = (upload.filename or f"image-{position}").replace("\x00", "")[-255:]
+        data = upload.file.read(settings.max_upload_file_bytes + 1)
+        if len(data) > settings.max_upload_file_bytes:
+            raise FieldProblem(
+                413,
+                f"files.{position}",
+                f"{name!r} exceeds {settings.max_upload_file_bytes} bytes",
+                "form",
+            )
+        image = decode_image(data, settings.max_image_pixels)
+        if image is None:
+            raise FieldProblem(
+                415, f"files.{position}", f"{name!r} is not an image OpenCV can decode", "form"
+            )
+        this_size = (int(image.shape[1]), int(image.shape[0]))
+        if size is not None and this_size != size:
+            raise FieldProblem(
+                422,
+                f"files.{position}",
+                f"{name!r} is {this_size[0]}x{this_size[1]} but the first image is "
+                f"{size[0]}x{size[1]}; every photo must come from the same camera mode",
+                "form",
+            )
+        size = this_size
+        content_type = (upload.content_type or "application/octet-stream")[:100]
+        blobs.append(
+            CalibrationRunFile(
+                position=position,
+                filename=name,
+                content_type=content_type.replace("\x00", ""),
+                size=len(data),
+                data=data,
+            )
+        )
+    if size is None:
+        raise FieldProblem(422, "files", "upload at least one image", "form")
+
+    run = CalibrationRun(
+        kind="intrinsics",
+        source="images",
+        camera_id=camera_id,
+        inputs={"chessboard": [cols, rows], "square_m": square, "image_size": list(size)},
+        options={"skew": skew, "distortion": distortion},
+        files=blobs,
+    )
+    return _queue(session, executor, run)
+
+
+@router.get("", response_model=Page[CalibrationRunRead], dependencies=[ReadAccess])
+def list_calibration_runs(
+    session: SessionDep,
+    page: PageDep,
+    camera_id: Annotated[int | None, Query(ge=1, le=MAX_ID)] = None,
+    status: Annotated[RunStatus | None, Query()] = None,
+):
+    """Return a page of runs, newest first, optionally of one camera or one status."""
+    stmt = select(CalibrationRun).order_by(CalibrationRun.id.desc())
+    if camera_id is not None:
+        stmt = stmt.where(CalibrationRun.camera_id == camera_id)
+    if status is not None:
+        stmt = stmt.where(CalibrationRun.status == status)
+    return paginate(session, stmt, page)
+
+
+@router.get("/{run_id}", response_model=CalibrationRunRead, dependencies=[ReadAccess])
+def get_calibration_run(run_id: RunId, session: SessionDep):
+    """Return a run: its status, and its result or error once finished."""
+    return get_or_404(session, CalibrationRun, run_id, "calibration run")
+
+
+@router.post("/{run_id}/apply", response_model=CameraRead, dependencies=[WriteAccess])
+def apply_calibration_run(run_id: RunId, session: SessionDep, scene: SceneDep):
+    """Set the camera's intrinsics from a successful run and record it in the camera's
+    calibration history; return the updated camera."""
+    run = get_or_404(session, CalibrationRun, run_id, "calibration run")
+    if run.status != RUN_SUCCEEDED or run.result is None:
+        raise HTTPException(
+            status.HTTP_409_CONFLICT,
+            detail=f"run {run_id} is {run.status}; only a succeeded run can be applied",
+        )
+    if run.camera_id is None:
+        raise HTTPException(
+            status.HTTP_409_CONFLICT, detail=f"the camera of run {run_id} was deleted"
+        )
+    camera = get_or_404(session, Camera, run.camera_id, "camera")
+    width, height = run.result["image_size"]
+    if (width, height) != (camera.width, camera.height):
+        raise HTTPException(
+            status.HTTP_409_CONFLICT,
+            detail=f"run {run_id} calibrated {width}x{height} images but camera {camera.id} is "
+            f"{camera.width}x{camera.height}; fix the camera's size or calibrate again",
+        )
+    camera.K = run.result["K"]
+    camera.dist = run.result["dist"]
+    camera.status = "calibrated"
+    camera.calibration_run_id = run.id
+    camera.updated_at = utcnow()
+    session.add(
+        CameraCalibration(
+            camera_id=camera.id,
+            calibration_run_id=run.id,
+            K=run.result["K"],
+            dist=run.result["dist"],
+            rms=run.result.get("rms"),
+            image_width=width,
+            image_height=height,
+        )
+    )
+    session.commit()
+    scene.camera_changed(camera)
+    return camera

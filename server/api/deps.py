@@ -1,0 +1,119 @@
+"""Dependencies shared by the routers: settings, database session, caller, pagination."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+from typing import Annotated
+
+from fastapi import Depends, HTTPException, Query, Request, status
+from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
+from sqlalchemy.orm import Session
+
+from server.schemas.common import MAX_ID
+from server.services.auth import Principal, authenticate
+from server.services.runs import RunExecutor
+from server.services.scene_sync import SceneSync
+from server.settings import Settings
+
+_bearer = HTTPBearer(
+    auto_error=False,
+    description="Authorization: Bearer <token>. The first-run admin token is printed by "
+    "`intspace serve`; admins create more with POST /api/v1/tokens.",
+)
+
+
+def get_settings(request: Request) -> Settings:
+    """Return the app's settings."""
+    return request.app.state.settings
+
+
+def get_session(request: Request) -> Iterator[Session]:
+    """Yield a database session for one request, closed (rolled back if uncommitted) after."""
+    with request.app.state.session_factory() as session:
+        yield session
+
+
+def get_scene(request: Request) -> SceneSync:
+    """Return the scene synchroniser (a no-op one when the scene is disabled)."""
+    return request.app.state.scene_sync
+
+
+def get_executor(request: Request) -> RunExecutor | None:
+    """Return the in-process run executor, None when external workers execute runs."""
+    return request.app.state.executor
+
+
+SessionDep = Annotated[Session, Depends(get_session)]
+SettingsDep = Annotated[Settings, Depends(get_settings)]
+SceneDep = Annotated[SceneSync, Depends(get_scene)]
+
+
+def _unauthorized(detail: str) -> HTTPException:
+    return HTTPException(
+        status.HTTP_401_UNAUTHORIZED, detail=detail, headers={"WWW-Authenticate": "Bearer"}
+    )
+
+
+def _caller(
+    session: Session,
+    credentials: HTTPAuthorizationCredentials | None,
+    settings: Settings,
+) -> Principal | None:
+    if credentials is None or credentials.scheme.lower() != "bearer":
+        return None
+    configured = settings.admin_token.get_secret_value() if settings.admin_token else None
+    principal = authenticate(session, credentials.credentials, configured)
+    if principal is None:
+        raise _unauthorized("the bearer token is unknown or revoked")
+    return principal
+
+
+def _requiring(right: str):
+    # The session is the request's own (FastAPI caches it per request): one connection.
+    def dependency(
+        session: SessionDep,
+        settings: SettingsDep,
+        credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)],
+    ) -> Principal | None:
+        principal = _caller(session, credentials, settings)
+        if principal is None:
+            if right == "read" and settings.public_reads:
+                return None
+            raise _unauthorized("this endpoint needs Authorization: Bearer <token>")
+        if not principal.can(right):
+            raise HTTPException(
+                status.HTTP_403_FORBIDDEN, detail=f"the token lacks the '{right}' scope"
+            )
+        return principal
+
+    dependency.__name__ = f"require_{right}"
+    return dependency
+
+
+require_read = _requiring("read")
+require_write = _requiring("write")
+require_admin = _requiring("admin")
+
+ReadAccess = Depends(require_read)
+WriteAccess = Depends(require_write)
+AdminAccess = Depends(require_admin)
+
+
+@dataclass(frozen=True)
+class Pagination:
+    """The window of a listing."""
+
+    limit: int
+    offset: int
+
+
+def get_pagination(
+    limit: Annotated[int, Query(ge=1, le=500, description="Items per page.")] = 50,
+    offset: Annotated[int, Query(ge=0, le=MAX_ID, description="Items to skip.")] = 0,
+) -> Pagination:
+    """Return the pagination window asked for."""
+    return Pagination(limit=limit, offset=offset)
+
+
+PageDep = Annotated[Pagination, Depends(get_pagination)]

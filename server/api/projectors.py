@@ -1,0 +1,72 @@
+"""Projectors: image size, intrinsics, distortion and pose of each projector."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import APIRouter, Path, Query, status
+from sqlalchemy import select
+
+from server.api._crud import apply_changes, check_references, get_or_404, paginate
+from server.api.deps import PageDep, ReadAccess, SessionDep, WriteAccess
+from server.api.errors import PROBLEM_RESPONSES
+from server.db.models import Projector, Space
+from server.schemas.common import MAX_ID, Page
+from server.schemas.registry import ProjectorCreate, ProjectorRead, ProjectorUpdate
+
+router = APIRouter(prefix="/projectors", tags=["projectors"], responses=PROBLEM_RESPONSES)
+ProjectorId = Annotated[int, Path(ge=1, le=MAX_ID)]
+
+
+@router.get("", response_model=Page[ProjectorRead], dependencies=[ReadAccess])
+def list_projectors(
+    session: SessionDep,
+    page: PageDep,
+    space_id: Annotated[int | None, Query(ge=1, le=MAX_ID)] = None,
+):
+    """Return a page of projectors, optionally of one space."""
+    stmt = select(Projector).order_by(Projector.id)
+    if space_id is not None:
+        stmt = stmt.where(Projector.space_id == space_id)
+    return paginate(session, stmt, page)
+
+
+@router.post(
+    "",
+    response_model=ProjectorRead,
+    status_code=status.HTTP_201_CREATED,
+    dependencies=[WriteAccess],
+)
+def create_projector(body: ProjectorCreate, session: SessionDep):
+    """Create a projector (pose as T_world_projector or position + quaternion_xyzw)."""
+    check_references(session, {"space_id": (Space, body.space_id)})
+    projector = Projector(**body.changes())
+    session.add(projector)
+    session.commit()
+    return projector
+
+
+@router.get("/{projector_id}", response_model=ProjectorRead, dependencies=[ReadAccess])
+def get_projector(projector_id: ProjectorId, session: SessionDep):
+    """Return one projector."""
+    return get_or_404(session, Projector, projector_id, "projector")
+
+
+@router.patch("/{projector_id}", response_model=ProjectorRead, dependencies=[WriteAccess])
+def update_projector(projector_id: ProjectorId, body: ProjectorUpdate, session: SessionDep):
+    """Change the fields given (null clears an optional one)."""
+    projector = get_or_404(session, Projector, projector_id, "projector")
+    changes = body.changes()
+    check_references(session, {"space_id": (Space, changes.get("space_id"))})
+    apply_changes(projector, changes)
+    session.commit()
+    return projector
+
+
+@router.delete(
+    "/{projector_id}", status_code=status.HTTP_204_NO_CONTENT, dependencies=[WriteAccess]
+)
+def delete_projector(projector_id: ProjectorId, session: SessionDep) -> None:
+    """Delete a projector."""
+    session.delete(get_or_404(session, Projector, projector_id, "projector"))
+    session.commit()

@@ -1,0 +1,76 @@
+"""Robots: the mobile manipulator's kinematics, cameras and hand-eye transform."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import APIRouter, Path, Query, status
+from sqlalchemy import select
+
+from server.api._crud import apply_changes, check_references, get_or_404, paginate
+from server.api.deps import PageDep, ReadAccess, SessionDep, WriteAccess
+from server.api.errors import PROBLEM_RESPONSES
+from server.db.models import Camera, Robot, Space
+from server.schemas.common import MAX_ID, Page
+from server.schemas.registry import RobotCreate, RobotRead, RobotUpdate
+
+router = APIRouter(prefix="/robots", tags=["robots"], responses=PROBLEM_RESPONSES)
+RobotId = Annotated[int, Path(ge=1, le=MAX_ID)]
+
+
+def _references(changes: dict) -> dict:
+    return {
+        "space_id": (Space, changes.get("space_id")),
+        "onboard_camera_id": (Camera, changes.get("onboard_camera_id")),
+        "hand_camera_id": (Camera, changes.get("hand_camera_id")),
+    }
+
+
+@router.get("", response_model=Page[RobotRead], dependencies=[ReadAccess])
+def list_robots(
+    session: SessionDep,
+    page: PageDep,
+    space_id: Annotated[int | None, Query(ge=1, le=MAX_ID)] = None,
+):
+    """Return a page of robots, optionally of one space."""
+    stmt = select(Robot).order_by(Robot.id)
+    if space_id is not None:
+        stmt = stmt.where(Robot.space_id == space_id)
+    return paginate(session, stmt, page)
+
+
+@router.post(
+    "", response_model=RobotRead, status_code=status.HTTP_201_CREATED, dependencies=[WriteAccess]
+)
+def create_robot(body: RobotCreate, session: SessionDep):
+    """Create a robot."""
+    data = body.model_dump()
+    check_references(session, _references(data))
+    robot = Robot(**data)
+    session.add(robot)
+    session.commit()
+    return robot
+
+
+@router.get("/{robot_id}", response_model=RobotRead, dependencies=[ReadAccess])
+def get_robot(robot_id: RobotId, session: SessionDep):
+    """Return one robot."""
+    return get_or_404(session, Robot, robot_id, "robot")
+
+
+@router.patch("/{robot_id}", response_model=RobotRead, dependencies=[WriteAccess])
+def update_robot(robot_id: RobotId, body: RobotUpdate, session: SessionDep):
+    """Change the fields given (null clears an optional one)."""
+    robot = get_or_404(session, Robot, robot_id, "robot")
+    changes = body.model_dump(exclude_unset=True)
+    check_references(session, _references(changes))
+    apply_changes(robot, changes)
+    session.commit()
+    return robot
+
+
+@router.delete("/{robot_id}", status_code=status.HTTP_204_NO_CONTENT, dependencies=[WriteAccess])
+def delete_robot(robot_id: RobotId, session: SessionDep) -> None:
+    """Delete a robot (its cameras stay)."""
+    session.delete(get_or_404(session, Robot, robot_id, "robot"))
+    session.commit()

@@ -1,0 +1,43 @@
+"""API tokens: admins create (shown once), list and revoke them."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import APIRouter, Path, status
+from sqlalchemy import select
+
+from server.api._crud import get_or_404, paginate
+from server.api.deps import AdminAccess, PageDep, SessionDep
+from server.api.errors import PROBLEM_RESPONSES
+from server.db.models import ApiToken
+from server.schemas.common import MAX_ID, Page
+from server.schemas.tokens import TokenCreate, TokenCreated, TokenRead
+from server.services.auth import create_token
+
+router = APIRouter(
+    prefix="/tokens", tags=["tokens"], responses=PROBLEM_RESPONSES, dependencies=[AdminAccess]
+)
+
+
+@router.post("", response_model=TokenCreated, status_code=status.HTTP_201_CREATED)
+def create_api_token(body: TokenCreate, session: SessionDep):
+    """Create a token; the response is the only place the token itself ever appears."""
+    row, token = create_token(session, body.name, list(body.scopes))
+    session.commit()
+    return TokenCreated.model_validate(
+        {**TokenRead.model_validate(row).model_dump(), "token": token}
+    )
+
+
+@router.get("", response_model=Page[TokenRead])
+def list_api_tokens(session: SessionDep, page: PageDep):
+    """Return a page of tokens (names and scopes; never the tokens)."""
+    return paginate(session, select(ApiToken).order_by(ApiToken.id), page)
+
+
+@router.delete("/{token_id}", status_code=status.HTTP_204_NO_CONTENT)
+def revoke_api_token(token_id: Annotated[int, Path(ge=1, le=MAX_ID)], session: SessionDep) -> None:
+    """Revoke a token: it stops working at once."""
+    get_or_404(session, ApiToken, token_id, "token").revoked = True
+    session.commit()

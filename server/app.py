@@ -1,0 +1,130 @@
+"""The FastAPI application: API routers under /api/v1, the dashboard at /, the run executor and
+the live 3D scene started and stopped with the app."""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+from pathlib import Path
+
+from fastapi import APIRouter, FastAPI
+from fastapi.middleware.cors import CORSMiddleware
+from fastapi.staticfiles import StaticFiles
+from starlette.concurrency import run_in_threadpool
+
+import server
+from server.api import (
+    calibration_runs,
+    cameras,
+    landmarks,
+    projectors,
+    robots,
+    rooms,
+    spaces,
+    system,
+    tokens,
+)
+from server.api.errors import install_error_handlers
+from server.api.limits import RequestSizeLimit
+from server.db.session import make_engine, make_session_factory
+from server.services.runs import RunExecutor, interrupt_unfinished_runs
+from server.services.scene_sync import SceneSync
+from server.settings import Settings
+from server.version import VERSION
+
+log = logging.getLogger(__name__)
+
+API_PREFIX = "/api/v1"
+WEB_DIR = Path(server.__file__).resolve().parent.parent / "web"
+
+
+def api_router() -> APIRouter:
+    """Return the router of every /api/v1 resource."""
+    router = APIRouter(prefix=API_PREFIX)
+    for module in (
+        system,
+        spaces,
+        rooms,
+        cameras,
+        projectors,
+        robots,
+        landmarks,
+        calibration_runs,
+        tokens,
+    ):
+        router.include_router(module.router)
+    return router
+
+
+def create_app(settings: Settings | None = None) -> FastAPI:
+    """Return the service's app. The database schema must be at head already (`intspace serve`
+    and `intspace db upgrade` migrate it)."""
+    settings = settings or Settings()
+    engine = make_engine(settings.resolved_database_url)
+    factory = make_session_factory(engine)
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        executor = None
+        if settings.run_executor == "local":
+            # One process owns the runs: whatever it left unfinished is not running any more.
+            stale = await run_in_threadpool(
+                interrupt_unfinished_runs, factory, "interrupted: the service restarted"
+            )
+            if stale:
+                log.warning("marked %d unfinished calibration run(s) interrupted", stale)
+            executor = RunExecutor(factory, settings.run_workers)
+        app.state.executor = executor
+        scene = None
+        if settings.viser_enabled:
+            from server.scene import SceneService
+
+            scene = SceneService(app.state.viser_host, settings.viser_port)
+            await run_in_threadpool(scene.start)
+            app.state.viser_port = scene.port
+        app.state.scene_sync = SceneSync(scene)
+        with factory() as session:
+            app.state.scene_sync.load(session)
+        try:
+            yield
+        finally:
+            if executor is not None:
+                interrupted = await run_in_threadpool(executor.shutdown)
+                if interrupted:
+                    log.warning("marked %d calibration run(s) interrupted", interrupted)
+            if scene is not None:
+                await run_in_threadpool(scene.stop)
+            engine.dispose()
+
+    app = FastAPI(
+        title="intspace",
+        version=VERSION,
+        summary="Registry, calibration runs and live scene of a home intelligent space.",
+        lifespan=lifespan,
+        openapi_url=f"{API_PREFIX}/openapi.json",
+        docs_url=f"{API_PREFIX}/docs",
+        redoc_url=None,
+    )
+    app.state.settings = settings
+    app.state.engine = engine
+    app.state.session_factory = factory
+    app.state.executor = None
+    app.state.scene_sync = SceneSync(None)
+    app.state.viser_host = "127.0.0.1"
+    app.state.viser_port = settings.viser_port
+
+    install_error_handlers(app)
+    app.include_router(api_router())
+    if settings.cors_origins:
+        app.add_middleware(
+            CORSMiddleware,
+            allow_origins=settings.cors_origins,
+            allow_methods=["*"],
+            allow_headers=["Authorization", "Content-Type"],
+        )
+    app.add_middleware(RequestSizeLimit, max_bytes=settings.max_request_bytes)
+    # Mounted last so that /api/v1 wins over the static files.
+    if WEB_DIR.is_dir():
+        app.mount("/", StaticFiles(directory=WEB_DIR, html=True), name="web")
+    return app

@@ -1,0 +1,283 @@
+"""Schemas of the registry: spaces, rooms, cameras, projectors, robots, landmarks."""
+
+from __future__ import annotations
+
+import json
+from typing import Annotated, Any, ClassVar, Literal
+
+from pydantic import AfterValidator, Field, model_validator
+
+from server.schemas.common import (
+    Distortion,
+    Finite,
+    Id,
+    Matrix3,
+    Name,
+    PixelCount,
+    ReadSchema,
+    RigidTransform,
+    Schema,
+    Text,
+    UtcDatetime,
+    Vec2,
+    Vec3,
+    Vec4,
+)
+from server.services.poses import pose_from_position_quaternion
+
+Polygon = Annotated[
+    list[Vec2],
+    Field(min_length=3, max_length=10_000, description="Floor polygon [[x, y], ...] in metres"),
+]
+
+
+def _json_document(value: dict[str, Any]) -> dict[str, Any]:
+    # Strict JSON: no NaN or infinity, bounded size, no NUL (PostgreSQL refuses both).
+    try:
+        text = json.dumps(value, allow_nan=False)
+    except ValueError as exc:
+        raise ValueError("must be finite JSON (no NaN or infinity)") from exc
+    if len(text) > 100_000:
+        raise ValueError("must be at most 100000 characters of JSON")
+    if "\\u0000" in text:
+        raise ValueError("must not contain NUL characters")
+    return value
+
+
+JsonDocument = Annotated[dict[str, Any], AfterValidator(_json_document)]
+
+
+class _Timestamps(ReadSchema):
+    created_at: UtcDatetime
+    updated_at: UtcDatetime
+
+
+# Spaces
+
+
+class SpaceCreate(Schema):
+    name: Name
+    description: Text = ""
+
+
+# Update schemas: an absent field is left unchanged; null is refused where the column is required
+# (the field's type is not optional, only its default is None).
+
+
+class SpaceUpdate(Schema):
+    name: Name = None
+    description: Text = None
+
+
+class SpaceRead(_Timestamps):
+    id: int
+    name: str
+    description: str
+
+
+# Rooms
+
+
+class RoomCreate(Schema):
+    space_id: Id
+    name: Name
+    polygon: Polygon
+
+
+class RoomUpdate(Schema):
+    space_id: Id = None
+    name: Name = None
+    polygon: Polygon = None
+
+
+class RoomRead(_Timestamps):
+    id: int
+    space_id: int
+    name: str
+    polygon: list[list[float]]
+
+
+# Cameras
+
+
+class _PoseInput(Schema):
+    """A pose given either as T_<world>_<device> (4x4) or as position + quaternion (x, y, z, w)."""
+
+    position: Vec3 | None = Field(None, description="Device origin in the world frame, metres.")
+    quaternion_xyzw: Vec4 | None = Field(None, description="Device-to-world rotation (x, y, z, w).")
+
+    pose_field: ClassVar[str] = "T_world_camera"
+
+    @model_validator(mode="after")
+    def _pose_from_parts(self) -> _PoseInput:
+        given = (self.position is not None, self.quaternion_xyzw is not None)
+        if given == (False, False):
+            return self
+        if given != (True, True):
+            raise ValueError("position and quaternion_xyzw must be given together")
+        if getattr(self, self.pose_field) is not None:
+            raise ValueError(f"give either {self.pose_field} or position + quaternion_xyzw")
+        assert self.position is not None and self.quaternion_xyzw is not None
+        T = pose_from_position_quaternion(self.position, self.quaternion_xyzw)
+        setattr(self, self.pose_field, T)
+        self.position = None
+        self.quaternion_xyzw = None
+        return self
+
+    def changes(self) -> dict[str, Any]:
+        """Return the fields the client set, the pose converted to its 4x4 matrix."""
+        data = self.model_dump(exclude_unset=True, exclude={"position", "quaternion_xyzw"})
+        pose = getattr(self, self.pose_field)
+        if pose is not None:
+            data[self.pose_field] = pose
+        return data
+
+
+class CameraCreate(_PoseInput):
+    name: Name
+    width: PixelCount
+    height: PixelCount
+    space_id: Id | None = None
+    K: Matrix3 | None = None
+    dist: Distortion | None = None
+    T_world_camera: RigidTransform | None = None
+
+
+class CameraUpdate(_PoseInput):
+    name: Name = None
+    width: PixelCount = None
+    height: PixelCount = None
+    space_id: Id | None = None
+    K: Matrix3 | None = None
+    dist: Distortion | None = None
+    T_world_camera: RigidTransform | None = None
+
+
+class CameraRead(_Timestamps):
+    id: int
+    name: str
+    width: int
+    height: int
+    space_id: int | None
+    K: list[list[float]] | None
+    dist: list[float] | None
+    T_world_camera: list[list[float]] | None
+    status: Literal["uncalibrated", "calibrated"]
+    calibration_run_id: int | None
+
+
+class CameraCalibrationRead(ReadSchema):
+    """One entry of a camera's calibration history."""
+
+    id: int
+    camera_id: int
+    calibration_run_id: int | None
+    K: list[list[float]]
+    dist: list[float]
+    rms: float | None
+    image_width: int
+    image_height: int
+    created_at: UtcDatetime
+
+
+# Projectors
+
+
+class ProjectorCreate(_PoseInput):
+    pose_field: ClassVar[str] = "T_world_projector"
+
+    name: Name
+    width: PixelCount
+    height: PixelCount
+    space_id: Id | None = None
+    K: Matrix3 | None = None
+    dist: Distortion | None = None
+    T_world_projector: RigidTransform | None = None
+
+
+class ProjectorUpdate(_PoseInput):
+    pose_field: ClassVar[str] = "T_world_projector"
+
+    name: Name = None
+    width: PixelCount = None
+    height: PixelCount = None
+    space_id: Id | None = None
+    K: Matrix3 | None = None
+    dist: Distortion | None = None
+    T_world_projector: RigidTransform | None = None
+
+
+class ProjectorRead(_Timestamps):
+    id: int
+    name: str
+    width: int
+    height: int
+    space_id: int | None
+    K: list[list[float]] | None
+    dist: list[float] | None
+    T_world_projector: list[list[float]] | None
+
+
+# Robots
+
+
+class RobotCreate(Schema):
+    name: Name
+    space_id: Id | None = None
+    kinematic_model: JsonDocument = Field(
+        default_factory=dict, description="Kinematic description (e.g. DH table), free JSON."
+    )
+    onboard_camera_id: Id | None = None
+    hand_camera_id: Id | None = None
+    T_hand_camera: RigidTransform | None = Field(None, description="Hand-eye transform.")
+
+
+class RobotUpdate(Schema):
+    name: Name = None
+    space_id: Id | None = None
+    kinematic_model: JsonDocument = None
+    onboard_camera_id: Id | None = None
+    hand_camera_id: Id | None = None
+    T_hand_camera: RigidTransform | None = None
+
+
+class RobotRead(_Timestamps):
+    id: int
+    name: str
+    space_id: int | None
+    kinematic_model: dict[str, Any]
+    onboard_camera_id: int | None
+    hand_camera_id: int | None
+    T_hand_camera: list[list[float]] | None
+
+
+# Landmarks
+
+LandmarkKind = Literal["qr", "aruco", "apriltag", "chessboard", "other"]
+Payload = Annotated[Text, Field(max_length=4096)]
+SizeMetres = Annotated[Finite, Field(gt=0, le=100, description="Printed side length, metres.")]
+
+
+class LandmarkCreate(Schema):
+    kind: LandmarkKind
+    payload: Payload = ""
+    size_m: SizeMetres
+    space_id: Id | None = None
+    T_world_landmark: RigidTransform | None = None
+
+
+class LandmarkUpdate(Schema):
+    kind: LandmarkKind = None
+    payload: Payload = None
+    size_m: SizeMetres = None
+    space_id: Id | None = None
+    T_world_landmark: RigidTransform | None = None
+
+
+class LandmarkRead(_Timestamps):
+    id: int
+    kind: str
+    payload: str
+    size_m: float
+    space_id: int | None
+    T_world_landmark: list[list[float]] | None

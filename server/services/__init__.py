@@ -1,0 +1,1 @@
+"""Application services: authentication, calibration runs, the scene, pose conversions."""
