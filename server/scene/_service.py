@@ -35,7 +35,7 @@ _COLOR_CALIBRATED = (37, 99, 235)
 _COLOR_NO_INTRINSICS = (217, 119, 6)
 _COLOR_UNPOSED = (148, 150, 160)
 _COLOR_WALL = (51, 65, 85)
-_ROOM_FILLS = ((191, 219, 254), (187, 247, 208), (254, 215, 170), (233, 213, 255), (254, 202, 202))
+_ROOM_FILLS = ((147, 197, 253), (134, 239, 172), (253, 186, 116), (216, 180, 254), (252, 165, 165))
 
 # Cameras without a pose wait in a row this far (m) outside the floor plan's -Y side, this far
 # apart, at this height, looking straight down (camera z = world -Z, camera x = world +X).
@@ -135,7 +135,7 @@ class SceneService:
         host: str = "127.0.0.1",
         port: int = 8081,
         *,
-        frustum_scale: float = 0.3,
+        frustum_scale: float = 0.4,
         verbose: bool = False,
     ) -> None:
         self._host = host
@@ -430,7 +430,7 @@ class SceneService:
                 vertices=np.concatenate([poly, np.zeros((n, 1))], axis=1),
                 faces=triangulate_polygon(poly),
                 color=_ROOM_FILLS[i % len(_ROOM_FILLS)],
-                opacity=0.55,
+                opacity=0.6,
                 side="double",
                 cast_shadow=False,
                 receive_shadow=False,
@@ -443,11 +443,11 @@ class SceneService:
                 anchor="center-center",
             )
         # Frame the whole plan from a corner, a bit above; clients that connect later use this.
-        span = float(max(size.max(), 4.0))
+        span = float(max(size.max() - 2.0, 4.0))
         server.initial_camera.look_at = (float(center[0]), float(center[1]), 0.0)
         server.initial_camera.position = (
-            float(center[0]) - 0.35 * span,
-            float(center[1]) - 0.95 * span,
-            0.85 * span,
+            float(center[0]) - 0.3 * span,
+            float(center[1]) - 0.85 * span,
+            0.7 * span,
         )
         server.initial_camera.up = (0.0, 0.0, 1.0)

@@ -1,0 +1,176 @@
+// The dashboard's entry point: hash router, sign-in, service badge.
+
+import { api, getToken, setToken } from "./api.js";
+import { errorBox, h, mount } from "./ui.js";
+import { renderOverview } from "./pages/overview.js";
+import { renderCameras, renderCamera } from "./pages/cameras.js";
+import { renderCalibration, renderRun } from "./pages/calibration.js";
+import { renderScene } from "./pages/scene.js";
+
+// Routes: [pattern, nav section, page title, render(main, params, query) -> cleanup?]
+const ROUTES = [
+  [/^\/overview$/, "overview", "Overview", renderOverview],
+  [/^\/cameras$/, "cameras", "Cameras", renderCameras],
+  [/^\/cameras\/(\d+)$/, "cameras", "Camera", renderCamera],
+  [/^\/calibration$/, "calibration", "Calibration runs", renderCalibration],
+  [/^\/calibration\/runs\/(\d+)$/, "calibration", "Calibration run", renderRun],
+  [/^\/scene$/, "scene", "Live 3D scene", renderScene],
+];
+
+const ICONS = {
+  overview: "M3 13h8V3H3zm0 8h8v-6H3zm10 0h8V11h-8zm0-18v6h8V3z",
+  cameras: "M4 7h3l2-3h6l2 3h3a1 1 0 0 1 1 1v11a1 1 0 0 1-1 1H4a1 1 0 0 1-1-1V8a1 1 0 0 1 1-1zm8 11a4.5 4.5 0 1 0 0-9 4.5 4.5 0 0 0 0 9z",
+  calibration: "M3 3h18v18H3zM3 9h18M3 15h18M9 3v18M15 3v18",
+  scene: "M12 2 3 7v10l9 5 9-5V7zm0 0v10m0 0 9-5m-9 5-9-5m9 5v10",
+};
+
+let cleanup = null;
+let renderSeq = 0;
+
+function parseHash() {
+  const raw = location.hash.replace(/^#/, "") || "/overview";
+  const [path, qs] = raw.split("?");
+  return { path, query: new URLSearchParams(qs || "") };
+}
+
+async function route() {
+  const seq = ++renderSeq;
+  if (typeof cleanup === "function") cleanup();
+  cleanup = null;
+  const { path, query } = parseHash();
+  const main = document.getElementById("main");
+  const title = document.getElementById("page-title");
+  const match = ROUTES.map(([re, ...rest]) => [path.match(re), ...rest]).find(([m]) => m);
+  for (const a of document.querySelectorAll(".nav a")) {
+    if (match && a.dataset.route === match[1]) a.setAttribute("aria-current", "page");
+    else a.removeAttribute("aria-current");
+  }
+  if (!match) {
+    title.textContent = "Not found";
+    document.title = "Not found · intspace";
+    mount(main, errorBox({ title: "No such page", detail: `Nothing lives at #${path}.` }));
+    return;
+  }
+  const [m, , pageTitle, render] = match;
+  title.textContent = pageTitle;
+  document.title = `${pageTitle} · intspace`;
+  main.setAttribute("aria-busy", "true");
+  mount(main, h("p", { class: "muted", testid: "loading" }, "Loading…"));
+  try {
+    const result = await render(main, m.slice(1), query, (t) => {
+      title.textContent = t;
+      document.title = `${t} · intspace`;
+    });
+    if (seq === renderSeq) cleanup = result || null;
+    else if (typeof result === "function") result(); // navigated away while loading
+  } catch (err) {
+    if (seq === renderSeq) mount(main, errorBox(err, "page-error"));
+  } finally {
+    if (seq === renderSeq) {
+      main.setAttribute("aria-busy", "false");
+      document.documentElement.dataset.ready = "true";
+    }
+  }
+}
+
+function renderAuth() {
+  const box = document.getElementById("auth");
+  if (getToken()) {
+    mount(
+      box,
+      h(
+        "span",
+        { class: "who", testid: "auth-status" },
+        h("span", { class: "dot ok", "aria-hidden": "true" }),
+        "Signed in with a token",
+      ),
+      h(
+        "button",
+        { class: "btn small", type: "button", testid: "sign-out", onClick: () => setToken("") },
+        "Sign out",
+      ),
+    );
+    return;
+  }
+  const input = h("input", {
+    type: "password",
+    id: "token-input",
+    name: "token",
+    autocomplete: "current-password",
+    placeholder: "Access token",
+    "aria-label": "Access token",
+    required: true,
+    testid: "token-input",
+  });
+  const status = h("span", { class: "small muted", testid: "auth-status" }, "Not signed in");
+  const form = h(
+    "form",
+    {
+      testid: "token-form",
+      onSubmit: async (ev) => {
+        ev.preventDefault();
+        const token = input.value.trim();
+        if (!token) return;
+        // Check the token with a read that needs it, so a typo is caught here and not on a save.
+        const previous = getToken();
+        localStorage.setItem("intspace.token", token);
+        try {
+          await api("/cameras?limit=1");
+          setToken(token);
+        } catch (err) {
+          if (previous) localStorage.setItem("intspace.token", previous);
+          else localStorage.removeItem("intspace.token");
+          status.textContent = err.status === 401 || err.status === 403 ? "Token refused" : err.message;
+          status.className = "small badge bad";
+          input.select();
+        }
+      },
+    },
+    input,
+    h("button", { class: "btn primary small", type: "submit", testid: "token-submit" }, "Sign in"),
+  );
+  mount(box, status, form);
+}
+
+async function refreshServiceBadge() {
+  const dot = document.getElementById("service-dot");
+  const text = document.getElementById("service-text");
+  try {
+    const health = await api("/health");
+    const ok = health.status === "ok";
+    dot.className = `dot ${ok ? "ok" : "bad"}`;
+    text.textContent = `Service ${health.status}${health.version ? ` · v${health.version}` : ""}`;
+  } catch (err) {
+    dot.className = "dot bad";
+    text.textContent = `Service unreachable`;
+    text.title = err.message;
+  }
+}
+
+function decorateNav() {
+  for (const a of document.querySelectorAll(".nav a")) {
+    const d = ICONS[a.dataset.route];
+    if (!d) continue;
+    const svg = document.createElementNS("http://www.w3.org/2000/svg", "svg");
+    svg.setAttribute("viewBox", "0 0 24 24");
+    svg.setAttribute("aria-hidden", "true");
+    svg.innerHTML = `<path d="${d}" fill="none" stroke="currentColor" stroke-width="1.8" stroke-linejoin="round" stroke-linecap="round"/>`;
+    a.prepend(svg);
+  }
+}
+
+window.addEventListener("hashchange", route);
+window.addEventListener("auth-changed", () => {
+  renderAuth();
+  route();
+});
+window.addEventListener("auth-required", () => {
+  const input = document.getElementById("token-input");
+  if (input) input.focus();
+});
+
+decorateNav();
+renderAuth();
+refreshServiceBadge();
+setInterval(refreshServiceBadge, 15_000);
+route();

@@ -1,0 +1,376 @@
+// Calibration runs: start one (chessboard photos or a correspondences file), watch it, apply it.
+
+import { api, list } from "../api.js";
+import { barChart } from "../plot.js";
+import {
+  duration,
+  errorBox,
+  fmt,
+  h,
+  infoBox,
+  matrixTable,
+  mount,
+  panel,
+  statusBadge,
+  toast,
+  when,
+} from "../ui.js";
+import { intrinsicsFacts } from "./cameras.js";
+
+const DISTORTION_MODELS = [
+  ["none", "None"],
+  ["k1", "k1"],
+  ["k1k2", "k1, k2"],
+  ["k1k2p1p2", "k1, k2, p1, p2"],
+  ["k1k2p1p2k3", "k1, k2, p1, p2, k3"],
+];
+const TERMINAL = new Set(["succeeded", "failed", "interrupted"]);
+const POLL_MS = 600;
+
+/**
+ * Read a correspondences file: {"object_points": views of Nx3 (or one Nx3 shared by all views),
+ * "image_points": views of Nx2, "image_size": [w, h] (optional)}. Throws with a readable message.
+ */
+export function parseCorrespondences(text, fallbackSize) {
+  let data;
+  try {
+    data = JSON.parse(text);
+  } catch (err) {
+    throw new Error(`The file is not valid JSON (${err.message}).`);
+  }
+  const img = data.image_points;
+  let obj = data.object_points;
+  if (!Array.isArray(img) || !img.length || !Array.isArray(img[0]) || !Array.isArray(img[0][0])) {
+    throw new Error('The file needs "image_points": a list of views, each a list of [u, v] pixels.');
+  }
+  if (Array.isArray(obj) && obj.length && typeof obj[0][0] === "number") obj = img.map(() => obj);
+  if (!Array.isArray(obj) || obj.length !== img.length) {
+    throw new Error('The file needs "object_points": one list of [X, Y, Z] per view (or one shared list).');
+  }
+  img.forEach((view, i) => {
+    if (view.length !== obj[i].length) {
+      throw new Error(`View ${i + 1} has ${view.length} image points but ${obj[i].length} object points.`);
+    }
+  });
+  const size = data.image_size || fallbackSize;
+  return { object_points: obj, image_points: img, image_size: size };
+}
+
+function runsTable(runs, cameras) {
+  const name = (id) => cameras.find((c) => c.id === id)?.name || (id ? `camera ${id}` : "–");
+  return h(
+    "table",
+    { testid: "run-table" },
+    h(
+      "thead",
+      null,
+      h("tr", null, ["Run", "Camera", "Kind", "Status", "RMS (px)", "fx", "Created", "Duration"].map((t, i) => h("th", { class: i === 4 || i === 5 ? "num" : null }, t))),
+    ),
+    h(
+      "tbody",
+      null,
+      runs.map((r) =>
+        h(
+          "tr",
+          {
+            class: "link-row",
+            testid: `run-row-${r.id}`,
+            onClick: (ev) => {
+              if (ev.target.tagName !== "A") location.hash = `#/calibration/runs/${r.id}`;
+            },
+          },
+          h("td", null, h("a", { href: `#/calibration/runs/${r.id}` }, `#${r.id}`)),
+          h("td", null, r.camera_id ? h("a", { href: `#/cameras/${r.camera_id}` }, name(r.camera_id)) : "–"),
+          h("td", null, [r.kind, r.source ? h("span", { class: "muted small" }, ` · ${r.source}`) : null]),
+          h("td", null, statusBadge(r.status)),
+          h("td", { class: "num" }, fmt(r.result?.rms, 4)),
+          h("td", { class: "num" }, r.result?.K ? fmt(r.result.K[0][0], 2) : "–"),
+          h("td", { class: "small muted" }, when(r.created_at)),
+          h("td", { class: "small muted" }, duration(r.started_at, r.finished_at)),
+        ),
+      ),
+    ),
+  );
+}
+
+function startForm(cameras, preselect) {
+  const error = h("div", { "aria-live": "assertive" });
+  const camera = h(
+    "select",
+    { id: "run-camera", name: "camera_id", required: true, testid: "run-camera" },
+    cameras.map((c) => h("option", { value: String(c.id), selected: String(c.id) === preselect }, `${c.name} (${c.width}×${c.height})`)),
+  );
+  const source = (value, label, checked) =>
+    h("label", null, h("input", { type: "radio", name: "source", value, checked, testid: `run-source-${value}` }), label);
+  const sources = h("div", { class: "segmented", role: "radiogroup", "aria-label": "Input" }, source("json", "Correspondences file (JSON)", true), source("photos", "Chessboard photos", false));
+
+  const jsonFile = h("input", { id: "run-json-file", type: "file", accept: "application/json,.json", testid: "run-json-file" });
+  const jsonSummary = h("p", { class: "small muted", testid: "json-summary" }, "Pick a JSON file with object_points, image_points and image_size.");
+  let parsed = null;
+  jsonFile.addEventListener("change", async () => {
+    parsed = null;
+    mount(error);
+    const file = jsonFile.files[0];
+    if (!file) return;
+    try {
+      const cam = cameras.find((c) => String(c.id) === camera.value);
+      parsed = parseCorrespondences(await file.text(), cam ? [cam.width, cam.height] : undefined);
+      const n = parsed.image_points.reduce((a, v) => a + v.length, 0);
+      jsonSummary.textContent = `${file.name}: ${parsed.image_points.length} views, ${n} points, image ${parsed.image_size ? parsed.image_size.join(" × ") : "size from the camera"}`;
+    } catch (err) {
+      jsonSummary.textContent = file.name;
+      mount(error, errorBox({ title: "Cannot use this file", detail: err.message }, "run-form-error"));
+    }
+  });
+  const photos = h("input", { id: "run-files", type: "file", multiple: true, accept: "image/png,image/jpeg,image/bmp,image/tiff", testid: "run-files" });
+  const board = h("input", { id: "run-chessboard", value: "9x6", pattern: "\\d+\\s*[xX×]\\s*\\d+", title: "inner corners, columns x rows, e.g. 9x6", testid: "run-chessboard" });
+  const square = h("input", { id: "run-square", type: "number", step: "any", min: "0", value: "0.025", testid: "run-square" });
+
+  const jsonPane = h(
+    "div",
+    { class: "form-grid wide", testid: "pane-json" },
+    h("label", { for: "run-json-file" }, "Correspondences file", jsonFile),
+    jsonSummary,
+  );
+  const photoPane = h(
+    "div",
+    { class: "form-grid wide", testid: "pane-photos", hidden: true },
+    h("label", { for: "run-files" }, "Chessboard photos", photos),
+    h("label", { for: "run-chessboard" }, "Inner corners (cols × rows)", board),
+    h("label", { for: "run-square" }, "Square size (m)", square),
+  );
+  sources.addEventListener("change", () => {
+    const isJson = sources.querySelector("input:checked").value === "json";
+    jsonPane.hidden = !isJson;
+    photoPane.hidden = isJson;
+    mount(error);
+  });
+
+  const distortion = h(
+    "select",
+    { id: "run-distortion", testid: "run-distortion" },
+    DISTORTION_MODELS.map(([v, label]) => h("option", { value: v, selected: v === "k1k2p1p2" }, label)),
+  );
+  const skew = h("input", { id: "run-skew", type: "checkbox", testid: "run-skew" });
+  const submit = h("button", { class: "btn primary", type: "submit", testid: "run-submit" }, "Start calibration");
+
+  const form = h(
+    "form",
+    {
+      testid: "run-form",
+      onSubmit: async (ev) => {
+        ev.preventDefault();
+        mount(error);
+        const isJson = sources.querySelector("input:checked").value === "json";
+        const options = { skew: skew.checked, distortion: distortion.value };
+        try {
+          submit.disabled = true;
+          let run;
+          if (isJson) {
+            if (!parsed) throw new Error("Pick a correspondences file first.");
+            const cam = cameras.find((c) => String(c.id) === camera.value);
+            run = await api("/calibration-runs", {
+              method: "POST",
+              json: {
+                kind: "intrinsics",
+                camera_id: Number(camera.value),
+                image_size: parsed.image_size || [cam.width, cam.height],
+                object_points: parsed.object_points,
+                image_points: parsed.image_points,
+                options,
+              },
+            });
+          } else {
+            if (!photos.files.length) throw new Error("Pick the chessboard photos first.");
+            const fd = new FormData();
+            fd.append("camera_id", camera.value);
+            fd.append("chessboard", board.value.replace(/\s+/g, "").replace("×", "x"));
+            fd.append("square", square.value);
+            fd.append("distortion", options.distortion);
+            fd.append("skew", String(options.skew));
+            for (const f of photos.files) fd.append("files", f, f.name);
+            run = await api("/calibration-runs/upload", { method: "POST", form: fd });
+          }
+          toast(`Calibration run #${run.id} started`);
+          location.hash = `#/calibration/runs/${run.id}`;
+        } catch (err) {
+          mount(error, errorBox(err.title ? err : { title: "Cannot start the run", detail: err.message }, "run-form-error"));
+        } finally {
+          submit.disabled = false;
+        }
+      },
+    },
+    h(
+      "div",
+      { class: "form-row" },
+      h("label", { for: "run-camera" }, "Camera", camera),
+      h("div", null, h("span", { class: "small", style: { display: "block", marginBottom: "5px", fontWeight: 550, color: "var(--ink-2)" } }, "Input"), sources),
+    ),
+    h("div", { style: { marginTop: "14px" } }, jsonPane, photoPane),
+    h(
+      "fieldset",
+      { style: { marginTop: "14px" } },
+      h("legend", null, "Model"),
+      h("div", { class: "form-grid" }, h("label", { for: "run-distortion" }, "Distortion", distortion), h("label", { class: "inline", for: "run-skew" }, skew, "Estimate skew")),
+    ),
+    h("div", { class: "form-actions" }, submit),
+    error,
+  );
+  return form;
+}
+
+export async function renderCalibration(main, _params, query) {
+  const [{ items: cameras }, runs] = await Promise.all([
+    list("/cameras", { limit: 200 }),
+    list("/calibration-runs", { limit: 50 }).then((v) => ({ v }), (e) => ({ e })),
+  ]);
+  const runsBody = runs.e
+    ? errorBox(runs.e, "runs-error")
+    : runs.v.items.length
+      ? h("div", { class: "table-wrap" }, runsTable(runs.v.items, cameras))
+      : h("p", { class: "empty", testid: "run-table-empty" }, "No calibration runs yet.");
+  mount(
+    main,
+    panel(
+      "New calibration run",
+      "Intrinsics and distortion by Zhang's method from several views of a planar pattern",
+      cameras.length
+        ? startForm(cameras, query.get("camera"))
+        : infoBox(h("span", null, "Add a camera first on the ", h("a", { href: "#/cameras" }, "Cameras"), " page."), "run-needs-camera"),
+    ),
+    panel("Runs", "Newest first", runsBody),
+  );
+}
+
+function resultView(run) {
+  const r = run.result;
+  const perView = r.per_view_rms || [];
+  const labels = r.views_used ? r.views_used.map((i) => `View ${i + 1}`) : undefined;
+  return h(
+    "div",
+    { class: perView.length ? "grid two" : "grid" },
+    panel(
+      "Estimated intrinsics",
+      `K and distortion, ± one standard deviation (Gauss–Newton covariance)`,
+      h(
+        "div",
+        { class: "grid two", style: { gap: "16px" } },
+        h("div", null, h("h3", { style: { marginBottom: "8px" } }, "K (pixels)"), matrixTable(r.K, 3, "run-K")),
+        intrinsicsFacts(r.K, r.dist, r.std_intrinsics, "run"),
+      ),
+    ),
+    perView.length
+      ? panel(
+          "Residuals per view",
+          `RMS reprojection error of each view; dashed: overall ${fmt(r.rms, 4)} px`,
+          barChart(perView, { reference: r.rms, labels, title: "RMS reprojection error per view" }),
+        )
+      : null,
+  );
+}
+
+export async function renderRun(main, [id], _query, setTitle) {
+  setTitle(`Calibration run #${id}`);
+  let timer = null;
+  let stopped = false;
+  let applied = false;
+  const header = h("div");
+  const body = h("div", { class: "grid" });
+  const notice = h("div", { "aria-live": "assertive" });
+  mount(main, header, notice, body);
+
+  const applyButton = (run) =>
+    h(
+      "button",
+      {
+        class: "btn primary",
+        type: "button",
+        testid: "run-apply",
+        disabled: applied,
+        onClick: async (ev) => {
+          const btn = ev.currentTarget;
+          btn.disabled = true;
+          mount(notice);
+          try {
+            await api(`/calibration-runs/${run.id}/apply`, { method: "POST" });
+            applied = true;
+            btn.textContent = "Applied";
+            toast(`Calibration applied to camera #${run.camera_id}`);
+            mount(
+              notice,
+              h("div", { class: "alert info", role: "status", testid: "run-applied" }, "Applied. ", h("a", { href: `#/cameras/${run.camera_id}`, testid: "run-camera-link" }, "Open the camera"), " to see its new intrinsics."),
+            );
+          } catch (err) {
+            btn.disabled = false;
+            mount(notice, errorBox(err, "run-apply-error"));
+          }
+        },
+      },
+      applied ? "Applied" : "Apply to camera",
+    );
+
+  const draw = (run) => {
+    const facts = h(
+      "dl",
+      { class: "facts", testid: "run-facts" },
+      h("dt", null, "Status"),
+      h("dd", null, statusBadge(run.status, "run-status")),
+      h("dt", null, "Camera"),
+      h("dd", null, run.camera_id ? h("a", { href: `#/cameras/${run.camera_id}` }, cameraName || `#${run.camera_id}`) : "–"),
+      h("dt", null, "Kind"),
+      h("dd", null, [run.kind, run.source ? ` · ${run.source}` : ""]),
+      h("dt", null, "Options"),
+      h("dd", { class: "mono small" }, run.options ? Object.entries(run.options).map(([k, v]) => `${k}=${v}`).join(", ") : "–"),
+      h("dt", null, "Created"),
+      h("dd", null, when(run.created_at)),
+      h("dt", null, "Ran for"),
+      h("dd", null, duration(run.started_at, run.finished_at)),
+      run.result
+        ? [h("dt", null, "RMS error"), h("dd", { class: "num", testid: "run-rms" }, `${fmt(run.result.rms, 4)} px over ${run.result.per_view_rms.length} views`)]
+        : null,
+    );
+    mount(
+      header,
+      panel(
+        null,
+        null,
+        h(
+          "div",
+          { class: "panel-head", style: { marginBottom: 0 } },
+          facts,
+          h("div", { class: "form-actions", style: { marginTop: 0 } }, run.status === "succeeded" && run.camera_id ? applyButton(run) : null, h("a", { class: "btn", href: "#/calibration" }, "All runs")),
+        ),
+      ),
+    );
+    if (run.status === "succeeded" && run.result) mount(body, resultView(run));
+    else if (run.status === "failed" || run.status === "interrupted")
+      mount(body, errorBox({ title: `The run ${run.status}`, detail: run.error || "No reason was recorded." }, "run-error"));
+    else mount(body, h("p", { class: "muted", role: "status", testid: "run-waiting" }, `The run is ${run.status}; this page updates by itself.`));
+  };
+
+  let cameraName = null;
+  const poll = async () => {
+    try {
+      const run = await api(`/calibration-runs/${id}`);
+      if (stopped) return;
+      if (cameraName === null && run.camera_id) {
+        cameraName = await api(`/cameras/${run.camera_id}`).then(
+          (c) => c.name,
+          () => `#${run.camera_id}`, // a deleted camera: the run keeps its id
+        );
+      }
+      draw(run);
+      if (!TERMINAL.has(run.status)) timer = setTimeout(poll, POLL_MS);
+    } catch (err) {
+      if (stopped) return;
+      mount(notice, errorBox(err, "run-poll-error"));
+      // Keep trying while the service is unreachable or restarting; a 4xx will not change.
+      if (!(err.status >= 400 && err.status < 500)) timer = setTimeout(poll, POLL_MS * 4);
+    }
+  };
+  await poll();
+  return () => {
+    stopped = true;
+    clearTimeout(timer);
+  };
+}

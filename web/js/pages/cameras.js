@@ -1,0 +1,315 @@
+// Cameras: the table with an add form, and one camera's intrinsics, history and exports.
+
+import { api, download, list } from "../api.js";
+import { barChart } from "../plot.js";
+import {
+  badge,
+  errorBox,
+  fmt,
+  h,
+  matrixTable,
+  mount,
+  panel,
+  sig,
+  toast,
+  toastError,
+  when,
+} from "../ui.js";
+
+const DIST_NAMES = ["k1", "k2", "p1", "p2", "k3"];
+
+function cameraStatus(c) {
+  return c.status || (c.K ? "calibrated" : "uncalibrated");
+}
+
+function addCameraForm(onCreated) {
+  const error = h("div");
+  const name = h("input", { id: "cam-name", name: "name", required: true, maxlength: 200, placeholder: "e.g. ceiling-kitchen", testid: "camera-name" });
+  const width = h("input", { id: "cam-width", name: "width", type: "number", min: 1, required: true, value: "1280", testid: "camera-width" });
+  const height = h("input", { id: "cam-height", name: "height", type: "number", min: 1, required: true, value: "720", testid: "camera-height" });
+  const submit = h("button", { class: "btn primary", type: "submit", testid: "camera-create" }, "Add camera");
+  const form = h(
+    "form",
+    {
+      testid: "camera-form",
+      onSubmit: async (ev) => {
+        ev.preventDefault();
+        mount(error);
+        submit.disabled = true;
+        try {
+          const cam = await api("/cameras", {
+            method: "POST",
+            json: { name: name.value.trim(), width: Number(width.value), height: Number(height.value) },
+          });
+          toast(`Camera “${cam.name}” added`);
+          form.reset();
+          onCreated(cam);
+        } catch (err) {
+          mount(error, errorBox(err, "camera-form-error"));
+        } finally {
+          submit.disabled = false;
+        }
+      },
+    },
+    h(
+      "div",
+      { class: "form-grid" },
+      h("label", { for: "cam-name" }, "Name", name),
+      h("label", { for: "cam-width" }, "Image width (px)", width),
+      h("label", { for: "cam-height" }, "Image height (px)", height),
+      h("div", null, submit),
+    ),
+    error,
+  );
+  return form;
+}
+
+export async function renderCameras(main) {
+  const { items, total } = await list("/cameras", { limit: 200 });
+  const table = h(
+    "table",
+    { testid: "camera-table" },
+    h(
+      "thead",
+      null,
+      h(
+        "tr",
+        null,
+        ["Name", "Image", "Status", "fx", "fy", "cx", "cy", "Pose", "Updated"].map((t, i) =>
+          h("th", { class: i >= 3 && i <= 6 ? "num" : null, scope: "col" }, t),
+        ),
+      ),
+    ),
+    h(
+      "tbody",
+      null,
+      items.map((c) =>
+        h(
+          "tr",
+          {
+            class: "link-row",
+            testid: `camera-row-${c.id}`,
+            onClick: (ev) => {
+              if (ev.target.tagName !== "A") location.hash = `#/cameras/${c.id}`;
+            },
+          },
+          h("td", null, h("a", { href: `#/cameras/${c.id}` }, c.name)),
+          h("td", { class: "num" }, `${c.width} × ${c.height}`),
+          h("td", null, badge(cameraStatus(c))),
+          [0, 4, 2, 5].map((k) => h("td", { class: "num" }, c.K ? fmt(c.K[Math.floor(k / 3)][k % 3], 2) : "–")),
+          h("td", null, c.T_world_camera ? "calibrated" : h("span", { class: "muted" }, "unknown")),
+          h("td", { class: "small muted" }, when(c.updated_at)),
+        ),
+      ),
+    ),
+  );
+  mount(
+    main,
+    panel("Add a camera", "Register a camera by name and image size; calibrate it afterwards", addCameraForm((cam) => {
+      location.hash = `#/cameras/${cam.id}`;
+    })),
+    panel(
+      `Cameras (${total})`,
+      "Click a camera for its intrinsics, calibration history and exports",
+      items.length
+        ? h("div", { class: "table-wrap" }, table)
+        : h("p", { class: "empty", testid: "camera-table-empty" }, "No cameras yet. Add one above."),
+    ),
+  );
+}
+
+function stdOf(std, name, index) {
+  if (!std) return null;
+  if (Array.isArray(std)) return std[index];
+  return std[name];
+}
+
+/** The intrinsics as a list: value ± standard deviation. */
+export function intrinsicsFacts(K, dist, std, testPrefix) {
+  const entries = [
+    ["fx", K[0][0], 0],
+    ["fy", K[1][1], 1],
+    ["cx", K[0][2], 2],
+    ["cy", K[1][2], 3],
+    ["skew", K[0][1], 4],
+  ];
+  const rows = entries.map(([name, v, i]) => {
+    const sd = stdOf(std, name, i);
+    return [
+      h("dt", null, name),
+      h(
+        "dd",
+        { class: "num", testid: `${testPrefix}-${name}` },
+        fmt(v, 3),
+        sd ? h("span", { class: "muted" }, ` ± ${fmt(sd, 3)}`) : null,
+        " px",
+      ),
+    ];
+  });
+  const distRows = (dist || []).map((v, i) => {
+    const name = DIST_NAMES[i] || `d${i}`;
+    const sd = stdOf(std, name, 5 + i);
+    return [
+      h("dt", null, name),
+      h("dd", { class: "num", testid: `${testPrefix}-${name}` }, sig(v, 6), sd ? h("span", { class: "muted" }, ` ± ${sig(sd, 2)}`) : null),
+    ];
+  });
+  return h("dl", { class: "facts", testid: `${testPrefix}-intrinsics` }, rows, distRows);
+}
+
+/** The run that set the camera's calibration; a failure is reported next to the intrinsics. */
+async function fetchRun(id) {
+  try {
+    return { run: await api(`/calibration-runs/${id}`) };
+  } catch (error) {
+    return { error };
+  }
+}
+
+export async function renderCamera(main, [id], _query, setTitle) {
+  const cam = await api(`/cameras/${id}`);
+  setTitle(cam.name);
+  const [historyResult, runResult] = await Promise.all([
+    api(`/cameras/${id}/calibrations`).then((v) => ({ v }), (e) => ({ e })),
+    cam.calibration_run_id ? fetchRun(cam.calibration_run_id) : {},
+  ]);
+  const run = runResult.run;
+
+  const exportButton = (format, label) =>
+    h(
+      "button",
+      {
+        class: "btn",
+        type: "button",
+        testid: `export-${format}`,
+        disabled: !cam.K,
+        title: cam.K ? null : "Calibrate the camera first",
+        onClick: async () => {
+          try {
+            await download(`/cameras/${id}/calibration.yaml?format=${format}`, `${cam.name}-${format}.yaml`);
+          } catch (err) {
+            toastError(err);
+          }
+        },
+      },
+      label,
+    );
+
+  const actions = h(
+    "div",
+    { class: "form-actions" },
+    h("a", { class: "btn primary", href: `#/calibration?camera=${id}`, testid: "calibrate-camera" }, "Calibrate…"),
+    exportButton("opencv", "Export OpenCV YAML"),
+    exportButton("ros", "Export ROS camera_info"),
+    h(
+      "button",
+      {
+        class: "btn danger",
+        type: "button",
+        testid: "delete-camera",
+        onClick: async () => {
+          if (!confirm(`Delete camera “${cam.name}” and its calibration history?`)) return;
+          try {
+            await api(`/cameras/${id}`, { method: "DELETE" });
+            toast(`Camera “${cam.name}” deleted`);
+            location.hash = "#/cameras";
+          } catch (err) {
+            toastError(err);
+          }
+        },
+      },
+      "Delete",
+    ),
+  );
+
+  const std = run?.result?.std_intrinsics;
+  const intrinsics = panel(
+    "Intrinsics",
+    cam.K ? `Calibration matrix K and distortion (OpenCV order)${run?.result?.rms ? `, RMS ${fmt(run.result.rms, 3)} px` : ""}` : null,
+    cam.K
+      ? h(
+          "div",
+          { class: "grid two" },
+          h("div", null, h("h3", { style: { marginBottom: "8px" } }, "K (pixels)"), matrixTable(cam.K, 3, "camera-K")),
+          intrinsicsFacts(cam.K, cam.dist, std, "camera"),
+          runResult.error ? errorBox(runResult.error, "camera-run-error") : null,
+        )
+      : h("p", { class: "empty", testid: "camera-uncalibrated" }, "Not calibrated yet. Start a calibration run to estimate K and the distortion."),
+  );
+
+  const pose = panel(
+    "Pose in the space",
+    "Camera-to-world transform (OpenCV camera axes; world Z up, metres)",
+    cam.T_world_camera
+      ? matrixTable(cam.T_world_camera, 4, "camera-pose")
+      : h("p", { class: "empty", testid: "camera-no-pose" }, "No calibrated pose: the 3D scene shows this camera parked beside the floor plan."),
+  );
+
+  const details = panel(
+    "Camera",
+    null,
+    h(
+      "dl",
+      { class: "facts", testid: "camera-facts" },
+      h("dt", null, "Status"),
+      h("dd", null, badge(cameraStatus(cam))),
+      h("dt", null, "Image size"),
+      h("dd", { class: "num" }, `${cam.width} × ${cam.height} px`),
+      h("dt", null, "Calibrated by"),
+      h("dd", null, cam.calibration_run_id ? h("a", { href: `#/calibration/runs/${cam.calibration_run_id}` }, `run #${cam.calibration_run_id}`) : "–"),
+      h("dt", null, "Created"),
+      h("dd", null, when(cam.created_at)),
+      h("dt", null, "Updated"),
+      h("dd", null, when(cam.updated_at)),
+    ),
+    actions,
+  );
+
+  let history;
+  if (historyResult.e) {
+    history = errorBox(historyResult.e, "history-error");
+  } else {
+    const rows = Array.isArray(historyResult.v) ? historyResult.v : historyResult.v.items || [];
+    history = rows.length
+      ? h(
+          "div",
+          { class: "table-wrap" },
+          h(
+            "table",
+            { testid: "calibration-history" },
+            h("thead", null, h("tr", null, ["Applied", "Run", "fx", "fy", "cx", "cy", "RMS (px)"].map((t, i) => h("th", { class: i >= 2 ? "num" : null }, t)))),
+            h(
+              "tbody",
+              null,
+              rows.map((c) =>
+                h(
+                  "tr",
+                  null,
+                  h("td", { class: "small" }, when(c.created_at)),
+                  h("td", null, c.calibration_run_id ? h("a", { href: `#/calibration/runs/${c.calibration_run_id}` }, `#${c.calibration_run_id}`) : "–"),
+                  [c.K[0][0], c.K[1][1], c.K[0][2], c.K[1][2]].map((v) => h("td", { class: "num" }, fmt(v, 2))),
+                  h("td", { class: "num" }, fmt(c.rms, 4)),
+                ),
+              ),
+            ),
+          ),
+        )
+      : h("p", { class: "empty", testid: "calibration-history-empty" }, "No calibration applied yet.");
+  }
+
+  const residuals =
+    run?.result?.per_view_rms?.length
+      ? panel(
+          "Residuals of the applied calibration",
+          `Run #${run.id}: RMS reprojection error per view`,
+          barChart(run.result.per_view_rms, { reference: run.result.rms, title: "RMS reprojection error per view" }),
+        )
+      : null;
+
+  mount(
+    main,
+    h("div", { class: "grid wide-left" }, intrinsics, details),
+    h("div", { class: residuals ? "grid two" : "grid" }, residuals, pose),
+    panel("Calibration history", "Every calibration applied to this camera, newest first", history),
+  );
+}

@@ -1,0 +1,152 @@
+// Overview: the space, device counts, service health and a floor plan with the cameras.
+
+import { api, list } from "../api.js";
+import { floorPlan } from "../plot.js";
+import { badge, errorBox, h, mount, panel, statusBadge, when } from "../ui.js";
+
+const DEVICES = [
+  ["cameras", "Cameras", "#/cameras"],
+  ["projectors", "Projectors", null],
+  ["robots", "Robots", null],
+  ["landmarks", "Landmarks", null],
+  ["rooms", "Rooms", null],
+];
+
+/** Settle every promise; failures come back as {error}. */
+function settle(promises) {
+  return Promise.all(promises.map((p) => p.then((value) => ({ value }), (error) => ({ error }))));
+}
+
+export async function renderOverview(main) {
+  const [health, spaces, runs, ...counts] = await settle([
+    api("/health"),
+    list("/spaces", { limit: 20 }),
+    list("/calibration-runs", { limit: 6 }),
+    ...DEVICES.map(([path]) => list(`/${path}`, { limit: 200 })),
+  ]);
+  // One error box for the whole page when every registry read was refused (not signed in).
+  const refused = [spaces, ...counts].every((r) => r.error && r.error.status === 401);
+  if (refused) throw spaces.error;
+
+  const stats = h(
+    "div",
+    { class: "stats", testid: "device-counts" },
+    DEVICES.map(([key, label, href], i) => {
+      const r = counts[i];
+      let sub = "";
+      if (key === "cameras" && r.value) {
+        const calibrated = r.value.items.filter((c) => c.K).length;
+        sub = `${calibrated} calibrated`;
+      }
+      return h(
+        href ? "a" : "div",
+        { class: "stat", href, testid: `count-${key}` },
+        h("div", { class: "label" }, label),
+        h("div", { class: "value" }, r.error ? "–" : String(r.value.total)),
+        h("div", { class: "sub" }, r.error ? r.error.title || "unavailable" : sub || "\u00a0"),
+      );
+    }),
+  );
+
+  const hv = health.value || {};
+  const healthPanel = panel(
+    "Service",
+    "Health of the API and its database",
+    health.error
+      ? errorBox(health.error, "health-error")
+      : h(
+          "dl",
+          { class: "facts", testid: "health" },
+          h("dt", null, "Status"),
+          h("dd", null, badge(hv.status, hv.status === "ok" ? "ok" : "bad")),
+          h("dt", null, "Version"),
+          h("dd", { class: "mono", testid: "health-version" }, hv.version || "–"),
+          h("dt", null, "Database"),
+          h("dd", { testid: "health-database" }, describeDatabase(hv.database)),
+          ...Object.entries(hv)
+            .filter(([k, v]) => !["status", "version", "database"].includes(k) && typeof v !== "object")
+            .map(([k, v]) => [h("dt", null, k.replaceAll("_", " ")), h("dd", null, String(v))]),
+        ),
+  );
+
+  const spaceList = spaces.value ? spaces.value.items : [];
+  const spacePanel = panel(
+    "Space",
+    null,
+    spaces.error
+      ? errorBox(spaces.error)
+      : spaceList.length
+        ? h(
+            "div",
+            { testid: "space" },
+            spaceList.map((sp) =>
+              h(
+                "div",
+                null,
+                h("h3", { style: { fontSize: "1.05rem", color: "var(--ink)" } }, sp.name),
+                sp.description ? h("p", { class: "muted small" }, sp.description) : null,
+              ),
+            ),
+          )
+        : h("p", { class: "empty", testid: "space" }, "No space defined yet."),
+  );
+
+  const rooms = counts[DEVICES.findIndex(([k]) => k === "rooms")].value?.items || [];
+  const cameras = counts[0].value?.items || [];
+  const planPanel = panel(
+    "Floor plan",
+    "Rooms and the cameras with a calibrated pose, seen from above",
+    floorPlan(rooms, cameras),
+  );
+
+  const runsPanel = panel(
+    "Recent calibration runs",
+    null,
+    runs.error
+      ? errorBox(runs.error)
+      : runs.value.items.length
+        ? h(
+            "div",
+            { class: "table-wrap" },
+            h(
+              "table",
+              { testid: "recent-runs" },
+              h("thead", null, h("tr", null, h("th", null, "Run"), h("th", null, "Camera"), h("th", null, "Status"), h("th", null, "Created"))),
+              h(
+                "tbody",
+                null,
+                runs.value.items.map((r) =>
+                  h(
+                    "tr",
+                    null,
+                    h("td", null, h("a", { href: `#/calibration/runs/${r.id}` }, `#${r.id}`)),
+                    h("td", null, r.camera_id ? h("a", { href: `#/cameras/${r.camera_id}` }, cameraName(cameras, r.camera_id)) : "–"),
+                    h("td", null, statusBadge(r.status)),
+                    h("td", { class: "small muted" }, when(r.created_at)),
+                  ),
+                ),
+              ),
+            ),
+          )
+        : h("p", { class: "empty" }, "No calibration runs yet."),
+  );
+
+  mount(
+    main,
+    stats,
+    h("div", { class: "grid wide-left" }, planPanel, h("div", { class: "grid" }, healthPanel, spacePanel)),
+    runsPanel,
+  );
+}
+
+function cameraName(cameras, id) {
+  const c = cameras.find((x) => x.id === id);
+  return c ? c.name : `camera ${id}`;
+}
+
+function describeDatabase(db) {
+  if (db === null || db === undefined) return "–";
+  if (typeof db === "string") return db;
+  const parts = [db.status, db.backend || db.dialect || db.name, db.revision ? `revision ${db.revision}` : null];
+  return parts.filter(Boolean).join(" · ") || JSON.stringify(db);
+}
