@@ -227,14 +227,14 @@ def _finish(
     ok = status == PointStatus.OK
     point = np.where(ok[:, None], point, np.nan)
     point_cov = np.where(ok[:, None, None], point_cov, np.nan)
-    sq = np.zeros(obs.n_points)
-    safe = np.where(ok[:, None], point, 0.0)
+    idx = np.flatnonzero(ok)
+    sq = np.zeros(idx.size)
     for k, cam in enumerate(obs.cameras):
-        uv = project_points(safe, cam.rvec, cam.t, cam.K, cam.dist).points
-        e = uv - obs.pixels[k]
-        sq += np.where(obs.visible[k], np.sum(e * e, axis=1), 0.0)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        rms = np.where(ok, np.sqrt(sq / (2.0 * n_cam)), np.nan)
+        uv = project_points(point[idx], cam.rvec, cam.t, cam.K, cam.dist).points
+        e = uv - obs.pixels[k, idx]
+        sq += np.where(obs.visible[k, idx], np.sum(e * e, axis=1), 0.0)
+    rms = np.full(obs.n_points, np.nan)
+    rms[idx] = np.sqrt(sq / (2.0 * n_cam[idx]))
     if not obs.batched:
         _raise_for(method, PointStatus(int(status[0])), int(n_cam[0]), min_cameras)
         return FloorEstimate(
@@ -306,17 +306,17 @@ def locate_monocular(
     status[~parallel & ~(lam > 0)] = PointStatus.BEHIND_CAMERA
     point = c + lam[:, None] * d
     point[:, 2] = height
-    ok = status == PointStatus.OK
-    J = project_plane(camera, np.where(ok[:, None], point[:, :2], 0.0), height, jacobian=True)
-    assert J.jacobian is not None
-    j_inv = inv2(J.jacobian)[0]
-    s = obs.cov_of(0, slice(None))
+    ok = np.flatnonzero(status == PointStatus.OK)
+    J = project_plane(camera, point[ok, :2], height, jacobian=True).jacobian
+    assert J is not None
+    j_inv = inv2(J)[0]
+    s = obs.cov_of(0, ok)
+    point_cov = np.full((obs.n_points, 3, 3), np.nan)
+    point_cov[ok] = 0.0
     if isinstance(s, float):
-        cov2 = s * (j_inv @ j_inv.transpose(0, 2, 1))
+        point_cov[ok, :2, :2] = s * (j_inv @ j_inv.transpose(0, 2, 1))
     else:
-        cov2 = j_inv @ s @ j_inv.transpose(0, 2, 1)
-    point_cov = np.zeros((obs.n_points, 3, 3))
-    point_cov[:, :2, :2] = cov2
+        point_cov[ok, :2, :2] = j_inv @ s @ j_inv.transpose(0, 2, 1)
     n_cam = np.ones(obs.n_points, dtype=np.int64)
     return _finish(obs, "monocular", height, point, point_cov, status, n_cam, 1)
 
@@ -565,10 +565,11 @@ def locate_ml(
         theta[idx] = fit.x_local
         cov_idx, det = inv2(fit.local_information)
         finite = np.all(np.isfinite(fit.x_local), axis=1) & (det > 0)
-        depth_ok = np.ones(idx.size, dtype=bool)
+        depth_ok = np.zeros(idx.size, dtype=bool)
+        depth_ok[finite] = True
         for k, cam in enumerate(obs.cameras):
-            z = project_plane(cam, np.where(finite[:, None], fit.x_local, 0.0), h).depth
-            depth_ok &= ~obs.visible[k, idx] | (z > 0)
+            z = fit.x_local[finite] @ cam.R[2, :2] + (cam.R[2, 2] * h + cam.t[2])
+            depth_ok[finite] &= ~obs.visible[k, idx[finite]] | (z > 0)
         cov[idx] = cov_idx
         status[idx[~finite]] = PointStatus.DEGENERATE
         status[idx[finite & ~depth_ok]] = PointStatus.BEHIND_CAMERA
