@@ -1,46 +1,130 @@
-"""Homography estimation: normalised DLT (more estimators build on it)."""
+"""Homography estimation: normalised DLT, transfer-error LM, gold-standard ML, LO-RANSAC.
+
+Two cases (spec 01, section 1):
+
+* world-plane homography: src are exact metric plane coordinates, only dst is noisy; the ML
+  estimate minimises the transfer error in dst (`method="transfer"`, H&Z eq. 4.6);
+* plane-induced homography between two images: both sides are noisy; the ML estimate is the gold
+  standard (`method="gold"`, H&Z alg. 4.3, eq. 4.8), solved by the sparse Schur-complement LM
+  with the corrected first-image points as local blocks.
+
+Every iterative estimate runs in Hartley-normalised coordinates (H&Z alg. 4.2) with the gauge
+H_n[2,2] = 1 and the residuals kept in the input units (pixels), then maps H and its covariance
+back to the input coordinates with the gauge H[2,2] = 1.
+"""
 
 from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from core._validate import as_points
 from core.errors import DegenerateConfiguration, InvalidInput
-from core.geometry.normalization import hartley_normalization
+from core.optim import SparseLMResult, solve_sparse_lm
 
 Array = NDArray[np.float64]
+Method = Literal["gold", "transfer", "dlt"]
 
 # Relative tolerance for collinearity: |det| of a point triple (normalised coordinates, mean
 # distance sqrt(2) from the centroid) below this is treated as collinear.
 _COLLINEAR_TOL = 1e-9
+# A RANSAC minimal sample whose point triples have |det| below this (normalised coordinates,
+# where a well-spread triple has |det| ~ 1) is too close to collinear to give a useful model.
+_SAMPLE_DET_TOL = 1e-6
+# Hypotheses x points scored per numpy call in RANSAC: large enough to amortise the call
+# overhead, small enough to keep the (K, 3, N) temporaries in cache-friendly sizes.
+_RANSAC_BATCH_ELEMENTS = 400_000
+
+
+def _normalize_t(points: Array, name: str) -> tuple[Array, Array]:
+    """Return (T (3, 3), normalised points transposed (2, N)) by Hartley normalisation (H&Z
+    alg. 4.2: centroid at the origin, mean distance sqrt(2); the transform of
+    core.geometry.normalization.hartley_normalization), checking the configuration on the way.
+
+    Raises DegenerateConfiguration when the points coincide, are collinear, or (N = 4) have three
+    collinear points. Rows are contiguous: every later per-point operation runs on them.
+    """
+    n = len(points)
+    q = np.ascontiguousarray(points.T)
+    c = q.sum(axis=1) / n
+    q -= c[:, None]
+    mean_dist = float(np.sqrt(q[0] * q[0] + q[1] * q[1]).sum()) / n
+    if not mean_dist > 0.0:
+        raise DegenerateConfiguration(f"all {name} points coincide; spread the points out")
+    k = np.sqrt(2.0) / mean_dist
+    q *= k
+    # Eigenvalues of the centred scatter (2 x 2): the smallest ~ 0 means all points on a line.
+    (sxx, sxy), (_, syy) = q @ q.T
+    half_tr, det = 0.5 * (sxx + syy), sxx * syy - sxy * sxy
+    lam_max = half_tr + np.sqrt(max(half_tr * half_tr - det, 0.0))
+    lam_min = det / lam_max
+    if lam_min <= _COLLINEAR_TOL**2 * lam_max:
+        raise DegenerateConfiguration(
+            f"all {name} points are collinear; a homography needs points spread over the plane"
+        )
+    if n == 4 and np.any(np.abs(_triple_dets(q.T[None]))[0] <= 2e-7):
+        raise DegenerateConfiguration(
+            f"three of the four {name} points are collinear; "
+            "no three of four points may lie on a line"
+        )
+    T = np.array([[k, 0.0, -k * c[0]], [0.0, k, -k * c[1]], [0.0, 0.0, 1.0]])
+    return T, q
 
 
 def check_homography_configuration(src: Array, dst: Array) -> None:
     """Raise DegenerateConfiguration when the point sets cannot determine a homography.
 
-    Checks both sides: all points collinear (or coincident), and, for exactly four points, any
-    three of them collinear.
+    src, dst: (N, 2). Checks both sides: all points collinear (or coincident), and, for exactly
+    four points, any three of them collinear.
     """
-    for name, pts in (("src", src), ("dst", dst)):
-        _, p = hartley_normalization(pts)
-        if not np.any(p):
-            raise DegenerateConfiguration(f"all {name} points coincide; spread the points out")
-        # Singular values of the centred cloud: the smallest ~ 0 means all points on a line.
-        sv = np.linalg.svd(p, compute_uv=False)
-        if sv[-1] <= _COLLINEAR_TOL * max(sv[0], 1e-300) * np.sqrt(len(p)):
-            raise DegenerateConfiguration(
-                f"all {name} points are collinear; a homography needs points spread over the plane"
-            )
-        if len(p) == 4:
-            h = np.hstack([p, np.ones((4, 1))])
-            for skip in range(4):
-                tri = np.delete(h, skip, axis=0)
-                if abs(np.linalg.det(tri)) <= 1e-7:
-                    raise DegenerateConfiguration(
-                        f"three of the four {name} points are collinear; "
-                        "no three of four points may lie on a line"
-                    )
+    _normalize_t(np.asarray(src, dtype=np.float64), "src")
+    _normalize_t(np.asarray(dst, dtype=np.float64), "dst")
+
+
+def _dlt_normalized(ps_t: Array, pd_t: Array) -> Array:
+    """Return H (3x3, unit Frobenius norm) with pd ~ H ps, from the 2N x 9 DLT system (H&Z
+    eq. 4.3) on points (transposed, (2, N)) that are already Hartley-normalised."""
+    n = ps_t.shape[1]
+    x, y = ps_t
+    u, v = pd_t
+    at = np.zeros((9, 2, n))  # A^T, the u-rows [:, 0] and the v-rows [:, 1]
+    at[0, 0], at[1, 0], at[2, 0] = x, y, 1.0
+    at[3, 1], at[4, 1], at[5, 1] = x, y, 1.0
+    at[6, 0], at[7, 0], at[8, 0] = -u * x, -u * y, -u
+    at[6, 1], at[7, 1], at[8, 1] = -v * x, -v * y, -v
+    af = at.reshape(9, 2 * n)
+    # The right singular vector of the smallest singular value; A^T A (9x9) keeps it O(n).
+    if n > 64:
+        lam, vec = np.linalg.eigh(af @ af.T)
+        sv = np.sqrt(np.maximum(lam[::-1], 0.0))
+        null = vec[:, 0]
+    else:
+        _, sv, vt = np.linalg.svd(af.T)
+        null = vt[-1]
+    if sv[-2] <= 1e-7 * sv[0]:
+        raise DegenerateConfiguration(
+            "the DLT system has a null space of dimension > 1; the points do not fix a homography"
+        )
+    return null.reshape(3, 3)
+
+
+def _pair_inputs(src: ArrayLike, dst: ArrayLike) -> tuple[Array, Array]:
+    s = as_points(src, 2, "src", min_count=4)
+    d = as_points(dst, 2, "dst", min_count=4)
+    if s.shape != d.shape:
+        raise InvalidInput(f"src and dst must have the same shape, got {s.shape} and {d.shape}")
+    return s, d
+
+
+def _unit_h22(H: Array, what: str = "the homography") -> Array:
+    if abs(H[2, 2]) < 1e-12 * np.abs(H).max():
+        raise DegenerateConfiguration(
+            f"{what} maps the origin to infinity (H[2,2] = 0); cannot normalise H[2,2] = 1"
+        )
+    return H / H[2, 2]
 
 
 def dlt_homography(src: ArrayLike, dst: ArrayLike) -> Array:
@@ -50,30 +134,515 @@ def dlt_homography(src: ArrayLike, dst: ArrayLike) -> Array:
     2N x 9 system on Hartley-normalised points. Raises NotEnoughPoints, InvalidInput or
     DegenerateConfiguration.
     """
-    s = as_points(src, 2, "src", min_count=4)
-    d = as_points(dst, 2, "dst", min_count=4)
-    if s.shape != d.shape:
-        raise InvalidInput(f"src and dst must have the same shape, got {s.shape} and {d.shape}")
-    check_homography_configuration(s, d)
-    Ts, ps = hartley_normalization(s)
-    Td, pd = hartley_normalization(d)
-    n = len(ps)
-    x, y = ps[:, 0], ps[:, 1]
-    u, v = pd[:, 0], pd[:, 1]
-    zero, one = np.zeros(n), np.ones(n)
-    a = np.empty((2 * n, 9))
-    a[0::2] = np.stack([x, y, one, zero, zero, zero, -u * x, -u * y, -u], axis=1)
-    a[1::2] = np.stack([zero, zero, zero, x, y, one, -v * x, -v * y, -v], axis=1)
-    # The right singular vector of the smallest singular value; A^T A (9x9) keeps it O(n).
-    _, sv, vt = np.linalg.svd(a.T @ a) if n > 64 else np.linalg.svd(a)
-    if sv[-2] <= 1e-12 * sv[0]:
-        raise DegenerateConfiguration(
-            "the DLT system has a null space of dimension > 1; the points do not fix a homography"
+    s, d = _pair_inputs(src, dst)
+    Ts, ps_t = _normalize_t(s, "src")
+    Td, pd_t = _normalize_t(d, "dst")
+    hn = _dlt_normalized(ps_t, pd_t)
+    return _unit_h22(np.asarray(np.linalg.solve(Td, hn @ Ts), np.float64))
+
+
+# --------------------------------------------------------------------------------------------
+# Least-squares problems for the sparse LM (normalised coordinates, residuals in input units)
+
+
+def _h_from_params(g: Array) -> Array:
+    return np.append(g, 1.0).reshape(3, 3)
+
+
+class _Projection:
+    """pi(H x) for the 8 free entries g of H (H[2,2] = 1) and points x, y (N,) with the pieces
+    of its Jacobian, as contiguous length-N rows (elementwise numpy on rows is cheapest)."""
+
+    __slots__ = ("c", "u", "v", "x", "y")
+
+    def __init__(self, g: Array, x: Array, y: Array, weight: float) -> None:
+        h0, h1, h2, h3, h4, h5, h6, h7 = g
+        inv_w = 1.0 / (h6 * x + h7 * y + 1.0)
+        self.x, self.y = x, y
+        self.u = (h0 * x + h1 * y + h2) * inv_w
+        self.v = (h3 * x + h4 * y + h5) * inv_w
+        # d (weight * (x' - pi(H x))) / d (...) carries the factor c = -weight / w.
+        self.c = -weight * inv_w
+
+    def g_rows(self) -> Array:
+        """Return G^T (8, 2, N): d residual / d g for the u-rows [:, 0] and v-rows [:, 1]."""
+        c, u, v = self.c, self.u, self.v
+        cx, cy = c * self.x, c * self.y
+        gt = np.zeros((8, 2, len(c)))
+        gt[0, 0], gt[1, 0], gt[2, 0] = cx, cy, c
+        gt[3, 1], gt[4, 1], gt[5, 1] = cx, cy, c
+        gt[6, 0], gt[7, 0] = -u * cx, -u * cy
+        gt[6, 1], gt[7, 1] = -v * cx, -v * cy
+        return gt
+
+
+class _TransferProblem:
+    """Residuals (N, 2) = (dst_i - pi(H src_i)) / s_dst: the dst transfer error in input units
+    (H&Z eq. 4.6). Global block: the 8 free entries of H_n (H_n[2,2] = 1); no local blocks."""
+
+    def __init__(self, src_t: Array, dst_t: Array, dst_scale: float) -> None:
+        self.src_t = src_t
+        self.dst_t = dst_t
+        self.w_dst = 1.0 / dst_scale
+
+    def _residuals_t(self, pr: _Projection) -> Array:
+        res_t = np.empty((2, len(pr.u)))
+        np.multiply(self.w_dst, self.dst_t[0] - pr.u, out=res_t[0])
+        np.multiply(self.w_dst, self.dst_t[1] - pr.v, out=res_t[1])
+        return res_t
+
+    def residuals(self, g: Array, x_local: Array) -> Array:
+        pr = _Projection(g, self.src_t[0], self.src_t[1], self.w_dst)
+        return self._residuals_t(pr).T
+
+    def jacobians(self, g: Array, x_local: Array) -> tuple[Array, Array, Array]:
+        pr = _Projection(g, self.src_t[0], self.src_t[1], self.w_dst)
+        jg = np.ascontiguousarray(pr.g_rows().transpose(2, 1, 0))
+        return self._residuals_t(pr).T, jg, np.zeros((len(pr.u), 2, 0))
+
+    def normal_equations(
+        self, g: Array, x_local: Array
+    ) -> tuple[Array, Array, Array, Array, Array, Array]:
+        pr = _Projection(g, self.src_t[0], self.src_t[1], self.w_dst)
+        res_t = self._residuals_t(pr)
+        n = len(pr.u)
+        gf = pr.g_rows().reshape(8, 2 * n)
+        u_mat = gf @ gf.T
+        b_g = gf @ res_t.ravel()
+        return res_t.T, u_mat, np.zeros((8, 0, n)), np.zeros((0, 0, n)), b_g, np.zeros((0, n))
+
+
+class _GoldStandardProblem:
+    """Residuals (N, 4) = ((x_i - x^_i) / s_src, (x'_i - pi(H x^_i)) / s_dst): the reprojection
+    error in both images in input units (H&Z eq. 4.8). Global block: the 8 free entries of H_n;
+    local block i: the corrected first-image point x^_i (normalised coordinates).
+
+    Per point the Jacobian is [[0, -I / s_src], [G_i, A_i]] with G_i = d pi / d h (2 x 8) and
+    A_i = d pi / d x^ (2 x 2), both times -1 / s_dst; `normal_equations` assembles the blocks
+    from these pieces with row operations over the points instead of generic block products.
+    """
+
+    def __init__(self, src_t: Array, dst_t: Array, src_scale: float, dst_scale: float) -> None:
+        self.src_t = src_t
+        self.dst_t = dst_t
+        self.w_src = 1.0 / src_scale
+        self.w_dst = 1.0 / dst_scale
+
+    def _residuals_t(self, pr: _Projection) -> Array:
+        res_t = np.empty((4, len(pr.u)))
+        np.multiply(self.w_src, self.src_t[0] - pr.x, out=res_t[0])
+        np.multiply(self.w_src, self.src_t[1] - pr.y, out=res_t[1])
+        np.multiply(self.w_dst, self.dst_t[0] - pr.u, out=res_t[2])
+        np.multiply(self.w_dst, self.dst_t[1] - pr.v, out=res_t[3])
+        return res_t
+
+    def residuals(self, g: Array, x_local: Array) -> Array:
+        x, y = x_local.T
+        return self._residuals_t(_Projection(g, x, y, self.w_dst)).T
+
+    @staticmethod
+    def _a_blocks(g: Array, pr: _Projection) -> tuple[Array, Array, Array, Array]:
+        # d pi(H x) / d x = (H[:2, :2] - pi(H x) H[2, :2]) / w (chain rule on x' = (Hx)_12 / w).
+        h0, h1, _, h3, h4, _, h6, h7 = g
+        c, u, v = pr.c, pr.u, pr.v
+        return c * (h0 - u * h6), c * (h1 - u * h7), c * (h3 - v * h6), c * (h4 - v * h7)
+
+    def jacobians(self, g: Array, x_local: Array) -> tuple[Array, Array, Array]:
+        x, y = x_local.T
+        pr = _Projection(g, x, y, self.w_dst)
+        n = len(x)
+        jg = np.zeros((n, 4, 8))
+        jg[:, 2:, :] = pr.g_rows().transpose(2, 1, 0)
+        jl = np.zeros((n, 4, 2))
+        jl[:, 0, 0] = jl[:, 1, 1] = -self.w_src
+        jl[:, 2, 0], jl[:, 2, 1], jl[:, 3, 0], jl[:, 3, 1] = self._a_blocks(g, pr)
+        return self._residuals_t(pr).T, jg, jl
+
+    def normal_equations(
+        self, g: Array, x_local: Array
+    ) -> tuple[Array, Array, Array, Array, Array, Array]:
+        x, y = x_local.T
+        pr = _Projection(g, x, y, self.w_dst)
+        res_t = self._residuals_t(pr)
+        n = len(x)
+        ws = self.w_src
+        gt = pr.g_rows()
+        gf = gt.reshape(8, 2 * n)
+        u_mat = gf @ gf.T
+        b_g = gf @ res_t[2:].ravel()
+        a00, a01, a10, a11 = self._a_blocks(g, pr)
+        # W_i = G_i^T A_i (8 x 2); rows 0-2 of G only have a u-part, rows 3-5 only a v-part.
+        w = np.empty((8, 2, n))
+        for k, (a0k, a1k) in enumerate(((a00, a10), (a01, a11))):
+            np.multiply(gt[0:3, 0], a0k, out=w[0:3, k])
+            np.multiply(gt[3:6, 1], a1k, out=w[3:6, k])
+            np.multiply(gt[6:8, 0], a0k, out=w[6:8, k])
+            w[6:8, k] += gt[6:8, 1] * a1k
+        # V_i = I / s_src^2 + A_i^T A_i; b_l = J_l^T res = -res_src / s_src + A_i^T res_dst.
+        vb = np.empty((2, 2, n))
+        vb[0, 0] = ws * ws + a00 * a00 + a10 * a10
+        vb[0, 1] = vb[1, 0] = a00 * a01 + a10 * a11
+        vb[1, 1] = ws * ws + a01 * a01 + a11 * a11
+        b_l = np.empty((2, n))
+        b_l[0] = a00 * res_t[2] + a10 * res_t[3] - ws * res_t[0]
+        b_l[1] = a01 * res_t[2] + a11 * res_t[3] - ws * res_t[1]
+        return res_t.T, u_mat, w, vb, b_g, b_l
+
+
+def _sampson_src(hn: Array, ps_t: Array, pd_t: Array, src_scale: float, dst_scale: float) -> Array:
+    """Return the first-image points (N, 2) of the Sampson correction (H&Z sec. 4.2.6, eq. 4.11)
+    from Hartley-normalised points given transposed, (2, N).
+
+    The first-order ML correction of each correspondence for the algebraic errors
+    e = x' (h3 . x) - (h1 . x), y' (h3 . x) - (h2 . x), weighted for noise of equal size in both
+    images in input units (normalised coordinates scale src and dst noise by src_scale and
+    dst_scale). It starts the gold standard next to its optimum, saving an LM iteration.
+    """
+    x, y = ps_t
+    u, v = pd_t
+    (h0, h1, h2), (h3, h4, h5), (h6, h7, h8) = hn
+    w = h6 * x + h7 * y + h8
+    e1 = u * w - (h0 * x + h1 * y + h2)
+    e2 = v * w - (h3 * x + h4 * y + h5)
+    j11, j12 = u * h6 - h0, u * h7 - h1
+    j21, j22 = v * h6 - h3, v * h7 - h4
+    ss, sd = src_scale * src_scale, dst_scale * dst_scale
+    # J Sigma J^T with Sigma = diag(ss, ss, sd, sd); the x', y' columns of J are w I.
+    a = ss * (j11 * j11 + j12 * j12) + sd * w * w
+    b = ss * (j11 * j21 + j12 * j22)
+    c = ss * (j21 * j21 + j22 * j22) + sd * w * w
+    inv_det = 1.0 / (a * c - b * b)
+    l1 = (c * e1 - b * e2) * inv_det
+    l2 = (a * e2 - b * e1) * inv_det
+    out = np.empty((len(x), 2))
+    out[:, 0] = x - ss * (j11 * l1 + j21 * l2)
+    out[:, 1] = y - ss * (j12 * l1 + j22 * l2)
+    return out
+
+
+# --------------------------------------------------------------------------------------------
+# Result and public estimator
+
+
+@dataclass(frozen=True)
+class HomographyFit:
+    """A fitted homography dst ~ H src with its diagnostics.
+
+    Attributes:
+        H: (3, 3) homography in the input coordinates, H[2, 2] = 1.
+        rms: root mean square of the residuals the method minimises, per coordinate, in the
+            input units of the images (pixels): for "transfer" and "dlt",
+            sqrt(sum_i ||x'_i - pi(H x_i)||^2 / (2 n)); for "gold",
+            sqrt(sum_i (||x_i - x^_i||^2 + ||x'_i - pi(H x^_i)||^2) / (4 n)); n counts inliers.
+            Under Gaussian noise sigma it tends to sigma sqrt(1 - 4/n) (transfer) and
+            sigma sqrt((n - 4) / (2 n)) (gold) (H&Z result 5.2).
+        cov: (9, 9) covariance of H's entries (row-major), gauge H[2,2] = 1 removed (zero row and
+            column 8), scaled by the estimated residual variance 2 cost / (N - d) (H&Z eq. 5.9).
+            For "dlt" it is the transfer-error covariance evaluated at the DLT estimate
+            (first-order; exact for the transfer estimator). NaN when n = 4 (no redundancy).
+        inliers: (N,) bool mask of the correspondences used; all True without RANSAC.
+        iterations: LM iterations of the refinement (0 for "dlt").
+        method: the estimator that produced H.
+        src_corrected: for "gold", (N, 2) the ML estimates x^_i of the first-image points
+            (NaN rows for outliers); None otherwise.
+        ransac_iterations: minimal samples drawn by RANSAC (0 without RANSAC).
+    """
+
+    H: Array
+    rms: float
+    cov: Array = field(repr=False)
+    inliers: NDArray[np.bool_] = field(repr=False)
+    iterations: int
+    method: Method
+    src_corrected: Array | None = field(default=None, repr=False)
+    ransac_iterations: int = 0
+
+    @property
+    def n_inliers(self) -> int:
+        """Number of correspondences used in the final fit."""
+        return int(np.count_nonzero(self.inliers))
+
+
+def _denormalize(g: Array, cov_g: Array, Ts: Array, Td: Array) -> tuple[Array, Array]:
+    """Return (H, cov_H (9x9)) in input coordinates from H_n = H(g) with covariance cov_g.
+
+    H = Td^-1 H_n Ts / (.)[2,2]; the covariance propagates by the Jacobian of that map (linear
+    in H_n, then the gauge normalisation H[2,2] = 1), so row/column 8 come out zero.
+    """
+    td_inv = np.linalg.inv(Td)
+    h_raw = td_inv @ _h_from_params(g) @ Ts
+    h22 = h_raw[2, 2]
+    H = _unit_h22(h_raw)
+    # Row-major vec(A X B) = kron(A, B^T) vec(X); columns 0..7 are the free entries of H_n.
+    m = np.kron(td_inv, Ts.T)[:, :8]
+    h = h_raw.ravel()
+    jac = (m - np.outer(h, m[8]) / h22) / h22
+    cov = jac @ cov_g @ jac.T
+    cov[8, :] = 0.0
+    cov[:, 8] = 0.0
+    return H, 0.5 * (cov + cov.T)
+
+
+def fit_homography(
+    src: ArrayLike,
+    dst: ArrayLike,
+    *,
+    method: Method = "gold",
+    robust: bool | Literal["ransac"] = False,
+    ransac_threshold: float = 3.0,
+    ransac_confidence: float = 0.999,
+    ransac_max_iterations: int = 5000,
+    seed: int | np.random.Generator | None = 0,
+    max_iterations: int = 50,
+) -> HomographyFit:
+    """Return the HomographyFit of dst ~ H src by the chosen estimator.
+
+    src, dst: (N, 2) corresponding points, N >= 4 (pixels; src may be metric plane coordinates).
+
+    method:
+        "dlt": normalised DLT (H&Z alg. 4.2), algebraic error.
+        "transfer": LM on the dst transfer error sum ||x'_i - pi(H x_i)||^2 over the 8 dof of H
+            (H&Z eq. 4.6); the ML estimate when src is exact (world-plane homography).
+        "gold": gold-standard ML (H&Z alg. 4.3): minimises
+            sum ||x_i - x^_i||^2 + ||x'_i - pi(H x^_i)||^2 (eq. 4.8) over H and the corrected
+            points x^_i, by the sparse Schur-complement LM; the ML estimate under equal isotropic
+            Gaussian noise in both images (plane-induced homography).
+        The LM methods start from the DLT and stop after `max_iterations`.
+    robust: False, or True / "ransac" for LO-RANSAC (Chum, Matas & Kittler 2003) on 4-point
+        minimal samples scored by the truncated dst transfer error (MSAC), with inliers at
+        transfer error < `ransac_threshold` (input units of dst), refitting the DLT on the
+        inliers of every new best model, and an adaptive sample count reaching
+        `ransac_confidence`, capped at `ransac_max_iterations`; `seed` (int or Generator) makes
+        it deterministic. The chosen method then runs on the inliers.
+
+    Raises NotEnoughPoints (N < 4), InvalidInput (shape, NaN/inf, unknown option),
+    DegenerateConfiguration (collinear points, no consensus, H[2,2] = 0).
+    """
+    s, d = _pair_inputs(src, dst)
+    if method not in ("gold", "transfer", "dlt"):
+        raise InvalidInput(f"method must be 'gold', 'transfer' or 'dlt', got {method!r}")
+    if robust not in (False, True, "ransac"):
+        raise InvalidInput(f"robust must be False, True or 'ransac', got {robust!r}")
+    n = len(s)
+    inliers = np.ones(n, dtype=bool)
+    ransac_iterations = 0
+    if robust:
+        check_homography_configuration(s, d)
+        if not (ransac_threshold > 0 and np.isfinite(ransac_threshold)):
+            raise InvalidInput(f"ransac_threshold must be > 0, got {ransac_threshold}")
+        if not 0 < ransac_confidence < 1:
+            raise InvalidInput(f"ransac_confidence must be in (0, 1), got {ransac_confidence}")
+        consensus = _lo_ransac(
+            s,
+            d,
+            ransac_threshold,
+            ransac_confidence,
+            max(int(ransac_max_iterations), 1),
+            np.random.default_rng(seed),
         )
-    hn = vt[-1].reshape(3, 3)
-    H = np.linalg.solve(Td, hn @ Ts)
-    if abs(H[2, 2]) < 1e-12 * np.abs(H).max():
-        raise DegenerateConfiguration(
-            "the homography maps the origin to infinity (H[2,2] = 0); cannot normalise H[2,2] = 1"
+        inliers, ransac_iterations = consensus.inliers, consensus.samples
+        s, d = s[inliers], d[inliers]
+
+    Ts, ps_t = _normalize_t(s, "src")
+    Td, pd_t = _normalize_t(d, "dst")
+    hn = _unit_h22(_dlt_normalized(ps_t, pd_t), "the normalised DLT estimate")
+    g0 = hn.ravel()[:8]
+    src_scale, dst_scale = float(Ts[0, 0]), float(Td[0, 0])
+
+    lm: SparseLMResult
+    corrected: Array | None = None
+    if method == "gold":
+        gold = _GoldStandardProblem(ps_t, pd_t, src_scale, dst_scale)
+        x0 = _sampson_src(hn, ps_t, pd_t, src_scale, dst_scale)
+        lm = solve_sparse_lm(
+            gold, g0, x0, max_iterations=max_iterations, ftol=1e-9, xtol=1e-10, gtol=1e-10
         )
-    return H / H[2, 2]
+        corrected = np.full((n, 2), np.nan)
+        corrected[inliers] = (lm.x_local - Ts[:2, 2]) / src_scale
+    else:
+        transfer = _TransferProblem(ps_t, pd_t, dst_scale)
+        lm = solve_sparse_lm(
+            transfer,
+            g0,
+            np.zeros((ps_t.shape[1], 0)),
+            max_iterations=0 if method == "dlt" else max_iterations,
+            ftol=1e-9,
+            xtol=1e-10,
+            gtol=1e-10,
+        )
+    # The gauge H_n[2,2] = 1 leaves no freedom, so S is invertible (pinv would cost 8x more).
+    try:
+        cov_g = np.asarray(lm.residual_variance * np.linalg.inv(lm.information), np.float64)
+    except np.linalg.LinAlgError:
+        cov_g = lm.global_covariance()
+    H, cov = _denormalize(lm.x_global, cov_g, Ts, Td)
+    return HomographyFit(
+        H=H,
+        rms=lm.rms,
+        cov=cov,
+        inliers=inliers,
+        iterations=lm.iterations,
+        method=method,
+        src_corrected=corrected,
+        ransac_iterations=ransac_iterations,
+    )
+
+
+def transfer_covariance(fit: HomographyFit, points: ArrayLike) -> Array:
+    """Return the (N, 2, 2) covariance of pi(H x) for points x (N, 2) in src coordinates.
+
+    First-order propagation of `fit.cov` (H&Z eq. 5.7): J cov J^T with J = d pi(H x) / d vec(H)
+    (2 x 9). The points themselves are taken as exact; units are those of dst, squared.
+    """
+    x = as_points(points, 2, "points")
+    ph = x @ fit.H[:, :2].T + fit.H[:, 2]
+    inv_w = 1.0 / ph[:, 2]
+    uv = ph[:, :2] * inv_w[:, None]
+    xh = np.hstack([x, np.ones((len(x), 1))]) * inv_w[:, None]
+    jac = np.zeros((len(x), 2, 9))
+    jac[:, 0, 0:3] = xh
+    jac[:, 1, 3:6] = xh
+    jac[:, :, 6:9] = -uv[:, :, None] * xh[:, None, :]
+    out: Array = jac @ fit.cov @ jac.transpose(0, 2, 1)
+    return out
+
+
+# --------------------------------------------------------------------------------------------
+# LO-RANSAC
+
+
+@dataclass(frozen=True)
+class _Consensus:
+    inliers: NDArray[np.bool_]
+    samples: int
+
+
+def _triple_dets(p: Array) -> Array:
+    """Return (K, 4) signed areas of the four point triples of minimal samples p (K, 4, 2)."""
+    out = np.empty((len(p), 4))
+    for k, (a, b, c) in enumerate(((0, 1, 2), (0, 1, 3), (0, 2, 3), (1, 2, 3))):
+        u = p[:, b] - p[:, a]
+        v = p[:, c] - p[:, a]
+        out[:, k] = u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]
+    return out
+
+
+def _basis_maps(p: Array) -> Array:
+    """Return B (K, 3, 3) mapping e1, e2, e3, (1,1,1) to the four points of each sample
+    (H&Z 2nd ed., exercise 2.7 (iii)); requires no three points collinear."""
+    ph = np.concatenate([p, np.ones((*p.shape[:2], 1))], axis=2)  # (K, 4, 3)
+    a = ph[:, :3].transpose(0, 2, 1)
+    lam = np.linalg.solve(a, ph[:, 3, :, None])[:, :, 0]
+    return a * lam[:, None, :]
+
+
+def _four_point_homographies(ps: Array, pd: Array) -> tuple[Array, NDArray[np.bool_]]:
+    """Return (H (K, 3, 3), valid (K,)) with pd ~ H ps exactly for every minimal sample.
+
+    Samples with a (nearly) collinear triple on either side, or whose triples change orientation
+    inconsistently (impossible for points in front of a camera), are invalid.
+    """
+    ds, dd = _triple_dets(ps), _triple_dets(pd)
+    prod = ds * dd
+    valid = np.all(np.abs(ds) > _SAMPLE_DET_TOL, axis=1) & np.all(
+        np.abs(dd) > _SAMPLE_DET_TOL, axis=1
+    )
+    valid &= np.all(prod > 0, axis=1) | np.all(prod < 0, axis=1)
+    ps = np.where(valid[:, None, None], ps, _UNIT_SQUARE)
+    pd = np.where(valid[:, None, None], pd, _UNIT_SQUARE)
+    bs, bd = _basis_maps(ps), _basis_maps(pd)
+    # H = Bd Bs^-1, solved as Bs^T H^T = Bd^T.
+    h = np.linalg.solve(bs.transpose(0, 2, 1), bd.transpose(0, 2, 1)).transpose(0, 2, 1)
+    return np.asarray(h, np.float64), valid
+
+
+_UNIT_SQUARE = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
+
+
+def _transfer_errors2(h: Array, ps_h: Array, pd_t: Array) -> Array:
+    """Return (K, N) squared dst transfer errors of hypotheses h (K, 3, 3); ps_h (3, N) are the
+    homogeneous src points, pd_t (2, N) the dst points. Points mapped to infinity get an
+    infinite error."""
+    ph = h @ ps_h  # (K, 3, N)
+    w = ph[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv_w = 1.0 / w
+        du = ph[:, 0] * inv_w - pd_t[0]
+        dv = ph[:, 1] * inv_w - pd_t[1]
+        e2 = du * du + dv * dv
+    return np.where(np.isfinite(e2), e2, np.inf)
+
+
+def _required_samples(inlier_ratio: float, confidence: float) -> float:
+    """Return the number of minimal samples for `confidence` of one all-inlier sample."""
+    w4 = inlier_ratio**4
+    if w4 >= 1.0:
+        return 0.0
+    if w4 <= 0.0:
+        return np.inf
+    return float(np.log1p(-confidence) / np.log1p(-w4))
+
+
+def _lo_ransac(
+    s: Array,
+    d: Array,
+    threshold: float,
+    confidence: float,
+    max_samples: int,
+    rng: np.random.Generator,
+) -> _Consensus:
+    """Return the consensus set of LO-RANSAC (Chum, Matas & Kittler, DAGM 2003) with MSAC
+    scoring (Torr & Zisserman 2000): the truncated squared dst transfer error."""
+    n = len(s)
+    _, ps_t = _normalize_t(s, "src")
+    Td, pd_t = _normalize_t(d, "dst")
+    ps, pd = ps_t.T, pd_t.T
+    thr2 = (threshold * Td[0, 0]) ** 2
+    ps_h = np.vstack([ps_t, np.ones(n)])
+    batch = int(np.clip(_RANSAC_BATCH_ELEMENTS // n, 8, 512))
+
+    best_score = np.inf
+    best_mask = np.zeros(n, dtype=bool)
+    needed = float(max_samples)
+    drawn = 0
+    while drawn < min(needed, max_samples):
+        k = int(min(batch, max_samples - drawn))
+        idx = rng.integers(0, n, size=(k, 4))
+        drawn += k
+        srt = np.sort(idx, axis=1)
+        idx = idx[np.all(srt[:, 1:] != srt[:, :-1], axis=1)]
+        if len(idx) == 0:
+            continue
+        hyps, valid = _four_point_homographies(ps[idx], pd[idx])
+        hyps = hyps[valid]
+        if len(hyps) == 0:
+            continue
+        e2 = _transfer_errors2(hyps, ps_h, pd_t)
+        scores = np.minimum(e2, thr2).sum(axis=1)
+        j = int(np.argmin(scores))
+        if scores[j] >= best_score:
+            continue
+        best_score = float(scores[j])
+        best_mask = e2[j] < thr2
+        # Local optimisation: refit on the consensus set while the score improves.
+        for _ in range(5):
+            if np.count_nonzero(best_mask) < 5:
+                break
+            try:
+                h_lo = _dlt_normalized(ps_t[:, best_mask], pd_t[:, best_mask])
+            except DegenerateConfiguration:
+                break
+            e2_lo = _transfer_errors2(h_lo[None], ps_h, pd_t)[0]
+            score_lo = float(np.minimum(e2_lo, thr2).sum())
+            if score_lo >= best_score:
+                break
+            best_score = score_lo
+            best_mask = e2_lo < thr2
+        needed = _required_samples(np.count_nonzero(best_mask) / n, confidence)
+
+    if np.count_nonzero(best_mask) < 4:
+        raise DegenerateConfiguration(
+            "RANSAC found no model with 4 or more inliers; raise ransac_threshold or check the "
+            "correspondences"
+        )
+    return _Consensus(inliers=best_mask, samples=drawn)

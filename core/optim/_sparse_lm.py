@@ -15,8 +15,12 @@ Adjustment - A Modern Synthesis", sec. 6.1) leaves the small reduced system
     S dg = -(b_g - sum_j W_j V_j^-1 b_l_j),     S = U - sum_j W_j V_j^-1 W_j^T,
     dl_j = -V_j^-1 (b_l_j + W_j^T dg),
 
-so an iteration costs O(m) time and memory instead of O((p + m q)^3). Every block operation is a
-batched numpy call over the m blocks.
+so an iteration costs O(m) time and memory instead of O((p + m q)^3).
+
+Internally the per-block quantities are stored block index last (W as (p, q, m), V as (q, q, m),
+b_l as (q, m)): every small-matrix operation is then a handful of numpy calls on contiguous
+length-m rows, and the sums over blocks are single BLAS matrix products. A small stack of
+(m, q, q) blocks costs numpy far more per block than these row operations.
 """
 
 from __future__ import annotations
@@ -30,15 +34,22 @@ from numpy.typing import NDArray
 from core.errors import ConvergenceError, InvalidInput
 
 Array = NDArray[np.float64]
+NormalBlocks = tuple[Array, Array, Array, Array, Array, Array]
 
 
 class SparseProblem(Protocol):
     """A least-squares problem with one global block and m local blocks of equal size.
 
-    Shapes: global parameters (p,), local parameters (m, q), residuals (m, r). Residual block j
-    must depend on the global block and on local block j only. A problem whose blocks have
-    unequal residual counts pads them with zero rows (zero residual and zero Jacobian), which
-    change nothing in the normal equations.
+    Shapes: global parameters (p,), local parameters (m, q) (q may be 0: a dense problem over
+    the global block), residuals (m, r). Residual block j must depend on the global block and on
+    local block j only. A problem whose blocks have unequal residual counts pads them with zero
+    rows (zero residual and zero Jacobian), which change nothing in the normal equations.
+
+    A problem may also define `normal_equations(x_global, x_local)` returning
+    (residuals (m, r), U (p, p), W (p, q, m), V (q, q, m), b_g (p,), b_l (q, m)) with
+    b = J^T res, block index last; the solver then uses it instead of `jacobians`, so a problem
+    with exploitable structure (zero Jacobian rows, identity blocks) can assemble the blocks
+    directly. It must agree with the blocks built from `jacobians`.
     """
 
     def residuals(self, x_global: Array, x_local: Array) -> Array:
@@ -92,38 +103,102 @@ class SparseLMResult:
         pseudo-inverse.
         """
         s2 = self.residual_variance if sigma2 is None else sigma2
-        return s2 * np.linalg.pinv(self.information, hermitian=True)
+        return np.asarray(s2 * np.linalg.pinv(self.information, hermitian=True), np.float64)
 
     def local_covariance(self, sigma2: float | None = None) -> Array:
         """Return the covariance of every local block (m, q, q):
         V_j^-1 + V_j^-1 W_j^T S^-1 W_j V_j^-1, times sigma2 (H&Z eq. A6.11)."""
         s2 = self.residual_variance if sigma2 is None else sigma2
-        v_inv = _batched_inv(self.local_information)
+        v_inv = _inv_blocks(self.local_information.transpose(1, 2, 0)).transpose(2, 0, 1)
         s_inv = np.linalg.pinv(self.information, hermitian=True)
         y = v_inv @ self.cross.transpose(0, 2, 1)  # (m, q, p)
-        return s2 * (v_inv + y @ s_inv @ y.transpose(0, 2, 1))
+        out: Array = s2 * (v_inv + y @ s_inv @ y.transpose(0, 2, 1))
+        return out
 
 
-def _batched_inv(v: Array) -> Array:
-    try:
-        return np.linalg.inv(v)
-    except np.linalg.LinAlgError:
-        return np.linalg.pinv(v, hermitian=True)
+def _inv_blocks(v: Array) -> Array:
+    """Return the inverses of symmetric blocks stored block index last, (q, q, m).
+
+    q = 1 and q = 2 use the closed form on contiguous rows; larger q a batched LAPACK call.
+    Singular blocks fall back to the pseudo-inverse, which leaves their null space undamped.
+    """
+    q = v.shape[0]
+    if q == 0:
+        return np.empty_like(v)
+    if q > 2:
+        vm = np.ascontiguousarray(v.transpose(2, 0, 1))
+        try:
+            return np.ascontiguousarray(np.linalg.inv(vm).transpose(1, 2, 0))
+        except np.linalg.LinAlgError:
+            return np.ascontiguousarray(np.linalg.pinv(vm, hermitian=True).transpose(1, 2, 0))
+    out = np.empty_like(v)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        if q == 1:
+            np.divide(1.0, v, out=out)
+        else:
+            a, b, c, d = v[0, 0], v[0, 1], v[1, 0], v[1, 1]
+            inv_det = 1.0 / (a * d - b * c)
+            np.multiply(d, inv_det, out=out[0, 0])
+            np.multiply(-b, inv_det, out=out[0, 1])
+            np.multiply(-c, inv_det, out=out[1, 0])
+            np.multiply(a, inv_det, out=out[1, 1])
+    bad = ~np.isfinite(out.reshape(q * q, -1)).all(axis=0)
+    if np.any(bad):
+        fix = np.linalg.pinv(np.ascontiguousarray(v[:, :, bad].transpose(2, 0, 1)), hermitian=True)
+        out[:, :, bad] = fix.transpose(1, 2, 0)
+    return out
 
 
-def _normal_blocks(
-    res: Array, jg: Array, jl: Array
-) -> tuple[Array, Array, Array, Array, Array]:
+def _block_matvec(a: Array, x: Array) -> Array:
+    """Return y (k, m) with y[:, j] = A_j x_j for A (k, q, m), x (q, m)."""
+    y = a[:, 0] * x[0]
+    for k in range(1, a.shape[1]):
+        y += a[:, k] * x[k]
+    return y
+
+
+def _normal_blocks(res: Array, jg: Array, jl: Array) -> NormalBlocks:
+    """Return (res, U, W (p, q, m), V (q, q, m), b_g, b_l (q, m)) from the block Jacobians."""
     m, r, p = jg.shape
+    q = jl.shape[2]
     jg_flat = jg.reshape(m * r, p)
     u = jg_flat.T @ jg_flat
-    jgt = jg.transpose(0, 2, 1)
-    jlt = jl.transpose(0, 2, 1)
-    w = jgt @ jl  # (m, p, q)
-    v = jlt @ jl  # (m, q, q)
     b_g = jg_flat.T @ res.reshape(m * r)
-    b_l = (jlt @ res[:, :, None])[:, :, 0]  # (m, q)
-    return u, w, v, b_g, b_l
+    if q == 0:
+        return res, u, np.zeros((p, 0, m)), np.zeros((0, 0, m)), b_g, np.zeros((0, m))
+    jlt = jl.transpose(0, 2, 1)
+    w = np.ascontiguousarray((jlt @ jg).transpose(2, 1, 0))
+    v = np.ascontiguousarray((jlt @ jl).transpose(1, 2, 0))
+    b_l = np.ascontiguousarray((jlt @ res[:, :, None])[:, :, 0].T)
+    return res, u, w, v, b_g, b_l
+
+
+def _evaluate(problem: SparseProblem, g: Array, loc: Array) -> NormalBlocks:
+    hook = getattr(problem, "normal_equations", None)
+    if hook is not None:
+        out: NormalBlocks = hook(g, loc)
+        return out
+    return _normal_blocks(*problem.jacobians(g, loc))
+
+
+def _schur(u: Array, w: Array, v_inv: Array) -> tuple[Array, Array]:
+    """Return (S = U - sum_j W_j V_j^-1 W_j^T, Y = W V^-1 (p, q, m))."""
+    p, q, m = w.shape
+    y = w[:, 0:1, :] * v_inv[0][None]
+    for k in range(1, q):
+        y += w[:, k : k + 1, :] * v_inv[k][None]
+    s = u - y.reshape(p, q * m) @ w.reshape(p, q * m).T
+    return s, y
+
+
+def _half_sum_sq(a: Array) -> float:
+    """Return 0.5 * sum(a**2) without copying a transposed (Fortran-ordered) view."""
+    flat = (a.T if a.T.flags.c_contiguous else a).ravel()
+    return 0.5 * float(flat @ flat)
+
+
+def _inf_norm(a: Array) -> float:
+    return float(np.max(np.abs(a), initial=0.0))
 
 
 def solve_sparse_lm(
@@ -144,8 +219,13 @@ def solve_sparse_lm(
     diagonal of J^T J (Marquardt's scaling, invariant to parameter units) or the identity
     (Levenberg); mu follows Nielsen's rule (Madsen, Nielsen & Tingleff, "Methods for Non-Linear
     Least Squares Problems", 2004, eq. 3.16). Stops when the relative cost decrease of an accepted
-    step is below `ftol`, the relative step is below `xtol`, the gradient's infinity norm is below
-    `gtol` times the initial one, or after `max_iterations`.
+    step, or the decrease the linear model predicts for the next step, is below `ftol`; the
+    relative step is below `xtol`, the gradient's infinity norm is below
+    `gtol` times the initial one, or after `max_iterations` (counting rejected steps too;
+    `max_iterations=0` only evaluates the information at the starting point).
+
+    Local blocks may be empty (x_local of shape (m, 0)): the problem is then a dense LM over the
+    global block, with the m residual blocks only organising the residuals.
 
     `n_residuals` is the number of real residuals when the problem pads blocks with zeros
     (default: every residual counts); it sets the degrees of freedom of `residual_variance`.
@@ -160,71 +240,81 @@ def solve_sparse_lm(
     p = g.shape[0]
     m, q = loc.shape
 
-    res, jg, jl = problem.jacobians(g, loc)
-    if not np.all(np.isfinite(res)):
+    res, u, w, v, b_g, b_l = _evaluate(problem, g, loc)
+    cost = _half_sum_sq(res)
+    if not np.isfinite(cost):
         raise ConvergenceError("the residuals are not finite at the starting point")
-    cost = 0.5 * float(np.sum(res * res))
     initial_cost = cost
-    u, w, v, b_g, b_l = _normal_blocks(res, jg, jl)
-    g0_norm = max(float(np.max(np.abs(b_g), initial=0.0)), float(np.max(np.abs(b_l), initial=0.0)))
+    g0_norm = max(_inf_norm(b_g), _inf_norm(b_l))
 
-    eye_p = np.eye(p)
-    eye_q = np.eye(q)
     diag_floor = 1e-12
+    idx_p = np.arange(p)
+    idx_q = np.arange(q)
     mu = -1.0
     nu = 2.0
     status: Literal["cost", "step", "gradient", "max_iterations"] = "max_iterations"
     iterations = 0
     while iterations < max_iterations:
-        grad_inf = max(
-            float(np.max(np.abs(b_g), initial=0.0)), float(np.max(np.abs(b_l), initial=0.0))
-        )
-        if grad_inf <= gtol * max(g0_norm, 1e-300):
+        if max(_inf_norm(b_g), _inf_norm(b_l)) <= gtol * max(g0_norm, 1e-300):
             status = "gradient"
             break
         if damping == "marquardt":
-            d_g = np.maximum(np.diag(u), diag_floor)
-            d_l = np.maximum(np.diagonal(v, axis1=1, axis2=2), diag_floor)
+            d_g = np.maximum(u[idx_p, idx_p], diag_floor)
+            d_l = np.maximum(v[idx_q, idx_q], diag_floor)  # (q, m)
         else:
             d_g = np.ones(p)
-            d_l = np.ones((m, q))
+            d_l = np.ones((q, m))
         if mu < 0:
             # Start with mu relative to the largest curvature (MN&T eq. 3.14, tau = 1e-3).
             if damping == "marquardt":
                 mu = 1e-3
             else:
-                mu = 1e-3 * max(float(np.max(np.diag(u))), float(np.max(np.diagonal(v, 0, 1, 2))))
+                mu = 1e-3 * max(_inf_norm(u[idx_p, idx_p]), _inf_norm(v[idx_q, idx_q]))
+        x_norm = float(np.sqrt(g @ g + loc.ravel() @ loc.ravel()))
         accepted = False
         while not accepted:
             iterations += 1
-            u_d = u + eye_p * (mu * d_g)
-            v_d = v + eye_q * (mu * d_l)[:, :, None]
-            v_inv = _batched_inv(v_d)
-            y = w @ v_inv  # (m, p, q)
-            s = u_d - np.einsum("mpq,mrq->pr", y, w)
-            rhs = -(b_g - np.einsum("mpq,mq->p", y, b_l))
+            u_d = u.copy()
+            u_d[idx_p, idx_p] += mu * d_g
+            if q:
+                v_d = v.copy()
+                v_d[idx_q, idx_q] += mu * d_l
+                v_inv = _inv_blocks(v_d)
+                s, y = _schur(u_d, w, v_inv)
+                rhs = y.reshape(p, q * m) @ b_l.ravel() - b_g
+            else:
+                s, rhs = u_d, -b_g
             try:
                 dg = np.linalg.solve(s, rhs)
             except np.linalg.LinAlgError:
                 dg = np.linalg.lstsq(s, rhs, rcond=None)[0]
-            dl = -np.einsum("mqk,mk->mq", v_inv, b_l + np.einsum("mpq,p->mq", w, dg))
+            if q:
+                t = b_l + (dg @ w.reshape(p, q * m)).reshape(q, m)
+                dl = -_block_matvec(v_inv, t)  # (q, m)
+            else:
+                dl = np.zeros((0, m))
 
-            step_norm = float(np.sqrt(dg @ dg + np.sum(dl * dl)))
-            x_norm = float(np.sqrt(g @ g + np.sum(loc * loc)))
+            step_norm = float(np.sqrt(dg @ dg + dl.ravel() @ dl.ravel()))
             if step_norm <= xtol * (x_norm + xtol):
                 status = "step"
                 break
 
-            g_new = g + dg
-            loc_new = loc + dl
-            res_new = problem.residuals(g_new, loc_new)
-            cost_new = (
-                0.5 * float(np.sum(res_new * res_new)) if np.all(np.isfinite(res_new)) else np.inf
-            )
             # Predicted decrease of the linear model: 0.5 h^T (mu D h - b).
             predicted = 0.5 * (
-                float(dg @ (mu * d_g * dg - b_g)) + float(np.sum(dl * (mu * d_l * dl - b_l)))
+                float(dg @ (mu * d_g * dg - b_g))
+                + float(dl.ravel() @ (mu * d_l * dl - b_l).ravel())
             )
+            if nu == 2.0 and 0.0 <= predicted <= ftol * cost:
+                # Right after an accepted step (damping not inflated by rejections) the model
+                # promises less than ftol of the cost: converged, without paying for the step.
+                status = "cost"
+                break
+
+            g_new = g + dg
+            loc_new = loc + dl.T
+            cost_new = _half_sum_sq(problem.residuals(g_new, loc_new))
+            if not np.isfinite(cost_new):
+                cost_new = np.inf
             rho = (cost - cost_new) / predicted if predicted > 0 else -1.0
             if rho > 0 and np.isfinite(cost_new):
                 accepted = True
@@ -232,8 +322,7 @@ def solve_sparse_lm(
                 g, loc, cost = g_new, loc_new, cost_new
                 mu *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
                 nu = 2.0
-                res, jg, jl = problem.jacobians(g, loc)
-                u, w, v, b_g, b_l = _normal_blocks(res, jg, jl)
+                res, u, w, v, b_g, b_l = _evaluate(problem, g, loc)
                 if rel_decrease <= ftol or cost == 0.0:
                     status = "cost"
             else:
@@ -249,8 +338,7 @@ def solve_sparse_lm(
 
     if not np.isfinite(cost):
         raise ConvergenceError("the sparse LM produced non-finite residuals")
-    v_inv = _batched_inv(v)
-    information = u - np.einsum("mpq,mqk,mrk->pr", w, v_inv, w)
+    information = _schur(u, w, _inv_blocks(v))[0] if q else u
     return SparseLMResult(
         x_global=g,
         x_local=loc,
@@ -260,7 +348,7 @@ def solve_sparse_lm(
         status=status,
         n_residuals=int(res.size if n_residuals is None else n_residuals),
         n_parameters=p + m * q,
-        information=information,
-        local_information=v,
-        cross=w,
+        information=0.5 * (information + information.T),
+        local_information=v.transpose(2, 0, 1),
+        cross=w.transpose(2, 0, 1),
     )
