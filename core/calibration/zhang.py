@@ -142,7 +142,9 @@ def intrinsics_from_homographies(
     V = np.concatenate([_v_rows(Hn, 0, 1), _v_rows(Hn, 0, 0) - _v_rows(Hn, 1, 1)], 0)
     cols = [0, 1, 2, 3, 4, 5] if skew else [0, 2, 3, 4, 5]
     _, sv, vt = np.linalg.svd(V[:, cols])
-    if len(sv) < len(cols) or sv[-2] <= _NULLSPACE_TOL * sv[0]:
+    # A unique b needs rank len(cols) - 1 (2 views without skew give exactly that: 4 x 5).
+    sv = np.concatenate([sv, np.zeros(len(cols) - len(sv))])
+    if sv[-2] <= _NULLSPACE_TOL * sv[0]:
         raise DegenerateConfiguration(
             "the views do not determine the intrinsics: the pattern planes are parallel to each "
             "other (e.g. all fronto-parallel) or too few distinct orientations; tilt the pattern "
@@ -230,6 +232,7 @@ def calibrate_camera(
     skew: bool = False,
     distortion: str = "k1k2p1p2",
     max_iterations: int = 100,
+    ftol: float = 1e-14,
 ) -> CameraCalibration:
     """Return the calibration of a camera from m views of a planar pattern (Zhang 2000).
 
@@ -245,6 +248,8 @@ def calibrate_camera(
     optimum cv2.calibrateCamera finds. Needs >= 3 views (>= 2 when skew=False), >= 4 points per
     view and more residuals than parameters. Raises NotEnoughPoints, InvalidInput,
     DegenerateConfiguration (views that do not fix the intrinsics), ConvergenceError.
+    `max_iterations` and `ftol` (relative cost decrease that stops the LM) tune the refinement;
+    the default stops within ~1e-14 of the minimum's cost, past OpenCV's own stopping point.
     """
     if distortion not in DISTORTION_MODELS:
         raise InvalidInput(
@@ -311,6 +316,7 @@ def calibrate_camera(
         full0[free],
         x_local0,
         max_iterations=max_iterations,
+        ftol=ftol,
         n_residuals=2 * n_total,
     )
     full = problem.full(sol.x_global)
