@@ -82,7 +82,9 @@ class NetworkCamera:
             value.setflags(write=False)
             object.__setattr__(self, name, value)
         object.__setattr__(self, "image_size", size)
-        rvec = matrix_to_rotvec(R)
+        # Through a batch of one: the unbatched call fails for rotations by exactly pi (a
+        # camera looking straight down), which the batched one handles.
+        rvec = matrix_to_rotvec(R[None])[0]
         rvec.setflags(write=False)
         object.__setattr__(self, "rvec", rvec)
         object.__setattr__(self, "fov_radius", _fov_radius(K, d, size))

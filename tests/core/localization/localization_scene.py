@@ -1,10 +1,10 @@
 """The localisation tests' scene: a ceiling-camera network over an 8 m x 6 m room.
 
-
-Four cameras in the corners at 2.8 m, looking obliquely down at the room (about 30-40 degrees
-below the horizon), 1280 x 800 images, a moderately wide lens (77 degrees horizontal) with the
-barrel distortion and small decentring typical of such lenses. The radial polynomial is
-monotonic (1 - 3 k1 r^2 ... > 0 everywhere for these k), so undistortion is unique.
+Four cameras in the corners at 2.8 m, their axes about 26 degrees below the horizon towards the
+far side of the room, 1280 x 800 images, a moderately wide lens (77 degrees horizontal) with the
+barrel distortion and small decentring typical of such lenses. Within the field of view (ideal
+radius < 1.05) the radial factor's derivative 1 + 3 k1 r^2 + 5 k2 r^4 + 7 k3 r^6 stays > 0.6,
+so undistortion is unique there.
 """
 
 from __future__ import annotations
