@@ -67,7 +67,8 @@ def calibrate_from_images(
             continue
         try:
             detection = find_chessboard(image, (cols, rows))
-        except PatternNotFound:
+        except (PatternNotFound, cv2.error):
+            # OpenCV's detectors assert on images too small for their windows: not found either.
             continue
         object_points.append(model[detection.ids])
         image_points.append(detection.corners)

@@ -1,0 +1,331 @@
+"""Calibration runs through the API: Zhang's published data, chessboard photos, apply, history,
+export, malformed uploads, and runs interrupted by a restart."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+
+from server.app import create_app
+
+INCH = 0.0254
+
+
+def _zhang_views(data_dir: Path) -> tuple[list, list]:
+    """Return Zhang's 5 views: model corners (N x 3, inches, Z = 0) and pixels (N x 2)."""
+    model = np.loadtxt(data_dir / "Model.txt").reshape(-1, 2)
+    object_points = np.column_stack([model, np.zeros(len(model))]).tolist()
+    image_points = [
+        np.loadtxt(data_dir / f"data{i}.txt").reshape(-1, 2).tolist() for i in range(1, 6)
+    ]
+    return [object_points] * 5, image_points
+
+
+def _camera(client: TestClient, admin: dict, width: int = 640, height: int = 480) -> int:
+    response = client.post(
+        "/api/v1/cameras", json={"name": "pulnix", "width": width, "height": height}, headers=admin
+    )
+    assert response.status_code == 201, response.text
+    return response.json()["id"]
+
+
+def test_zhang_data_calibrates_apply_history_export(
+    client, admin, run_waiter, shared_data_dir, tmp_path
+):
+    camera_id = _camera(client, admin)
+    object_points, image_points = _zhang_views(shared_data_dir / "zhang1998")
+    body = {
+        "kind": "intrinsics",
+        "camera_id": camera_id,
+        "image_size": [640, 480],
+        "object_points": object_points,
+        "image_points": image_points,
+        "options": {"skew": True, "distortion": "k1k2"},
+    }
+    submitted = client.post("/api/v1/calibration-runs", json=body, headers=admin)
+    assert submitted.status_code == 202, submitted.text
+    assert submitted.json()["status"] in ("queued", "running", "succeeded")
+
+    run = run_waiter(client, submitted.json()["id"])
+    assert run["status"] == "succeeded", run["error"]
+    result = run["result"]
+    K = np.array(result["K"])
+    # Zhang's published maximum-likelihood estimate (README of the data set), printed to 4-6
+    # significant digits; the same model on the same points reproduces them to that precision.
+    assert K[0, 0] == pytest.approx(832.5, abs=0.05)
+    assert K[1, 1] == pytest.approx(832.53, abs=0.05)
+    assert K[0, 2] == pytest.approx(303.959, abs=0.005)
+    assert K[1, 2] == pytest.approx(206.585, abs=0.005)
+    assert K[0, 1] == pytest.approx(0.204494, abs=0.005)
+    assert result["dist"][:2] == pytest.approx([-0.228601, 0.190353], abs=5e-4)
+    assert result["rms"] == pytest.approx(0.336, abs=0.01)
+    assert len(result["per_view_rms"]) == 5
+    assert result["std_intrinsics"]["fx"] > 0
+
+    listed = client.get(f"/api/v1/calibration-runs?camera_id={camera_id}", headers=admin).json()
+    assert listed["total"] == 1 and listed["items"][0]["id"] == run["id"]
+    assert client.get("/api/v1/calibration-runs?camera_id=999", headers=admin).json()["total"] == 0
+
+    # Applying sets the camera's intrinsics and appends to its history, twice over.
+    for _ in range(2):
+        applied = client.post(f"/api/v1/calibration-runs/{run['id']}/apply", headers=admin)
+        assert applied.status_code == 200, applied.text
+    camera = applied.json()
+    assert camera["status"] == "calibrated" and camera["calibration_run_id"] == run["id"]
+    assert np.allclose(camera["K"], K)
+    history = client.get(f"/api/v1/cameras/{camera_id}/calibrations", headers=admin).json()
+    assert history["total"] == 2 and history["items"][0]["calibration_run_id"] == run["id"]
+
+    # The OpenCV export reads back through cv2.FileStorage with the same numbers.
+    exported = client.get(f"/api/v1/cameras/{camera_id}/calibration.yaml", headers=admin)
+    assert exported.status_code == 200
+    path = tmp_path / "camera.yaml"
+    path.write_text(exported.text)
+    storage = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    try:
+        assert np.allclose(storage.getNode("camera_matrix").mat(), K, rtol=1e-9)
+        assert np.allclose(storage.getNode("distortion_coefficients").mat().ravel(), result["dist"])
+        assert int(storage.getNode("image_width").real()) == 640
+    finally:
+        storage.release()
+    ros = client.get(f"/api/v1/cameras/{camera_id}/calibration.yaml?format=ros", headers=admin)
+    assert ros.status_code == 200 and "camera_matrix" in ros.text and "plumb_bob" in ros.text
+
+
+def test_failed_run_reports_the_core_error(client, admin, run_waiter):
+    camera_id = _camera(client, admin)
+    # Three views of one collinear row of points: the homographies are undetermined.
+    line = [[float(i), 0.0, 0.0] for i in range(6)]
+    pixels = [[100.0 + 10 * i, 200.0] for i in range(6)]
+    body = {
+        "kind": "intrinsics",
+        "camera_id": camera_id,
+        "image_size": [640, 480],
+        "object_points": [line] * 3,
+        "image_points": [pixels] * 3,
+    }
+    submitted = client.post("/api/v1/calibration-runs", json=body, headers=admin)
+    assert submitted.status_code == 202, submitted.text
+    run = run_waiter(client, submitted.json()["id"])
+    assert run["status"] == "failed" and run["result"] is None and run["error"]
+    refused = client.post(f"/api/v1/calibration-runs/{run['id']}/apply", headers=admin)
+    assert refused.status_code == 409
+
+
+def test_mismatched_views_are_422(client, admin):
+    camera_id = _camera(client, admin)
+    body = {
+        "kind": "intrinsics",
+        "camera_id": camera_id,
+        "image_size": [640, 480],
+        "object_points": [[[0, 0, 0]] * 4] * 3,
+        "image_points": [[[0, 0]] * 4] * 2,
+    }
+    response = client.post("/api/v1/calibration-runs", json=body, headers=admin)
+    assert response.status_code == 422
+    unknown_camera = {**body, "camera_id": 12345, "image_points": [[[0, 0]] * 4] * 3}
+    response = client.post("/api/v1/calibration-runs", json=unknown_camera, headers=admin)
+    assert response.status_code == 422
+    assert response.json()["errors"][0]["field"] == "camera_id"
+
+
+# Synthetic chessboard photos: a 9 x 6 inner-corner board (10 x 7 squares of 30 mm) seen by
+# K_TRUE from a few poses, rendered with cv2.warpPerspective from a flat board image.
+K_TRUE = np.array([[700.0, 0.0, 320.0], [0.0, 700.0, 240.0], [0.0, 0.0, 1.0]])
+SQUARE_M = 0.03
+PX_PER_SQUARE = 60
+
+
+def _board_image() -> np.ndarray:
+    cols, rows, margin = 10, 7, PX_PER_SQUARE
+    board = np.full((rows * PX_PER_SQUARE + 2 * margin, cols * PX_PER_SQUARE + 2 * margin), 255)
+    for r in range(rows):
+        for c in range(cols):
+            if (r + c) % 2 == 0:
+                y, x = margin + r * PX_PER_SQUARE, margin + c * PX_PER_SQUARE
+                board[y : y + PX_PER_SQUARE, x : x + PX_PER_SQUARE] = 0
+    return board.astype(np.uint8)
+
+
+def _photo(rvec: list[float], tvec: list[float], seed: int) -> bytes:
+    board = _board_image()
+    R, _ = cv2.Rodrigues(np.array(rvec, dtype=float))
+    # Board pixel (u, v) -> board metres, with the first inner corner at the origin.
+    metres_per_px = SQUARE_M / PX_PER_SQUARE
+    offset = 2 * PX_PER_SQUARE  # margin + one square to the first inner corner
+    B = np.array(
+        [
+            [metres_per_px, 0, -offset * metres_per_px],
+            [0, metres_per_px, -offset * metres_per_px],
+            [0, 0, 1],
+        ]
+    )
+    H = K_TRUE @ np.column_stack([R[:, 0], R[:, 1], tvec]) @ B
+    image = cv2.warpPerspective(board, H, (640, 480), flags=cv2.INTER_AREA, borderValue=255)
+    noisy = image + np.random.default_rng(seed).normal(0, 2.0, image.shape)
+    ok, png = cv2.imencode(".png", np.clip(noisy, 0, 255).astype(np.uint8))
+    assert ok
+    return png.tobytes()
+
+
+POSES = [
+    ([0.25, -0.2, 0.05], [-0.12, -0.08, 0.55]),
+    ([-0.3, 0.15, -0.1], [-0.1, -0.07, 0.6]),
+    ([0.1, 0.35, 0.2], [-0.14, -0.06, 0.6]),
+    ([-0.2, -0.3, 0.0], [-0.11, -0.09, 0.65]),
+]
+
+
+def test_upload_of_chessboard_photos_calibrates(client, admin, run_waiter):
+    camera_id = _camera(client, admin)
+    files = [
+        ("files", (f"view{i}.png", _photo(r, t, seed=i), "image/png"))
+        for i, (r, t) in enumerate(POSES)
+    ]
+    response = client.post(
+        "/api/v1/calibration-runs/upload",
+        data={
+            "camera_id": str(camera_id),
+            "chessboard": "9x6",
+            "square": str(SQUARE_M),
+            "distortion": "none",
+            "skew": "false",
+        },
+        files=files,
+        headers=admin,
+    )
+    assert response.status_code == 202, response.text
+    run = run_waiter(client, response.json()["id"])
+    assert run["status"] == "succeeded", run["error"]
+    K = np.array(run["result"]["K"])
+    # Rendered, noisy, interpolated corners: 1 % on the focal length and 3 px on the principal
+    # point are far outside the errors of a correct pipeline and far inside those of a wrong
+    # pattern size, square size or axis order.
+    assert K[0, 0] == pytest.approx(700.0, rel=0.01)
+    assert K[1, 1] == pytest.approx(700.0, rel=0.01)
+    assert K[0, 2] == pytest.approx(320.0, abs=3.0)
+    assert K[1, 2] == pytest.approx(240.0, abs=3.0)
+    assert run["result"]["views_used"] == [0, 1, 2, 3]
+    assert run["result"]["rms"] < 0.5
+
+
+def _upload(client, admin, camera_id, files, **form):
+    data = {"camera_id": str(camera_id), "chessboard": "9x6", "square": "0.03", **form}
+    return client.post("/api/v1/calibration-runs/upload", data=data, files=files, headers=admin)
+
+
+def test_malformed_uploads_are_4xx(make_settings, admin, run_waiter):
+    with TestClient(create_app(make_settings(max_upload_file_bytes=2048))) as client:
+        camera_id = _camera(client, admin)
+        _, png = cv2.imencode(".png", np.zeros((8, 8), np.uint8))
+        small = png.tobytes()
+
+        not_image = _upload(client, admin, camera_id, [("files", ("a.png", b"hello", "image/png"))])
+        assert not_image.status_code == 415, not_image.text
+        assert not_image.json()["errors"][0]["field"] == "files.0"
+
+        big = _upload(
+            client, admin, camera_id, [("files", ("big.bin", b"\x89PNG" * 1000, "image/png"))]
+        )
+        assert big.status_code == 413, big.text
+
+        empty = _upload(client, admin, camera_id, [("files", ("e.png", b"", "image/png"))])
+        assert empty.status_code == 415
+
+        no_files = _upload(client, admin, camera_id, [])
+        assert no_files.status_code == 422
+
+        bad_pattern = _upload(
+            client,
+            admin,
+            camera_id,
+            [("files", ("a.png", small, "image/png"))],
+            chessboard="nine by six",
+        )
+        assert bad_pattern.status_code == 422
+        assert bad_pattern.json()["errors"][0]["field"] == "chessboard"
+
+        bad_square = _upload(
+            client, admin, camera_id, [("files", ("a.png", small, "image/png"))], square="-1"
+        )
+        assert bad_square.status_code == 422
+
+        _, other = cv2.imencode(".png", np.zeros((9, 8), np.uint8))
+        mixed = _upload(
+            client,
+            admin,
+            camera_id,
+            [
+                ("files", ("a.png", small, "image/png")),
+                ("files", ("b.png", other.tobytes(), "image/png")),
+            ],
+        )
+        assert mixed.status_code == 422
+
+        unknown = _upload(client, admin, 999, [("files", ("a.png", small, "image/png"))])
+        assert unknown.status_code == 422
+
+        no_token = client.post("/api/v1/calibration-runs/upload", data={"camera_id": "1"})
+        assert no_token.status_code == 401
+
+        # A board that is not in the photo: the run fails with the core's reason.
+        blank = _upload(client, admin, camera_id, [("files", ("a.png", small, "image/png"))])
+        assert blank.status_code == 202
+        run = run_waiter(client, blank.json()["id"])
+        assert run["status"] == "failed" and run["error"].startswith("PatternNotFound")
+
+
+def test_runs_left_unfinished_are_interrupted_at_restart(make_settings, admin, run_waiter):
+    body = {
+        "kind": "intrinsics",
+        "image_size": [640, 480],
+        "object_points": [[[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]]] * 3,
+        "image_points": [[[0, 0], [10, 0], [10, 10], [0, 10]]] * 3,
+    }
+    # With external workers the API only queues: the run is still queued when it stops.
+    with TestClient(create_app(make_settings(run_executor="external"))) as client:
+        camera_id = _camera(client, admin)
+        run_id = client.post(
+            "/api/v1/calibration-runs", json={**body, "camera_id": camera_id}, headers=admin
+        ).json()["id"]
+        assert (
+            client.get(f"/api/v1/calibration-runs/{run_id}", headers=admin).json()["status"]
+            == "queued"
+        )
+    with TestClient(create_app(make_settings())) as client:
+        run = client.get(f"/api/v1/calibration-runs/{run_id}", headers=admin).json()
+        assert run["status"] == "interrupted" and "restarted" in run["error"]
+        assert run["finished_at"] is not None
+
+
+def test_worker_claims_queued_runs(make_settings, admin, shared_data_dir):
+    from server.db.session import make_engine, make_session_factory
+    from server.services.runs import claim_next_run, execute_claimed_run
+
+    settings = make_settings(run_executor="external")
+    object_points, image_points = _zhang_views(shared_data_dir / "zhang1998")
+    with TestClient(create_app(settings)) as client:
+        camera_id = _camera(client, admin)
+        body = {
+            "kind": "intrinsics",
+            "camera_id": camera_id,
+            "image_size": [640, 480],
+            "object_points": object_points[:3],
+            "image_points": image_points[:3],
+        }
+        run_id = client.post("/api/v1/calibration-runs", json=body, headers=admin).json()["id"]
+
+        engine = make_engine(settings.resolved_database_url, pool_size=1)
+        factory = make_session_factory(engine)
+        with factory() as session:
+            assert claim_next_run(session) == run_id
+        with factory() as session:
+            assert claim_next_run(session) is None  # nothing else is queued
+        assert execute_claimed_run(factory, run_id) == "succeeded"
+        engine.dispose()
+        run = client.get(f"/api/v1/calibration-runs/{run_id}", headers=admin).json()
+        assert run["status"] == "succeeded" and run["started_at"] and run["finished_at"]
