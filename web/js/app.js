@@ -68,6 +68,8 @@ async function route() {
   } finally {
     if (seq === renderSeq) {
       main.setAttribute("aria-busy", "false");
+      // First time the page is usable (rendered, sign-in field live): measured by the tests.
+      if (window.intspaceReadyAt === undefined) window.intspaceReadyAt = performance.now();
       document.documentElement.dataset.ready = "true";
     }
   }

@@ -1,0 +1,236 @@
+"""Fixtures for the browser tests: the service started as a user starts it, the system Chromium,
+and a client of the viser scene that reads what the scene server actually sends."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+import urllib.error
+import urllib.request
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[2]
+ZHANG_DIR = REPO.parent / "shared" / "data" / "zhang1998"
+CHROMIUM = Path("/usr/bin/chromium")
+CHROMIUM_ARGS = [
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+]
+ADMIN_TOKEN = "browser-test-admin-token-5f1c2e"
+STARTUP_TIMEOUT_S = 60.0
+
+
+def _in_ci() -> bool:
+    return os.environ.get("CI", "").strip().lower() not in ("", "0", "false", "no")
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture(scope="session")
+def chromium_executable() -> str:
+    """Return Debian's Chromium; a missing one fails in CI (CI=true) and skips elsewhere."""
+    if not CHROMIUM.is_file():
+        message = f"{CHROMIUM} is missing (apt-get install chromium)"
+        if _in_ci():
+            pytest.fail(f"{message}: the browser tests must run in CI")
+        pytest.skip(message)
+    return str(CHROMIUM)
+
+
+@dataclass(frozen=True)
+class Service:
+    """A running `intspace serve`: where it listens, its admin token and its console output."""
+
+    base_url: str
+    viser_port: int
+    token: str
+    log_path: Path
+
+    def log(self) -> str:
+        return self.log_path.read_text(errors="replace")
+
+    def api(self, method: str, path: str, body: Any = None) -> Any:
+        """Call the API with the admin token; return the decoded JSON (None for no content)."""
+        request = urllib.request.Request(
+            f"{self.base_url}/api/v1{path}",
+            method=method,
+            data=None if body is None else json.dumps(body).encode(),
+            headers={"Authorization": f"Bearer {self.token}", "Content-Type": "application/json"},
+        )
+        with urllib.request.urlopen(request, timeout=10) as response:
+            raw = response.read()
+        return json.loads(raw) if raw else None
+
+
+@pytest.fixture(scope="module")
+def service(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Service]:
+    """Start `python -m server.cli serve` in a fresh data directory and wait for /health."""
+    data_dir = tmp_path_factory.mktemp("intspace-data")
+    port, viser_port = free_port(), free_port()
+    env = {
+        **os.environ,
+        "INTSPACE_DATA_DIR": str(data_dir),
+        "INTSPACE_ADMIN_TOKEN": ADMIN_TOKEN,
+        "INTSPACE_VISER_PORT": str(viser_port),
+        "PYTHONUNBUFFERED": "1",
+    }
+    env.pop("INTSPACE_DATABASE_URL", None)  # the default SQLite file in the data directory
+    log_path = data_dir / "serve.log"
+    with log_path.open("wb") as log:
+        process = subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "server.cli",
+                "serve",
+                "--host",
+                "127.0.0.1",
+                "--port",
+                str(port),
+            ],
+            cwd=REPO,
+            env=env,
+            stdout=log,
+            stderr=subprocess.STDOUT,
+        )
+    svc = Service(f"http://127.0.0.1:{port}", viser_port, ADMIN_TOKEN, log_path)
+    try:
+        deadline = time.monotonic() + STARTUP_TIMEOUT_S
+        while True:
+            if process.poll() is not None:
+                pytest.fail(f"intspace serve exited with {process.returncode}:\n{svc.log()}")
+            try:
+                with urllib.request.urlopen(f"{svc.base_url}/api/v1/health", timeout=2) as r:
+                    if r.status == 200:
+                        break
+            except (urllib.error.URLError, ConnectionError, TimeoutError):
+                pass
+            if time.monotonic() > deadline:
+                pytest.fail(f"intspace serve did not answer in {STARTUP_TIMEOUT_S} s:\n{svc.log()}")
+            time.sleep(0.2)
+        yield svc
+    finally:
+        if process.poll() is None:
+            process.send_signal(signal.SIGINT)  # what Ctrl-C does: a graceful shutdown
+            try:
+                process.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                process.kill()
+                process.wait(timeout=10)
+
+
+@pytest.fixture
+def browser_page(chromium_executable: str) -> Iterator[Any]:
+    """A fresh page in headless Chromium; JavaScript errors on the page fail the test."""
+    from playwright.sync_api import sync_playwright
+
+    errors: list[str] = []
+    with sync_playwright() as p:
+        browser = p.chromium.launch(
+            executable_path=chromium_executable, headless=True, args=CHROMIUM_ARGS
+        )
+        try:
+            context = browser.new_context(viewport={"width": 1440, "height": 900})
+            page = context.new_page()
+            page.on("pageerror", lambda exc: errors.append(str(exc)))
+            yield page
+        finally:
+            browser.close()
+    assert not errors, f"JavaScript errors on the page: {errors}"
+
+
+def zhang_correspondences() -> dict[str, Any]:
+    """Return Zhang's five views as a correspondences document (object points in inches)."""
+    import numpy as np
+
+    model = np.loadtxt(ZHANG_DIR / "Model.txt").reshape(-1, 2)
+    obj = np.column_stack([model, np.zeros(len(model))]).tolist()
+    views = [np.loadtxt(ZHANG_DIR / f"data{i}.txt").reshape(-1, 2).tolist() for i in range(1, 6)]
+    return {"image_size": [640, 480], "object_points": [obj] * len(views), "image_points": views}
+
+
+# -- a minimal viser client ------------------------------------------------------------------
+
+
+def _decode_window(raw: bytes) -> list[dict[str, Any]]:
+    """Decode one viser websocket frame: two little-endian sizes, zstd msgpack, raw buffers."""
+    import msgspec
+    import zstandard
+
+    size = int.from_bytes(raw[0:8], "little")
+    compressed = int.from_bytes(raw[8:16], "little")
+    inner = zstandard.ZstdDecompressor().decompress(raw[16 : 16 + compressed], max_output_size=size)
+    return msgspec.msgpack.decode(inner)["messages"]
+
+
+def read_scene(port: int, timeout: float = 10.0) -> dict[str, dict[str, Any]]:
+    """Connect to the viser server as its web client does and return the scene it replays:
+    node name -> {"type", "props", "position"?, "wxyz"?}.
+
+    A synchronous websocket client: Playwright's sync API already runs an event loop here."""
+    import viser
+    from websockets.sync.client import connect
+
+    nodes: dict[str, dict[str, Any]] = {}
+    deadline = time.monotonic() + timeout
+    with connect(
+        f"ws://127.0.0.1:{port}",
+        subprotocols=[f"viser-v{viser.__version__}"],
+        max_size=None,
+        open_timeout=timeout,
+    ) as ws:
+        while time.monotonic() < deadline:
+            raw = ws.recv(timeout=max(deadline - time.monotonic(), 0.01))
+            for m in _decode_window(raw):
+                kind, name = m["type"], m.get("name")
+                if kind == "ReplayDoneMessage":
+                    return nodes
+                if kind == "RemoveSceneNodeMessage":
+                    for key in [k for k in nodes if k == name or k.startswith(f"{name}/")]:
+                        del nodes[key]
+                elif kind == "SetPositionMessage" and name in nodes:
+                    nodes[name]["position"] = m["position"]
+                elif kind == "SetOrientationMessage" and name in nodes:
+                    nodes[name]["wxyz"] = m["wxyz"]
+                elif name is not None and "props" in m:
+                    nodes[name] = {"type": kind, "props": m["props"]}
+    raise TimeoutError(f"the viser server on port {port} sent no complete scene in {timeout} s")
+
+
+@pytest.fixture
+def scene_reader():
+    """Return read_scene(port, timeout) (a fixture, so tests need not import conftest)."""
+    return read_scene
+
+
+@pytest.fixture
+def zhang_document() -> dict[str, Any]:
+    """Return Zhang's correspondences as a request-shaped document."""
+    return zhang_correspondences()
+
+
+@pytest.fixture
+def zhang_json(tmp_path: Path) -> Path:
+    """Write Zhang's correspondences to a JSON file, as a user would pick it, and return it."""
+    path = tmp_path / "zhang1998-correspondences.json"
+    path.write_text(json.dumps(zhang_correspondences()))
+    return path

@@ -1,0 +1,238 @@
+"""The dashboard in a real headless Chromium against `intspace serve` started as a user starts it.
+
+Scenario: sign in with the admin token, add a camera, calibrate it from Zhang's published
+correspondences (a JSON file picked in the page), apply the result, read the intrinsics, export
+them, and find the camera in the live 3D scene.
+
+Screenshots go to the test's temporary directory; with INTSPACE_UPDATE_DOCS=1 the overview is
+also written to docs/dashboard.png (the README's picture).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import re
+import shutil
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from playwright.sync_api import Page, expect
+
+DOCS_SCREENSHOT = Path(__file__).resolve().parents[2] / "docs" / "dashboard.png"
+
+# Zhang's published focal lengths (alpha = 832.5, beta = 832.53, MSR-TR-98-71); a maximum-
+# likelihood fit with skew and k1, k2 reproduces every printed digit, so 0.05 px is generous.
+ZHANG_FX, ZHANG_FY = 832.5, 832.53
+ZHANG_TOL = 0.05
+# A camera without intrinsics is drawn with a 60 degree vertical field of view.
+DEFAULT_FOV = math.radians(60.0)
+
+
+def sign_in(page: Page, base_url: str, token: str) -> None:
+    page.goto(f"{base_url}/")
+    page.get_by_test_id("token-input").fill(token)
+    page.get_by_test_id("token-submit").click()
+    expect(page.get_by_test_id("sign-out")).to_be_visible()
+
+
+def wait_for_scene(read_scene, port: int, predicate, timeout: float = 3.0) -> dict:
+    """Read the scene until `predicate(nodes)` holds; return the nodes (or the last read)."""
+    deadline = time.monotonic() + timeout
+    while True:
+        nodes = read_scene(port)
+        if predicate(nodes) or time.monotonic() > deadline:
+            return nodes
+        time.sleep(0.1)
+
+
+def test_first_page_interactive_and_sign_in(service, browser_page: Page, tmp_path: Path):
+    page = browser_page
+    t0 = time.perf_counter()
+    page.goto(f"{service.base_url}/")
+    page.wait_for_function("document.documentElement.dataset.ready === 'true'")
+    expect(page.get_by_test_id("token-input")).to_be_editable()
+    wall_ms = (time.perf_counter() - t0) * 1000.0
+    in_page_ms = page.evaluate("window.intspaceReadyAt")
+    print(
+        f"\nfirst page interactive: {in_page_ms:.0f} ms after navigation start "
+        f"({wall_ms:.0f} ms wall clock from goto, headless Chromium, loopback)"
+    )
+    # Without a token the page says what to do rather than showing empty data.
+    expect(page.get_by_test_id("page-error")).to_contain_text("access token")
+    expect(page).to_have_title(re.compile("intspace"))
+    favicon = page.request.get(f"{service.base_url}/favicon.svg")
+    assert favicon.ok and "svg" in favicon.headers["content-type"]
+
+    page.get_by_test_id("token-input").fill("not-the-token")
+    page.get_by_test_id("token-submit").click()
+    expect(page.get_by_test_id("auth-status")).to_have_text("Token refused")
+    assert page.evaluate("localStorage.getItem('intspace.token')") is None
+
+    page.get_by_test_id("token-input").fill(service.token)
+    page.get_by_test_id("token-submit").click()
+    expect(page.get_by_test_id("sign-out")).to_be_visible()
+    expect(page.get_by_test_id("health-database")).to_have_text("sqlite")
+    expect(page.get_by_test_id("count-cameras")).to_contain_text("0")
+
+    # Signed in, a reload shows the overview with its data from the token kept in the browser.
+    t0 = time.perf_counter()
+    page.reload()
+    expect(page.get_by_test_id("device-counts")).to_be_visible()
+    print(f"overview with data after reload: {(time.perf_counter() - t0) * 1000:.0f} ms")
+    page.screenshot(path=tmp_path / "overview.png", full_page=True)
+
+    page.get_by_test_id("sign-out").click()
+    expect(page.get_by_test_id("token-input")).to_be_visible()
+    assert page.evaluate("localStorage.getItem('intspace.token')") is None
+
+
+def test_calibrate_apply_export_and_see_the_camera_in_the_scene(
+    service, browser_page: Page, zhang_json: Path, scene_reader, tmp_path: Path
+):
+    page = browser_page
+    sign_in(page, service.base_url, service.token)
+
+    # Add the camera through the form; the page moves to its detail.
+    page.get_by_test_id("nav-cameras").click()
+    page.get_by_test_id("camera-name").fill("pulnix-zhang")
+    page.get_by_test_id("camera-width").fill("640")
+    page.get_by_test_id("camera-height").fill("480")
+    page.get_by_test_id("camera-create").click()
+    page.wait_for_url(re.compile(r".*#/cameras/\d+$"))
+    camera_id = int(page.url.rsplit("/", 1)[1])
+    expect(page.get_by_test_id("camera-uncalibrated")).to_be_visible()
+    expect(page.get_by_test_id("camera-no-pose")).to_be_visible()
+
+    # The scene server already draws it: parked, greyed, with the default field of view.
+    frustum = f"/cameras/{camera_id}/frustum"
+    nodes = wait_for_scene(scene_reader, service.viser_port, lambda n: frustum in n)
+    assert nodes[frustum]["type"] == "CameraFrustumMessage"
+    assert nodes[frustum]["props"]["fov"] == pytest.approx(DEFAULT_FOV, abs=1e-12)
+    label = nodes[f"/cameras/{camera_id}/label"]["props"]["text"]
+    assert label == "pulnix-zhang (uncalibrated pose)"
+
+    # Start a run from the correspondences file, picked through the file input.
+    page.get_by_test_id("calibrate-camera").click()
+    expect(page.get_by_test_id("run-camera")).to_have_value(str(camera_id))
+    page.get_by_test_id("run-json-file").set_input_files(zhang_json)
+    expect(page.get_by_test_id("json-summary")).to_contain_text("5 views, 1280 points")
+    page.get_by_test_id("run-distortion").select_option("k1k2")
+    page.get_by_test_id("run-skew").check()
+    page.get_by_test_id("run-submit").click()
+    page.wait_for_url(re.compile(r".*#/calibration/runs/\d+$"))
+    run_id = int(page.url.rsplit("/", 1)[1])
+    expect(page.get_by_test_id("run-status")).to_have_text("succeeded", timeout=60_000)
+
+    run = service.api("GET", f"/calibration-runs/{run_id}")
+    K = np.array(run["result"]["K"])
+    assert K[0, 0] == pytest.approx(ZHANG_FX, abs=ZHANG_TOL)
+    assert K[1, 1] == pytest.approx(ZHANG_FY, abs=ZHANG_TOL)
+    expect(page.get_by_test_id("run-fx")).to_contain_text(f"{K[0, 0]:.3f}")
+    expect(page.get_by_test_id("run-fx")).to_contain_text("832.5")
+    expect(page.get_by_test_id("run-rms")).to_contain_text(f"{run['result']['rms']:.4f} px")
+
+    # One bar per view, each the API's per-view RMS.
+    bars = page.locator("[data-testid^='residual-bar-']")
+    expect(bars).to_have_count(5)
+    drawn = [float(bars.nth(i).get_attribute("data-value")) for i in range(5)]
+    np.testing.assert_allclose(drawn, run["result"]["per_view_rms"], rtol=0, atol=1e-12)
+    page.screenshot(path=tmp_path / "run.png", full_page=True)
+
+    # Apply, then read the camera's new intrinsics on its page.
+    page.get_by_test_id("run-apply").click()
+    expect(page.get_by_test_id("run-applied")).to_be_visible()
+    page.get_by_test_id("run-camera-link").click()
+    expect(page.get_by_test_id("camera-fx")).to_contain_text(f"{K[0, 0]:.3f}")
+    expect(page.get_by_test_id("camera-fy")).to_contain_text(f"{K[1, 1]:.3f}")
+    std_fx = run["result"]["std_intrinsics"]["fx"]
+    expect(page.get_by_test_id("camera-fx")).to_contain_text(f"± {std_fx:.3f}")
+    expect(page.get_by_test_id("camera-K")).to_contain_text("832.5")
+    history = page.get_by_test_id("calibration-history").locator("tbody tr")
+    expect(history).to_have_count(1)
+    expect(history.first).to_contain_text(f"#{run_id}")
+    page.screenshot(path=tmp_path / "camera.png", full_page=True)
+
+    # Export: the OpenCV file carries the same K (read back with OpenCV itself).
+    with page.expect_download() as download_info:
+        page.get_by_test_id("export-opencv").click()
+    exported = tmp_path / "exported.yaml"
+    download_info.value.save_as(exported)
+    fs = cv2.FileStorage(str(exported), cv2.FILE_STORAGE_READ)
+    np.testing.assert_allclose(fs.getNode("camera_matrix").mat(), K, rtol=1e-9)
+    fs.release()
+
+    # The embedded scene: the iframe shows the viser page the API names.
+    page.get_by_test_id("nav-scene").click()
+    viser_url = service.api("GET", "/scene")["viser_url"]
+    assert viser_url == f"http://127.0.0.1:{service.viser_port}/"
+    iframe = page.get_by_test_id("scene-iframe")
+    expect(iframe).to_have_attribute("src", viser_url)
+    frame = iframe.element_handle().content_frame()
+    frame.wait_for_load_state()
+    assert frame.url == viser_url
+    assert "viser" in frame.content().lower()
+
+    # And the scene server draws the applied intrinsics: fov = 2 atan(h / 2 fy).
+    expected_fov = 2.0 * math.atan(480 / (2.0 * K[1, 1]))
+    nodes = wait_for_scene(
+        scene_reader,
+        service.viser_port,
+        lambda n: abs(n[frustum]["props"]["fov"] - expected_fov) < 1e-9,
+    )
+    assert nodes[frustum]["props"]["fov"] == pytest.approx(expected_fov, abs=1e-9)
+    assert nodes[frustum]["props"]["aspect"] == pytest.approx(640 / 480, abs=1e-12)
+
+    page.get_by_test_id("nav-overview").click()
+    expect(page.get_by_test_id("count-cameras")).to_contain_text("1 calibrated")
+    page.screenshot(path=tmp_path / "dashboard.png")
+    if os.environ.get("INTSPACE_UPDATE_DOCS") == "1":
+        DOCS_SCREENSHOT.parent.mkdir(exist_ok=True)
+        shutil.copyfile(tmp_path / "dashboard.png", DOCS_SCREENSHOT)
+
+
+def test_problems_from_the_api_are_shown(
+    service, browser_page: Page, zhang_document: dict, tmp_path: Path
+):
+    page = browser_page
+    camera = service.api("POST", "/cameras", {"name": "hall", "width": 640, "height": 480})
+    sign_in(page, service.base_url, service.token)
+    page.goto(f"{service.base_url}/#/calibration?camera={camera['id']}")
+
+    # The service refuses an image size of 0: its problem detail names the field.
+    bad = tmp_path / "bad-size.json"
+    bad.write_text(
+        '{"image_size": [0, 480], "object_points": [[[0,0,0]]], "image_points": [[[1,1]]]}'
+    )
+    page.get_by_test_id("run-json-file").set_input_files(bad)
+    page.get_by_test_id("run-submit").click()
+    error = page.get_by_test_id("run-form-error")
+    expect(error).to_be_visible()
+    expect(error).to_contain_text("image_size")
+
+    # A file that is not JSON is refused in the page, before anything is sent.
+    junk = tmp_path / "junk.json"
+    junk.write_text("not json")
+    page.get_by_test_id("run-json-file").set_input_files(junk)
+    expect(page.get_by_test_id("run-form-error")).to_contain_text("not valid JSON")
+
+    # Two views cannot determine five intrinsics with skew: the run fails and says why.
+    two = dict(zhang_document)
+    two["object_points"], two["image_points"] = two["object_points"][:2], two["image_points"][:2]
+    path = tmp_path / "two-views.json"
+    path.write_text(json.dumps(two))
+    page.get_by_test_id("run-json-file").set_input_files(path)
+    page.get_by_test_id("run-skew").check()
+    page.get_by_test_id("run-submit").click()
+    expect(page.get_by_test_id("run-status")).to_have_text(
+        re.compile("failed|succeeded"), timeout=60_000
+    )
+    run_id = int(page.url.rsplit("/", 1)[1])
+    run = service.api("GET", f"/calibration-runs/{run_id}")
+    assert run["status"] == "failed"
+    expect(page.get_by_test_id("run-error")).to_contain_text(run["error"][:60])
+    expect(page.get_by_test_id("run-apply")).to_have_count(0)
