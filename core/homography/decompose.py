@@ -145,29 +145,33 @@ def _euclidean_homography(H: Array, K: Array, K2: Array) -> Array:
 def _decompose_normalised(He: Array, rotation_tol: float) -> HomographyDecompositionBatch:
     """Decompose H_e (B, 3, 3) (any scale and sign) by the SVD method; see the module docstring.
 
-    The SVD is taken from the eigen-decomposition of H_e^T H_e = V diag(s^2) V^T (LAPACK's
-    batched symmetric solver, faster than the batched general SVD) with U = H_e V diag(s)^-1,
-    so that no left singular vector is formed explicitly: R = H_e V diag(1/s) R' V^T and
-    t = H_e V diag(1/s) t'.
+    The SVD is taken from the eigen-decomposition H_e^T H_e = V diag(s^2) V^T (LAPACK's
+    batched symmetric solver, ~2x faster than the batched general SVD), with s3 = det(H_e) /
+    (s1 s2), u1 = H_e v1 / s1, u2 = H_e v2 / s2 and u3 = det(V) u1 x u2; R, t and n are then
+    assembled in closed form from these columns (no 3x3 products per candidate).
     """
     B = He.shape[0]
     # Sign: det(H_e) > 0 keeps the solutions with both camera centres on one side of the plane.
     det = np.linalg.det(He)
     He = He * np.where(det < 0, -1.0, 1.0)[:, None, None]
-    lam, V = np.linalg.eigh(np.swapaxes(He, -1, -2) @ He)  # ascending eigenvalues
+    HtH = np.swapaxes(He, -1, -2) @ He
+    lam, V = np.linalg.eigh(HtH)  # ascending eigenvalues
     lam = np.maximum(lam[:, ::-1], 0.0)
     V = V[:, :, ::-1]
     s = np.sqrt(lam)
-    s_max = s[:, 0]
-    singular = ~(s[:, 2] > _SINGULAR_RCOND * s_max)
+    # s3 from the determinant keeps full relative precision for small s3 (sqrt(lam3) carries an
+    # absolute error of eps * s1^2 / s3).
+    s[:, 2] = np.abs(det) / np.maximum(s[:, 0] * s[:, 1], np.finfo(float).tiny)
+    singular = ~(s[:, 2] > _SINGULAR_RCOND * s[:, 0])
     s2 = np.where(singular, 1.0, s[:, 1])
     He = He / s2[:, None, None]
     s = s / s2[:, None]
     s = np.where(singular[:, None], 1.0, s)
     s1, s3 = s[:, 0], s[:, 2]
 
-    # Pure rotation by OpenCV's criterion on S = H_e^T H_e - I, or an unresolvable gap s1 - s3.
-    S_max = np.max(np.abs(lam / (s2 * s2)[:, None] - 1.0), axis=1)
+    # Pure rotation by OpenCV's criterion, max |S_ij| with S = H_e^T H_e - I (elementwise), or a
+    # gap s1 - s3 too small to resolve.
+    S_max = np.max(np.abs(HtH / (s2 * s2)[:, None, None] - np.eye(3)), axis=(1, 2))
     gap_tol = _GAP_ULPS * np.finfo(float).eps * s1
     pure = ~singular & ((S_max < rotation_tol) | (s1 - s3 <= gap_tol))
     along = ~singular & ~pure & ((s1 - 1.0 <= gap_tol) | (1.0 - s3 <= gap_tol))
@@ -183,10 +187,13 @@ def _decompose_normalised(He: Array, rotation_tol: float) -> HomographyDecomposi
     sin_abs = x1 * x3 * (s1 - s3)
     d13 = s1 - s3
 
-    # U = H_e V diag(1/s): left singular vectors without a second factorisation.
-    U = (He @ V) / s[:, None, :]
-    u1, u2, u3 = U[:, :, 0], U[:, :, 1], U[:, :, 2]
+    # U = H_e V diag(1/s): left singular vectors without a second factorisation. u3 is taken as
+    # det(V) u1 x u2 (det U = det V because det H_e > 0), exact however small s3 is.
     v1, v2, v3 = V[:, :, 0], V[:, :, 1], V[:, :, 2]
+    u1 = (He @ v1[:, :, None])[:, :, 0] / s1[:, None]
+    u2 = (He @ v2[:, :, None])[:, :, 0]
+    det_v = np.einsum("bi,bi->b", np.cross(v1, v2), v3)
+    u3 = det_v[:, None] * np.cross(u1, u2)
 
     def outer(a: Array, b: Array) -> Array:
         return a[:, :, None] * b[:, None, :]
