@@ -149,7 +149,7 @@ def estimate_plane_pose(
     g = np.zeros(0)
     iterations = 0
     if refine:
-        sol = solve_sparse_lm(problem, g, x_local, max_iterations=max_iterations)
+        sol = solve_sparse_lm(problem, g, x_local, max_iterations=max_iterations, ftol=1e-14)
         x_local = sol.x_local
         iterations = sol.iterations
     res, _, jl = problem.jacobians(g, x_local)

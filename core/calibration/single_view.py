@@ -191,7 +191,7 @@ def calibrate_single_view(
     loc0 = np.concatenate([matrix_to_rotvec(pose0.R), pose0.t])[None]
     g, loc, iterations = g0, loc0, 0
     if refine:
-        sol = solve_sparse_lm(problem, g0, loc0, max_iterations=max_iterations)
+        sol = solve_sparse_lm(problem, g0, loc0, max_iterations=max_iterations, ftol=1e-14)
         g, loc, iterations = sol.x_global, sol.x_local, sol.iterations
     res, jg, jl = problem.jacobians(g, loc)
     J = np.concatenate([jg[0], jl[0]], 1)
