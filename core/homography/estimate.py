@@ -37,6 +37,11 @@ _SAMPLE_DET_TOL = 1e-6
 # Hypotheses x points scored per numpy call in RANSAC: large enough to amortise the call
 # overhead, small enough to keep the (K, 3, N) temporaries in cache-friendly sizes.
 _RANSAC_BATCH_ELEMENTS = 400_000
+# LM stopping: stop when the next step would lower the cost by less than 1e-9 of it. At the
+# minimum the cost is ~ n sigma^2 / 2 (unit-variance terms), so H is then within
+# sqrt(2e-9 n) standard deviations of the exact minimiser (1.4e-3 at n = 1000): converged far
+# below the noise, one evaluation earlier than waiting for a negligible accepted step.
+_LM_PTOL = 1e-9
 
 
 def _normalize_t(points: Array, name: str) -> tuple[Array, Array]:
@@ -454,9 +459,7 @@ def fit_homography(
     if method == "gold":
         gold = _GoldStandardProblem(ps_t, pd_t, src_scale, dst_scale)
         x0 = _sampson_src(hn, ps_t, pd_t, src_scale, dst_scale)
-        lm = solve_sparse_lm(
-            gold, g0, x0, max_iterations=max_iterations, ftol=1e-9, xtol=1e-10, gtol=1e-10
-        )
+        lm = solve_sparse_lm(gold, g0, x0, max_iterations=max_iterations, ptol=_LM_PTOL)
         corrected = np.full((n, 2), np.nan)
         corrected[inliers] = (lm.x_local - Ts[:2, 2]) / src_scale
     else:
@@ -466,9 +469,7 @@ def fit_homography(
             g0,
             np.zeros((ps_t.shape[1], 0)),
             max_iterations=0 if method == "dlt" else max_iterations,
-            ftol=1e-9,
-            xtol=1e-10,
-            gtol=1e-10,
+            ptol=_LM_PTOL,
         )
     # The gauge H_n[2,2] = 1 leaves no freedom, so S is invertible (pinv would cost 8x more).
     try:

@@ -210,6 +210,7 @@ def solve_sparse_lm(
     ftol: float = 1e-12,
     xtol: float = 1e-12,
     gtol: float = 1e-12,
+    ptol: float = 0.0,
     n_residuals: int | None = None,
     damping: Literal["marquardt", "levenberg"] = "marquardt",
 ) -> SparseLMResult:
@@ -219,10 +220,13 @@ def solve_sparse_lm(
     diagonal of J^T J (Marquardt's scaling, invariant to parameter units) or the identity
     (Levenberg); mu follows Nielsen's rule (Madsen, Nielsen & Tingleff, "Methods for Non-Linear
     Least Squares Problems", 2004, eq. 3.16). Stops when the relative cost decrease of an accepted
-    step, or the decrease the linear model predicts for the next step, is below `ftol`; the
-    relative step is below `xtol`, the gradient's infinity norm is below
+    step is below `ftol`, the relative step is below `xtol`, the gradient's infinity norm is below
     `gtol` times the initial one, or after `max_iterations` (counting rejected steps too;
-    `max_iterations=0` only evaluates the information at the starting point).
+    `max_iterations=0` only evaluates the information at the starting point). With `ptol` > 0 it
+    also stops, without taking the step, when the decrease the linear model predicts for the next
+    step is below `ptol` times the cost: the cost is then within about that fraction of the
+    minimum, and the parameters within sqrt(2 ptol cost) in units of their standard deviation
+    (unit-variance residuals), which saves one evaluation when that is precise enough.
 
     Local blocks may be empty (x_local of shape (m, 0)): the problem is then a dense LM over the
     global block, with the m residual blocks only organising the residuals.
@@ -304,9 +308,9 @@ def solve_sparse_lm(
                 float(dg @ (mu * d_g * dg - b_g))
                 + float(dl.ravel() @ (mu * d_l * dl - b_l).ravel())
             )
-            if nu == 2.0 and 0.0 <= predicted <= ftol * cost:
+            if nu == 2.0 and 0.0 <= predicted <= ptol * cost:
                 # Right after an accepted step (damping not inflated by rejections) the model
-                # promises less than ftol of the cost: converged, without paying for the step.
+                # promises less than ptol of the cost: converged, without paying for the step.
                 status = "cost"
                 break
 
