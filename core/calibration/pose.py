@@ -33,7 +33,7 @@ def plane_points(points: ArrayLike, name: str, min_count: int = 4) -> Array:
     Raises InvalidInput for wrong shapes, non-finite values or Z != 0, NotEnoughPoints when
     fewer than `min_count` points are given.
     """
-    a = np.asarray(points, dtype=np.float64) if not isinstance(points, np.ndarray) else points
+    a = np.asarray(points)
     if a.ndim == 2 and a.shape[1] == 3:
         p = as_points(a, 3, name, min_count)
         extent = float(np.max(np.abs(p[:, :2]), initial=0.0))

@@ -294,7 +294,12 @@ def calibrate_camera(
         uv[j, :n] = img[j]
         mask[j, :n] = True
 
-    Hs = np.stack([dlt_homography(obj[j], img[j]) for j in range(m)])
+    Hs = np.empty((m, 3, 3))
+    for j in range(m):
+        try:
+            Hs[j] = dlt_homography(obj[j], img[j])
+        except DegenerateConfiguration as exc:
+            raise DegenerateConfiguration(f"view {j}: {exc}") from None
     K0 = intrinsics_from_homographies(Hs, (w, h), skew=skew)
     poses0 = pose_from_homography(Hs, K0, X[..., :2])
     dist0 = np.zeros(5)
