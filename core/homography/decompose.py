@@ -3,7 +3,8 @@
 Model (spec 01 §3). A plane n^T X = d (n unit, d > 0, X in camera-1 coordinates) seen by two
 cameras related by X2 = R X1 + t induces x2 ~ H x1 between their pixels, with
 
-    H ~ K2 (R + t n^T / d) K1^-1                       (Hartley & Zisserman, 2nd ed., eq. 13.2)
+    H ~ K2 (R + t n^T / d) K1^-1         (cf. Hartley & Zisserman, 2nd ed., result 13.1, there
+                                           with the plane written n^T X + d = 0)
 
 which is OpenCV's convention for cv2.decomposeHomographyMat. Every result below reports t
 already divided by d (so it is metric once the plane distance, e.g. the camera height, is known).
@@ -18,7 +19,7 @@ with R = U R' V^T, t = U t', n = V n' and
                              x3 = sqrt((1 - s3^2) / (s1^2 - s3^2))
     R' = rotation about the second axis by theta,  cos theta = s1 x3^2 + s3 x1^2,
                                                    sin theta = e1 e3 x1 x3 (s1 - s3)
-    t' = (s1 - s3) (e1 x1, 0, -e3 x3)                                  (Faugeras & Lustman eq. 12)
+    t' = (s1 - s3) (e1 x1, 0, -e3 x3)
 
 for the sign choices e1, e3 in {+1, -1}.
 
