@@ -12,7 +12,7 @@ from alembic import command
 from alembic.config import Config
 from alembic.runtime.migration import MigrationContext
 from alembic.script import ScriptDirectory
-from sqlalchemy import Engine
+from sqlalchemy import Connection, Engine, inspect
 from sqlalchemy.engine import make_url
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
@@ -68,13 +68,22 @@ def backup_sqlite(database_url: str, label: str) -> Path | None:
     return target
 
 
+def _has_tables(engine: Engine) -> bool:
+    return bool(inspect(engine).get_table_names())
+
+
 def upgrade_to_head(engine: Engine, database_url: str) -> Path | None:
     """Apply pending migrations; SQLite files are backed up first. Return the backup's path."""
     state = schema_state(engine, database_url)
     if not state.pending:
         return None
     backup = None
-    if engine.dialect.name == "sqlite" and state.current is not None:
+    if engine.dialect.name == "sqlite" and _has_tables(engine):
         backup = backup_sqlite(database_url, f"before-{state.head}")
     command.upgrade(alembic_config(database_url), "head")
     return backup
+
+
+def current_revision(connection: Connection) -> str | None:
+    """Return the database's Alembic revision, None when it was never migrated."""
+    return MigrationContext.configure(connection).get_current_revision()
