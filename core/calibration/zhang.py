@@ -248,8 +248,9 @@ def calibrate_camera(
     optimum cv2.calibrateCamera finds. Needs >= 3 views (>= 2 when skew=False), >= 4 points per
     view and more residuals than parameters. Raises NotEnoughPoints, InvalidInput,
     DegenerateConfiguration (views that do not fix the intrinsics), ConvergenceError.
-    `max_iterations` and `ftol` (relative cost decrease that stops the LM) tune the refinement;
-    the default stops within ~1e-14 of the minimum's cost, past OpenCV's own stopping point.
+    `max_iterations` and `ftol` tune the refinement: the LM stops when an accepted step lowers
+    the cost by less than `ftol` relative (1e-14: past OpenCV's own stopping point, so both
+    report the same optimum).
     """
     if distortion not in DISTORTION_MODELS:
         raise InvalidInput(
