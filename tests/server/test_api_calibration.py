@@ -329,3 +329,44 @@ def test_worker_claims_queued_runs(make_settings, admin, shared_data_dir):
         engine.dispose()
         run = client.get(f"/api/v1/calibration-runs/{run_id}", headers=admin).json()
         assert run["status"] == "succeeded" and run["started_at"] and run["finished_at"]
+
+
+def test_shutdown_interrupts_the_run_in_progress(make_settings, admin, monkeypatch):
+    import threading
+    import time
+
+    from server.services import calibration
+
+    release = threading.Event()
+
+    def slow_calibration(inputs, options):
+        release.wait(10)
+        return {"K": [[1, 0, 0], [0, 1, 0], [0, 0, 1]]}
+
+    monkeypatch.setattr(calibration, "calibrate_from_correspondences", slow_calibration)
+    body = {
+        "kind": "intrinsics",
+        "image_size": [640, 480],
+        "object_points": [[[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]]] * 3,
+        "image_points": [[[0, 0], [10, 0], [10, 10], [0, 10]]] * 3,
+    }
+    with TestClient(create_app(make_settings())) as client:
+        camera_id = _camera(client, admin)
+        run_id = client.post(
+            "/api/v1/calibration-runs", json={**body, "camera_id": camera_id}, headers=admin
+        ).json()["id"]
+        deadline = time.monotonic() + 10
+        while (
+            client.get(f"/api/v1/calibration-runs/{run_id}", headers=admin).json()["status"]
+            != "running"
+        ):
+            assert time.monotonic() < deadline
+            time.sleep(0.02)
+    # The lifespan ended with the run still computing: it is recorded as interrupted, and the
+    # computation finishing afterwards does not overwrite that.
+    release.set()
+    time.sleep(0.2)
+    with TestClient(create_app(make_settings(run_executor="external"))) as client:
+        run = client.get(f"/api/v1/calibration-runs/{run_id}", headers=admin).json()
+    assert run["status"] == "interrupted" and "shutdown" in run["error"]
+    assert run["result"] is None
