@@ -230,11 +230,11 @@ class _OpenCVLoader(yaml.SafeLoader):
     """SafeLoader that understands OpenCV's !!opencv-matrix tag and ignores other tags."""
 
 
-def _construct_opencv_matrix(loader: yaml.SafeLoader, node: yaml.Node) -> Array:
+def _construct_opencv_matrix(loader: yaml.SafeLoader, node: yaml.Node) -> dict[Any, Any]:
+    # Kept as a mapping, like the JSON form, and checked once its key (the name) is known.
     if not isinstance(node, yaml.MappingNode):
         raise InvalidInput("an !!opencv-matrix must be a mapping with rows, cols, dt and data")
-    m = loader.construct_mapping(node, deep=True)
-    return _opencv_matrix(m, "!!opencv-matrix")
+    return {**loader.construct_mapping(node, deep=True), "type_id": "opencv-matrix"}
 
 
 def _construct_unknown(loader: yaml.SafeLoader, tag_suffix: str, node: yaml.Node) -> Any:
@@ -351,8 +351,8 @@ def _record_from_opencv(doc: object, fmt: str) -> CalibrationRecord:
         raise InvalidInput(f"{fmt} must be a mapping of keys to values")
     K = _first(doc, _K_KEYS, fmt)
     dist = _first(doc, _DIST_KEYS, fmt)
-    K = K if isinstance(K, np.ndarray) else _opencv_matrix(K, "camera_matrix")
-    dist = dist if isinstance(dist, np.ndarray) else _opencv_matrix(dist, "distortion_coefficients")
+    K = _opencv_matrix(K, "camera_matrix")
+    dist = _opencv_matrix(dist, "distortion_coefficients")
     if "image_width" in doc or "image_height" in doc:
         size = (_int(doc, "image_width"), _int(doc, "image_height"))
     elif "cameraResolution" in doc:

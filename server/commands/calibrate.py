@@ -129,6 +129,9 @@ def _run(args: argparse.Namespace) -> int:
             f"unknown distortion model {args.distortion!r}; use one of "
             f"{', '.join(DISTORTION_MODELS)}"
         )
+    for path in (args.output_yaml, args.ros_yaml):
+        if path is not None and not path.parent.is_dir():
+            raise CommandError(f"cannot write {path}: folder {path.parent} does not exist")
     detect, pattern_text = _detector(args)
     photos, skipped = _read_photos(args.folder)
     image_size = (photos[0].image.shape[1], photos[0].image.shape[0])
