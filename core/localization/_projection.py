@@ -1,15 +1,10 @@
 """Projection of floor points and the small Jacobians every localisation estimator shares.
 
-For a point (X, Y) on the plane Z = h seen by camera k (Xc = R X + t, pixel u = pi_k(Xc)):
-
-    J_k = d u / d(X, Y) = (d u / d Xc) R[:, :2]                                  (2 x 2)
-
-and for ideal normalised coordinates m = (x, y) (undistorted, K^-1 removed):
+For a point (X, Y) on the plane Z = h seen by camera k (Xc = R X + t, pixel u = pi_k(Xc)), with
+m = (x, y) its ideal normalised coordinates (undistorted, K^-1 removed):
 
     B_k = d u / d m = [[fx, s], [0, fy]] d(distortion) / d m                     (2 x 2)
-
-Both come from the analytic Jacobians of core.geometry.camera.project_points: the derivative
-with respect to the translation equals the derivative with respect to Xc.
+    J_k = d u / d(X, Y) = B_k (d m / d Xc) R[:, :2]                              (2 x 2)
 """
 
 from __future__ import annotations
@@ -19,7 +14,6 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from core.geometry.camera import project_points
 from core.localization.cameras import NetworkCamera
 
 Array = NDArray[np.float64]
@@ -34,31 +28,78 @@ class PlaneProjection:
     jacobian: Array | None
 
 
+def distort_to_pixels(
+    camera: NetworkCamera, m: Array, *, jacobian: bool = False
+) -> tuple[Array, Array | None]:
+    """Return the pixels (B, 2) of ideal normalised coordinates m (B, 2) and B = d pixel / d m.
+
+    The model of core.geometry.camera (OpenCV's radial-tangential distortion, then K), restated
+    here because the estimators need only this 2 x 2 Jacobian: project_points' full set (pose,
+    intrinsics, distortion) costs about ten times more on a batch. The tests hold the two
+    implementations equal.
+    """
+    K = camera.K
+    fx, s, cx, fy, cy = K[0, 0], K[0, 1], K[0, 2], K[1, 1], K[1, 2]
+    k1, k2, p1, p2, k3 = camera.dist
+    x = m[:, 0]
+    y = m[:, 1]
+    xx, yy, xy = x * x, y * y, x * y
+    r2 = xx + yy
+    rad = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    xd = x * rad + 2.0 * p1 * xy + p2 * (r2 + 2.0 * xx)
+    yd = y * rad + p1 * (r2 + 2.0 * yy) + 2.0 * p2 * xy
+    pixels = np.empty_like(m)
+    pixels[:, 0] = fx * xd + s * yd + cx
+    pixels[:, 1] = fy * yd + cy
+    if not jacobian:
+        return pixels, None
+    drad = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)  # d rad / d r^2
+    a11 = rad + 2.0 * xx * drad + 2.0 * p1 * y + 6.0 * p2 * x
+    a12 = 2.0 * xy * drad + 2.0 * p1 * x + 2.0 * p2 * y
+    a22 = rad + 2.0 * yy * drad + 6.0 * p1 * y + 2.0 * p2 * x
+    B = np.empty((m.shape[0], 2, 2))
+    B[:, 0, 0] = fx * a11 + s * a12
+    B[:, 0, 1] = fx * a12 + s * a22
+    B[:, 1, 0] = fy * a12
+    B[:, 1, 1] = fy * a22
+    return pixels, B
+
+
 def project_plane(
     camera: NetworkCamera, xy: Array, height: float, *, jacobian: bool = False
 ) -> PlaneProjection:
-    """Return the projection of floor points xy (B, 2) at Z = height into `camera`."""
-    X = np.empty((xy.shape[0], 3))
-    X[:, :2] = xy
-    X[:, 2] = height
-    p = project_points(X, camera.rvec, camera.t, camera.K, camera.dist, jacobians=jacobian)
-    J = None
-    if jacobian:
-        assert p.d_pose is not None
-        J = p.d_pose[:, :, 3:] @ camera.R[:, :2]
-    return PlaneProjection(pixels=p.points, depth=p.depth, jacobian=J)
+    """Return the projection of floor points xy (B, 2) at Z = height into `camera`.
+
+    Xc = R[:, :2] (X, Y) + (R[:, 2] h + t), m = (Xc_x, Xc_y) / Xc_z, and
+    d m_i / d(X, Y) = (R[i, :2] - m_i R[2, :2]) / Xc_z, so J = B (d m / d(X, Y)).
+    """
+    R = camera.R
+    c = R[:, 2] * height + camera.t
+    Xc = xy @ R[:, :2].T + c
+    z = Xc[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        iz = 1.0 / z
+    m = Xc[:, :2] * iz[:, None]
+    pixels, B = distort_to_pixels(camera, m, jacobian=jacobian)
+    if B is None:
+        return PlaneProjection(pixels=pixels, depth=z, jacobian=None)
+    dm = (R[None, :2, :2] - m[:, :, None] * R[2, :2]) * iz[:, None, None]
+    return PlaneProjection(pixels=pixels, depth=z, jacobian=B @ dm)
 
 
 def normalized_to_pixel_jacobian(camera: NetworkCamera, m: Array) -> Array:
     """Return B = d pixel / d m (B, 2, 2) at ideal normalised coordinates m (B, 2)."""
-    Xc = np.empty((m.shape[0], 3))
-    Xc[:, :2] = m
-    Xc[:, 2] = 1.0
-    zero = np.zeros(3)
-    p = project_points(Xc, zero, zero, camera.K, camera.dist, jacobians=True)
-    assert p.d_pose is not None
-    # At depth 1, d pixel / d Xc restricted to (Xc_x, Xc_y) is exactly d pixel / d m.
-    return p.d_pose[:, :, 3:5]
+    B = distort_to_pixels(camera, m, jacobian=True)[1]
+    assert B is not None
+    return B
+
+
+def transposed(a: Array) -> Array:
+    """Return the stacked matrices (..., n, m) transposed, as a contiguous array (..., m, n).
+
+    numpy's batched matmul takes a slow path on a transposed view; a copy is 10x faster.
+    """
+    return np.ascontiguousarray(np.swapaxes(a, -1, -2))
 
 
 def inv2(a: Array) -> tuple[Array, Array]:

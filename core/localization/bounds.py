@@ -21,7 +21,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from core.errors import InvalidInput
 from core.localization._checks import as_cameras, check_height
-from core.localization._projection import inv2, project_plane
+from core.localization._projection import inv2, project_plane, transposed
 from core.localization.cameras import NetworkCamera
 
 Array = NDArray[np.float64]
@@ -68,10 +68,10 @@ def fisher_information(
         J = project_plane(cam, xy, height, jacobian=True).jacobian
         assert J is not None
         if pixel_cov is None:
-            f = (J.transpose(0, 2, 1) @ J) / pixel_sigma**2
+            f = (transposed(J) @ J) / pixel_sigma**2
         else:
             s_inv = inv2(pixel_cov[k])[0]
-            f = J.transpose(0, 2, 1) @ s_inv @ J
+            f = transposed(J) @ s_inv @ J
         info += np.where(visible[k][:, None, None], f, 0.0)
     return info
 

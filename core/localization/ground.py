@@ -22,6 +22,10 @@ behind a camera). In a batch the bad targets are flagged instead: `status` holds
 per target, `valid` is `status == OK`, and their estimates are NaN, so one bad detection never
 stops a stream.
 
+Pixels are undistorted by Newton's method (core.geometry.camera.undistort_points); a pixel far
+outside the image, where the distortion polynomial cannot be inverted, raises ConvergenceError
+for the whole call, as detections come from inside the image.
+
 Uncertainty. Every estimate carries the first-order covariance of *that* estimator given the
 pixel covariances (isotropic `pixel_sigma`, or per-detection `pixel_cov`): for the closed-form
 estimators the exact linearisation of the estimator, for ML the inverse Fisher information at
@@ -46,6 +50,7 @@ from core.localization._projection import (
     inv3,
     normalized_to_pixel_jacobian,
     project_plane,
+    transposed,
     whitening,
 )
 from core.localization.cameras import NetworkCamera
@@ -193,8 +198,11 @@ def _parse(
         if not np.all(np.isfinite(c)):
             raise InvalidInput("pixel_cov contains NaN or infinite values for visible detections")
         det = c[:, 0, 0] * c[:, 1, 1] - c[:, 0, 1] * c[:, 1, 0]
-        if np.any(c[:, 0, 0] <= 0) or np.any(det <= 0) or np.any(c[:, 0, 1] != c[:, 1, 0]):
-            raise InvalidInput("every visible detection's pixel_cov must be symmetric positive")
+        asym = np.abs(c[:, 0, 1] - c[:, 1, 0]) > 1e-9 * np.sqrt(np.abs(c[:, 0, 0] * c[:, 1, 1]))
+        if np.any(c[:, 0, 0] <= 0) or np.any(det <= 0) or np.any(asym):
+            raise InvalidInput(
+                "every visible detection's pixel_cov must be symmetric positive definite"
+            )
         cov[~vis] = np.eye(2)
     # Unseen entries get a harmless finite value so that vectorised maths stays finite.
     for k, cam in enumerate(cams):
@@ -232,7 +240,7 @@ def _finish(
     for k, cam in enumerate(obs.cameras):
         uv = project_points(point[idx], cam.rvec, cam.t, cam.K, cam.dist).points
         e = uv - obs.pixels[k, idx]
-        sq += np.where(obs.visible[k, idx], np.sum(e * e, axis=1), 0.0)
+        sq += np.where(obs.visible[k, idx], e[:, 0] ** 2 + e[:, 1] ** 2, 0.0)
     rms = np.full(obs.n_points, np.nan)
     rms[idx] = np.sqrt(sq / (2.0 * n_cam[idx]))
     if not obs.batched:
@@ -286,7 +294,10 @@ def locate_monocular(
     if not isinstance(camera, NetworkCamera):
         raise InvalidInput(f"camera must be a NetworkCamera, got {type(camera).__name__}")
     height = check_height(height)
-    px = np.asarray(pixels, dtype=np.float64) if not isinstance(pixels, np.ndarray) else pixels
+    try:
+        px = np.asarray(pixels, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise InvalidInput(f"pixels must be numeric, shape (B, 2) or (2,): {exc}") from None
     if px.ndim not in (1, 2):
         raise InvalidInput(f"pixels must have shape (B, 2) or (2,), got {px.shape}")
     cov = None if pixel_cov is None else np.asarray(pixel_cov, dtype=np.float64)[None]
@@ -314,9 +325,9 @@ def locate_monocular(
     point_cov = np.full((obs.n_points, 3, 3), np.nan)
     point_cov[ok] = 0.0
     if isinstance(s, float):
-        point_cov[ok, :2, :2] = s * (j_inv @ j_inv.transpose(0, 2, 1))
+        point_cov[ok, :2, :2] = s * (j_inv @ transposed(j_inv))
     else:
-        point_cov[ok, :2, :2] = j_inv @ s @ j_inv.transpose(0, 2, 1)
+        point_cov[ok, :2, :2] = j_inv @ s @ transposed(j_inv)
     n_cam = np.ones(obs.n_points, dtype=np.int64)
     return _finish(obs, "monocular", height, point, point_cov, status, n_cam, 1)
 
@@ -366,10 +377,10 @@ def _solve_linear(obs: _Observations, height: float | None, min_cameras: int) ->
         rows.append((ax, ay, bx, by, c[2]))
     n_cam = obs.visible.sum(axis=0).astype(np.int64)
     m_inv, det = inv3(M) if n == 3 else inv2(M)
-    scale = np.trace(M, axis1=1, axis2=2) / n
+    scale = sum(M[:, i, i] for i in range(n)) / n
     singular = ~(det > _SINGULAR_TOL * scale**n)
     m_inv[singular] = 0.0
-    theta = np.einsum("bij,bj->bi", m_inv, rhs)
+    theta = (m_inv @ rhs[:, :, None])[:, :, 0]
 
     cov = np.zeros((n_pts, n, n))
     behind = np.zeros(n_pts, dtype=bool)
@@ -377,8 +388,8 @@ def _solve_linear(obs: _Observations, height: float | None, min_cameras: int) ->
         ax, ay, bx, by, c2 = rows[k]
         r3 = cam.R[2, :n]
         z = theta @ r3 + c2
-        rx = np.einsum("bi,bi->b", ax, theta) - bx
-        ry = np.einsum("bi,bi->b", ay, theta) - by
+        rx = (ax[:, None, :] @ theta[:, :, None])[:, 0, 0] - bx
+        ry = (ay[:, None, :] @ theta[:, :, None])[:, 0, 0] - by
         vis = obs.visible[k]
         behind |= vis & ~(z > 0)
         gx = r3 * rx[:, None] + ax * z[:, None]
@@ -386,9 +397,9 @@ def _solve_linear(obs: _Observations, height: float | None, min_cameras: int) ->
         G = -(m_inv @ np.stack([gx, gy], axis=-1)) @ b_inv[k]  # (B, n, 2)
         s = obs.cov_of(k, slice(None))
         if isinstance(s, float):
-            cov += s * (G @ G.transpose(0, 2, 1))
+            cov += s * (G @ transposed(G))
         else:
-            cov += G @ s @ G.transpose(0, 2, 1)
+            cov += G @ s @ transposed(G)
     status = np.zeros(n_pts, dtype=np.int8)
     status[behind] = PointStatus.BEHIND_CAMERA
     status[singular] = PointStatus.DEGENERATE
@@ -496,7 +507,7 @@ class _PlaneReprojection:
                 e = e * self.inv_sigma
                 Jk = None if Jk is None else Jk * self.inv_sigma
             else:
-                e = np.einsum("bij,bj->bi", self.whiten[k], e)
+                e = (self.whiten[k] @ e[:, :, None])[:, :, 0]
                 Jk = None if Jk is None else self.whiten[k] @ Jk
             vis = self.visible[k]
             res[:, 2 * k : 2 * k + 2] = np.where(vis[:, None], e, 0.0)

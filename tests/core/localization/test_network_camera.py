@@ -74,3 +74,35 @@ def test_invalid_camera_descriptions_raise():
         NetworkCamera.looking_at(K, None, (0, 0, 3), (0, 0, 0))
     with pytest.raises(InvalidInput, match="last row"):
         NetworkCamera.from_pose(K, None, np.ones((4, 4)))
+
+
+def test_plane_projection_and_jacobians_match_the_camera_model():
+    # The estimators' lean projection restates core.geometry.camera's model: hold them equal.
+    from core.geometry.camera import project_points
+    from core.localization._projection import normalized_to_pixel_jacobian, project_plane
+
+    cam = make_cameras(3)[2]
+    rng = np.random.default_rng(8)
+    xy = np.column_stack([rng.uniform(1, 7, 300), rng.uniform(1, 5, 300)])
+    h = 0.3
+    X = np.column_stack([xy, np.full(300, h)])
+    ref = project_points(X, cam.rvec, cam.t, cam.K, cam.dist, jacobians=True)
+    got = project_plane(cam, xy, h, jacobian=True)
+    assert ref.d_pose is not None and got.jacobian is not None
+    # Same formulas in a different order: agreement to round-off.
+    assert np.allclose(got.pixels, ref.points, rtol=0, atol=1e-9)
+    assert np.allclose(got.depth, ref.depth, rtol=1e-14, atol=0)
+    assert np.allclose(got.jacobian, ref.d_pose[:, :, 3:] @ cam.R[:, :2], rtol=1e-12, atol=1e-9)
+    m = rng.uniform(-0.8, 0.8, (300, 2))
+    ref_m = project_points(
+        np.column_stack([m, np.ones(300)]),
+        np.zeros(3),
+        np.zeros(3),
+        cam.K,
+        cam.dist,
+        jacobians=True,
+    )
+    assert ref_m.d_pose is not None
+    assert np.allclose(
+        normalized_to_pixel_jacobian(cam, m), ref_m.d_pose[:, :, 3:5], rtol=1e-12, atol=1e-9
+    )
