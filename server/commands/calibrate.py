@@ -21,6 +21,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from core.calibration import DISTORTION_MODELS, CameraCalibration, calibrate_camera
 from core.calibration.detect import (
     CharucoSpec,
     PatternDetection,
@@ -30,7 +31,6 @@ from core.calibration.detect import (
     find_circle_grid,
 )
 from core.calibration.io import CalibrationRecord, to_opencv_yaml, to_ros_yaml
-from core.calibration.zhang import DISTORTION_MODELS, CameraCalibration, calibrate_camera
 from core.errors import IntspaceError, PatternNotFound
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".gif")
@@ -313,7 +313,8 @@ def _summary(
     std = calib.std_intrinsics
     lines = [
         f"Calibrated from {len(views)} of {n_photos} photos in {args.folder} ({w}x{h} px): "
-        f"{pattern_text}, {args.square:g} m squares, distortion model {args.distortion}"
+        f"{pattern_text}, {args.square:g} m {'spacing' if args.circles else 'squares'}, "
+        f"distortion model {args.distortion}"
         f"{', with skew' if args.skew else ''}",
         "",
         "K (px) =",

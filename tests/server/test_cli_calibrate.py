@@ -13,6 +13,7 @@ import cv2
 import numpy as np
 import pytest
 
+from core.calibration.detect import CharucoSpec, CircleGrid, board_object_points
 from core.calibration.io import from_opencv_yaml, from_ros_yaml
 from server.cli import main
 
@@ -203,3 +204,47 @@ def test_unwritable_output(
     args = ["calibrate", str(photo_dir), "--chessboard", "9x6", "--square", "0.025"]
     assert main([*args, "--output-yaml", str(target)]) == 2
     assert "does not exist" in capsys.readouterr().err
+
+
+def test_mixed_image_sizes_keep_the_common_one(
+    photo_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    for name in ("view_00.png", "view_01.png", "view_02.png"):
+        (tmp_path / name).write_bytes((photo_dir / name).read_bytes())
+    small = cv2.resize(cv2.imread(str(photo_dir / "view_03.png")), (320, 240))
+    cv2.imwrite(str(tmp_path / "small.png"), small)
+    args = ["calibrate", str(tmp_path), "--chessboard", "9x6", "--square", "0.025", "--json"]
+    assert main(args) == 0
+    captured = capsys.readouterr()
+    assert "small.png is 320x240 px, the others 640x480" in captured.err
+    out = json.loads(captured.out)
+    assert out["image_size"] == [640, 480] and len(out["views"]) == 3
+    assert out["skipped"] == [{"file": "small.png", "reason": "different image size"}]
+
+
+@pytest.mark.parametrize("kind", ["charuco", "asymmetric-circles"])
+def test_other_patterns(kind: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    rng = np.random.default_rng(4)
+    if kind == "charuco":
+        board = cv2.aruco.CharucoBoard(
+            (8, 6), 0.03, 0.0225, cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_5X5_100)
+        )
+        tex = render.charuco_texture(board)
+        model = board_object_points(CharucoSpec(8, 6), 0.03)
+        pattern_args = ["--charuco", "8x6", "--square", "0.03"]
+    else:
+        tex = render.circle_grid_texture(4, 11, 0.02, symmetric=False)
+        model = board_object_points(CircleGrid(4, 11, symmetric=False), 0.02)
+        pattern_args = ["--circles", "4x11", "--asymmetric", "--square", "0.02"]
+    poses = render.board_poses(model.mean(axis=0), 0.42, 4)
+    views = [render.render_view(tex, model, rv, tv, rng) for rv, tv in poses]
+    render.write_views(views, tmp_path)
+    assert main(["calibrate", str(tmp_path), *pattern_args, "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert len(out["views"]) == 4
+    # Four views of 35-44 points at 0.02-0.07 px: fx, fy within 0.3 % as for the chessboard.
+    K = np.array(out["K"])
+    assert np.allclose(np.diag(K)[:2], np.diag(render.TRUE_K)[:2], rtol=3e-3)
+    assert np.allclose(K[:2, 2], render.TRUE_K[:2, 2], atol=2.0)
+    # Poses in metres: the board 0.42 m in front of the camera.
+    assert np.allclose([v["tvec"] for v in out["views"]], [t for _, t in poses], atol=2e-3)
