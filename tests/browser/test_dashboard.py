@@ -40,6 +40,19 @@ def sign_in(page: Page, base_url: str, token: str) -> None:
     expect(page.get_by_test_id("sign-out")).to_be_visible()
 
 
+def look_at(position, target) -> np.ndarray:
+    """Return the camera-to-world transform of a camera at `position` looking at `target`
+    (OpenCV axes: z forward, x right, y down; world Z up)."""
+    p, t = np.asarray(position, float), np.asarray(target, float)
+    z = (t - p) / np.linalg.norm(t - p)
+    x = np.cross(z, [0.0, 0.0, 1.0])
+    x /= np.linalg.norm(x)
+    T = np.eye(4)
+    T[:3, :3] = np.column_stack([x, np.cross(z, x), z])
+    T[:3, 3] = p
+    return T
+
+
 def wait_for_scene(read_scene, port: int, predicate, timeout: float = 3.0) -> dict:
     """Read the scene until `predicate(nodes)` holds; return the nodes (or the last read)."""
     deadline = time.monotonic() + timeout
@@ -187,8 +200,51 @@ def test_calibrate_apply_export_and_see_the_camera_in_the_scene(
     assert nodes[frustum]["props"]["fov"] == pytest.approx(expected_fov, abs=1e-9)
     assert nodes[frustum]["props"]["aspect"] == pytest.approx(640 / 480, abs=1e-12)
 
+    # A floor plan and two posed ceiling cameras, added through the API, appear on the overview
+    # and in the scene at exactly their poses.
+    space = service.api("POST", "/spaces", {"name": "Apartment 4B", "description": "Test flat"})
+    rooms = [
+        ("Living room", [[0, 0], [6, 0], [6, 3], [3.5, 3], [3.5, 5], [0, 5]]),
+        ("Kitchen", [[6, 0], [9, 0], [9, 3], [6, 3]]),
+        ("Study", [[3.5, 3], [6, 3], [6, 5], [3.5, 5]]),
+    ]
+    room_ids = [
+        service.api("POST", "/rooms", {"space_id": space["id"], "name": n, "polygon": p})["id"]
+        for n, p in rooms
+    ]
+    poses = {
+        "ceiling-living": look_at([0.4, 4.6, 2.6], [3.0, 2.0, 0.0]),
+        "ceiling-kitchen": look_at([8.6, 2.6, 2.5], [7.0, 1.0, 0.0]),
+    }
+    posed_ids = {}
+    for name, T in poses.items():
+        body = {"name": name, "width": 1280, "height": 720, "T_world_camera": T.tolist()}
+        body["K"] = [[910.0, 0.0, 640.0], [0.0, 910.0, 360.0], [0.0, 0.0, 1.0]]
+        posed_ids[name] = service.api("POST", "/cameras", body)["id"]
+
     page.get_by_test_id("nav-overview").click()
-    expect(page.get_by_test_id("count-cameras")).to_contain_text("1 calibrated")
+    expect(page.get_by_test_id("count-cameras")).to_contain_text("3")
+    expect(page.get_by_test_id("count-rooms")).to_contain_text("3")
+    plan = page.get_by_test_id("floorplan")
+    expect(plan.locator("polygon.room")).to_have_count(3)
+    expect(plan.locator("circle.cam")).to_have_count(2)
+    expect(page.get_by_test_id("recent-runs")).to_contain_text(f"#{run_id}")
+
+    nodes = wait_for_scene(
+        scene_reader,
+        service.viser_port,
+        lambda n: all(f"/cameras/{i}" in n for i in posed_ids.values()),
+    )
+    for room_id, (name, _) in zip(room_ids, rooms, strict=True):
+        assert nodes[f"/floor/rooms/{room_id}/label"]["props"]["text"] == name
+    for name, cam_id in posed_ids.items():
+        # Positions travel as float64 on the wire; the rotation is checked in the unit tests.
+        np.testing.assert_allclose(
+            nodes[f"/cameras/{cam_id}"]["position"], poses[name][:3, 3], rtol=0, atol=1e-12
+        )
+        assert nodes[f"/cameras/{cam_id}/label"]["props"]["text"] == name
+
+    page.evaluate("document.getElementById('toasts').replaceChildren()")  # earlier steps' notes
     page.screenshot(path=tmp_path / "dashboard.png")
     if os.environ.get("INTSPACE_UPDATE_DOCS") == "1":
         DOCS_SCREENSHOT.parent.mkdir(exist_ok=True)

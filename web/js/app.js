@@ -56,13 +56,21 @@ async function route() {
   document.title = `${pageTitle} · intspace`;
   main.setAttribute("aria-busy", "true");
   mount(main, h("p", { class: "muted", testid: "loading" }, "Loading…"));
+  // Each render draws into its own detached view, shown only if it is still the current one:
+  // a slow page finishing after the user moved on must not overwrite the newer page.
+  const view = h("div", { class: "view" });
   try {
-    const result = await render(main, m.slice(1), query, (t) => {
+    const result = await render(view, m.slice(1), query, (t) => {
+      if (seq !== renderSeq) return;
       title.textContent = t;
       document.title = `${t} · intspace`;
     });
-    if (seq === renderSeq) cleanup = result || null;
-    else if (typeof result === "function") result(); // navigated away while loading
+    if (seq === renderSeq) {
+      main.replaceChildren(view);
+      cleanup = result || null;
+    } else if (typeof result === "function") {
+      result(); // navigated away while loading: stop its polling
+    }
   } catch (err) {
     if (seq === renderSeq) mount(main, errorBox(err, "page-error"));
   } finally {

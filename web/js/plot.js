@@ -18,9 +18,9 @@ function niceTicks(max, count = 5) {
  * with a dashed line at `reference` (the overall RMS) when given.
  */
 export function barChart(values, { labels, unit = "px", title, reference, referenceLabel } = {}) {
-  const W = 720;
-  const H = 300;
-  const m = { top: 24, right: 16, bottom: 40, left: 56 };
+  const W = 560;
+  const H = 280;
+  const m = { top: 24, right: 12, bottom: 36, left: 52 };
   const iw = W - m.left - m.right;
   const ih = H - m.top - m.bottom;
   const vmax = Math.max(...values, reference || 0, 1e-12);
@@ -151,6 +151,16 @@ export function floorPlan(rooms, cameras) {
     const [cx, cy] = centroid(poly);
     svg.append(s("text", { class: "room-label", x: X(cx), y: Y(cy) + 4, "text-anchor": "middle" }, room.name));
   });
+  // A scale bar of a round length, bottom left.
+  const metres = [0.5, 1, 2, 5, 10].find((v) => v * scale >= 50) || 10;
+  const bx = 12;
+  const by = H - 10;
+  svg.append(
+    s("line", { x1: bx, x2: bx + metres * scale, y1: by, y2: by, stroke: "#475569", "stroke-width": 2 }),
+    s("line", { x1: bx, x2: bx, y1: by - 4, y2: by + 1, stroke: "#475569", "stroke-width": 2 }),
+    s("line", { x1: bx + metres * scale, x2: bx + metres * scale, y1: by - 4, y2: by + 1, stroke: "#475569", "stroke-width": 2 }),
+    s("text", { x: bx + (metres * scale) / 2, y: by - 6, "text-anchor": "middle" }, `${metres} m`),
+  );
   for (const c of posed) {
     const len = Math.hypot(c.dx, c.dy);
     const reach = 40;

@@ -2,7 +2,7 @@
 
 import { api, list } from "../api.js";
 import { floorPlan } from "../plot.js";
-import { badge, errorBox, h, mount, panel, statusBadge, when } from "../ui.js";
+import { badge, errorBox, fmt, h, mount, panel, statusBadge, when } from "../ui.js";
 
 const DEVICES = [
   ["cameras", "Cameras", "#/cameras"],
@@ -65,7 +65,7 @@ export async function renderOverview(main) {
           h("dd", { testid: "health-database" }, describeDatabase(hv.database)),
           ...Object.entries(hv)
             .filter(([k, v]) => !["status", "version", "database"].includes(k) && typeof v !== "object")
-            .map(([k, v]) => [h("dt", null, k.replaceAll("_", " ")), h("dd", null, String(v))]),
+            .map(([k, v]) => [h("dt", null, sentence(k)), h("dd", null, String(v))]),
         ),
   );
 
@@ -111,7 +111,17 @@ export async function renderOverview(main) {
             h(
               "table",
               { testid: "recent-runs" },
-              h("thead", null, h("tr", null, h("th", null, "Run"), h("th", null, "Camera"), h("th", null, "Status"), h("th", null, "Created"))),
+              h(
+                "thead",
+                null,
+                h(
+                  "tr",
+                  null,
+                  ["Run", "Camera", "Status", "RMS (px)", "fx (px)", "Created"].map((t, i) =>
+                    h("th", { class: i === 3 || i === 4 ? "num" : null, scope: "col" }, t),
+                  ),
+                ),
+              ),
               h(
                 "tbody",
                 null,
@@ -122,6 +132,8 @@ export async function renderOverview(main) {
                     h("td", null, h("a", { href: `#/calibration/runs/${r.id}` }, `#${r.id}`)),
                     h("td", null, r.camera_id ? h("a", { href: `#/cameras/${r.camera_id}` }, cameraName(cameras, r.camera_id)) : "–"),
                     h("td", null, statusBadge(r.status)),
+                    h("td", { class: "num" }, fmt(r.result?.rms, 4)),
+                    h("td", { class: "num" }, r.result?.K ? fmt(r.result.K[0][0], 2) : "–"),
                     h("td", { class: "small muted" }, when(r.created_at)),
                   ),
                 ),
@@ -137,6 +149,11 @@ export async function renderOverview(main) {
     h("div", { class: "grid wide-left" }, planPanel, h("div", { class: "grid" }, healthPanel, spacePanel)),
     runsPanel,
   );
+}
+
+function sentence(key) {
+  const words = key.replaceAll("_", " ");
+  return words.charAt(0).toUpperCase() + words.slice(1);
 }
 
 function cameraName(cameras, id) {
