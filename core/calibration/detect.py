@@ -144,9 +144,10 @@ def find_chessboard(image: ArrayLike, pattern_size: tuple[int, int]) -> PatternD
             "is in view, and focus and exposure"
         )
     # A quarter of the spacing leaves room for perspective and lens curvature.
-    pts = _refine_corners(grey, corners.reshape(-1, 2).astype(np.float64), 0.25)
+    ids = np.arange(pattern.cols * pattern.rows, dtype=np.int64)
+    pts = _refine_corners(grey, corners.reshape(-1, 2).astype(np.float64), ids, pattern.cols, 0.25)
     pts = _orient_chessboard(grey, pts, pattern)
-    return PatternDetection(pts, np.arange(len(pts), dtype=np.int64), pattern)
+    return PatternDetection(pts, ids, pattern)
 
 
 def find_circle_grid(
@@ -157,8 +158,9 @@ def find_circle_grid(
     pattern_size: (cols, rows) circles, see CircleGrid for the layout. Uses cv2.findCirclesGrid
     with a blob detector whose area limits scale with the image; centres are blob centroids over
     several thresholds (sub-pixel by construction). Under perspective a circle's centroid is not
-    the image of its centre: the bias grows with radius squared and tilt (about 0.1 px for 12 px
-    circles at 30 degrees), so prefer chessboards when the last tenth of a pixel matters.
+    the image of its centre: the bias grows with radius squared and tilt (0.10-0.14 px for 13 px
+    circles at 20-35 degrees on rendered photos), so prefer chessboards when the last tenth of a
+    pixel matters.
     Raises PatternNotFound, InvalidInput.
     """
     cols, rows = _check_size(pattern_size, "pattern_size")
@@ -214,8 +216,10 @@ def find_charuco(image: ArrayLike, board: CharucoSpec, *, min_corners: int = 6) 
     # between a corner and the nearest marker, (1 - marker_ratio) / 2 of a square, is better
     # (0.10 -> 0.06 px RMS on rendered photos).
     reach = 0.8 * (1.0 - board.marker_ratio) / 2.0
-    pts = _refine_corners(grey, corners.reshape(-1, 2).astype(np.float64), reach)
-    return PatternDetection(pts, ids.ravel().astype(np.int64), board)
+    found_ids: IntArray = np.asarray(ids, dtype=np.int64).ravel()
+    cols = board.squares_x - 1
+    pts = _refine_corners(grey, corners.reshape(-1, 2).astype(np.float64), found_ids, cols, reach)
+    return PatternDetection(pts, found_ids, board)
 
 
 def as_grey_u8(image: ArrayLike) -> NDArray[np.uint8]:
@@ -299,17 +303,23 @@ def _cv_charuco_board(spec: CharucoSpec) -> cv2.aruco.CharucoBoard:
     return board
 
 
-def _refine_corners(grey: NDArray[np.uint8], pts: Array, reach: float) -> Array:
-    """Return corners refined by cv2.cornerSubPix with a window of `reach` x the corner spacing.
+def _refine_corners(
+    grey: NDArray[np.uint8], pts: Array, ids: IntArray, cols: int, reach: float
+) -> Array:
+    """Return grid corners refined by cv2.cornerSubPix, the window `reach` x the corner spacing.
 
-    The spacing is the smallest distance between two corners (the most foreshortened square).
-    The window must not reach past the four squares around a corner (nor, on ChArUco, into a
-    marker), which is what `reach` encodes.
+    pts: (N, 2) corners with grid ids (row-major, `cols` per row). The spacing is the shortest
+    distance between two grid neighbours found (the most foreshortened square). The window must
+    not reach past the four squares around a corner (nor, on ChArUco, into a marker), which is
+    what `reach` encodes.
     """
-    diff = pts[:, None, :] - pts[None, :, :]
-    dist = np.sqrt(np.einsum("ijk,ijk->ij", diff, diff))
-    np.fill_diagonal(dist, np.inf)
-    half = int(np.clip(np.floor(reach * float(dist.min())), 2, 15))
+    rows = int(ids.max()) // cols + 1
+    grid = np.full((rows, cols, 2), np.nan)
+    grid.reshape(-1, 2)[ids] = pts
+    steps = [np.diff(grid, axis=1).reshape(-1, 2), np.diff(grid, axis=0).reshape(-1, 2)]
+    lengths = np.linalg.norm(np.concatenate(steps), axis=1)
+    spacing = float(np.nanmin(lengths)) if np.any(np.isfinite(lengths)) else 8.0
+    half = int(np.clip(np.floor(reach * spacing), 2, 15))
     refined = cv2.cornerSubPix(
         grey, pts.astype(np.float32).reshape(-1, 1, 2), (half, half), (-1, -1), _SUBPIX_CRITERIA
     )
