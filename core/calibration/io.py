@@ -71,14 +71,15 @@ class CalibrationRecord:
             ) from None
         if w <= 0 or h <= 0:
             raise InvalidInput(f"image_size must be positive (width, height), got {(w, h)}")
-        if self.rms is not None and not (math.isfinite(self.rms) and self.rms >= 0.0):
+        rms = None if self.rms is None else _float(self.rms, "rms")
+        if rms is not None and not (math.isfinite(rms) and rms >= 0.0):
             raise InvalidInput(f"rms must be a finite non-negative number, got {self.rms!r}")
         R = None if self.rectification is None else as_matrix(self.rectification, (3, 3), "R")
         P = None if self.projection is None else as_matrix(self.projection, (3, 4), "P")
         object.__setattr__(self, "K", K)
         object.__setattr__(self, "dist", d)
         object.__setattr__(self, "image_size", (w, h))
-        object.__setattr__(self, "rms", None if self.rms is None else float(self.rms))
+        object.__setattr__(self, "rms", rms)
         object.__setattr__(self, "camera_name", str(self.camera_name))
         object.__setattr__(self, "rectification", R)
         object.__setattr__(self, "projection", P)
@@ -102,7 +103,7 @@ def to_opencv_yaml(record: CalibrationRecord) -> str:
     lines = [
         "%YAML:1.0",
         "---",
-        f"camera_name: {json.dumps(record.camera_name)}",
+        f"camera_name: {json.dumps(record.camera_name, ensure_ascii=False)}",
         f"image_width: {record.image_size[0]}",
         f"image_height: {record.image_size[1]}",
         *_yaml_opencv_matrix("camera_matrix", record.K),
@@ -178,7 +179,7 @@ def to_ros_yaml(record: CalibrationRecord) -> str:
     lines = [
         f"image_width: {record.image_size[0]}",
         f"image_height: {record.image_size[1]}",
-        f"camera_name: {json.dumps(record.camera_name)}",
+        f"camera_name: {json.dumps(record.camera_name, ensure_ascii=False)}",
         *_yaml_ros_matrix("camera_matrix", record.K),
         f"distortion_model: {_ROS_MODELS[d.size]}",
         *_yaml_ros_matrix("distortion_coefficients", d.reshape(1, -1)),
@@ -332,6 +333,13 @@ def _opencv_matrix(m: object, where: str) -> Array:
     return a
 
 
+def _float(v: object, name: str) -> float:
+    try:
+        return float(v)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        raise InvalidInput(f"{name} must be a number, got {v!r}") from None
+
+
 def _first(doc: dict[str, Any], keys: tuple[str, ...], fmt: str) -> Any:
     for k in keys:
         if k in doc:
@@ -363,11 +371,7 @@ def _record_from_opencv(doc: object, fmt: str) -> CalibrationRecord:
     else:
         raise InvalidInput(f"{fmt} has no image_width and image_height")
     rms = doc.get("avg_reprojection_error")
-    if rms is not None:
-        try:
-            rms = float(rms)
-        except (TypeError, ValueError):
-            raise InvalidInput(f"avg_reprojection_error must be a number, got {rms!r}") from None
+    rms = None if rms is None else _float(rms, "avg_reprojection_error")
     name = doc.get("camera_name")
     return CalibrationRecord(
         K=K,

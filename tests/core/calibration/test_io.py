@@ -30,7 +30,7 @@ def record(**kw: object) -> CalibrationRecord:
         "dist": DIST,
         "image_size": (640, 480),
         "rms": 0.336,
-        "camera_name": 'ceiling "north" #1',
+        "camera_name": 'ceiling "north" #1, Küche',
     }
     args.update(kw)
     return CalibrationRecord(**args)  # type: ignore[arg-type]
@@ -245,6 +245,7 @@ def test_malformed_json_raises_with_reason() -> None:
         ({"image_size": (640,)}, "width, height"),
         ({"image_size": (0, 480)}, "positive"),
         ({"rms": float("nan")}, "rms"),
+        ({"rms": "small"}, "rms must be a number"),
         ({"projection": np.eye(3)}, "shape"),
     ],
 )
