@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from localization_scene import ROOM, floor_points, make_cameras, observe
+from localization_scene import floor_points, make_cameras, observe
 
 from core.errors import DegenerateConfiguration, InvalidInput, NotEnoughPoints
 from core.localization import (
@@ -268,10 +268,6 @@ def test_per_detection_pixel_covariance_is_used(cams):
     con = triangulate_on_plane(cams, px, H, visible=vis, pixel_cov=S)
     d2c = np.einsum("bi,bij,bj->b", con.xy - P[:, :2], np.linalg.inv(con.cov), con.xy - P[:, :2])
     assert abs(d2c.mean() - 2.0) < 0.16
-
-
-def test_room_constant_matches_the_brief():
-    assert ROOM == (8.0, 6.0)
 
 
 def test_ml_agrees_with_scipy_least_squares_per_target(cams):
