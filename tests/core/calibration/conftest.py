@@ -33,7 +33,8 @@ Array = NDArray[np.float64]
 
 IMAGE_SIZE = (640, 480)  # (width, height) px
 TRUE_K = np.array([[620.0, 0.0, 322.5], [0.0, 615.0, 236.0], [0.0, 0.0, 1.0]])
-# A typical small wide-ish lens: barrel distortion of ~6 px at the image corners, small decentring.
+# A typical small wide-angle lens: barrel distortion moves the image corners by ~36 px (18 px at
+# the middle of the long sides); small decentring.
 TRUE_DIST = np.array([-0.21, 0.09, 0.0008, -0.0005, 0.0])
 
 _SUPERSAMPLE = 3  # the photo is rendered at 3x and box-filtered down
@@ -221,7 +222,11 @@ def board_poses(center: Array, distance: float, n: int = 6) -> list[tuple[Array,
 
 
 def chessboard_model(cols: int, rows: int, square: float) -> Array:
-    """Return (cols*rows, 3) inner-corner model points, row by row, metres."""
+    """Return (cols*rows, 3) inner-corner model points, row by row, metres.
+
+    Written out here rather than taken from core's board_object_points, so that the truth does
+    not depend on the code under test.
+    """
     r, c = np.divmod(np.arange(cols * rows), cols)
     return np.column_stack([c * square, r * square, np.zeros(cols * rows)])
 
