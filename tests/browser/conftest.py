@@ -234,3 +234,44 @@ def zhang_json(tmp_path: Path) -> Path:
     path = tmp_path / "zhang1998-correspondences.json"
     path.write_text(json.dumps(zhang_correspondences()))
     return path
+
+
+# A pinhole camera without distortion, for synthetic chessboard photos (pixels).
+PHOTO_K = ((600.0, 0.0, 320.0), (0.0, 600.0, 240.0), (0.0, 0.0, 1.0))
+PHOTO_SIZE = (640, 480)
+
+
+@pytest.fixture
+def chessboard_photos(tmp_path: Path) -> list[Path]:
+    """Render six photos of a 9x6-inner-corner chessboard (25 mm squares) seen by PHOTO_K from
+    0.55 m under different tilts: the exact homography K [r1 r2 t] warps a drawn board."""
+    import cv2
+    import numpy as np
+
+    cols, rows, square, px = 9, 6, 0.025, 60  # px: texture pixels per square
+    board = np.full(((rows + 3) * px, (cols + 3) * px), 255, np.uint8)  # one white square margin
+    for j in range(rows + 1):
+        for i in range(cols + 1):
+            if (i + j) % 2 == 0:
+                board[(j + 1) * px : (j + 2) * px, (i + 1) * px : (i + 2) * px] = 0
+    to_metres = np.diag([square / px, square / px, 1.0])
+    centre = np.array([board.shape[1] / 2, board.shape[0] / 2, 0.0]) * square / px
+    # Rendered 4x larger and averaged down, so edges are anti-aliased as a lens and sensor do; a
+    # low-resolution pixel i covers high-resolution pixels 4i .. 4i + 3, centred on 4i + 1.5.
+    up = 4
+    K = np.diag([up, up, 1.0]) @ np.array(PHOTO_K)
+    K[:2, 2] += (up - 1) / 2
+    big = (PHOTO_SIZE[0] * up, PHOTO_SIZE[1] * up)
+    paths = []
+    tilts = [(0.35, -0.25, 0.05), (-0.3, 0.3, -0.1), (0.2, 0.35, 0.2), (-0.35, -0.2, 0.0)]
+    tilts += [(0.1, -0.4, -0.15), (0.4, 0.1, 0.1)]
+    for k, rvec in enumerate(tilts):
+        R, _ = cv2.Rodrigues(np.array(rvec))
+        t = np.array([0.0, 0.0, 0.55]) - R @ centre
+        H = K @ np.column_stack([R[:, 0], R[:, 1], t]) @ to_metres
+        photo = cv2.warpPerspective(board, H, big, flags=cv2.INTER_LINEAR, borderValue=200)
+        photo = cv2.resize(photo, PHOTO_SIZE, interpolation=cv2.INTER_AREA)
+        path = tmp_path / f"board-{k + 1}.png"
+        cv2.imwrite(str(path), photo)
+        paths.append(path)
+    return paths

@@ -292,3 +292,34 @@ def test_problems_from_the_api_are_shown(
     assert run["status"] == "failed"
     expect(page.get_by_test_id("run-error")).to_contain_text(run["error"][:60])
     expect(page.get_by_test_id("run-apply")).to_have_count(0)
+
+
+def test_calibrate_from_uploaded_chessboard_photos(
+    service, browser_page: Page, chessboard_photos: list[Path]
+):
+    page = browser_page
+    camera = service.api("POST", "/cameras", {"name": "desk", "width": 640, "height": 480})
+    sign_in(page, service.base_url, service.token)
+    page.goto(f"{service.base_url}/#/calibration?camera={camera['id']}")
+
+    page.get_by_test_id("run-source-photos").check(force=True)  # the radio is styled as a tab
+    expect(page.get_by_test_id("pane-photos")).to_be_visible()
+    expect(page.get_by_test_id("pane-json")).to_be_hidden()
+    page.get_by_test_id("run-files").set_input_files(chessboard_photos)
+    page.get_by_test_id("run-chessboard").fill("9x6")
+    page.get_by_test_id("run-square").fill("0.025")
+    page.get_by_test_id("run-distortion").select_option("none")
+    page.get_by_test_id("run-submit").click()
+    expect(page.get_by_test_id("run-status")).to_have_text("succeeded", timeout=60_000)
+
+    run_id = int(page.url.rsplit("/", 1)[1])
+    run = service.api("GET", f"/calibration-runs/{run_id}")
+    assert run["source"] == "images"
+    K = np.array(run["result"]["K"])
+    # The photos are rendered by fx = fy = 600, (cx, cy) = (320, 240). Anti-aliased rendering
+    # leaves ~0.06 px corner noise (the run's RMS), which moves fx, fy, cx, cy by ~0.25 px here;
+    # 1.5 px (0.25 %) keeps a margin and still catches a wrong square size, board size or axis.
+    np.testing.assert_allclose(K[[0, 1, 0, 1], [0, 1, 2, 2]], [600, 600, 320, 240], atol=1.5)
+    assert run["result"]["rms"] < 0.2
+    expect(page.get_by_test_id("run-fx")).to_contain_text(f"{K[0, 0]:.3f}")
+    expect(page.locator("[data-testid^='residual-bar-']")).to_have_count(len(chessboard_photos))
