@@ -398,22 +398,37 @@ class _Target:
         alpha: bool = False,
         convex: bool = True,
         level: int | None = None,
+        supersample: int = 1,
     ) -> NDArray[np.bool_] | None:
         """Draw a textured planar polygon; return the mask of pixels written (canvas size) or
-        None. The pyramid level is chosen so that a texel covers about one pixel."""
+        None. The pyramid level is chosen so that a texel covers at most one (sub)pixel; with
+        `supersample` s > 1 the texture is warped at s times the resolution and box filtered
+        (cv2.INTER_AREA), which anti-aliases small, sharp patterns such as a distant board."""
         r = self.planar(poly_world, convex)
         if r is None:
             return None
         (x0, y0, x1, y1), m, z = r
-        H = self.homography(tex.o, tex.u, tex.v)
-        if level is None:
-            level = _choose_level(H, tex, poly_world, self)
-        s = float(2**level)
-        Ht = np.array([[1, 0, -x0], [0, 1, -y0], [0, 0, 1.0]]) @ H @ np.diag([s, s, 1.0])
-        src = tex.levels[level]
-        warped = cv2.warpPerspective(
-            src, Ht, (x1 - x0, y1 - y0), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE
+        ss = max(1, int(supersample))
+        A = np.array([[ss, 0, (ss - 1) / 2], [0, ss, (ss - 1) / 2], [0, 0, 1.0]])
+        H = (
+            A
+            @ np.array([[1, 0, -x0], [0, 1, -y0], [0, 0, 1.0]])
+            @ self.homography(tex.o, tex.u, tex.v)
         )
+        if level is None:
+            level = _choose_level(H, tex, poly_world)
+        s = float(2**level)
+        src = tex.levels[level]
+        size = ((x1 - x0) * ss, (y1 - y0) * ss)
+        warped = cv2.warpPerspective(
+            src,
+            H @ np.diag([s, s, 1.0]),
+            size,
+            flags=cv2.INTER_LINEAR,
+            borderMode=cv2.BORDER_REPLICATE,
+        )
+        if ss > 1:
+            warped = cv2.resize(warped, (x1 - x0, y1 - y0), interpolation=cv2.INTER_AREA)
         roi_img = self.img[y0:y1, x0:x1]
         if alpha:
             a = warped[..., 3:4].astype(np.float32) / 255.0
@@ -474,7 +489,7 @@ class _Target:
         self.depth[y0:y1, x0:x1][m] = zc
 
 
-def _choose_level(H: Array, tex: _Texture, poly_world: Array, tgt: _Target) -> int:
+def _choose_level(H: Array, tex: _Texture, poly_world: Array) -> int:
     # Pixels per level-0 texel at the face's centroid, from the homography's Jacobian.
     c = poly_world.mean(axis=0) - tex.o
     M = np.stack([tex.u, tex.v], 1)
@@ -487,7 +502,7 @@ def _choose_level(H: Array, tex: _Texture, poly_world: Array, tgt: _Target) -> i
     ppt = math.sqrt(abs(float(np.linalg.det(J))))
     if ppt <= 0:
         return len(tex.levels) - 1
-    return int(np.clip(math.floor(math.log2(1.0 / ppt) + 0.5), 0, len(tex.levels) - 1))
+    return int(np.clip(math.floor(math.log2(1.0 / ppt)), 0, len(tex.levels) - 1))
 
 
 def _shade(rgb: tuple[int, int, int], normal: Array) -> Array:
@@ -659,14 +674,23 @@ class Renderer:
     """Renders a scene's cameras; caches each camera's static layer and lens map on first use.
 
     supersample: the static layer is rasterised at this many times the resolution and box
-    filtered (anti-aliasing). near: the near plane in metres.
+    filtered (anti-aliasing); object_supersample: the same for the textures of moving planar
+    objects (marker, board), per frame. near: the near plane in metres.
     """
 
-    def __init__(self, scene: Scene, *, supersample: int = 2, near: float = 0.05) -> None:
-        if supersample < 1 or not near > 0:
-            raise InvalidInput("supersample must be >= 1 and near > 0")
+    def __init__(
+        self,
+        scene: Scene,
+        *,
+        supersample: int = 2,
+        object_supersample: int = 2,
+        near: float = 0.05,
+    ) -> None:
+        if supersample < 1 or object_supersample < 1 or not near > 0:
+            raise InvalidInput("supersample and object_supersample must be >= 1, near > 0")
         self.scene = scene
         self.supersample = int(supersample)
+        self.object_supersample = int(object_supersample)
         self.near = float(near)
         self._faces: list[_StaticFace] | None = None
         self._views: dict[CeilingCamera, _View] = {}
@@ -833,7 +857,7 @@ class Renderer:
             n = tex.levels[0].shape[0]
             o0 = tex.o - (tex.u + tex.v) / 2
             poly = np.array([o0, o0 + tex.u * n, o0 + (tex.u + tex.v) * n, o0 + tex.v * n])
-            tgt.textured(poly, tex, alpha=True)
+            tgt.textured(poly, tex, alpha=True, supersample=self.object_supersample)
             truth["marker_world"] = centre
             truth["marker_pixel"] = px[0]
             truth["marker_ellipse_pixel"] = _disc_image_centre(cam, centre, r.marker.radius)
@@ -853,7 +877,9 @@ class Renderer:
                 and np.all(_unoccluded(tgt, corners))
             )
             if front:
-                tgt.textured(poly, _in_world(g.board_tex, R, p))
+                tgt.textured(
+                    poly, _in_world(g.board_tex, R, p), supersample=self.object_supersample
+                )
             else:
                 tgt.fill(poly, np.array([90.0, 90.0, 90.0]))
             truth["board_corners_world"] = corners

@@ -114,7 +114,7 @@ def test_text_that_is_not_a_scene() -> None:
         load_scene("rooms: [unclosed")
     with pytest.raises(InvalidInput, match="mapping at the top level"):
         load_scene("- just\n- a list\n")
-    with pytest.raises(InvalidInput, match="no camera named 'attic'.*cam_living_sw"):
+    with pytest.raises(InvalidInput, match=r"no camera named 'attic'.*cam_living_sw"):
         default_scene().camera("attic")
 
 
