@@ -13,6 +13,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+import cv2
 import numpy as np
 from numpy.typing import NDArray
 
@@ -46,6 +47,24 @@ class CoverageMap:
     def fraction_covered(self, min_cameras: int = 1) -> float:
         """Return the fraction of cells seen by at least `min_cameras` cameras."""
         return float(np.mean(self.n_cameras >= min_cameras))
+
+    def heatmap(self, max_std: float | None = None) -> NDArray[np.uint8]:
+        """Return a BGR heat map (ny, nx, 3) of `crb_std`, row i for y[i], column j for x[j].
+
+        Colour map viridis, bright = accurate: std 0 is yellow, `max_std` (default: the largest
+        finite std) and worse is dark blue; cells no camera sees are black. Scale it up with
+        cv2.resize(..., interpolation=cv2.INTER_NEAREST) to draw it.
+        """
+        std = self.crb_std
+        seen = np.isfinite(std)
+        top = float(np.max(std[seen], initial=0.0)) if max_std is None else float(max_std)
+        if not top > 0:
+            top = 1.0
+        level = np.zeros(std.shape, dtype=np.uint8)
+        level[seen] = np.round(255.0 * (1.0 - np.clip(std[seen] / top, 0.0, 1.0)))
+        img = cv2.applyColorMap(level, cv2.COLORMAP_VIRIDIS)
+        img[~seen] = 0
+        return np.asarray(img, dtype=np.uint8)
 
     def to_dict(self) -> dict[str, Any]:
         """Return a JSON-ready description (lists; unseen cells' std as None)."""

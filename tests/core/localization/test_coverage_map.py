@@ -52,3 +52,18 @@ def test_map_rejects_bad_rectangles():
         coverage_map(cams, (1.0, 0.0), (0.0, 1.0))
     with pytest.raises(InvalidInput, match="spacing"):
         coverage_map(cams, (0.0, 1.0), (0.0, 1.0), spacing=0.0)
+
+
+def test_heatmap_is_black_where_blind_and_brighter_where_accurate():
+    cams = make_cameras(2)
+    # The strip y < 0 lies behind both cameras.
+    m = coverage_map(cams, (0.0, 8.0), (-3.0, 6.0), spacing=0.25, height=0.3, pixel_sigma=0.5)
+    img = m.heatmap()
+    assert img.shape == (*m.crb_std.shape, 3) and img.dtype == np.uint8
+    blind = ~np.isfinite(m.crb_std)
+    assert blind.any() and np.all(img[blind] == 0)
+    seen = np.argwhere(~blind)
+    best = tuple(seen[np.argmin(m.crb_std[~blind])])
+    worst = tuple(seen[np.argmax(m.crb_std[~blind])])
+    # Viridis runs from dark blue to bright yellow: the best cell is the brighter one.
+    assert img[best].astype(int).sum() > img[worst].astype(int).sum()
