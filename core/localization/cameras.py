@@ -38,6 +38,8 @@ class NetworkCamera:
     (k1, k2, p1, p2, k3); fewer coefficients are padded with zeros. R: (3, 3) = R_camera_world.
     t: (3,) = t_camera_world (metres), so Xc = R X + t. image_size: (width, height) in pixels, or
     None when unknown (then `in_view` only tests that a point is in front of the camera).
+    Derived on construction: `rvec` (3,), the rotation vector of R (for core.geometry.camera),
+    and `fov_radius`, the largest ideal normalised radius inside the image (`in_view`).
     """
 
     K: Array
