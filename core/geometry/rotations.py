@@ -43,6 +43,8 @@ def rotvec_to_matrix(rvec: ArrayLike) -> Array:
 def matrix_to_rotvec(R: ArrayLike) -> Array:
     """Return rotation vectors (..., 3) of rotation matrices (..., 3, 3), angle in [0, pi]."""
     m = np.asarray(R, dtype=np.float64)
+    if m.ndim == 2:
+        return matrix_to_rotvec(m[None])[0]
     cos_t = np.clip((np.trace(m, axis1=-2, axis2=-1) - 1.0) / 2.0, -1.0, 1.0)
     theta = np.arccos(cos_t)
     w = np.stack(
