@@ -35,7 +35,7 @@ _COLOR_CALIBRATED = (37, 99, 235)
 _COLOR_NO_INTRINSICS = (217, 119, 6)
 _COLOR_UNPOSED = (148, 150, 160)
 _COLOR_WALL = (51, 65, 85)
-_ROOM_FILLS = ((147, 197, 253), (134, 239, 172), (253, 186, 116), (216, 180, 254), (252, 165, 165))
+_ROOM_FILLS = ((191, 219, 254), (187, 247, 208), (254, 215, 170), (233, 213, 255), (254, 202, 202))
 
 # Cameras without a pose wait in a row this far (m) outside the floor plan's -Y side, this far
 # apart, at this height, looking straight down (camera z = world -Z, camera x = world +X).
@@ -43,6 +43,7 @@ _PARK_OFFSET = 1.0
 _PARK_SPACING = 0.9
 _PARK_HEIGHT = 1.2
 _LOOK_DOWN_WXYZ = (0.0, 1.0, 0.0, 0.0)  # half turn about world X
+_NO_CAMERA = "(no cameras)"
 
 
 @dataclass(frozen=True)
@@ -154,6 +155,7 @@ class SceneService:
         # What the worker has drawn; read by cameras() / rooms() under _cond.
         self._drawn_cameras: dict[int, CameraView] = {}
         self._drawn_rooms: list[RoomView] = []
+        self._camera_picker: Any = None  # the GUI dropdown, once started
 
     # -- lifecycle ---------------------------------------------------------------------------
 
@@ -171,6 +173,7 @@ class SceneService:
             )
             self._server = server
             self._port = server.get_port()
+            self._add_gui(server)
             self._stopping = False
             self._dirty_floor = True
             self._dirty_cameras = set(self._cameras)
@@ -272,6 +275,55 @@ class SceneService:
         with self._cond:
             return list(self._drawn_rooms)
 
+    # -- GUI: look through a camera -----------------------------------------------------------
+
+    def _add_gui(self, server: Any) -> None:
+        with server.gui.add_folder("Cameras"):
+            self._camera_picker = server.gui.add_dropdown(
+                "Camera", options=(_NO_CAMERA,), initial_value=_NO_CAMERA
+            )
+            button = server.gui.add_button("View through camera")
+        server.gui.add_markdown(
+            "Blue: calibrated camera. Amber: pose without intrinsics. "
+            "Grey: uncalibrated pose, parked beside the plan."
+        )
+
+        @button.on_click
+        def _(event: Any) -> None:
+            if event.client is not None:
+                self._look_through(event.client, self._camera_picker.value)
+
+    def _look_through(self, client: Any, option: str) -> bool:
+        """Put a viewer's camera at the picked camera's pose and field of view."""
+        view = self._camera_for_option(option)
+        if view is None:
+            return False
+        with client.atomic():
+            client.camera.position = view.pose.position  # before wxyz, which keeps the distance
+            client.camera.wxyz = view.pose.wxyz
+            client.camera.fov = view.frustum.fov
+        return True
+
+    @staticmethod
+    def _option_of(view: CameraView) -> str:
+        return f"{view.name} (#{view.id})"
+
+    def camera_options(self) -> tuple[str, ...]:
+        """Return the entries of the scene's "View through camera" picker, one per camera."""
+        with self._cond:
+            views = sorted(self._drawn_cameras.values(), key=lambda v: v.id)
+        return tuple(self._option_of(v) for v in views)
+
+    def _camera_for_option(self, option: str) -> CameraView | None:
+        with self._cond:
+            views = list(self._drawn_cameras.values())
+        return next((v for v in views if self._option_of(v) == option), None)
+
+    def _refresh_camera_picker(self) -> None:
+        picker = self._camera_picker
+        if picker is not None:
+            picker.options = self.camera_options() or (_NO_CAMERA,)
+
     # -- drawing (worker thread) -------------------------------------------------------------
 
     def _run(self) -> None:
@@ -330,6 +382,8 @@ class SceneService:
                 drawn[cam_id] = self._draw_camera(server, spec, origin, slot)
         with self._cond:
             self._drawn_cameras = drawn
+        if dirty:
+            self._refresh_camera_picker()
 
     @staticmethod
     def _park_origin(rooms: list[RoomView]) -> tuple[float, float]:
@@ -430,7 +484,7 @@ class SceneService:
                 vertices=np.concatenate([poly, np.zeros((n, 1))], axis=1),
                 faces=triangulate_polygon(poly),
                 color=_ROOM_FILLS[i % len(_ROOM_FILLS)],
-                opacity=0.6,
+                flat_shading=True,
                 side="double",
                 cast_shadow=False,
                 receive_shadow=False,
@@ -446,8 +500,8 @@ class SceneService:
         span = float(max(size.max() - 2.0, 4.0))
         server.initial_camera.look_at = (float(center[0]), float(center[1]), 0.0)
         server.initial_camera.position = (
-            float(center[0]) - 0.3 * span,
-            float(center[1]) - 0.85 * span,
-            0.7 * span,
+            float(center[0]) - 0.2 * span,
+            float(center[1]) - 0.75 * span,
+            0.65 * span,
         )
         server.initial_camera.up = (0.0, 0.0, 1.0)

@@ -318,7 +318,7 @@ def test_calibrate_from_uploaded_chessboard_photos(
     K = np.array(run["result"]["K"])
     # The photos are rendered by fx = fy = 600, (cx, cy) = (320, 240). Anti-aliased rendering
     # leaves ~0.06 px corner noise (the run's RMS), which moves fx, fy, cx, cy by ~0.25 px here;
-    # 1.5 px (0.25 %) keeps a margin and still catches a wrong square size, board size or axis.
+    # 1.5 px (0.25 %) keeps a margin and still catches a wrong board size or pixel convention.
     np.testing.assert_allclose(K[[0, 1, 0, 1], [0, 1, 2, 2]], [600, 600, 320, 240], atol=1.5)
     assert run["result"]["rms"] < 0.2
     expect(page.get_by_test_id("run-fx")).to_contain_text(f"{K[0, 0]:.3f}")

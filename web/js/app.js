@@ -112,6 +112,8 @@ function renderAuth() {
     required: true,
     testid: "token-input",
   });
+  // Password managers expect a user name next to a password field; the token has none.
+  const user = h("input", { type: "text", name: "username", autocomplete: "username", value: "token", hidden: true, "aria-hidden": "true", tabindex: "-1" });
   const status = h("span", { class: "small muted", testid: "auth-status" }, "Not signed in");
   const form = h(
     "form",
@@ -136,6 +138,7 @@ function renderAuth() {
         }
       },
     },
+    user,
     input,
     h("button", { class: "btn primary small", type: "submit", testid: "token-submit" }, "Sign in"),
   );

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import contextlib
 import math
 import socket
 import threading
 import time
+import types
 import urllib.request
 
 import numpy as np
@@ -244,3 +246,38 @@ def test_state_given_before_start_is_drawn_on_start():
         service.stop()
     assert not service.running
     service.stop()  # stopping twice is harmless
+
+
+def test_camera_picker_lists_every_drawn_camera(scene):
+    assert scene.server is not None
+    scene.upsert_camera(camera(7, None, name="door"))
+    scene.upsert_camera(camera(3, random_pose(np.random.default_rng(4)), name="hall"))
+    assert scene.flush()
+    assert scene.camera_options() == ("hall (#3)", "door (#7)")
+    assert scene._camera_picker.options == ("hall (#3)", "door (#7)")
+    view = scene._camera_for_option("door (#7)")
+    assert view is not None and view.id == 7
+    scene.remove_camera(3)
+    scene.remove_camera(7)
+    assert scene.flush()
+    assert scene._camera_picker.options == ("(no cameras)",)
+
+
+def test_view_through_camera_puts_the_viewer_at_its_pose(scene):
+    T = random_pose(np.random.default_rng(8))
+    scene.upsert_camera(camera(2, T, name="hall"))
+    assert scene.flush()
+
+    class FakeClient:  # what the button callback gets: a client with a camera and atomic()
+        def __init__(self):
+            self.camera = types.SimpleNamespace(position=None, wxyz=None, fov=None)
+
+        def atomic(self):
+            return contextlib.nullcontext()
+
+    client = FakeClient()
+    assert scene._look_through(client, "hall (#2)")
+    np.testing.assert_allclose(client.camera.position, T[:3, 3], atol=POSE_TOL)
+    np.testing.assert_allclose(matrix_from_quaternion(client.camera.wxyz), T[:3, :3], atol=POSE_TOL)
+    assert client.camera.fov == pytest.approx(2 * math.atan(480 / (2 * 832.53)))
+    assert not scene._look_through(client, "nobody (#9)")
