@@ -159,7 +159,8 @@ class Frame:
     board_corners_world (N, 3) and
     board_corner_pixels (N, 2): the chessboard's inner corners, row by row of the board
     (columns fastest); board_visible: all corners in front of the camera, inside the image, on
-    the board's front side and unoccluded by the static scene.
+    the board's front side and unoccluded by the static scene. gain: the exposure gain this
+    frame was taken with.
     """
 
     image: Image
@@ -360,10 +361,11 @@ class _Target:
         if roi is None:
             return None
         x0, y0, x1, y1 = roi
-        n = np.cross(Pc[1] - Pc[0], Pc[2] - Pc[0])
+        # Newell's normal: robust for any simple polygon, even with collinear vertices.
+        n = np.cross(Pc, np.roll(Pc, -1, axis=0)).sum(axis=0)
         if np.linalg.norm(n) < 1e-12:
             return None
-        d = float(n @ Pc[0])
+        d = float(n @ Pc.mean(axis=0))
         a, b, c = n @ self.Kinv
         us = np.arange(x0, x1, dtype=np.float32)
         vs = np.arange(y0, y1, dtype=np.float32)

@@ -281,3 +281,44 @@ def test_board_scene_variant_is_valid_yaml_round_trip() -> None:
     d = copy.deepcopy(default_scene().model_dump(mode="json"))
     d["robot"]["board"]["enabled"] = True
     assert load_scene(d).robot.board.enabled  # type: ignore[union-attr]
+
+
+def test_non_convex_room_seen_from_straight_above() -> None:
+    """An L-shaped room (with collinear vertices) under a camera posed by a quaternion looking
+    straight down: floor pixels exactly where the L is, background elsewhere; the ceiling,
+    entirely behind the camera, is clipped away."""
+    d = {
+        "name": "ell",
+        "ceiling_height": 3.5,
+        "background": [0, 0, 0],
+        "floor": {
+            "colour_a": [0, 255, 0],
+            "colour_b": [0, 255, 0],
+            "jitter": 0.0,
+            "grout_width": 0.0,
+        },
+        "rooms": [
+            {"name": "L", "polygon": [[0, 0], [2, 0], [4, 0], [4, 2], [2, 2], [2, 4], [0, 4]]}
+        ],
+        "cameras": [
+            {
+                "name": "down",
+                "resolution": [640, 480],
+                "intrinsics": {"fx": 200.0, "fy": 200.0, "cx": 319.5, "cy": 239.5},
+                # 180 deg about world x: camera z = world -Z, camera x = world +x.
+                "pose": {"position": [2.0, 2.0, 3.0], "quaternion_xyzw": [1.0, 0.0, 0.0, 0.0]},
+            }
+        ],
+    }
+    renderer = Renderer(load_scene(d))
+    img = renderer.render("down", WorldState(0.0, None), noise=None).image
+    cam = renderer.camera("down")
+    xs, ys = np.meshgrid(np.arange(-0.9, 5.0, 0.2), np.arange(-0.9, 5.0, 0.2))
+    P = np.column_stack([xs.ravel(), ys.ravel(), np.zeros(xs.size)])
+    inside = (P[:, 0] > 0) & (P[:, 0] < 4) & (P[:, 1] > 0) & (P[:, 1] < 4)
+    inside &= ~((P[:, 0] > 2) & (P[:, 1] > 2))
+    px = np.rint(cam.project(P)).astype(int)
+    green = img[px[:, 1], px[:, 0], 1] > 200
+    # Grid points are >= 0.1 m (6.7 px) from every edge, so no anti-aliasing ambiguity.
+    assert np.array_equal(green, inside)
+    assert cam.project([[2.0, 3.0, 0.0]])[0] == pytest.approx([319.5, 239.5 - 200 / 3])
