@@ -68,6 +68,9 @@ async function route() {
     if (seq === renderSeq) {
       main.replaceChildren(view);
       cleanup = result || null;
+      // After a navigation (not the first load), move focus to the new page's heading so
+      // screen readers announce it.
+      if (window.intspaceReadyAt !== undefined) title.focus({ preventScroll: true });
     } else if (typeof result === "function") {
       result(); // navigated away while loading: stop its polling
     }
