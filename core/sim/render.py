@@ -401,14 +401,14 @@ class _Target:
         convex: bool = True,
         level: int | None = None,
         supersample: int = 1,
-    ) -> NDArray[np.bool_] | None:
-        """Draw a textured planar polygon; return the mask of pixels written (canvas size) or
-        None. The pyramid level is chosen so that a texel covers at most one (sub)pixel; with
-        `supersample` s > 1 the texture is warped at s times the resolution and box filtered
+    ) -> bool:
+        """Draw a textured planar polygon; return whether any pixel was written. The pyramid
+        level is chosen so that a texel covers at most one (sub)pixel; with `supersample`
+        s > 1 the texture is warped at s times the resolution and box filtered
         (cv2.INTER_AREA), which anti-aliases small, sharp patterns such as a distant board."""
         r = self.planar(poly_world, convex)
         if r is None:
-            return None
+            return False
         (x0, y0, x1, y1), m, z = r
         ss = max(1, int(supersample))
         A = np.array([[ss, 0, (ss - 1) / 2], [0, ss, (ss - 1) / 2], [0, 0, 1.0]])
@@ -441,9 +441,7 @@ class _Target:
         else:
             roi_img[m] = warped[m]
         self.depth[y0:y1, x0:x1][m] = z[m]
-        full = np.zeros((self.h, self.w), np.bool_)
-        full[y0:y1, x0:x1] = m
-        return full
+        return bool(m.any())
 
     def cylinder(
         self,
@@ -525,7 +523,10 @@ class _StaticFace:
 
 
 def _static_faces(scene: Scene) -> list[_StaticFace]:
+    """Return the faces of the static scene: textured floors (tiles), flat ceilings, and the
+    boxes of walls (split at doors) and furniture with a faint seeded grain."""
     faces: list[_StaticFace] = []
+    rng = np.random.default_rng([scene.floor.seed, 0x3A11])
     for k, room in enumerate(scene.rooms):
         poly = np.array(room.polygon, dtype=np.float64)
         tex = _tile_texture(room.floor or scene.floor, poly.min(0), poly.max(0), k)
@@ -557,11 +558,27 @@ def _static_faces(scene: Scene) -> list[_StaticFace]:
             s1e = s1 + half if s1 >= length else s1
             centre = a + u * (s0e + s1e) / 2
             for poly, nrm in box_faces(centre, (s1e - s0e, wall.thickness, z1 - z0), yaw, z0):
-                faces.append(_StaticFace(poly, nrm, _shade(wall.colour, nrm), None, True))
+                tex = _grain_texture(poly, _shade(wall.colour, nrm), rng)
+                faces.append(_StaticFace(poly, nrm, None, tex, True))
     for f in scene.furniture:
         for poly, nrm in box_faces(f.centre, f.size, f.yaw):
-            faces.append(_StaticFace(poly, nrm, _shade(f.colour, nrm), None, True))
+            tex = _grain_texture(poly, _shade(f.colour, nrm), rng)
+            faces.append(_StaticFace(poly, nrm, None, tex, True))
     return faces
+
+
+def _grain_texture(
+    quad: Array, bgr: Array, rng: np.random.Generator, ppm: float = 100.0
+) -> _Texture:
+    """Return a plaster-like texture for a rectangular face (4, 3) world metres: its shaded
+    colour with 3 % seeded grain (blurred over a texel), `ppm` texels per metre."""
+    eu, ev = quad[1] - quad[0], quad[3] - quad[0]
+    nu = int(np.clip(math.ceil(np.linalg.norm(eu) * ppm), 2, 1024))
+    nv = int(np.clip(math.ceil(np.linalg.norm(ev) * ppm), 2, 1024))
+    grain = cv2.GaussianBlur(rng.normal(0.0, 0.05, (nv, nu)).astype(np.float32), (0, 0), 1.0)
+    img = np.clip(np.rint(bgr[None, None, :] * (1.0 + grain[..., None])), 0, 255)
+    u, v = eu / nu, ev / nv
+    return _Texture((img.astype(np.uint8),), quad[0] + (u + v) / 2, u, v)
 
 
 @dataclass(frozen=True, eq=False)
