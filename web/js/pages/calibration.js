@@ -227,7 +227,12 @@ export async function renderCalibration(main, _params, query) {
   const runsBody = runs.e
     ? errorBox(runs.e, "runs-error")
     : runs.v.items.length
-      ? h("div", { class: "table-wrap" }, runsTable(runs.v.items, cameras))
+      ? h(
+          "div",
+          { class: "table-wrap" },
+          runsTable(runs.v.items, cameras),
+          runs.v.total > runs.v.items.length ? h("p", { class: "small muted" }, `Showing the newest ${runs.v.items.length} of ${runs.v.total}.`) : null,
+        )
       : h("p", { class: "empty", testid: "run-table-empty" }, "No calibration runs yet.");
   mount(
     main,

@@ -112,7 +112,12 @@ export async function renderCameras(main) {
       `Cameras (${total})`,
       "Click a camera for its intrinsics, calibration history and exports",
       items.length
-        ? h("div", { class: "table-wrap" }, table)
+        ? h(
+            "div",
+            { class: "table-wrap" },
+            table,
+            total > items.length ? h("p", { class: "small muted" }, `Showing the first ${items.length} of ${total}.`) : null,
+          )
         : h("p", { class: "empty", testid: "camera-table-empty" }, "No cameras yet. Add one above."),
     ),
   );
