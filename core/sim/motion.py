@@ -184,17 +184,20 @@ class Patrol:
         """Return (v m/s, omega rad/s) towards the current waypoint from `pose`."""
         if self.done:
             return 0.0, 0.0
-        target = self.waypoints[self.index]
-        dx, dy = target[0] - pose.x, target[1] - pose.y
-        dist = math.hypot(dx, dy)
-        if dist < self.tolerance:
+        for _ in range(len(self.waypoints) + 1):
+            target = self.waypoints[self.index]
+            dx, dy = target[0] - pose.x, target[1] - pose.y
+            dist = math.hypot(dx, dy)
+            if dist >= self.tolerance:
+                break
             self.index += 1
             if self.index == len(self.waypoints):
                 if not self.loop:
                     self.done = True
                     return 0.0, 0.0
                 self.index = 0
-            return self.command(pose)
+        else:
+            return 0.0, 0.0  # every waypoint is within tolerance of where the robot stands
         err = _wrap(math.atan2(dy, dx) - pose.yaw)
         omega = self.gain * err
         v = self.limits.max_speed * max(0.0, math.cos(err)) ** 2

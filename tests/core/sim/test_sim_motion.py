@@ -160,3 +160,10 @@ def test_world_state_and_clock() -> None:
     base = UnicycleBase(LIMITS, SlipNoise(), Pose2D(0, 0, 0))
     with pytest.raises(InvalidInput):
         base.step(float("nan"), 0.0)
+
+
+def test_patrol_standing_on_its_only_waypoint_holds_still() -> None:
+    p = Patrol([[0.0, 0.0]], LIMITS, loop=True)
+    assert p.command(Pose2D(0.02, 0.0, 0.0)) == (0.0, 0.0)
+    with pytest.raises(InvalidInput):
+        Patrol([[0.0, float("nan")]], LIMITS)
