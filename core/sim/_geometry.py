@@ -1,4 +1,4 @@
-"""Small pose helpers of the twin: look-at and quaternion (x, y, z, w) rotations, rigid boxes."""
+"""Pose geometry of the twin: look-at and quaternion (x, y, z, w) rotations, rigid boxes."""
 
 from __future__ import annotations
 
