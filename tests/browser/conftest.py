@@ -136,12 +136,13 @@ def service(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Service]:
             except subprocess.TimeoutExpired:
                 process.kill()
                 process.wait(timeout=10)
+                pytest.fail(f"intspace serve did not stop within 20 s of Ctrl-C:\n{svc.log()}")
 
 
 @pytest.fixture
 def browser_page(chromium_executable: str) -> Iterator[Any]:
     """A fresh page in headless Chromium; JavaScript errors on the page fail the test."""
-    from playwright.sync_api import sync_playwright
+    from playwright.sync_api import expect, sync_playwright
 
     errors: list[str] = []
     with sync_playwright() as p:
@@ -151,6 +152,8 @@ def browser_page(chromium_executable: str) -> Iterator[Any]:
         try:
             context = browser.new_context(viewport={"width": 1440, "height": 900})
             page = context.new_page()
+            # CI machines are slower than a desk: wait up to 15 s for what the page shows.
+            expect.set_options(timeout=15_000)
             page.on("pageerror", lambda exc: errors.append(str(exc)))
             yield page
         finally:
