@@ -144,7 +144,8 @@ class SceneService:
         self._frustum_scale = frustum_scale
         self._verbose = verbose
         self._server: Any = None  # viser.ViserServer once started
-        self._cond = threading.Condition()
+        self._cond = threading.Condition()  # guards the state below; held only briefly
+        self._lifecycle = threading.Lock()  # serialises start() and stop()
         self._cameras: dict[int, _CameraSpec] = {}
         self._rooms: list[RoomView] = []
         self._dirty_cameras: set[int] = set()
@@ -163,38 +164,42 @@ class SceneService:
         """Start the viser server and the drawing thread (a second call does nothing)."""
         import viser  # imported here: it is heavy, and only a running scene needs it
 
-        with self._cond:
+        with self._lifecycle:
             if self._server is not None:
                 return
+            # Built outside _cond, so callers recording changes meanwhile are not held up.
             server = viser.ViserServer(host=self._host, port=self._port, verbose=self._verbose)
             server.scene.set_up_direction("+z")
             server.gui.configure_theme(
                 show_share_button=False, brand_color=_COLOR_CALIBRATED, control_width="small"
             )
-            self._server = server
-            self._port = server.get_port()
             self._add_gui(server)
-            self._stopping = False
-            self._dirty_floor = True
-            self._dirty_cameras = set(self._cameras)
-            self._drawn_cameras = {}
-            self._worker = threading.Thread(target=self._run, name="scene-worker", daemon=True)
-            self._worker.start()
-            self._cond.notify_all()
+            with self._cond:
+                self._server = server
+                self._port = server.get_port()
+                self._stopping = False
+                self._dirty_floor = True
+                self._dirty_cameras = set(self._cameras)
+                self._drawn_cameras = {}
+                self._worker = threading.Thread(target=self._run, name="scene-worker", daemon=True)
+                self._worker.start()
+                self._cond.notify_all()
 
     def stop(self) -> None:
         """Stop the drawing thread and the viser server (safe to call when not started)."""
-        with self._cond:
-            server, worker = self._server, self._worker
-            self._stopping = True
-            self._cond.notify_all()
-        if worker is not None:
-            worker.join(timeout=5.0)
-        if server is not None:
-            server.stop()
-        with self._cond:
-            self._server = None
-            self._worker = None
+        with self._lifecycle:
+            with self._cond:
+                server, worker = self._server, self._worker
+                self._stopping = True
+                self._cond.notify_all()
+            if worker is not None:
+                worker.join(timeout=5.0)
+            if server is not None:
+                server.stop()
+            with self._cond:
+                self._server = None
+                self._worker = None
+                self._camera_picker = None
 
     @property
     def running(self) -> bool:
@@ -254,7 +259,8 @@ class SceneService:
             self._cond.notify_all()
 
     def flush(self, timeout: float = 5.0) -> bool:
-        """Wait until every change asked so far is drawn; return False on timeout."""
+        """Wait until every change asked so far is drawn; return False on timeout (at once when
+        the scene is not started and something is waiting to be drawn)."""
         with self._cond:
             if self._server is None:
                 return not self._dirty_cameras and not self._dirty_floor

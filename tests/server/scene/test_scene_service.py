@@ -281,3 +281,22 @@ def test_view_through_camera_puts_the_viewer_at_its_pose(scene):
     np.testing.assert_allclose(matrix_from_quaternion(client.camera.wxyz), T[:3, :3], atol=POSE_TOL)
     assert client.camera.fov == pytest.approx(2 * math.atan(480 / (2 * 832.53)))
     assert not scene._look_through(client, "nobody (#9)")
+
+
+def test_restart_draws_the_kept_state_again():
+    service = SceneService("127.0.0.1", free_port())
+    T = random_pose(np.random.default_rng(12))
+    service.start()
+    try:
+        service.upsert_camera(camera(1, T))
+        assert service.flush()
+        service.stop()
+        service.upsert_camera(camera(2, None))  # recorded while stopped
+        assert not service.flush()  # nothing can be drawn until the next start
+        service.start()
+        assert service.flush()
+        assert set(service.cameras()) == {1, 2}
+        frame = service.server.scene.get_handle_by_name("/cameras/1")
+        np.testing.assert_allclose(frame.position, T[:3, 3], atol=POSE_TOL)
+    finally:
+        service.stop()
