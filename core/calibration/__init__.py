@@ -1,5 +1,24 @@
 """Camera calibration from planes: Zhang, single view, pose, pattern detection, interchange."""
 
+from core.calibration.detect import (
+    CharucoSpec,
+    Chessboard,
+    CircleGrid,
+    PatternDetection,
+    board_object_points,
+    find_charuco,
+    find_chessboard,
+    find_circle_grid,
+)
+from core.calibration.io import (
+    CalibrationRecord,
+    from_opencv_json,
+    from_opencv_yaml,
+    from_ros_yaml,
+    to_opencv_json,
+    to_opencv_yaml,
+    to_ros_yaml,
+)
 from core.calibration.pose import (
     PoseEstimate,
     estimate_plane_pose,
@@ -20,14 +39,29 @@ from core.calibration.zhang import (
 
 __all__ = [
     "DISTORTION_MODELS",
+    "CalibrationRecord",
     "CameraCalibration",
+    "CharucoSpec",
+    "Chessboard",
+    "CircleGrid",
+    "PatternDetection",
     "PoseEstimate",
     "SingleViewCalibration",
+    "board_object_points",
     "calibrate_camera",
     "calibrate_single_view",
     "estimate_plane_pose",
+    "find_charuco",
+    "find_chessboard",
+    "find_circle_grid",
     "focal_from_homography",
+    "from_opencv_json",
+    "from_opencv_yaml",
+    "from_ros_yaml",
     "intrinsics_from_homographies",
     "plane_points",
     "pose_from_homography",
+    "to_opencv_json",
+    "to_opencv_yaml",
+    "to_ros_yaml",
 ]
