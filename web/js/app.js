@@ -19,7 +19,8 @@ const ROUTES = [
 
 const ICONS = {
   overview: "M3 13h8V3H3zm0 8h8v-6H3zm10 0h8V11h-8zm0-18v6h8V3z",
-  cameras: "M4 7h3l2-3h6l2 3h3a1 1 0 0 1 1 1v11a1 1 0 0 1-1 1H4a1 1 0 0 1-1-1V8a1 1 0 0 1 1-1zm8 11a4.5 4.5 0 1 0 0-9 4.5 4.5 0 0 0 0 9z",
+  cameras:
+    "M4 7h3l2-3h6l2 3h3a1 1 0 0 1 1 1v11a1 1 0 0 1-1 1H4a1 1 0 0 1-1-1V8a1 1 0 0 1 1-1zm8 11a4.5 4.5 0 1 0 0-9 4.5 4.5 0 0 0 0 9z",
   calibration: "M3 3h18v18H3zM3 9h18M3 15h18M9 3v18M15 3v18",
   scene: "M12 2 3 7v10l9 5 9-5V7zm0 0v10m0 0 9-5m-9 5-9-5m9 5v10",
 };
@@ -116,7 +117,15 @@ function renderAuth() {
     testid: "token-input",
   });
   // Password managers expect a user name next to a password field; the token has none.
-  const user = h("input", { type: "text", name: "username", autocomplete: "username", value: "token", hidden: true, "aria-hidden": "true", tabindex: "-1" });
+  const user = h("input", {
+    type: "text",
+    name: "username",
+    autocomplete: "username",
+    value: "token",
+    hidden: true,
+    "aria-hidden": "true",
+    tabindex: "-1",
+  });
   const status = h("span", { class: "small muted", testid: "auth-status" }, "Not signed in");
   const form = h(
     "form",
@@ -135,7 +144,8 @@ function renderAuth() {
         } catch (err) {
           if (previous) localStorage.setItem("intspace.token", previous);
           else localStorage.removeItem("intspace.token");
-          status.textContent = err.status === 401 || err.status === 403 ? "Token refused" : err.message;
+          status.textContent =
+            err.status === 401 || err.status === 403 ? "Token refused" : err.message;
           status.className = "small badge bad";
           input.select();
         }

@@ -49,7 +49,12 @@ export function barChart(values, { labels, unit = "px", title, reference, refere
     s("line", { class: "axis", x1: m.left, x2: W - m.right, y1: y(0), y2: y(0) }),
     s(
       "text",
-      { x: 14, y: m.top + ih / 2, transform: `rotate(-90 14 ${m.top + ih / 2})`, "text-anchor": "middle" },
+      {
+        x: 14,
+        y: m.top + ih / 2,
+        transform: `rotate(-90 14 ${m.top + ih / 2})`,
+        "text-anchor": "middle",
+      },
       `RMS (${unit})`,
     ),
   );
@@ -98,7 +103,10 @@ function centroid(poly) {
     cy += (y0 + y1) * cross;
   });
   if (Math.abs(a) < 1e-12) {
-    return [poly.reduce((t, p) => t + p[0], 0) / poly.length, poly.reduce((t, p) => t + p[1], 0) / poly.length];
+    return [
+      poly.reduce((t, p) => t + p[0], 0) / poly.length,
+      poly.reduce((t, p) => t + p[1], 0) / poly.length,
+    ];
   }
   return [cx / (3 * a), cy / (3 * a)];
 }
@@ -124,7 +132,10 @@ export function floorPlan(rooms, cameras) {
   const ys = pts.map((p) => p[1]);
   const [x0, x1, y0, y1] = [Math.min(...xs), Math.max(...xs), Math.min(...ys), Math.max(...ys)];
   const pad = 24;
-  const scale = Math.min((W - 2 * pad) / Math.max(x1 - x0, 1e-6), (H - 2 * pad) / Math.max(y1 - y0, 1e-6));
+  const scale = Math.min(
+    (W - 2 * pad) / Math.max(x1 - x0, 1e-6),
+    (H - 2 * pad) / Math.max(y1 - y0, 1e-6),
+  );
   const ox = (W - scale * (x1 - x0)) / 2;
   const oy = (H - scale * (y1 - y0)) / 2;
   const X = (x) => ox + (x - x0) * scale;
@@ -149,16 +160,36 @@ export function floorPlan(rooms, cameras) {
       }),
     );
     const [cx, cy] = centroid(poly);
-    svg.append(s("text", { class: "room-label", x: X(cx), y: Y(cy) + 4, "text-anchor": "middle" }, room.name));
+    svg.append(
+      s(
+        "text",
+        { class: "room-label", x: X(cx), y: Y(cy) + 4, "text-anchor": "middle" },
+        room.name,
+      ),
+    );
   });
   // A scale bar of a round length, bottom left.
   const metres = [0.5, 1, 2, 5, 10].find((v) => v * scale >= 50) || 10;
   const bx = 12;
   const by = H - 10;
   svg.append(
-    s("line", { x1: bx, x2: bx + metres * scale, y1: by, y2: by, stroke: "#475569", "stroke-width": 2 }),
+    s("line", {
+      x1: bx,
+      x2: bx + metres * scale,
+      y1: by,
+      y2: by,
+      stroke: "#475569",
+      "stroke-width": 2,
+    }),
     s("line", { x1: bx, x2: bx, y1: by - 4, y2: by + 1, stroke: "#475569", "stroke-width": 2 }),
-    s("line", { x1: bx + metres * scale, x2: bx + metres * scale, y1: by - 4, y2: by + 1, stroke: "#475569", "stroke-width": 2 }),
+    s("line", {
+      x1: bx + metres * scale,
+      x2: bx + metres * scale,
+      y1: by - 4,
+      y2: by + 1,
+      stroke: "#475569",
+      "stroke-width": 2,
+    }),
     s("text", { x: bx + (metres * scale) / 2, y: by - 6, "text-anchor": "middle" }, `${metres} m`),
   );
   for (const c of posed) {
@@ -170,9 +201,17 @@ export function floorPlan(rooms, cameras) {
       const uy = -c.dy / len;
       const [px, py] = [X(c.x), Y(c.y)];
       const spread = 0.45;
-      const a = [px + reach * (ux * Math.cos(spread) - uy * Math.sin(spread)), py + reach * (ux * Math.sin(spread) + uy * Math.cos(spread))];
-      const b = [px + reach * (ux * Math.cos(-spread) - uy * Math.sin(-spread)), py + reach * (ux * Math.sin(-spread) + uy * Math.cos(-spread))];
-      svg.append(s("polygon", { class: "cam-view", points: `${px},${py} ${a.join(",")} ${b.join(",")}` }));
+      const a = [
+        px + reach * (ux * Math.cos(spread) - uy * Math.sin(spread)),
+        py + reach * (ux * Math.sin(spread) + uy * Math.cos(spread)),
+      ];
+      const b = [
+        px + reach * (ux * Math.cos(-spread) - uy * Math.sin(-spread)),
+        py + reach * (ux * Math.sin(-spread) + uy * Math.cos(-spread)),
+      ];
+      svg.append(
+        s("polygon", { class: "cam-view", points: `${px},${py} ${a.join(",")} ${b.join(",")}` }),
+      );
     } else {
       svg.append(s("circle", { class: "cam-view", cx: X(c.x), cy: Y(c.y), r: 16 }));
     }
@@ -181,7 +220,12 @@ export function floorPlan(rooms, cameras) {
       s("circle", { class: "cam", cx: X(c.x), cy: Y(c.y), r: 5 }, s("title", null, c.name)),
       s(
         "text",
-        { class: "cam-label", x: X(c.x) + (right ? -9 : 9), y: Y(c.y) - 8, "text-anchor": right ? "end" : "start" },
+        {
+          class: "cam-label",
+          x: X(c.x) + (right ? -9 : 9),
+          y: Y(c.y) - 8,
+          "text-anchor": right ? "end" : "start",
+        },
         c.name,
       ),
     );

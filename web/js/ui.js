@@ -59,8 +59,13 @@ export function errorBox(err, testid = "error") {
     err.detail || (err.title ? "" : err.message),
     fields.length ? h("ul", null, fields) : null,
     err.status === 401
-      ? h("p", { class: "small" }, "Sign in at the top right with the access token that ",
-          h("code", null, "intspace serve"), " printed on its first start.")
+      ? h(
+          "p",
+          { class: "small" },
+          "Sign in at the top right with the access token that ",
+          h("code", null, "intspace serve"),
+          " printed on its first start.",
+        )
       : null,
   );
 }
@@ -103,7 +108,12 @@ export function panel(title, subtitle, ...children) {
       ? h(
           "div",
           { class: "panel-head" },
-          h("div", null, title ? h("h2", null, title) : null, subtitle ? h("p", null, subtitle) : null),
+          h(
+            "div",
+            null,
+            title ? h("h2", null, title) : null,
+            subtitle ? h("p", null, subtitle) : null,
+          ),
         )
       : null,
     ...children,
@@ -121,7 +131,9 @@ export function sig(x, digits = 4) {
   if (x === null || x === undefined || Number.isNaN(Number(x))) return "–";
   const v = Number(x);
   if (v === 0) return "0";
-  return Math.abs(v) >= 1e5 || Math.abs(v) < 1e-4 ? v.toExponential(digits - 1) : v.toPrecision(digits);
+  return Math.abs(v) >= 1e5 || Math.abs(v) < 1e-4
+    ? v.toExponential(digits - 1)
+    : v.toPrecision(digits);
 }
 
 export function when(iso) {
@@ -153,7 +165,13 @@ export function matrixTable(M, digits = 3, testid) {
     h(
       "tbody",
       null,
-      M.map((row) => h("tr", null, row.map((v) => h("td", null, fmt(v, digits))))),
+      M.map((row) =>
+        h(
+          "tr",
+          null,
+          row.map((v) => h("td", null, fmt(v, digits))),
+        ),
+      ),
     ),
   );
 }

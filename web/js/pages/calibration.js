@@ -41,15 +41,21 @@ export function parseCorrespondences(text, fallbackSize) {
   const img = data.image_points;
   let obj = data.object_points;
   if (!Array.isArray(img) || !img.length || !Array.isArray(img[0]) || !Array.isArray(img[0][0])) {
-    throw new Error('The file needs "image_points": a list of views, each a list of [u, v] pixels.');
+    throw new Error(
+      'The file needs "image_points": a list of views, each a list of [u, v] pixels.',
+    );
   }
   if (Array.isArray(obj) && obj.length && typeof obj[0][0] === "number") obj = img.map(() => obj);
   if (!Array.isArray(obj) || obj.length !== img.length) {
-    throw new Error('The file needs "object_points": one list of [X, Y, Z] per view (or one shared list).');
+    throw new Error(
+      'The file needs "object_points": one list of [X, Y, Z] per view (or one shared list).',
+    );
   }
   img.forEach((view, i) => {
     if (view.length !== obj[i].length) {
-      throw new Error(`View ${i + 1} has ${view.length} image points but ${obj[i].length} object points.`);
+      throw new Error(
+        `View ${i + 1} has ${view.length} image points but ${obj[i].length} object points.`,
+      );
     }
   });
   const size = data.image_size || fallbackSize;
@@ -64,7 +70,13 @@ function runsTable(runs, cameras) {
     h(
       "thead",
       null,
-      h("tr", null, ["Run", "Camera", "Kind", "Status", "RMS (px)", "fx", "Created", "Duration"].map((t, i) => h("th", { class: i === 4 || i === 5 ? "num" : null }, t))),
+      h(
+        "tr",
+        null,
+        ["Run", "Camera", "Kind", "Status", "RMS (px)", "fx", "Created", "Duration"].map((t, i) =>
+          h("th", { class: i === 4 || i === 5 ? "num" : null }, t),
+        ),
+      ),
     ),
     h(
       "tbody",
@@ -80,8 +92,15 @@ function runsTable(runs, cameras) {
             },
           },
           h("td", null, h("a", { href: `#/calibration/runs/${r.id}` }, `#${r.id}`)),
-          h("td", null, r.camera_id ? h("a", { href: `#/cameras/${r.camera_id}` }, name(r.camera_id)) : "–"),
-          h("td", null, [r.kind, r.source ? h("span", { class: "muted small" }, ` · ${r.source}`) : null]),
+          h(
+            "td",
+            null,
+            r.camera_id ? h("a", { href: `#/cameras/${r.camera_id}` }, name(r.camera_id)) : "–",
+          ),
+          h("td", null, [
+            r.kind,
+            r.source ? h("span", { class: "muted small" }, ` · ${r.source}`) : null,
+          ]),
           h("td", null, statusBadge(r.status)),
           h("td", { class: "num" }, fmt(r.result?.rms, 4)),
           h("td", { class: "num" }, r.result?.K ? fmt(r.result.K[0][0], 2) : "–"),
@@ -98,14 +117,39 @@ function startForm(cameras, preselect) {
   const camera = h(
     "select",
     { id: "run-camera", name: "camera_id", required: true, testid: "run-camera" },
-    cameras.map((c) => h("option", { value: String(c.id), selected: String(c.id) === preselect }, `${c.name} (${c.width}×${c.height})`)),
+    cameras.map((c) =>
+      h(
+        "option",
+        { value: String(c.id), selected: String(c.id) === preselect },
+        `${c.name} (${c.width}×${c.height})`,
+      ),
+    ),
   );
   const source = (value, label, checked) =>
-    h("label", null, h("input", { type: "radio", name: "source", value, checked, testid: `run-source-${value}` }), label);
-  const sources = h("div", { class: "segmented", role: "radiogroup", "aria-label": "Input" }, source("json", "Correspondences file (JSON)", true), source("photos", "Chessboard photos", false));
+    h(
+      "label",
+      null,
+      h("input", { type: "radio", name: "source", value, checked, testid: `run-source-${value}` }),
+      label,
+    );
+  const sources = h(
+    "div",
+    { class: "segmented", role: "radiogroup", "aria-label": "Input" },
+    source("json", "Correspondences file (JSON)", true),
+    source("photos", "Chessboard photos", false),
+  );
 
-  const jsonFile = h("input", { id: "run-json-file", type: "file", accept: "application/json,.json", testid: "run-json-file" });
-  const jsonSummary = h("p", { class: "small muted", testid: "json-summary" }, "Pick a JSON file with object_points, image_points and image_size.");
+  const jsonFile = h("input", {
+    id: "run-json-file",
+    type: "file",
+    accept: "application/json,.json",
+    testid: "run-json-file",
+  });
+  const jsonSummary = h(
+    "p",
+    { class: "small muted", testid: "json-summary" },
+    "Pick a JSON file with object_points, image_points and image_size.",
+  );
   let parsed = null;
   jsonFile.addEventListener("change", async () => {
     parsed = null;
@@ -116,15 +160,39 @@ function startForm(cameras, preselect) {
       const cam = cameras.find((c) => String(c.id) === camera.value);
       parsed = parseCorrespondences(await file.text(), cam ? [cam.width, cam.height] : undefined);
       const n = parsed.image_points.reduce((a, v) => a + v.length, 0);
-      jsonSummary.textContent = `${file.name}: ${parsed.image_points.length} views, ${n} points, image ${parsed.image_size ? parsed.image_size.join(" × ") : "size from the camera"}`;
+      const size = parsed.image_size ? parsed.image_size.join(" × ") : "size from the camera";
+      const views = parsed.image_points.length;
+      jsonSummary.textContent = `${file.name}: ${views} views, ${n} points, image ${size}`;
     } catch (err) {
       jsonSummary.textContent = file.name;
-      mount(error, errorBox({ title: "Cannot use this file", detail: err.message }, "run-form-error"));
+      mount(
+        error,
+        errorBox({ title: "Cannot use this file", detail: err.message }, "run-form-error"),
+      );
     }
   });
-  const photos = h("input", { id: "run-files", type: "file", multiple: true, accept: "image/png,image/jpeg,image/bmp,image/tiff", testid: "run-files" });
-  const board = h("input", { id: "run-chessboard", value: "9x6", pattern: "\\d+\\s*[xX×]\\s*\\d+", title: "inner corners, columns x rows, e.g. 9x6", testid: "run-chessboard" });
-  const square = h("input", { id: "run-square", type: "number", step: "any", min: "0", value: "0.025", testid: "run-square" });
+  const photos = h("input", {
+    id: "run-files",
+    type: "file",
+    multiple: true,
+    accept: "image/png,image/jpeg,image/bmp,image/tiff",
+    testid: "run-files",
+  });
+  const board = h("input", {
+    id: "run-chessboard",
+    value: "9x6",
+    pattern: "\\d+\\s*[xX×]\\s*\\d+",
+    title: "inner corners, columns x rows, e.g. 9x6",
+    testid: "run-chessboard",
+  });
+  const square = h("input", {
+    id: "run-square",
+    type: "number",
+    step: "any",
+    min: "0",
+    value: "0.025",
+    testid: "run-square",
+  });
 
   const jsonPane = h(
     "div",
@@ -149,10 +217,16 @@ function startForm(cameras, preselect) {
   const distortion = h(
     "select",
     { id: "run-distortion", testid: "run-distortion" },
-    DISTORTION_MODELS.map(([v, label]) => h("option", { value: v, selected: v === "k1k2p1p2" }, label)),
+    DISTORTION_MODELS.map(([v, label]) =>
+      h("option", { value: v, selected: v === "k1k2p1p2" }, label),
+    ),
   );
   const skew = h("input", { id: "run-skew", type: "checkbox", testid: "run-skew" });
-  const submit = h("button", { class: "btn primary", type: "submit", testid: "run-submit" }, "Start calibration");
+  const submit = h(
+    "button",
+    { class: "btn primary", type: "submit", testid: "run-submit" },
+    "Start calibration",
+  );
 
   const form = h(
     "form",
@@ -194,7 +268,13 @@ function startForm(cameras, preselect) {
           toast(`Calibration run #${run.id} started`);
           location.hash = `#/calibration/runs/${run.id}`;
         } catch (err) {
-          mount(error, errorBox(err.title ? err : { title: "Cannot start the run", detail: err.message }, "run-form-error"));
+          mount(
+            error,
+            errorBox(
+              err.title ? err : { title: "Cannot start the run", detail: err.message },
+              "run-form-error",
+            ),
+          );
         } finally {
           submit.disabled = false;
         }
@@ -204,14 +284,36 @@ function startForm(cameras, preselect) {
       "div",
       { class: "form-row" },
       h("label", { for: "run-camera" }, "Camera", camera),
-      h("div", null, h("span", { class: "small", style: { display: "block", marginBottom: "5px", fontWeight: 550, color: "var(--ink-2)" } }, "Input"), sources),
+      h(
+        "div",
+        null,
+        h(
+          "span",
+          {
+            class: "small",
+            style: {
+              display: "block",
+              marginBottom: "5px",
+              fontWeight: 550,
+              color: "var(--ink-2)",
+            },
+          },
+          "Input",
+        ),
+        sources,
+      ),
     ),
     h("div", { style: { marginTop: "14px" } }, jsonPane, photoPane),
     h(
       "fieldset",
       { style: { marginTop: "14px" } },
       h("legend", null, "Model"),
-      h("div", { class: "form-grid" }, h("label", { for: "run-distortion" }, "Distortion", distortion), h("label", { class: "inline", for: "run-skew" }, skew, "Estimate skew")),
+      h(
+        "div",
+        { class: "form-grid" },
+        h("label", { for: "run-distortion" }, "Distortion", distortion),
+        h("label", { class: "inline", for: "run-skew" }, skew, "Estimate skew"),
+      ),
     ),
     h("div", { class: "form-actions" }, submit),
     error,
@@ -222,7 +324,10 @@ function startForm(cameras, preselect) {
 export async function renderCalibration(main, _params, query) {
   const [{ items: cameras }, runs] = await Promise.all([
     list("/cameras", { limit: 200 }),
-    list("/calibration-runs", { limit: 50 }).then((v) => ({ v }), (e) => ({ e })),
+    list("/calibration-runs", { limit: 50 }).then(
+      (v) => ({ v }),
+      (e) => ({ e }),
+    ),
   ]);
   const runsBody = runs.e
     ? errorBox(runs.e, "runs-error")
@@ -231,7 +336,13 @@ export async function renderCalibration(main, _params, query) {
           "div",
           { class: "table-wrap" },
           runsTable(runs.v.items, cameras),
-          runs.v.total > runs.v.items.length ? h("p", { class: "small muted" }, `Showing the newest ${runs.v.items.length} of ${runs.v.total}.`) : null,
+          runs.v.total > runs.v.items.length
+            ? h(
+                "p",
+                { class: "small muted" },
+                `Showing the newest ${runs.v.items.length} of ${runs.v.total}.`,
+              )
+            : null,
         )
       : h("p", { class: "empty", testid: "run-table-empty" }, "No calibration runs yet.");
   mount(
@@ -241,7 +352,16 @@ export async function renderCalibration(main, _params, query) {
       "Intrinsics and distortion by Zhang's method from several views of a planar pattern",
       cameras.length
         ? startForm(cameras, query.get("camera"))
-        : infoBox(h("span", null, "Add a camera first on the ", h("a", { href: "#/cameras" }, "Cameras"), " page."), "run-needs-camera"),
+        : infoBox(
+            h(
+              "span",
+              null,
+              "Add a camera first on the ",
+              h("a", { href: "#/cameras" }, "Cameras"),
+              " page.",
+            ),
+            "run-needs-camera",
+          ),
     ),
     panel("Runs", "Newest first", runsBody),
   );
@@ -260,7 +380,12 @@ function resultView(run) {
       h(
         "div",
         { class: "grid two", style: { gap: "16px" } },
-        h("div", null, h("h3", { style: { marginBottom: "8px" } }, "K (pixels)"), matrixTable(r.K, 3, "run-K")),
+        h(
+          "div",
+          null,
+          h("h3", { style: { marginBottom: "8px" } }, "K (pixels)"),
+          matrixTable(r.K, 3, "run-K"),
+        ),
         intrinsicsFacts(r.K, r.dist, r.std_intrinsics, "run"),
       ),
     ),
@@ -303,7 +428,17 @@ export async function renderRun(main, [id], _query, setTitle) {
             toast(`Calibration applied to camera #${run.camera_id}`);
             mount(
               notice,
-              h("div", { class: "alert info", role: "status", testid: "run-applied" }, "Applied. ", h("a", { href: `#/cameras/${run.camera_id}`, testid: "run-camera-link" }, "Open the camera"), " to see its new intrinsics."),
+              h(
+                "div",
+                { class: "alert info", role: "status", testid: "run-applied" },
+                "Applied. ",
+                h(
+                  "a",
+                  { href: `#/cameras/${run.camera_id}`, testid: "run-camera-link" },
+                  "Open the camera",
+                ),
+                " to see its new intrinsics.",
+              ),
             );
           } catch (err) {
             btn.disabled = false;
@@ -321,17 +456,38 @@ export async function renderRun(main, [id], _query, setTitle) {
       h("dt", null, "Status"),
       h("dd", null, statusBadge(run.status, "run-status")),
       h("dt", null, "Camera"),
-      h("dd", null, run.camera_id ? h("a", { href: `#/cameras/${run.camera_id}` }, cameraName || `#${run.camera_id}`) : "–"),
+      h(
+        "dd",
+        null,
+        run.camera_id
+          ? h("a", { href: `#/cameras/${run.camera_id}` }, cameraName || `#${run.camera_id}`)
+          : "–",
+      ),
       h("dt", null, "Kind"),
       h("dd", null, [run.kind, run.source ? ` · ${run.source}` : ""]),
       h("dt", null, "Options"),
-      h("dd", { class: "mono small" }, run.options ? Object.entries(run.options).map(([k, v]) => `${k}=${v}`).join(", ") : "–"),
+      h(
+        "dd",
+        { class: "mono small" },
+        run.options
+          ? Object.entries(run.options)
+              .map(([k, v]) => `${k}=${v}`)
+              .join(", ")
+          : "–",
+      ),
       h("dt", null, "Created"),
       h("dd", null, when(run.created_at)),
       h("dt", null, "Ran for"),
       h("dd", null, duration(run.started_at, run.finished_at)),
       run.result
-        ? [h("dt", null, "RMS error"), h("dd", { class: "num", testid: "run-rms" }, `${fmt(run.result.rms, 4)} px over ${run.result.per_view_rms.length} views`)]
+        ? [
+            h("dt", null, "RMS error"),
+            h(
+              "dd",
+              { class: "num", testid: "run-rms" },
+              `${fmt(run.result.rms, 4)} px over ${run.result.per_view_rms.length} views`,
+            ),
+          ]
         : null,
     );
     mount(
@@ -343,14 +499,33 @@ export async function renderRun(main, [id], _query, setTitle) {
           "div",
           { class: "panel-head", style: { marginBottom: 0 } },
           facts,
-          h("div", { class: "form-actions", style: { marginTop: 0 } }, run.status === "succeeded" && run.camera_id ? applyButton(run) : null, h("a", { class: "btn", href: "#/calibration" }, "All runs")),
+          h(
+            "div",
+            { class: "form-actions", style: { marginTop: 0 } },
+            run.status === "succeeded" && run.camera_id ? applyButton(run) : null,
+            h("a", { class: "btn", href: "#/calibration" }, "All runs"),
+          ),
         ),
       ),
     );
     if (run.status === "succeeded" && run.result) mount(body, resultView(run));
     else if (run.status === "failed" || run.status === "interrupted")
-      mount(body, errorBox({ title: `The run ${run.status}`, detail: run.error || "No reason was recorded." }, "run-error"));
-    else mount(body, h("p", { class: "muted", role: "status", testid: "run-waiting" }, `The run is ${run.status}; this page updates by itself.`));
+      mount(
+        body,
+        errorBox(
+          { title: `The run ${run.status}`, detail: run.error || "No reason was recorded." },
+          "run-error",
+        ),
+      );
+    else
+      mount(
+        body,
+        h(
+          "p",
+          { class: "muted", role: "status", testid: "run-waiting" },
+          `The run is ${run.status}; this page updates by itself.`,
+        ),
+      );
   };
 
   let cameraName = null;

@@ -24,10 +24,37 @@ function cameraStatus(c) {
 
 function addCameraForm(onCreated) {
   const error = h("div");
-  const name = h("input", { id: "cam-name", name: "name", required: true, maxlength: 200, placeholder: "e.g. ceiling-kitchen", testid: "camera-name" });
-  const width = h("input", { id: "cam-width", name: "width", type: "number", min: 1, required: true, value: "1280", testid: "camera-width" });
-  const height = h("input", { id: "cam-height", name: "height", type: "number", min: 1, required: true, value: "720", testid: "camera-height" });
-  const submit = h("button", { class: "btn primary", type: "submit", testid: "camera-create" }, "Add camera");
+  const name = h("input", {
+    id: "cam-name",
+    name: "name",
+    required: true,
+    maxlength: 200,
+    placeholder: "e.g. ceiling-kitchen",
+    testid: "camera-name",
+  });
+  const width = h("input", {
+    id: "cam-width",
+    name: "width",
+    type: "number",
+    min: 1,
+    required: true,
+    value: "1280",
+    testid: "camera-width",
+  });
+  const height = h("input", {
+    id: "cam-height",
+    name: "height",
+    type: "number",
+    min: 1,
+    required: true,
+    value: "720",
+    testid: "camera-height",
+  });
+  const submit = h(
+    "button",
+    { class: "btn primary", type: "submit", testid: "camera-create" },
+    "Add camera",
+  );
   const form = h(
     "form",
     {
@@ -39,7 +66,11 @@ function addCameraForm(onCreated) {
         try {
           const cam = await api("/cameras", {
             method: "POST",
-            json: { name: name.value.trim(), width: Number(width.value), height: Number(height.value) },
+            json: {
+              name: name.value.trim(),
+              width: Number(width.value),
+              height: Number(height.value),
+            },
           });
           toast(`Camera “${cam.name}” added`);
           form.reset();
@@ -96,7 +127,9 @@ export async function renderCameras(main) {
           h("td", null, h("a", { href: `#/cameras/${c.id}` }, c.name)),
           h("td", { class: "num" }, `${c.width} × ${c.height}`),
           h("td", null, badge(cameraStatus(c))),
-          [0, 4, 2, 5].map((k) => h("td", { class: "num" }, c.K ? fmt(c.K[Math.floor(k / 3)][k % 3], 2) : "–")),
+          [0, 4, 2, 5].map((k) =>
+            h("td", { class: "num" }, c.K ? fmt(c.K[Math.floor(k / 3)][k % 3], 2) : "–"),
+          ),
           h("td", null, c.T_world_camera ? "calibrated" : h("span", { class: "muted" }, "unknown")),
           h("td", { class: "small muted" }, when(c.updated_at)),
         ),
@@ -105,9 +138,13 @@ export async function renderCameras(main) {
   );
   mount(
     main,
-    panel("Add a camera", "Register a camera by name and image size; calibrate it afterwards", addCameraForm((cam) => {
-      location.hash = `#/cameras/${cam.id}`;
-    })),
+    panel(
+      "Add a camera",
+      "Register a camera by name and image size; calibrate it afterwards",
+      addCameraForm((cam) => {
+        location.hash = `#/cameras/${cam.id}`;
+      }),
+    ),
     panel(
       `Cameras (${total})`,
       "Click a camera for its intrinsics, calibration history and exports",
@@ -116,9 +153,15 @@ export async function renderCameras(main) {
             "div",
             { class: "table-wrap" },
             table,
-            total > items.length ? h("p", { class: "small muted" }, `Showing the first ${items.length} of ${total}.`) : null,
+            total > items.length
+              ? h("p", { class: "small muted" }, `Showing the first ${items.length} of ${total}.`)
+              : null,
           )
-        : h("p", { class: "empty", testid: "camera-table-empty" }, "No cameras yet. Add one above."),
+        : h(
+            "p",
+            { class: "empty", testid: "camera-table-empty" },
+            "No cameras yet. Add one above.",
+          ),
     ),
   );
 }
@@ -156,7 +199,12 @@ export function intrinsicsFacts(K, dist, std, testPrefix) {
     const sd = stdOf(std, name, 5 + i);
     return [
       h("dt", null, name),
-      h("dd", { class: "num", testid: `${testPrefix}-${name}` }, sig(v, 6), sd ? h("span", { class: "muted" }, ` ± ${sig(sd, 2)}`) : null),
+      h(
+        "dd",
+        { class: "num", testid: `${testPrefix}-${name}` },
+        sig(v, 6),
+        sd ? h("span", { class: "muted" }, ` ± ${sig(sd, 2)}`) : null,
+      ),
     ];
   });
   return h("dl", { class: "facts", testid: `${testPrefix}-intrinsics` }, rows, distRows);
@@ -175,7 +223,10 @@ export async function renderCamera(main, [id], _query, setTitle) {
   const cam = await api(`/cameras/${id}`);
   setTitle(cam.name);
   const [historyResult, runResult] = await Promise.all([
-    api(`/cameras/${id}/calibrations`).then((v) => ({ v }), (e) => ({ e })),
+    api(`/cameras/${id}/calibrations`).then(
+      (v) => ({ v }),
+      (e) => ({ e }),
+    ),
     cam.calibration_run_id ? fetchRun(cam.calibration_run_id) : {},
   ]);
   const run = runResult.run;
@@ -191,7 +242,10 @@ export async function renderCamera(main, [id], _query, setTitle) {
         title: cam.K ? null : "Calibrate the camera first",
         onClick: async () => {
           try {
-            await download(`/cameras/${id}/calibration.yaml?format=${format}`, `${cam.name}-${format}.yaml`);
+            await download(
+              `/cameras/${id}/calibration.yaml?format=${format}`,
+              `${cam.name}-${format}.yaml`,
+            );
           } catch (err) {
             toastError(err);
           }
@@ -203,7 +257,11 @@ export async function renderCamera(main, [id], _query, setTitle) {
   const actions = h(
     "div",
     { class: "form-actions" },
-    h("a", { class: "btn primary", href: `#/calibration?camera=${id}`, testid: "calibrate-camera" }, "Calibrate…"),
+    h(
+      "a",
+      { class: "btn primary", href: `#/calibration?camera=${id}`, testid: "calibrate-camera" },
+      "Calibrate…",
+    ),
     exportButton("opencv", "Export OpenCV YAML"),
     exportButton("ros", "Export ROS camera_info"),
     h(
@@ -230,16 +288,28 @@ export async function renderCamera(main, [id], _query, setTitle) {
   const std = run?.result?.std_intrinsics;
   const intrinsics = panel(
     "Intrinsics",
-    cam.K ? `Calibration matrix K and distortion (OpenCV order)${run?.result?.rms ? `, RMS ${fmt(run.result.rms, 3)} px` : ""}` : null,
+    cam.K
+      ? "Calibration matrix K and distortion (OpenCV order)" +
+          (run?.result?.rms ? `, RMS ${fmt(run.result.rms, 3)} px` : "")
+      : null,
     cam.K
       ? h(
           "div",
           { class: "grid two" },
-          h("div", null, h("h3", { style: { marginBottom: "8px" } }, "K (pixels)"), matrixTable(cam.K, 3, "camera-K")),
+          h(
+            "div",
+            null,
+            h("h3", { style: { marginBottom: "8px" } }, "K (pixels)"),
+            matrixTable(cam.K, 3, "camera-K"),
+          ),
           intrinsicsFacts(cam.K, cam.dist, std, "camera"),
           runResult.error ? errorBox(runResult.error, "camera-run-error") : null,
         )
-      : h("p", { class: "empty", testid: "camera-uncalibrated" }, "Not calibrated yet. Start a calibration run to estimate K and the distortion."),
+      : h(
+          "p",
+          { class: "empty", testid: "camera-uncalibrated" },
+          "Not calibrated yet. Start a calibration run to estimate K and the distortion.",
+        ),
   );
 
   const pose = panel(
@@ -247,7 +317,11 @@ export async function renderCamera(main, [id], _query, setTitle) {
     "Camera-to-world transform (OpenCV camera axes; world Z up, metres)",
     cam.T_world_camera
       ? matrixTable(cam.T_world_camera, 4, "camera-pose")
-      : h("p", { class: "empty", testid: "camera-no-pose" }, "No calibrated pose: the 3D scene shows this camera parked beside the floor plan."),
+      : h(
+          "p",
+          { class: "empty", testid: "camera-no-pose" },
+          "No calibrated pose: the 3D scene shows this camera parked beside the floor plan.",
+        ),
   );
 
   const details = panel(
@@ -261,7 +335,17 @@ export async function renderCamera(main, [id], _query, setTitle) {
       h("dt", null, "Image size"),
       h("dd", { class: "num" }, `${cam.width} × ${cam.height} px`),
       h("dt", null, "Calibrated by"),
-      h("dd", null, cam.calibration_run_id ? h("a", { href: `#/calibration/runs/${cam.calibration_run_id}` }, `run #${cam.calibration_run_id}`) : "–"),
+      h(
+        "dd",
+        null,
+        cam.calibration_run_id
+          ? h(
+              "a",
+              { href: `#/calibration/runs/${cam.calibration_run_id}` },
+              `run #${cam.calibration_run_id}`,
+            )
+          : "–",
+      ),
       h("dt", null, "Created"),
       h("dd", null, when(cam.created_at)),
       h("dt", null, "Updated"),
@@ -282,7 +366,17 @@ export async function renderCamera(main, [id], _query, setTitle) {
           h(
             "table",
             { testid: "calibration-history" },
-            h("thead", null, h("tr", null, ["Applied", "Run", "fx", "fy", "cx", "cy", "RMS (px)"].map((t, i) => h("th", { class: i >= 2 ? "num" : null }, t)))),
+            h(
+              "thead",
+              null,
+              h(
+                "tr",
+                null,
+                ["Applied", "Run", "fx", "fy", "cx", "cy", "RMS (px)"].map((t, i) =>
+                  h("th", { class: i >= 2 ? "num" : null }, t),
+                ),
+              ),
+            ),
             h(
               "tbody",
               null,
@@ -291,25 +385,43 @@ export async function renderCamera(main, [id], _query, setTitle) {
                   "tr",
                   null,
                   h("td", { class: "small" }, when(c.created_at)),
-                  h("td", null, c.calibration_run_id ? h("a", { href: `#/calibration/runs/${c.calibration_run_id}` }, `#${c.calibration_run_id}`) : "–"),
-                  [c.K[0][0], c.K[1][1], c.K[0][2], c.K[1][2]].map((v) => h("td", { class: "num" }, fmt(v, 2))),
+                  h(
+                    "td",
+                    null,
+                    c.calibration_run_id
+                      ? h(
+                          "a",
+                          { href: `#/calibration/runs/${c.calibration_run_id}` },
+                          `#${c.calibration_run_id}`,
+                        )
+                      : "–",
+                  ),
+                  [c.K[0][0], c.K[1][1], c.K[0][2], c.K[1][2]].map((v) =>
+                    h("td", { class: "num" }, fmt(v, 2)),
+                  ),
                   h("td", { class: "num" }, fmt(c.rms, 4)),
                 ),
               ),
             ),
           ),
         )
-      : h("p", { class: "empty", testid: "calibration-history-empty" }, "No calibration applied yet.");
+      : h(
+          "p",
+          { class: "empty", testid: "calibration-history-empty" },
+          "No calibration applied yet.",
+        );
   }
 
-  const residuals =
-    run?.result?.per_view_rms?.length
-      ? panel(
-          "Residuals of the applied calibration",
-          `Run #${run.id}: RMS reprojection error per view`,
-          barChart(run.result.per_view_rms, { reference: run.result.rms, title: "RMS reprojection error per view" }),
-        )
-      : null;
+  const residuals = run?.result?.per_view_rms?.length
+    ? panel(
+        "Residuals of the applied calibration",
+        `Run #${run.id}: RMS reprojection error per view`,
+        barChart(run.result.per_view_rms, {
+          reference: run.result.rms,
+          title: "RMS reprojection error per view",
+        }),
+      )
+    : null;
 
   mount(
     main,

@@ -14,7 +14,14 @@ const DEVICES = [
 
 /** Settle every promise; failures come back as {error}. */
 function settle(promises) {
-  return Promise.all(promises.map((p) => p.then((value) => ({ value }), (error) => ({ error }))));
+  return Promise.all(
+    promises.map((p) =>
+      p.then(
+        (value) => ({ value }),
+        (error) => ({ error }),
+      ),
+    ),
+  );
 }
 
 export async function renderOverview(main) {
@@ -64,7 +71,9 @@ export async function renderOverview(main) {
           h("dt", null, "Database"),
           h("dd", { testid: "health-database" }, describeDatabase(hv.database)),
           ...Object.entries(hv)
-            .filter(([k, v]) => !["status", "version", "database"].includes(k) && typeof v !== "object")
+            .filter(
+              ([k, v]) => !["status", "version", "database"].includes(k) && typeof v !== "object",
+            )
             .map(([k, v]) => [h("dt", null, sentence(k)), h("dd", null, String(v))]),
         ),
   );
@@ -130,7 +139,17 @@ export async function renderOverview(main) {
                     "tr",
                     null,
                     h("td", null, h("a", { href: `#/calibration/runs/${r.id}` }, `#${r.id}`)),
-                    h("td", null, r.camera_id ? h("a", { href: `#/cameras/${r.camera_id}` }, cameraName(cameras, r.camera_id)) : "–"),
+                    h(
+                      "td",
+                      null,
+                      r.camera_id
+                        ? h(
+                            "a",
+                            { href: `#/cameras/${r.camera_id}` },
+                            cameraName(cameras, r.camera_id),
+                          )
+                        : "–",
+                    ),
                     h("td", null, statusBadge(r.status)),
                     h("td", { class: "num" }, fmt(r.result?.rms, 4)),
                     h("td", { class: "num" }, r.result?.K ? fmt(r.result.K[0][0], 2) : "–"),
@@ -146,7 +165,12 @@ export async function renderOverview(main) {
   mount(
     main,
     stats,
-    h("div", { class: "grid wide-left" }, planPanel, h("div", { class: "grid" }, healthPanel, spacePanel)),
+    h(
+      "div",
+      { class: "grid wide-left" },
+      planPanel,
+      h("div", { class: "grid" }, healthPanel, spacePanel),
+    ),
     runsPanel,
   );
 }
@@ -164,6 +188,10 @@ function cameraName(cameras, id) {
 function describeDatabase(db) {
   if (db === null || db === undefined) return "–";
   if (typeof db === "string") return db;
-  const parts = [db.status, db.backend || db.dialect || db.name, db.revision ? `revision ${db.revision}` : null];
+  const parts = [
+    db.status,
+    db.backend || db.dialect || db.name,
+    db.revision ? `revision ${db.revision}` : null,
+  ];
   return parts.filter(Boolean).join(" · ") || JSON.stringify(db);
 }

@@ -32,7 +32,11 @@ export async function renderScene(main) {
           "div",
           null,
           h("h2", null, "Floor plan and cameras in 3D"),
-          h("p", null, "Drag to orbit, scroll to zoom. Frusta follow calibrations within a second."),
+          h(
+            "p",
+            null,
+            "Drag to orbit, scroll to zoom. Frusta follow calibrations within a second.",
+          ),
         ),
         h(
           "a",
