@@ -114,6 +114,13 @@ def test_first_page_interactive_and_sign_in(
     expect(page.get_by_test_id("token-input")).to_be_visible()
     assert page.evaluate("localStorage.getItem('intspace.token')") is None
 
+    # A stored token the service no longer accepts is dropped, and the page says so.
+    page.evaluate("localStorage.setItem('intspace.token', 'revoked-token')")
+    page.reload()
+    expect(page.get_by_test_id("auth-status")).to_have_text("Token refused; sign in again")
+    expect(page.get_by_test_id("page-error")).to_contain_text("access token")
+    assert page.evaluate("localStorage.getItem('intspace.token')") is None
+
 
 def test_calibrate_apply_export_and_see_the_camera_in_the_scene(
     service, browser_page: Page, zhang_json: Path, scene_reader, tmp_path: Path

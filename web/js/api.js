@@ -49,7 +49,8 @@ async function problemFrom(response) {
 /**
  * Call the API and return the decoded JSON (null for 204). Throws ApiError on any non-2xx,
  * and a plain Error with a readable message when the service cannot be reached.
- * options: {method, json, form, raw} - json is sent as a JSON body, form as multipart.
+ * options: {method, json, form, raw, checkingToken} - json is sent as a JSON body, form as
+ * multipart; checkingToken: a 401 is the answer sought, not a sign that the session ended.
  */
 export async function api(path, options = {}) {
   const headers = { Accept: "application/json" };
@@ -70,7 +71,9 @@ export async function api(path, options = {}) {
   }
   if (!response.ok) {
     const error = new ApiError(response.status, await problemFrom(response));
-    if (response.status === 401) window.dispatchEvent(new CustomEvent("auth-required"));
+    if (response.status === 401 && !options.checkingToken) {
+      window.dispatchEvent(new CustomEvent("auth-required"));
+    }
     throw error;
   }
   if (options.raw) return response;

@@ -87,7 +87,7 @@ async function route() {
   }
 }
 
-function renderAuth() {
+function renderAuth(notice = "") {
   const box = document.getElementById("auth");
   if (getToken()) {
     mount(
@@ -126,7 +126,11 @@ function renderAuth() {
     "aria-hidden": "true",
     tabindex: "-1",
   });
-  const status = h("span", { class: "small muted", testid: "auth-status" }, "Not signed in");
+  const status = h(
+    "span",
+    { class: notice ? "small badge bad" : "small muted", testid: "auth-status" },
+    notice || "Not signed in",
+  );
   const form = h(
     "form",
     {
@@ -139,7 +143,7 @@ function renderAuth() {
         const previous = getToken();
         localStorage.setItem("intspace.token", token);
         try {
-          await api("/cameras?limit=1");
+          await api("/cameras?limit=1", { checkingToken: true });
           setToken(token);
         } catch (err) {
           if (previous) localStorage.setItem("intspace.token", previous);
@@ -191,6 +195,12 @@ window.addEventListener("auth-changed", () => {
   route();
 });
 window.addEventListener("auth-required", () => {
+  // A stored token the service refuses (revoked, or a new data directory) is dropped, so the
+  // header does not claim a sign-in that no longer holds.
+  if (getToken()) {
+    localStorage.removeItem("intspace.token");
+    renderAuth("Token refused; sign in again");
+  }
   const input = document.getElementById("token-input");
   if (input) input.focus();
 });
