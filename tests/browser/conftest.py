@@ -165,6 +165,8 @@ def zhang_correspondences() -> dict[str, Any]:
     """Return Zhang's five views as a correspondences document (object points in inches)."""
     import numpy as np
 
+    if not (ZHANG_DIR / "Model.txt").is_file():
+        pytest.fail(f"Zhang's calibration data is missing: expected it in {ZHANG_DIR}")
     model = np.loadtxt(ZHANG_DIR / "Model.txt").reshape(-1, 2)
     obj = np.column_stack([model, np.zeros(len(model))]).tolist()
     views = [np.loadtxt(ZHANG_DIR / f"data{i}.txt").reshape(-1, 2).tolist() for i in range(1, 6)]
