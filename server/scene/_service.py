@@ -8,9 +8,10 @@ milliseconds (the contract is "within a second").
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import threading
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -168,7 +169,8 @@ class SceneService:
             if self._server is not None:
                 return
             # Built outside _cond, so callers recording changes meanwhile are not held up.
-            server = viser.ViserServer(host=self._host, port=self._port, verbose=self._verbose)
+            with self._quiet():
+                server = viser.ViserServer(host=self._host, port=self._port, verbose=self._verbose)
             server.scene.set_up_direction("+z")
             server.gui.configure_theme(
                 show_share_button=False, brand_color=_COLOR_CALIBRATED, control_width="small"
@@ -195,11 +197,28 @@ class SceneService:
             if worker is not None:
                 worker.join(timeout=5.0)
             if server is not None:
-                server.stop()
+                with self._quiet():
+                    server.stop()
             with self._cond:
                 self._server = None
                 self._worker = None
                 self._camera_picker = None
+
+    @contextlib.contextmanager
+    def _quiet(self) -> Iterator[None]:
+        """Silence viser's own console banners unless verbose: the service prints the scene's
+        address itself, and viser 1.1 prints its panel whatever `verbose` says."""
+        if self._verbose:
+            yield
+            return
+        import rich
+
+        console = rich.get_console()
+        was_quiet, console.quiet = console.quiet, True
+        try:
+            yield
+        finally:
+            console.quiet = was_quiet
 
     @property
     def running(self) -> bool:
