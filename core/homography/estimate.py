@@ -28,9 +28,11 @@ from core.optim import SparseLMResult, solve_sparse_lm
 Array = NDArray[np.float64]
 Method = Literal["gold", "transfer", "dlt"]
 
-# Relative tolerance for collinearity: |det| of a point triple (normalised coordinates, mean
-# distance sqrt(2) from the centroid) below this is treated as collinear.
-_COLLINEAR_TOL = 1e-9
+# Collinearity: a point cloud whose smaller principal axis is below this fraction of the larger
+# is a line. The axes come from the 2 x 2 scatter matrix, whose eigenvalues are exact to ~1e-16
+# of the larger, i.e. axes to ~1e-8: the threshold sits above that rounding floor (6e-5 px
+# across a 640 px image, far below any real measurement's spread).
+_COLLINEAR_TOL = 1e-7
 # A RANSAC minimal sample whose point triples have |det| below this (normalised coordinates,
 # where a well-spread triple has |det| ~ 1) is too close to collinear to give a useful model.
 _SAMPLE_DET_TOL = 1e-6
@@ -327,7 +329,7 @@ class _GoldStandardProblem:
 
 
 def _sampson_src(hn: Array, ps_t: Array, pd_t: Array, src_scale: float, dst_scale: float) -> Array:
-    """Return the first-image points (N, 2) of the Sampson correction (H&Z sec. 4.2.6, eq. 4.11)
+    """Return the first-image points (N, 2) of the Sampson correction (H&Z sec. 4.2.6)
     from Hartley-normalised points given transposed, (2, N).
 
     The first-order ML correction of each correspondence for the algebraic errors
@@ -373,9 +375,12 @@ class HomographyFit:
             sqrt(sum_i ||x'_i - pi(H x_i)||^2 / (2 n)); for "gold",
             sqrt(sum_i (||x_i - x^_i||^2 + ||x'_i - pi(H x^_i)||^2) / (4 n)); n counts inliers.
             Under Gaussian noise sigma it tends to sigma sqrt(1 - 4/n) (transfer) and
-            sigma sqrt((n - 4) / (2 n)) (gold) (H&Z result 5.2).
+            sigma sqrt((n - 4) / (2 n)) (gold): sigma sqrt(1 - d / N) for N measurements and d
+            parameters (H&Z ch. 5, spec 01 sec. 1).
         cov: (9, 9) covariance of H's entries (row-major), gauge H[2,2] = 1 removed (zero row and
-            column 8), scaled by the estimated residual variance 2 cost / (N - d) (H&Z eq. 5.9).
+            column 8), scaled by the estimated residual variance 2 cost / (N - d): the inverse of
+            the gauge-fixed Gauss-Newton information (H&Z ch. 5 and A6.4), propagated from the
+            normalised coordinates.
             For "dlt" it is the transfer-error covariance evaluated at the DLT estimate
             (first-order; exact for the transfer estimator). NaN when n = 4 (no redundancy).
         inliers: (N,) bool mask of the correspondences used; all True without RANSAC.
@@ -525,7 +530,7 @@ def fit_homography(
 def transfer_covariance(fit: HomographyFit, points: ArrayLike) -> Array:
     """Return the (N, 2, 2) covariance of pi(H x) for points x (N, 2) in src coordinates.
 
-    First-order propagation of `fit.cov` (H&Z eq. 5.7): J cov J^T with J = d pi(H x) / d vec(H)
+    First-order propagation of `fit.cov` (H&Z ch. 5): J cov J^T with J = d pi(H x) / d vec(H)
     (2 x 9). The points themselves are taken as exact; units are those of dst, squared.
     """
     x = as_points(points, 2, "points")
@@ -563,7 +568,8 @@ def _triple_dets(p: Array) -> Array:
 
 def _basis_maps(p: Array) -> Array:
     """Return B (K, 3, 3) mapping e1, e2, e3, (1,1,1) to the four points of each sample
-    (H&Z 2nd ed., exercise 2.7 (iii)); requires no three points collinear."""
+    (columns p1, p2, p3 scaled by lambda with [p1 p2 p3] lambda = p4); requires no three
+    points collinear."""
     ph = np.concatenate([p, np.ones((*p.shape[:2], 1))], axis=2)  # (K, 4, 3)
     a = ph[:, :3].transpose(0, 2, 1)
     lam = np.linalg.solve(a, ph[:, 3, :, None])[:, :, 0]
