@@ -153,23 +153,33 @@ def dlt_homography(src: ArrayLike, dst: ArrayLike) -> Array:
 
 
 def _h_from_params(g: Array) -> Array:
-    return np.append(g, 1.0).reshape(3, 3)
+    h = np.empty(9)
+    h[:8] = g
+    h[8] = 1.0
+    return h.reshape(3, 3)
 
 
 class _Projection:
-    """pi(H x) for the 8 free entries g of H (H[2,2] = 1) and points x, y (N,) with the pieces
+    """pi(H x) for the 8 free entries g of H (H[2,2] = 1) and points x (2, N) with the pieces
     of its Jacobian, as contiguous length-N rows (elementwise numpy on rows is cheapest)."""
 
-    __slots__ = ("c", "u", "v", "x", "y")
+    __slots__ = ("c", "hm", "u", "uv", "v", "x", "y")
 
-    def __init__(self, g: Array, x: Array, y: Array, weight: float) -> None:
-        h0, h1, h2, h3, h4, h5, h6, h7 = g
-        inv_w = 1.0 / (h6 * x + h7 * y + 1.0)
-        self.x, self.y = x, y
-        self.u = (h0 * x + h1 * y + h2) * inv_w
-        self.v = (h3 * x + h4 * y + h5) * inv_w
+    def __init__(self, g: Array, x_t: Array, weight: float) -> None:
+        self.hm = hm = _h_from_params(g)
+        ph = hm[:, :2] @ x_t + hm[:, 2:]  # (3, N)
+        inv_w = 1.0 / ph[2]
+        self.x, self.y = x_t
+        self.uv = ph[:2] * inv_w  # (2, N)
+        self.u, self.v = self.uv
         # d (weight * (x' - pi(H x))) / d (...) carries the factor c = -weight / w.
         self.c = -weight * inv_w
+
+    def point_jacobian(self) -> Array:
+        """Return A (2, 2, N) = c d pi(H x) / d x = c (H[:2, :2] - pi(H x) H[2, :2]) / 1, the
+        chain rule on x' = (H x)_12 / w (the 1 / w is inside c)."""
+        hm = self.hm
+        return self.c * (hm[:2, :2, None] - self.uv[:, None, :] * hm[2, :2, None])
 
     def g_rows(self) -> Array:
         """Return G^T (8, 2, N): d residual / d g for the u-rows [:, 0] and v-rows [:, 1]."""
@@ -190,21 +200,45 @@ class _Projection:
         return out
 
 
+def _global_index() -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    """Return index pairs into the 7 x 9 Gram matrix M = F [F; r]^T (flattened, with a zero
+    appended at position 63) such that U (8 x 8, row-major) then b_g (8,) = M[ia] + M[ib]."""
+    zero = 63
+    ia, ib = [], []
+
+    def at(r: int, c: int) -> int:
+        return 9 * r + c
+
+    for r in range(8):
+        for c in range(8):
+            lo, hi = min(r, c), max(r, c)
+            if hi < 3 or 3 <= lo and hi < 6:  # both in 0:3 or both in 3:6: F_0:3 F_0:3^T
+                ia.append(at(lo % 3, hi % 3)), ib.append(zero)
+            elif lo >= 6:  # 6:8 x 6:8: both the u-row and the v-row contribute
+                ia.append(at(lo - 3, hi - 3)), ib.append(at(lo - 1, hi - 1))
+            elif hi >= 6:  # 0:6 x 6:8: u-row (F3, F4) for 0:3, v-row (F5, F6) for 3:6
+                ia.append(at(lo % 3, hi - 3 if lo < 3 else hi - 1)), ib.append(zero)
+            else:  # 0:3 x 3:6: never in the same row of G
+                ia.append(zero), ib.append(zero)
+    for r in range(8):
+        if r < 6:
+            ia.append(at(r % 3, 7 if r < 3 else 8)), ib.append(zero)
+        else:
+            ia.append(at(r - 3, 7)), ib.append(at(r - 1, 8))
+    return np.array(ia), np.array(ib)
+
+
+_GLOBAL_IA, _GLOBAL_IB = _global_index()
+
+
 def _global_blocks(f: Array) -> tuple[Array, Array]:
     """Return (U = sum_i G_i^T G_i (8 x 8), b_g = sum_i G_i^T r_i (8,)) from one product of the
     rows f (9, N) = (F (7, N), r_u, r_v): the zero pattern of G makes U's two 3 x 3 diagonal
-    blocks equal, so a 7 x 9 Gram matrix holds everything."""
-    m = f[:7] @ np.ascontiguousarray(f.T)
-    u = np.zeros((8, 8))
-    u[0:3, 0:3] = u[3:6, 3:6] = m[0:3, 0:3]
-    u[0:3, 6:8] = m[0:3, 3:5]
-    u[3:6, 6:8] = m[0:3, 5:7]
-    u[6:8, 6:8] = m[3:5, 3:5] + m[5:7, 5:7]
-    u[6:8, 0:6] = u[0:6, 6:8].T
-    b = np.empty(8)
-    b[0:3], b[3:6] = m[0:3, 7], m[0:3, 8]
-    b[6:8] = m[3:5, 7] + m[5:7, 8]
-    return u, b
+    blocks equal, so a 7 x 9 Gram matrix holds everything (gathered by precomputed indices)."""
+    m = np.zeros(64)
+    m[:63] = (f[:7] @ f.T).ravel()
+    t = m[_GLOBAL_IA] + m[_GLOBAL_IB]
+    return t[:64].reshape(8, 8), t[64:]
 
 
 class _TransferProblem:
@@ -223,18 +257,18 @@ class _TransferProblem:
         return res_t
 
     def residuals(self, g: Array, x_local: Array) -> Array:
-        pr = _Projection(g, self.src_t[0], self.src_t[1], self.w_dst)
+        pr = _Projection(g, self.src_t, self.w_dst)
         return self._residuals_t(pr).T
 
     def jacobians(self, g: Array, x_local: Array) -> tuple[Array, Array, Array]:
-        pr = _Projection(g, self.src_t[0], self.src_t[1], self.w_dst)
+        pr = _Projection(g, self.src_t, self.w_dst)
         jg = np.ascontiguousarray(pr.g_rows().transpose(2, 1, 0))
         return self._residuals_t(pr).T, jg, np.zeros((len(pr.u), 2, 0))
 
     def normal_equations(
         self, g: Array, x_local: Array
     ) -> tuple[Array, Array, Array, Array, Array, Array]:
-        pr = _Projection(g, self.src_t[0], self.src_t[1], self.w_dst)
+        pr = _Projection(g, self.src_t, self.w_dst)
         n = len(pr.u)
         f = np.empty((9, n))
         pr.features(f)
@@ -270,61 +304,49 @@ class _GoldStandardProblem:
         return res_t
 
     def residuals(self, g: Array, x_local: Array) -> Array:
-        x, y = x_local.T
-        return self._residuals_t(_Projection(g, x, y, self.w_dst)).T
-
-    @staticmethod
-    def _a_blocks(g: Array, pr: _Projection) -> tuple[Array, Array, Array, Array]:
-        # d pi(H x) / d x = (H[:2, :2] - pi(H x) H[2, :2]) / w (chain rule on x' = (Hx)_12 / w).
-        h0, h1, _, h3, h4, _, h6, h7 = g
-        c, u, v = pr.c, pr.u, pr.v
-        return c * (h0 - u * h6), c * (h1 - u * h7), c * (h3 - v * h6), c * (h4 - v * h7)
+        return self._residuals_t(_Projection(g, x_local.T, self.w_dst)).T
 
     def jacobians(self, g: Array, x_local: Array) -> tuple[Array, Array, Array]:
-        x, y = x_local.T
-        pr = _Projection(g, x, y, self.w_dst)
-        n = len(x)
+        pr = _Projection(g, x_local.T, self.w_dst)
+        n = len(x_local)
         jg = np.zeros((n, 4, 8))
         jg[:, 2:, :] = pr.g_rows().transpose(2, 1, 0)
         jl = np.zeros((n, 4, 2))
         jl[:, 0, 0] = jl[:, 1, 1] = -self.w_src
-        jl[:, 2, 0], jl[:, 2, 1], jl[:, 3, 0], jl[:, 3, 1] = self._a_blocks(g, pr)
+        jl[:, 2:, :] = pr.point_jacobian().transpose(2, 0, 1)
         return self._residuals_t(pr).T, jg, jl
 
     def normal_equations(
         self, g: Array, x_local: Array
     ) -> tuple[Array, Array, Array, Array, Array, Array]:
-        x, y = x_local.T
-        pr = _Projection(g, x, y, self.w_dst)
-        n = len(x)
+        x_t = x_local.T
+        pr = _Projection(g, x_t, self.w_dst)
+        n = len(x_local)
         ws = self.w_src
         f = np.empty((9, n))
         pr.features(f)
-        np.multiply(self.w_dst, self.dst_t[0] - pr.u, out=f[7])
-        np.multiply(self.w_dst, self.dst_t[1] - pr.v, out=f[8])
+        rd = f[7:9]
+        np.subtract(self.dst_t, pr.uv, out=rd)
+        rd *= self.w_dst
         u_mat, b_g = _global_blocks(f)
-        rd0, rd1 = f[7], f[8]
         res_t = np.empty((4, n))
-        rs0, rs1 = res_t[0], res_t[1]
-        np.multiply(ws, self.src_t[0] - x, out=rs0)
-        np.multiply(ws, self.src_t[1] - y, out=rs1)
-        res_t[2:] = f[7:9]
-        a00, a01, a10, a11 = self._a_blocks(g, pr)
+        rs = res_t[:2]
+        np.subtract(self.src_t, x_t, out=rs)
+        rs *= ws
+        res_t[2:] = rd
+        a = pr.point_jacobian()  # (2, 2, N): a[i, k] = d res_dst_i / d x^_k
         # W_i = G_i^T A_i (8 x 2), from G's zero pattern (see _Projection.features).
         w = np.empty((8, 2, n))
-        for k, (a0k, a1k) in enumerate(((a00, a10), (a01, a11))):
-            np.multiply(f[0:3], a0k, out=w[0:3, k])
-            np.multiply(f[0:3], a1k, out=w[3:6, k])
-            np.multiply(f[3:5], a0k, out=w[6:8, k])
-            w[6:8, k] += f[5:7] * a1k
+        np.multiply(f[0:3, None], a[0], out=w[0:3])
+        np.multiply(f[0:3, None], a[1], out=w[3:6])
+        np.multiply(f[3:5, None], a[0], out=w[6:8])
+        w[6:8] += f[5:7, None] * a[1]
         # V_i = I / s_src^2 + A_i^T A_i; b_l = J_l^T res = -res_src / s_src + A_i^T res_dst.
-        vb = np.empty((2, 2, n))
-        vb[0, 0] = ws * ws + a00 * a00 + a10 * a10
-        vb[0, 1] = vb[1, 0] = a00 * a01 + a10 * a11
-        vb[1, 1] = ws * ws + a01 * a01 + a11 * a11
-        b_l = np.empty((2, n))
-        b_l[0] = a00 * rd0 + a10 * rd1 - ws * rs0
-        b_l[1] = a01 * rd0 + a11 * rd1 - ws * rs1
+        vb = (a[:, :, None, :] * a[:, None, :, :]).sum(axis=0)
+        vb[0, 0] += ws * ws
+        vb[1, 1] += ws * ws
+        b_l = (a * rd[:, None, :]).sum(axis=0)
+        b_l -= ws * rs
         return res_t.T, u_mat, w, vb, b_g, b_l
 
 
@@ -337,27 +359,21 @@ def _sampson_src(hn: Array, ps_t: Array, pd_t: Array, src_scale: float, dst_scal
     images in input units (normalised coordinates scale src and dst noise by src_scale and
     dst_scale). It starts the gold standard next to its optimum, saving an LM iteration.
     """
-    x, y = ps_t
-    u, v = pd_t
-    (h0, h1, h2), (h3, h4, h5), (h6, h7, h8) = hn
-    w = h6 * x + h7 * y + h8
-    e1 = u * w - (h0 * x + h1 * y + h2)
-    e2 = v * w - (h3 * x + h4 * y + h5)
-    j11, j12 = u * h6 - h0, u * h7 - h1
-    j21, j22 = v * h6 - h3, v * h7 - h4
-    # J Sigma J^T / s_src^2 with Sigma = diag(s_src^2 I, s_dst^2 I); the x', y' columns of J
-    # are w I. The src correction is -J_x^T (J Sigma J^T / s_src^2)^-1 e.
+    ph = hn[:, :2] @ ps_t + hn[:, 2:]  # (3, N)
+    w = ph[2]
+    e = pd_t * w - ph[:2]  # algebraic errors (2, N)
+    # d e / d x (2, 2, N): j[i, k] = x'_i h3k - h_ik; d e / d x' = w I.
+    j = pd_t[:, None, :] * hn[2, :2, None] - hn[:2, :2, None]
+    # M = J Sigma J^T / s_src^2 with Sigma = diag(s_src^2 I, s_dst^2 I); the src correction is
+    # -J_x^T M^-1 e.
+    mm = (j[:, None, :, :] * j[None, :, :, :]).sum(axis=2)  # (2, 2, N)
     ww = (dst_scale / src_scale) ** 2 * w * w
-    a = j11 * j11 + j12 * j12 + ww
-    b = j11 * j21 + j12 * j22
-    c = j21 * j21 + j22 * j22 + ww
+    a, b, c = mm[0, 0] + ww, mm[0, 1], mm[1, 1] + ww
     inv_det = 1.0 / (a * c - b * b)
-    l1 = (c * e1 - b * e2) * inv_det
-    l2 = (a * e2 - b * e1) * inv_det
-    out = np.empty((len(x), 2))
-    out[:, 0] = x - (j11 * l1 + j21 * l2)
-    out[:, 1] = y - (j12 * l1 + j22 * l2)
-    return out
+    lam = np.empty_like(e)
+    lam[0] = (c * e[0] - b * e[1]) * inv_det
+    lam[1] = (a * e[1] - b * e[0]) * inv_det
+    return np.ascontiguousarray((ps_t - (j * lam[:, None, :]).sum(axis=0)).T)
 
 
 # --------------------------------------------------------------------------------------------

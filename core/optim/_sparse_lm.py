@@ -208,7 +208,7 @@ def _half_sum_sq(a: Array) -> float:
 
 
 def _inf_norm(a: Array) -> float:
-    return float(np.max(np.abs(a), initial=0.0))
+    return float(np.abs(a).max()) if a.size else 0.0
 
 
 def solve_sparse_lm(
@@ -263,7 +263,7 @@ def solve_sparse_lm(
     if not np.isfinite(cost):
         raise ConvergenceError("the residuals are not finite at the starting point")
     initial_cost = cost
-    g0_norm = max(_inf_norm(b_g), _inf_norm(b_l))
+    grad_norm = g0_norm = max(_inf_norm(b_g), _inf_norm(b_l))
 
     diag_floor = 1e-12
     work = (np.empty((p, q, m)), np.empty((p, q, m)))
@@ -273,7 +273,7 @@ def solve_sparse_lm(
     status: Literal["cost", "step", "gradient", "max_iterations"] = "max_iterations"
     iterations = 0
     while iterations < max_iterations:
-        if max(_inf_norm(b_g), _inf_norm(b_l)) <= gtol * max(g0_norm, 1e-300):
+        if grad_norm <= gtol * max(g0_norm, 1e-300):
             status = "gradient"
             break
         if damping == "marquardt":
@@ -352,6 +352,7 @@ def solve_sparse_lm(
                 mu *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
                 nu = 2.0
                 res, u, w, v, b_g, b_l = _evaluate(problem, g, loc)
+                grad_norm = max(_inf_norm(b_g), _inf_norm(b_l))
                 if rel_decrease <= ftol or cost == 0.0:
                     status = "cost"
             else:
