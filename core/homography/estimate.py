@@ -204,27 +204,24 @@ def _global_index() -> tuple[NDArray[np.intp], NDArray[np.intp]]:
     """Return index pairs into the 7 x 9 Gram matrix M = F [F; r]^T (flattened, with a zero
     appended at position 63) such that U (8 x 8, row-major) then b_g (8,) = M[ia] + M[ib]."""
     zero = 63
-    ia, ib = [], []
-
-    def at(r: int, c: int) -> int:
-        return 9 * r + c
-
+    pairs: list[tuple[int, int]] = []
     for r in range(8):
         for c in range(8):
             lo, hi = min(r, c), max(r, c)
-            if hi < 3 or 3 <= lo and hi < 6:  # both in 0:3 or both in 3:6: F_0:3 F_0:3^T
-                ia.append(at(lo % 3, hi % 3)), ib.append(zero)
+            if hi < 3 or (3 <= lo and hi < 6):  # both in 0:3 or both in 3:6: F_0:3 F_0:3^T
+                pairs.append((9 * (lo % 3) + hi % 3, zero))
             elif lo >= 6:  # 6:8 x 6:8: both the u-row and the v-row contribute
-                ia.append(at(lo - 3, hi - 3)), ib.append(at(lo - 1, hi - 1))
+                pairs.append((9 * (lo - 3) + hi - 3, 9 * (lo - 1) + hi - 1))
             elif hi >= 6:  # 0:6 x 6:8: u-row (F3, F4) for 0:3, v-row (F5, F6) for 3:6
-                ia.append(at(lo % 3, hi - 3 if lo < 3 else hi - 1)), ib.append(zero)
+                pairs.append((9 * (lo % 3) + (hi - 3 if lo < 3 else hi - 1), zero))
             else:  # 0:3 x 3:6: never in the same row of G
-                ia.append(zero), ib.append(zero)
+                pairs.append((zero, zero))
     for r in range(8):
         if r < 6:
-            ia.append(at(r % 3, 7 if r < 3 else 8)), ib.append(zero)
+            pairs.append((9 * (r % 3) + (7 if r < 3 else 8), zero))
         else:
-            ia.append(at(r - 3, 7)), ib.append(at(r - 1, 8))
+            pairs.append((9 * (r - 3) + 7, 9 * (r - 1) + 8))
+    ia, ib = zip(*pairs, strict=True)
     return np.array(ia), np.array(ib)
 
 
