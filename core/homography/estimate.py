@@ -652,7 +652,10 @@ def _lo_ransac(
     ps, pd = ps_t.T, pd_t.T
     thr2 = (threshold * Td[0, 0]) ** 2
     ps_h = np.vstack([ps_t, np.ones(n)])
-    batch = int(np.clip(_RANSAC_BATCH_ELEMENTS // n, 8, 512))
+    # Batches start small (32 samples already find an all-inlier one with 99.98 % probability
+    # at 70 % inliers) and double while more are needed, up to a memory-bounded size.
+    max_batch = int(np.clip(_RANSAC_BATCH_ELEMENTS // n, 8, 512))
+    batch = min(32, max_batch)
 
     best_score = np.inf
     best_mask = np.zeros(n, dtype=bool)
@@ -660,6 +663,7 @@ def _lo_ransac(
     drawn = 0
     while drawn < min(needed, max_samples):
         k = int(min(batch, max_samples - drawn))
+        batch = min(2 * batch, max_batch)
         idx = rng.integers(0, n, size=(k, 4))
         drawn += k
         srt = np.sort(idx, axis=1)
