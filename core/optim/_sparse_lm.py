@@ -238,9 +238,10 @@ def solve_sparse_lm(
     so the information returned is that of the previous iterate. The step then moves the
     parameters by at most sqrt(2 ptol cost) of their standard deviations (unit-variance
     residuals), small enough that the Jacobian is unchanged to first order, while the iterate
-    itself lands as close to the minimum as a full Gauss-Newton step gets it. This saves one
-    evaluation of the normal equations, a large share of a problem that converges in two or
-    three steps.
+    itself lands as close to the minimum as a full Gauss-Newton step gets it. To that end, with
+    `ptol` > 0 a step right after an accepted one is first tried undamped (Gauss-Newton); when it
+    is the last, its reduced matrix is the information. This saves one evaluation of the normal
+    equations, a large share of a problem that converges in two or three steps.
 
     Local blocks may be empty (x_local of shape (m, 0)): the problem is then a dense LM over the
     global block, with the m residual blocks only organising the residuals.

@@ -114,6 +114,29 @@ def test_structured_normal_equations_take_the_same_path() -> None:
     np.testing.assert_array_equal(hooked.information, plain.information)
 
 
+@pytest.mark.parametrize("q", [0, 2])
+def test_predicted_decrease_stop_lands_on_the_optimum(q: int) -> None:
+    prob = _RandomProblem(q, seed=30 + q)
+    g0, l0 = prob.g_true + 0.3, prob.l_true - 0.2
+    full = solve_sparse_lm(prob, g0, l0)
+    ptol = 1e-6
+    fast = solve_sparse_lm(prob, g0, l0, ptol=ptol)
+    assert fast.iterations < full.iterations  # the early stop is exercised
+    theta_full = np.concatenate([full.x_global, full.x_local.ravel()])
+    theta_fast = np.concatenate([fast.x_global, fast.x_local.ravel()])
+    sd = np.sqrt(
+        np.diag(np.linalg.inv(prob.dense_jacobian(theta_full).T @ prob.dense_jacobian(theta_full)))
+    )
+    # Documented bound: the last step moves the parameters by at most sqrt(2 ptol cost)
+    # standard deviations (unit-variance residuals), and being a Gauss-Newton step it lands
+    # far closer than that to the minimum; the cost is within ptol of the minimum.
+    assert np.max(np.abs(theta_fast - theta_full) / sd) <= np.sqrt(2 * ptol * full.cost)
+    assert fast.cost <= full.cost * (1 + ptol)
+    # The information is that of the previous iterate, a step of < 1e-3 sd away: equal to the
+    # optimum's to first order (observed 3e-7 relative).
+    np.testing.assert_allclose(fast.information, full.information, rtol=1e-4)
+
+
 def test_levenberg_damping_reaches_the_same_optimum() -> None:
     prob = _RandomProblem(2, 7)
     a = solve_sparse_lm(prob, np.zeros(P), np.zeros((M, 2)), damping="marquardt")
