@@ -96,19 +96,25 @@ def _dlt_normalized(ps_t: Array, pd_t: Array) -> Array:
     """Return H (3x3, unit Frobenius norm) with pd ~ H ps, from the 2N x 9 DLT system (H&Z
     eq. 4.3) on points (transposed, (2, N)) that are already Hartley-normalised."""
     n = ps_t.shape[1]
-    x, y = ps_t
-    u, v = pd_t
-    at = np.zeros((9, 2, n))  # A^T, the u-rows [:, 0] and the v-rows [:, 1]
-    at[0, 0], at[1, 0], at[2, 0] = x, y, 1.0
-    at[3, 1], at[4, 1], at[5, 1] = x, y, 1.0
-    at[6, 0], at[7, 0], at[8, 0] = -u * x, -u * y, -u
-    at[6, 1], at[7, 1], at[8, 1] = -v * x, -v * y, -v
-    af = at.reshape(9, 2 * n)
+    # A's u-row is (p, 0, -u p) and its v-row (0, p, -v p) with p = (x, y, 1): A^T A follows
+    # from the Gram products of the rows f = (p, -u p, -v p) (9, N) without forming A.
+    f = np.empty((9, n))
+    f[0:2], f[2] = ps_t, 1.0
+    np.multiply(f[0:3], -pd_t[0], out=f[3:6])
+    np.multiply(f[0:3], -pd_t[1], out=f[6:9])
+    m1 = f[0:3] @ f.T  # (3, 9)
+    m2 = f[3:9] @ f[3:9].T  # (6, 6)
+    ata = np.zeros((9, 9))
+    ata[0:3, 0:3] = ata[3:6, 3:6] = m1[:, 0:3]
+    ata[0:3, 6:9] = m1[:, 3:6]
+    ata[3:6, 6:9] = m1[:, 6:9]
+    ata[6:9, 6:9] = m2[0:3, 0:3] + m2[3:6, 3:6]
+    ata[6:9, 0:6] = ata[0:6, 6:9].T
     # The right singular vector of A's smallest singular value, as the eigenvector of A^T A
     # (9 x 9): O(n) and one small LAPACK call (an SVD of the 2N x 9 matrix costs more, and far
     # more again when a threaded BLAS competes for busy cores). On normalised points the
     # eigenvector keeps ~1e-13 relative accuracy for exact data.
-    lam, vec = np.linalg.eigh(af @ np.ascontiguousarray(af.T))
+    lam, vec = np.linalg.eigh(ata)
     sv = np.sqrt(np.maximum(lam[::-1], 0.0))
     null = vec[:, 0]
     if sv[-2] <= 1e-7 * sv[0]:
@@ -284,6 +290,9 @@ class _GoldStandardProblem:
     Per point the Jacobian is [[0, -I / s_src], [G_i, A_i]] with G_i = d pi / d h (2 x 8) and
     A_i = d pi / d x^ (2 x 2), both times -1 / s_dst; `normal_equations` assembles the blocks
     from these pieces with row operations over the points instead of generic block products.
+    It writes into buffers owned by the problem, so each call overwrites the arrays the
+    previous one returned (the solver only holds the latest); block-sized temporaries
+    allocated afresh at every call cost page faults comparable to the arithmetic.
     """
 
     def __init__(self, src_t: Array, dst_t: Array, src_scale: float, dst_scale: float) -> None:
@@ -291,6 +300,14 @@ class _GoldStandardProblem:
         self.dst_t = dst_t
         self.w_src = 1.0 / src_scale
         self.w_dst = 1.0 / dst_scale
+        n = src_t.shape[1]
+        self._f = np.empty((9, n))
+        self._res = np.empty((4, n))
+        self._w = np.empty((8, 2, n))
+        self._aa = np.empty((2, 2, 2, n))
+        self._v = np.empty((2, 2, n))
+        self._ar = np.empty((2, 2, n))
+        self._b_l = np.empty((2, n))
 
     def _residuals_t(self, pr: _Projection) -> Array:
         res_t = np.empty((4, len(pr.u)))
@@ -318,31 +335,32 @@ class _GoldStandardProblem:
     ) -> tuple[Array, Array, Array, Array, Array, Array]:
         x_t = x_local.T
         pr = _Projection(g, x_t, self.w_dst)
-        n = len(x_local)
         ws = self.w_src
-        f = np.empty((9, n))
-        pr.features(f)
+        f = pr.features(self._f)
         rd = f[7:9]
         np.subtract(self.dst_t, pr.uv, out=rd)
         rd *= self.w_dst
         u_mat, b_g = _global_blocks(f)
-        res_t = np.empty((4, n))
+        res_t = self._res
         rs = res_t[:2]
         np.subtract(self.src_t, x_t, out=rs)
         rs *= ws
         res_t[2:] = rd
         a = pr.point_jacobian()  # (2, 2, N): a[i, k] = d res_dst_i / d x^_k
         # W_i = G_i^T A_i (8 x 2), from G's zero pattern (see _Projection.features).
-        w = np.empty((8, 2, n))
+        w, ar = self._w, self._ar
         np.multiply(f[0:3, None], a[0], out=w[0:3])
         np.multiply(f[0:3, None], a[1], out=w[3:6])
         np.multiply(f[3:5, None], a[0], out=w[6:8])
-        w[6:8] += f[5:7, None] * a[1]
+        np.multiply(f[5:7, None], a[1], out=ar)
+        w[6:8] += ar
         # V_i = I / s_src^2 + A_i^T A_i; b_l = J_l^T res = -res_src / s_src + A_i^T res_dst.
-        vb = (a[:, :, None, :] * a[:, None, :, :]).sum(axis=0)
+        vb = np.sum(
+            np.multiply(a[:, :, None, :], a[:, None, :, :], out=self._aa), axis=0, out=self._v
+        )
         vb[0, 0] += ws * ws
         vb[1, 1] += ws * ws
-        b_l = (a * rd[:, None, :]).sum(axis=0)
+        b_l = np.sum(np.multiply(a, rd[:, None, :], out=ar), axis=0, out=self._b_l)
         b_l -= ws * rs
         return res_t.T, u_mat, w, vb, b_g, b_l
 
@@ -425,7 +443,8 @@ def _denormalize(g: Array, cov_g: Array, Ts: Array, Td: Array) -> tuple[Array, A
     H = Td^-1 H_n Ts / (.)[2,2]; the covariance propagates by the Jacobian of that map (linear
     in H_n, then the gauge normalisation H[2,2] = 1), so row/column 8 come out zero.
     """
-    td_inv = np.linalg.inv(Td)
+    k, tx, ty = Td[0, 0], Td[0, 2], Td[1, 2]  # Td = [[k, 0, tx], [0, k, ty], [0, 0, 1]]
+    td_inv = np.array([[1.0 / k, 0.0, -tx / k], [0.0, 1.0 / k, -ty / k], [0.0, 0.0, 1.0]])
     h_raw = td_inv @ _h_from_params(g) @ Ts
     h22 = h_raw[2, 2]
     H = _unit_h22(h_raw)
@@ -511,8 +530,12 @@ def fit_homography(
         gold = _GoldStandardProblem(ps_t, pd_t, src_scale, dst_scale)
         x0 = _sampson_src(hn, ps_t, pd_t, src_scale, dst_scale)
         lm = solve_sparse_lm(gold, g0, x0, max_iterations=max_iterations, ptol=_LM_PTOL)
-        corrected = np.full((n, 2), np.nan)
-        corrected[inliers] = (lm.x_local - Ts[:2, 2]) / src_scale
+        x_hat = (lm.x_local - Ts[:2, 2]) / src_scale
+        if robust:
+            corrected = np.full((n, 2), np.nan)
+            corrected[inliers] = x_hat
+        else:
+            corrected = x_hat
     else:
         transfer = _TransferProblem(ps_t, pd_t, dst_scale)
         lm = solve_sparse_lm(
