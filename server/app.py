@@ -28,6 +28,7 @@ from server.api import (
 from server.api.errors import install_error_handlers
 from server.api.limits import RequestSizeLimit
 from server.db.session import make_engine, make_session_factory
+from server.services.auth import TokenCache
 from server.services.runs import RunExecutor, interrupt_unfinished_runs
 from server.services.scene_sync import SceneSync
 from server.settings import Settings
@@ -110,6 +111,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.engine = engine
     app.state.session_factory = factory
     app.state.executor = None
+    app.state.token_cache = TokenCache()
     app.state.scene_sync = SceneSync(None)
     app.state.viser_host = "127.0.0.1"
     app.state.viser_port = settings.viser_port

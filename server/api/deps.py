@@ -2,16 +2,17 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import AsyncIterator
 from dataclasses import dataclass
 from typing import Annotated
 
 from fastapi import Depends, HTTPException, Query, Request, status
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from sqlalchemy.orm import Session
+from starlette.concurrency import run_in_threadpool
 
 from server.schemas.common import MAX_ID
-from server.services.auth import Principal, authenticate
+from server.services.auth import Principal, TokenCache, authenticate
 from server.services.runs import RunExecutor
 from server.services.scene_sync import SceneSync
 from server.settings import Settings
@@ -23,23 +24,31 @@ _bearer = HTTPBearer(
 )
 
 
-def get_settings(request: Request) -> Settings:
+# Dependencies that do no I/O are `async def`: FastAPI runs a sync one in a worker thread, and
+# those hops, not the database, dominated the latency of a registry read.
+
+
+async def get_settings(request: Request) -> Settings:
     """Return the app's settings."""
     return request.app.state.settings
 
 
-def get_session(request: Request) -> Iterator[Session]:
-    """Yield a database session for one request, closed (rolled back if uncommitted) after."""
-    with request.app.state.session_factory() as session:
+async def get_session(request: Request) -> AsyncIterator[Session]:
+    """Yield a database session for one request, closed (rolled back if uncommitted) after.
+    Creating a session does no I/O; closing it may, so that happens in a worker thread."""
+    session = request.app.state.session_factory()
+    try:
         yield session
+    finally:
+        await run_in_threadpool(session.close)
 
 
-def get_scene(request: Request) -> SceneSync:
+async def get_scene(request: Request) -> SceneSync:
     """Return the scene synchroniser (a no-op one when the scene is disabled)."""
     return request.app.state.scene_sync
 
 
-def get_executor(request: Request) -> RunExecutor | None:
+async def get_executor(request: Request) -> RunExecutor | None:
     """Return the in-process run executor, None when external workers execute runs."""
     return request.app.state.executor
 
@@ -55,28 +64,39 @@ def _unauthorized(detail: str) -> HTTPException:
     )
 
 
-def _caller(
-    session: Session,
+async def _caller(
+    request: Request,
     credentials: HTTPAuthorizationCredentials | None,
     settings: Settings,
 ) -> Principal | None:
     if credentials is None or credentials.scheme.lower() != "bearer":
         return None
     configured = settings.admin_token.get_secret_value() if settings.admin_token else None
-    principal = authenticate(session, credentials.credentials, configured)
+    tokens: TokenCache = request.app.state.token_cache
+    principal = tokens.get(credentials.credentials)
+    if principal is None:
+        principal = await run_in_threadpool(
+            _authenticate, request.app.state.session_factory, credentials.credentials, configured
+        )
+        if principal is not None:
+            tokens.put(credentials.credentials, principal)
     if principal is None:
         raise _unauthorized("the bearer token is unknown or revoked")
     return principal
 
 
+def _authenticate(factory, token: str, configured: str | None) -> Principal | None:
+    with factory() as session:
+        return authenticate(session, token, configured)
+
+
 def _requiring(right: str):
-    # The session is the request's own (FastAPI caches it per request): one connection.
-    def dependency(
-        session: SessionDep,
+    async def dependency(
+        request: Request,
         settings: SettingsDep,
         credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)],
     ) -> Principal | None:
-        principal = _caller(session, credentials, settings)
+        principal = await _caller(request, credentials, settings)
         if principal is None:
             if right == "read" and settings.public_reads:
                 return None
@@ -108,7 +128,7 @@ class Pagination:
     offset: int
 
 
-def get_pagination(
+async def get_pagination(
     limit: Annotated[int, Query(ge=1, le=500, description="Items per page.")] = 50,
     offset: Annotated[int, Query(ge=0, le=MAX_ID, description="Items to skip.")] = 0,
 ) -> Pagination:

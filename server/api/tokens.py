@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import APIRouter, Path, status
+from fastapi import APIRouter, Path, Request, status
 from sqlalchemy import select
 
 from server.api._crud import get_or_404, paginate
@@ -37,7 +37,10 @@ def list_api_tokens(session: SessionDep, page: PageDep):
 
 
 @router.delete("/{token_id}", status_code=status.HTTP_204_NO_CONTENT)
-def revoke_api_token(token_id: Annotated[int, Path(ge=1, le=MAX_ID)], session: SessionDep) -> None:
-    """Revoke a token: it stops working at once."""
+def revoke_api_token(
+    token_id: Annotated[int, Path(ge=1, le=MAX_ID)], session: SessionDep, request: Request
+) -> None:
+    """Revoke a token: it stops working at once (in other API processes within seconds)."""
     get_or_404(session, ApiToken, token_id, "token").revoked = True
     session.commit()
+    request.app.state.token_cache.clear()

@@ -21,7 +21,7 @@ def _configure_sqlite_connection(dbapi_connection: Any, _record: Any) -> None:
     cursor.close()
 
 
-def make_engine(url: str, *, pool_size: int = 20) -> Engine:
+def make_engine(url: str, *, pool_size: int = 40) -> Engine:
     """Return an engine for `url`; SQLite files get their directory created and WAL mode."""
     parsed = make_url(url)
     if parsed.get_backend_name() == "sqlite":

@@ -5,6 +5,8 @@ from __future__ import annotations
 import hashlib
 import hmac
 import secrets
+import threading
+import time
 from dataclasses import dataclass
 
 from sqlalchemy import select
@@ -78,3 +80,36 @@ def ensure_admin_token(session: Session, configured: str | None) -> str | None:
     _, token = create_token(session, ADMIN_TOKEN_NAME, ["admin"])
     session.commit()
     return token
+
+
+class TokenCache:
+    """Recently authenticated tokens (by digest) for `ttl` seconds, so that a read costs no
+    token query. Revoking through this process clears it; other processes see a revocation
+    within `ttl`."""
+
+    def __init__(self, ttl: float = 5.0, max_entries: int = 1024) -> None:
+        self._ttl = ttl
+        self._max = max_entries
+        self._entries: dict[str, tuple[float, Principal]] = {}
+        self._lock = threading.Lock()
+
+    def get(self, token: str) -> Principal | None:
+        """Return the cached principal of `token`, None when absent or expired."""
+        key = hash_token(token)
+        with self._lock:
+            entry = self._entries.get(key)
+        if entry is None or entry[0] < time.monotonic():
+            return None
+        return entry[1]
+
+    def put(self, token: str, principal: Principal) -> None:
+        """Remember that `token` authenticates as `principal`."""
+        with self._lock:
+            if len(self._entries) >= self._max:
+                self._entries.clear()
+            self._entries[hash_token(token)] = (time.monotonic() + self._ttl, principal)
+
+    def clear(self) -> None:
+        """Forget every token (after a revocation)."""
+        with self._lock:
+            self._entries.clear()
