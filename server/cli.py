@@ -12,6 +12,7 @@ _COMMAND_MODULES = (
     "server.commands.calibrate",
     "server.commands.serve",
     "server.commands.db",
+    "server.commands.sim",
 )
 
 
