@@ -129,3 +129,48 @@ def test_bad_arguments_exit_with_usage(argv):
     with pytest.raises(SystemExit) as exc:
         main(argv)
     assert exc.value.code == 2
+
+
+def test_worker_process_executes_queued_runs(
+    make_settings, admin, run_waiter, repo_root, database_url, shared_data_dir
+):
+    import numpy as np
+    from fastapi.testclient import TestClient
+
+    from server.app import create_app
+
+    data = shared_data_dir / "zhang1998"
+    model = np.loadtxt(data / "Model.txt").reshape(-1, 2)
+    object_points = np.column_stack([model, np.zeros(len(model))]).tolist()
+    image_points = [np.loadtxt(data / f"data{i}.txt").reshape(-1, 2).tolist() for i in (1, 2, 3)]
+
+    env = {k: v for k, v in os.environ.items() if not k.startswith("INTSPACE_")}
+    env["INTSPACE_DATABASE_URL"] = database_url
+    worker = subprocess.Popen(
+        [sys.executable, "-m", "server.cli", "worker", "--poll", "0.2"],
+        cwd=repo_root,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    try:
+        with TestClient(create_app(make_settings(run_executor="external"))) as client:
+            camera = client.post(
+                "/api/v1/cameras", json={"name": "c", "width": 640, "height": 480}, headers=admin
+            ).json()
+            body = {
+                "kind": "intrinsics",
+                "camera_id": camera["id"],
+                "image_size": [640, 480],
+                "object_points": [object_points] * 3,
+                "image_points": image_points,
+            }
+            run_id = client.post("/api/v1/calibration-runs", json=body, headers=admin).json()["id"]
+            run = run_waiter(client, run_id)
+        assert run["status"] == "succeeded", run["error"]
+    finally:
+        worker.send_signal(signal.SIGTERM)
+        output, _ = worker.communicate(timeout=20)
+    assert worker.returncode == 0, output
+    assert f"run {run_id} succeeded" in output
