@@ -47,11 +47,6 @@ def _json_document(value: dict[str, Any]) -> dict[str, Any]:
 JsonDocument = Annotated[dict[str, Any], AfterValidator(_json_document)]
 
 
-class _Timestamps(ReadSchema):
-    created_at: UtcDatetime
-    updated_at: UtcDatetime
-
-
 # Spaces
 
 
@@ -69,10 +64,12 @@ class SpaceUpdate(Schema):
     description: Text = None
 
 
-class SpaceRead(_Timestamps):
+class SpaceRead(ReadSchema):
     id: int
     name: str
     description: str
+    created_at: UtcDatetime
+    updated_at: UtcDatetime
 
 
 # Rooms
@@ -90,11 +87,13 @@ class RoomUpdate(Schema):
     polygon: Polygon = None
 
 
-class RoomRead(_Timestamps):
+class RoomRead(ReadSchema):
     id: int
     space_id: int
     name: str
     polygon: list[list[float]]
+    created_at: UtcDatetime
+    updated_at: UtcDatetime
 
 
 # Cameras
@@ -153,7 +152,7 @@ class CameraUpdate(_PoseInput):
     T_world_camera: RigidTransform | None = None
 
 
-class CameraRead(_Timestamps):
+class CameraRead(ReadSchema):
     id: int
     name: str
     width: int
@@ -164,6 +163,8 @@ class CameraRead(_Timestamps):
     T_world_camera: list[list[float]] | None
     status: Literal["uncalibrated", "calibrated"]
     calibration_run_id: int | None
+    created_at: UtcDatetime
+    updated_at: UtcDatetime
 
 
 class CameraCalibrationRead(ReadSchema):
@@ -207,7 +208,7 @@ class ProjectorUpdate(_PoseInput):
     T_world_projector: RigidTransform | None = None
 
 
-class ProjectorRead(_Timestamps):
+class ProjectorRead(ReadSchema):
     id: int
     name: str
     width: int
@@ -216,6 +217,8 @@ class ProjectorRead(_Timestamps):
     K: list[list[float]] | None
     dist: list[float] | None
     T_world_projector: list[list[float]] | None
+    created_at: UtcDatetime
+    updated_at: UtcDatetime
 
 
 # Robots
@@ -241,7 +244,7 @@ class RobotUpdate(Schema):
     T_hand_camera: RigidTransform | None = None
 
 
-class RobotRead(_Timestamps):
+class RobotRead(ReadSchema):
     id: int
     name: str
     space_id: int | None
@@ -249,6 +252,8 @@ class RobotRead(_Timestamps):
     onboard_camera_id: int | None
     hand_camera_id: int | None
     T_hand_camera: list[list[float]] | None
+    created_at: UtcDatetime
+    updated_at: UtcDatetime
 
 
 # Landmarks
@@ -274,10 +279,12 @@ class LandmarkUpdate(Schema):
     T_world_landmark: RigidTransform | None = None
 
 
-class LandmarkRead(_Timestamps):
+class LandmarkRead(ReadSchema):
     id: int
     kind: str
     payload: str
     size_m: float
     space_id: int | None
     T_world_landmark: list[list[float]] | None
+    created_at: UtcDatetime
+    updated_at: UtcDatetime
