@@ -84,6 +84,14 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             scene = SceneService(app.state.viser_host, settings.viser_port)
             await run_in_threadpool(scene.start)
             app.state.viser_port = scene.port
+            if scene.port != settings.viser_port:
+                # viser moves to a free port when the configured one is taken; say where it went
+                # so the address printed at start-up is not the last word.
+                print(
+                    f"3D scene (viser): port {settings.viser_port} is in use; the scene is on "
+                    f"port {scene.port} instead",
+                    flush=True,
+                )
         app.state.scene_sync = SceneSync(scene)
         with factory() as session:
             app.state.scene_sync.load(session)

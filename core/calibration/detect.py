@@ -129,6 +129,7 @@ def find_chessboard(image: ArrayLike, pattern_size: tuple[int, int]) -> PatternD
     """
     pattern = Chessboard(*_check_size(pattern_size, "pattern_size"))
     grey = as_grey_u8(image)
+    _require_room_for(grey, pattern.cols + 1, pattern.rows + 1, "chessboard")
     size = (pattern.cols, pattern.rows)
     # No CALIB_CB_ACCURACY: cornerSubPix below gives the same corners (to 1e-4 px) in a third
     # of the time.
@@ -166,6 +167,7 @@ def find_circle_grid(
     cols, rows = _check_size(pattern_size, "pattern_size")
     pattern = CircleGrid(cols, rows, bool(symmetric))
     grey = as_grey_u8(image)
+    _require_room_for(grey, cols, rows, "circle grid")
     params = cv2.SimpleBlobDetector.Params()
     params.minArea = 9.0
     params.maxArea = float(grey.shape[0] * grey.shape[1]) / 16.0
@@ -196,6 +198,7 @@ def find_charuco(image: ArrayLike, board: CharucoSpec, *, min_corners: int = 6) 
     if min_corners < 4:
         raise InvalidInput(f"min_corners must be at least 4 (a homography), got {min_corners}")
     grey = as_grey_u8(image)
+    _require_room_for(grey, board.squares_x, board.squares_y, "ChArUco board")
     cv_board = _cv_charuco_board(board)
     params = cv2.aruco.CharucoParameters()
     params.minMarkers = 2  # a corner must sit between two detected markers
@@ -220,6 +223,24 @@ def find_charuco(image: ArrayLike, board: CharucoSpec, *, min_corners: int = 6) 
     cols = board.squares_x - 1
     pts = _refine_corners(grey, corners.reshape(-1, 2).astype(np.float64), found_ids, cols, reach)
     return PatternDetection(pts, found_ids, board)
+
+
+# A square (or circle spacing) narrower than this many pixels cannot be detected; OpenCV's
+# detectors also assert on images smaller than their filter windows, so such images are refused
+# before they reach OpenCV.
+_MIN_PX_PER_SQUARE = 4
+
+
+def _require_room_for(grey: NDArray[np.uint8], cols: int, rows: int, what: str) -> None:
+    """Raise PatternNotFound when `grey` is too small to show a cols x rows pattern at all."""
+    h, w = grey.shape
+    need = _MIN_PX_PER_SQUARE * (min(cols, rows) + 1)
+    need_long = _MIN_PX_PER_SQUARE * (max(cols, rows) + 1)
+    if min(h, w) < need or max(h, w) < need_long:
+        raise PatternNotFound(
+            f"a {w}x{h} px image is too small to show a {cols}x{rows} {what}: it needs at least "
+            f"{need_long}x{need} px ({_MIN_PX_PER_SQUARE} px per square)"
+        )
 
 
 def as_grey_u8(image: ArrayLike) -> NDArray[np.uint8]:

@@ -249,3 +249,16 @@ def test_charuco_wrong_dictionary_not_found(charuco_views: list[Any]) -> None:
 def test_bad_charuco_spec_raises_invalid_input(spec: CharucoSpec, reason: str) -> None:
     with pytest.raises(InvalidInput, match=reason):
         find_charuco(np.zeros((100, 100), np.uint8), spec)
+
+
+@pytest.mark.parametrize("shape", [(8, 8), (20, 30), (30, 20, 3)])
+def test_images_too_small_for_the_pattern_are_not_found_with_a_reason(shape):
+    # OpenCV asserts (cv2.error) on images smaller than its filter windows; the detectors must
+    # answer with the typed error instead.
+    image = np.full(shape, 128, np.uint8)
+    with pytest.raises(PatternNotFound, match="too small"):
+        find_chessboard(image, (9, 6))
+    with pytest.raises(PatternNotFound, match="too small"):
+        find_circle_grid(image, (4, 11), symmetric=False)
+    with pytest.raises(PatternNotFound, match="too small"):
+        find_charuco(image, CharucoSpec(8, 6))
