@@ -5,11 +5,24 @@ scene.start()
 scene.set_floor_plan([{"id": 1, "name": "Living room", "polygon": [[0, 0], [5, 0], [5, 4]]}])
 scene.upsert_camera({"id": 3, "name": "ceiling-1", "width": 640, "height": 480,
                      "K": K, "T_world_camera": T})   # K, T may be None
+scene.set_camera_image(3, frame_bgr)                 # throttled; False when dropped
+scene.upsert_agent({"id": "robot", "kind": "robot", "x": 1.0, "y": 2.0, "theta": 0.3})
+scene.set_track("robot", [[0.0, 0.0], [0.5, 1.0], [1.0, 2.0]])
+scene.remove_agent("robot")
 scene.remove_camera(3)
 scene.stop()
 """
 
+from server.scene._agents import MAX_TRACK_POINTS, AgentView
 from server.scene._geometry import Frustum, Pose
 from server.scene._service import CameraView, RoomView, SceneService
 
-__all__ = ["CameraView", "Frustum", "Pose", "RoomView", "SceneService"]
+__all__ = [
+    "MAX_TRACK_POINTS",
+    "AgentView",
+    "CameraView",
+    "Frustum",
+    "Pose",
+    "RoomView",
+    "SceneService",
+]

@@ -1,4 +1,5 @@
-"""The live 3D scene: a viser server showing the floor plan and every camera's frustum.
+"""The live 3D scene: a viser server showing the floor plan, every camera's frustum with its
+latest image, and the robots and people on the floor with their tracks.
 
 Callers (the API, after a database commit) only record the desired state and wake a worker
 thread; the worker redraws what changed. So a call never waits on viser or on a slow client,
@@ -11,6 +12,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import threading
+import time
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -18,6 +20,15 @@ from typing import Any
 import numpy as np
 
 from core.errors import InvalidInput
+from server.scene._agents import (
+    AgentSpec,
+    AgentView,
+    agent_id,
+    check_image,
+    display_image,
+    parse_agent,
+    parse_track,
+)
 from server.scene._geometry import (
     Frustum,
     Pose,
@@ -37,6 +48,14 @@ _COLOR_NO_INTRINSICS = (217, 119, 6)
 _COLOR_UNPOSED = (148, 150, 160)
 _COLOR_WALL = (51, 65, 85)
 _ROOM_FILLS = ((191, 219, 254), (187, 247, 208), (254, 215, 170), (233, 213, 255), (254, 202, 202))
+# Robots in orange, people in violet (the dashboard's floor page uses the same two colours).
+_COLOR_ROBOT = (234, 88, 12)
+_COLOR_PERSON = (124, 58, 237)
+_COLOR_HEADING = (255, 255, 255)
+_COLOR_TRACK = {"robot": (194, 65, 12), "person": (109, 40, 217)}
+_COLOR_TRACK_UNKNOWN = (71, 85, 105)
+# Tracks float this far (m) above the floor, so the room fills never hide them.
+_TRACK_HEIGHT = 0.012
 
 # Cameras without a pose wait in a row this far (m) outside the floor plan's -Y side, this far
 # apart, at this height, looking straight down (camera z = world -Z, camera x = world +X).
@@ -138,11 +157,20 @@ class SceneService:
         port: int = 8081,
         *,
         frustum_scale: float = 0.4,
+        image_width: int = 320,
+        image_interval: float = 0.5,
         verbose: bool = False,
     ) -> None:
+        if image_width < 1 or image_interval < 0.0:
+            raise InvalidInput(
+                f"image_width must be >= 1 and image_interval >= 0, got {image_width}, "
+                f"{image_interval}"
+            )
         self._host = host
         self._port = port
         self._frustum_scale = frustum_scale
+        self._image_width = int(image_width)
+        self._image_interval = float(image_interval)
         self._verbose = verbose
         self._server: Any = None  # viser.ViserServer once started
         self._cond = threading.Condition()  # guards the state below; held only briefly
@@ -151,12 +179,22 @@ class SceneService:
         self._rooms: list[RoomView] = []
         self._dirty_cameras: set[int] = set()
         self._dirty_floor = True
+        self._agents: dict[str, AgentSpec] = {}
+        self._tracks: dict[str, np.ndarray] = {}
+        self._images: dict[int, np.ndarray] = {}  # newest accepted BGR image per camera
+        self._image_times: dict[int, float] = {}  # when it was accepted (time.monotonic)
+        self._dirty_agents: set[str] = set()
+        self._dirty_tracks: set[str] = set()
+        self._dirty_images: set[int] = set()
         self._busy = False
         self._stopping = False
         self._worker: threading.Thread | None = None
         # What the worker has drawn; read by cameras() / rooms() under _cond.
         self._drawn_cameras: dict[int, CameraView] = {}
         self._drawn_rooms: list[RoomView] = []
+        self._drawn_agents: dict[str, AgentView] = {}
+        self._drawn_tracks: dict[str, np.ndarray] = {}
+        self._shown_images: dict[int, np.ndarray] = {}  # RGB, downscaled, as on the frusta
         self._camera_picker: Any = None  # the GUI dropdown, once started
 
     # -- lifecycle ---------------------------------------------------------------------------
@@ -182,7 +220,12 @@ class SceneService:
                 self._stopping = False
                 self._dirty_floor = True
                 self._dirty_cameras = set(self._cameras)
+                self._dirty_agents = set(self._agents)
+                self._dirty_tracks = set(self._tracks)
+                self._dirty_images = set(self._images)
                 self._drawn_cameras = {}
+                self._drawn_agents = {}
+                self._drawn_tracks = {}
                 self._worker = threading.Thread(target=self._run, name="scene-worker", daemon=True)
                 self._worker.start()
                 self._cond.notify_all()
@@ -271,22 +314,101 @@ class SceneService:
             self._cond.notify_all()
 
     def remove_camera(self, id: int) -> None:
-        """Remove a camera from the scene (nothing happens if it is not there)."""
+        """Remove a camera and its image from the scene (nothing happens if it is not there)."""
         with self._cond:
             self._cameras.pop(int(id), None)
+            self._images.pop(int(id), None)
+            self._image_times.pop(int(id), None)
             self._dirty_cameras.add(int(id))
             self._cond.notify_all()
+
+    def upsert_agent(self, agent: Mapping[str, Any]) -> None:
+        """Add or move a robot or a person: {"id", "kind": "robot" | "person", "x", "y",
+        "theta", "radius", "height"} (m, rad about +Z from world +X; radius and height default
+        by kind). A robot is a cylinder with a heading bar, a person a body with a head.
+
+        Moving an agent only moves its frame; the meshes are rebuilt when its kind or size
+        changes. Raises InvalidInput (nothing changes) for a bad id, kind or number.
+        """
+        spec = parse_agent(agent)
+        with self._cond:
+            self._agents[spec.id] = spec
+            self._dirty_agents.add(spec.id)
+            self._cond.notify_all()
+
+    def remove_agent(self, id: str) -> None:
+        """Remove an agent and its track (nothing happens if it is not there)."""
+        ident = agent_id(id)
+        with self._cond:
+            self._agents.pop(ident, None)
+            self._tracks.pop(ident, None)
+            self._dirty_agents.add(ident)
+            self._dirty_tracks.add(ident)
+            self._cond.notify_all()
+
+    def set_track(self, id: str, points: Sequence[Sequence[float]]) -> None:
+        """Replace a target's track by the poly-line through `points` ([[x, y], ...], m), drawn
+        just above the floor; only the newest MAX_TRACK_POINTS are kept, and an empty list
+        removes the track. Raises InvalidInput (nothing changes) for malformed points."""
+        ident = agent_id(id)
+        track = parse_track(points)
+        with self._cond:
+            if len(track):
+                self._tracks[ident] = track
+            else:
+                self._tracks.pop(ident, None)
+            self._dirty_tracks.add(ident)
+            self._cond.notify_all()
+
+    def set_camera_image(self, camera_id: int, image_bgr: np.ndarray) -> bool:
+        """Show `image_bgr` ((H, W, 3) BGR or (H, W) grey, uint8) on the camera's frustum.
+
+        Throttled per camera: an image arriving within `image_interval` seconds of the last one
+        accepted is dropped and False is returned (a caller may send every frame). Accepted
+        images are downscaled to `image_width` pixels wide by the drawing thread. Raises
+        InvalidInput for a bad id or image.
+        """
+        try:
+            cam_id = int(camera_id)
+        except (TypeError, ValueError):
+            raise InvalidInput(f"camera_id must be an integer, got {camera_id!r}") from None
+        now = time.monotonic()
+        with self._cond:
+            last = self._image_times.get(cam_id)
+            if last is not None and now - last < self._image_interval:
+                return False
+            self._image_times[cam_id] = now  # claimed before the copy: one winner per interval
+        try:
+            image = check_image(image_bgr)
+        except InvalidInput:
+            with self._cond:
+                if self._image_times.get(cam_id) == now:
+                    self._image_times.pop(cam_id)
+            raise
+        with self._cond:
+            self._images[cam_id] = image
+            self._dirty_images.add(cam_id)
+            self._cond.notify_all()
+        return True
 
     def flush(self, timeout: float = 5.0) -> bool:
         """Wait until every change asked so far is drawn; return False on timeout (at once when
         the scene is not started and something is waiting to be drawn)."""
         with self._cond:
             if self._server is None:
-                return not self._dirty_cameras and not self._dirty_floor
+                return not self._anything_dirty()
             return self._cond.wait_for(
-                lambda: not (self._busy or self._dirty_cameras or self._dirty_floor),
-                timeout=timeout,
+                lambda: not (self._busy or self._anything_dirty()), timeout=timeout
             )
+
+    def _anything_dirty(self) -> bool:
+        return bool(
+            self._dirty_cameras
+            or self._dirty_floor
+            or self._dirty_agents
+            or self._dirty_tracks
+            or self._dirty_images
+        )
 
     # -- what is drawn -----------------------------------------------------------------------
 
@@ -299,6 +421,22 @@ class SceneService:
         """Return the rooms as currently drawn."""
         with self._cond:
             return list(self._drawn_rooms)
+
+    def agents(self) -> dict[str, AgentView]:
+        """Return the robots and people as currently drawn, by id."""
+        with self._cond:
+            return dict(self._drawn_agents)
+
+    def tracks(self) -> dict[str, np.ndarray]:
+        """Return the tracks as currently drawn: id -> (N, 2) points (m)."""
+        with self._cond:
+            return {k: v.copy() for k, v in self._drawn_tracks.items()}
+
+    def camera_image(self, camera_id: int) -> np.ndarray | None:
+        """Return the RGB image currently shown on a camera's frustum (downscaled), or None."""
+        with self._cond:
+            image = self._shown_images.get(int(camera_id))
+        return None if image is None else image.copy()
 
     # -- GUI: look through a camera -----------------------------------------------------------
 
@@ -354,9 +492,7 @@ class SceneService:
     def _run(self) -> None:
         while True:
             with self._cond:
-                self._cond.wait_for(
-                    lambda: self._stopping or self._dirty_cameras or self._dirty_floor
-                )
+                self._cond.wait_for(lambda: self._stopping or self._anything_dirty())
                 if self._stopping:
                     return
                 dirty = self._dirty_cameras
@@ -364,9 +500,16 @@ class SceneService:
                 self._dirty_cameras, self._dirty_floor = set(), False
                 cameras = dict(self._cameras)
                 rooms = list(self._rooms)
+                moved = {i: self._agents.get(i) for i in self._dirty_agents}
+                tracks = {i: self._tracks.get(i) for i in self._dirty_tracks}
+                images = {i: self._images.get(i) for i in self._dirty_images}
+                self._dirty_agents, self._dirty_tracks, self._dirty_images = set(), set(), set()
                 self._busy = True
             try:
+                self._draw_images(images)  # before the cameras, which may be redrawn with them
                 self._draw(dirty, floor_dirty, cameras, rooms)
+                self._draw_agents(moved)
+                self._draw_tracks(tracks)
             except Exception:  # a drawing bug must not kill the scene for good
                 log.exception("redrawing the 3D scene failed")
             finally:
@@ -402,6 +545,8 @@ class SceneService:
                 server.scene.remove_by_name(f"/cameras/{cam_id}")
                 if spec is None:
                     drawn.pop(cam_id, None)
+                    with self._cond:
+                        self._shown_images.pop(cam_id, None)
                     continue
                 slot = parked.index(cam_id) if spec.pose is None else 0
                 drawn[cam_id] = self._draw_camera(server, spec, origin, slot)
@@ -409,6 +554,133 @@ class SceneService:
             self._drawn_cameras = drawn
         if dirty:
             self._refresh_camera_picker()
+
+    def _draw_images(self, images: dict[int, np.ndarray | None]) -> None:
+        """Downscale new camera images and put them on the frusta already drawn."""
+        server = self._server
+        for cam_id, bgr in sorted(images.items()):
+            shown = None if bgr is None else display_image(bgr, self._image_width)
+            with self._cond:
+                if shown is None:
+                    self._shown_images.pop(cam_id, None)
+                else:
+                    self._shown_images[cam_id] = shown
+            handle = (
+                None
+                if server is None
+                else server.scene.get_handle_by_name(f"/cameras/{cam_id}/frustum")
+            )
+            if handle is not None and shown is not None:
+                handle.image = shown
+
+    def _draw_agents(self, moved: dict[str, AgentSpec | None]) -> None:
+        server = self._server
+        if server is None or not moved:
+            return
+        drawn = dict(self._drawn_agents)
+        with server.atomic():
+            for ident, spec in sorted(moved.items()):
+                node = f"/agents/{ident}"
+                old = drawn.get(ident)
+                if spec is None:
+                    server.scene.remove_by_name(node)
+                    drawn.pop(ident, None)
+                    continue
+                pose = spec.pose
+                frame = server.scene.get_handle_by_name(node)
+                if (
+                    old is not None
+                    and frame is not None
+                    and old.kind == spec.kind
+                    and (
+                        old.radius,
+                        old.height,
+                    )
+                    == (spec.radius, spec.height)
+                ):
+                    frame.position = pose.position  # a move: one small message, no meshes
+                    frame.wxyz = pose.wxyz
+                else:
+                    server.scene.remove_by_name(node)
+                    self._draw_agent(server, spec, node)
+                drawn[ident] = AgentView(
+                    id=spec.id,
+                    kind=spec.kind,
+                    node=node,
+                    pose=pose,
+                    radius=spec.radius,
+                    height=spec.height,
+                )
+        with self._cond:
+            self._drawn_agents = drawn
+
+    @staticmethod
+    def _draw_agent(server: Any, spec: AgentSpec, node: str) -> None:
+        pose = spec.pose
+        server.scene.add_frame(node, wxyz=pose.wxyz, position=pose.position, show_axes=False)
+        r, h = spec.radius, spec.height
+        if spec.kind == "robot":
+            # Cylinders in viser stand along +Z, centred on their position.
+            server.scene.add_cylinder(
+                f"{node}/body", radius=r, height=h, color=_COLOR_ROBOT, position=(0.0, 0.0, h / 2)
+            )
+            # The heading: a bar from the centre to the front rim (agent +X) on the top face.
+            server.scene.add_box(
+                f"{node}/heading",
+                color=_COLOR_HEADING,
+                dimensions=(r, 0.25 * r, 0.02),
+                position=(r / 2, 0.0, h + 0.01),
+            )
+        else:
+            head = min(0.12, 0.4 * r, 0.1 * h)
+            body = max(h - 2.0 * head, 0.01)
+            server.scene.add_cylinder(
+                f"{node}/body",
+                radius=r,
+                height=body,
+                color=_COLOR_PERSON,
+                position=(0.0, 0.0, body / 2),
+            )
+            server.scene.add_icosphere(
+                f"{node}/head", radius=head, color=_COLOR_PERSON, position=(0.0, 0.0, h - head)
+            )
+        server.scene.add_label(
+            f"{node}/label",
+            spec.id,
+            position=(0.0, 0.0, h + 0.15),
+            anchor="bottom-center",
+            font_screen_scale=0.8,
+        )
+
+    def _draw_tracks(self, tracks: dict[str, np.ndarray | None]) -> None:
+        server = self._server
+        if server is None or not tracks:
+            return
+        drawn = dict(self._drawn_tracks)
+        with self._cond:
+            kinds = {i: a.kind for i, a in self._agents.items()}
+        with server.atomic():
+            for ident, points in sorted(tracks.items()):
+                node = f"/tracks/{ident}"
+                if points is None or len(points) < 2:
+                    server.scene.remove_by_name(node)
+                    if points is None:
+                        drawn.pop(ident, None)
+                    else:
+                        drawn[ident] = points
+                    continue
+                segments = np.stack([points[:-1], points[1:]], axis=1)  # (N - 1, 2, 2)
+                height = np.full((len(segments), 2, 1), _TRACK_HEIGHT)
+                server.scene.add_line_segments(
+                    node,
+                    points=np.concatenate([segments, height], axis=2),
+                    colors=_COLOR_TRACK.get(kinds.get(ident, ""), _COLOR_TRACK_UNKNOWN),
+                    thickness=2.5,
+                    thickness_units="screen",
+                )
+                drawn[ident] = points
+        with self._cond:
+            self._drawn_tracks = drawn
 
     @staticmethod
     def _park_origin(rooms: list[RoomView]) -> tuple[float, float]:
@@ -449,6 +721,9 @@ class SceneService:
             thickness=2.0,
             thickness_units="screen",
             variant="filled" if spec.pose is not None else "wireframe",
+            image=self._shown_images.get(spec.id),
+            format="jpeg",
+            jpeg_quality=80,
         )
         # Above the frame in camera coordinates is -y (image up).
         server.scene.add_label(
