@@ -18,12 +18,16 @@ from server.api import (
     calibration_runs,
     cameras,
     landmarks,
+    maps,
+    observations,
     projectors,
     robots,
     rooms,
     spaces,
     system,
+    targets,
     tokens,
+    twin,
 )
 from server.api.errors import install_error_handlers
 from server.api.limits import RequestSizeLimit
@@ -31,6 +35,7 @@ from server.db.session import make_engine, make_session_factory
 from server.services.auth import TokenCache
 from server.services.runs import RunExecutor, interrupt_unfinished_runs
 from server.services.scene_sync import SceneSync
+from server.services.targets import LiveTargets
 from server.settings import Settings
 from server.version import VERSION
 
@@ -53,9 +58,29 @@ def api_router() -> APIRouter:
         landmarks,
         calibration_runs,
         tokens,
+        observations,
+        targets,
+        maps,
+        twin,
     ):
         router.include_router(module.router)
     return router
+
+
+def _start_twin(settings: Settings, factory, live: LiveTargets, app: FastAPI):
+    from core.sim import default_scene
+    from server.services.twin import Twin
+
+    twin = Twin(
+        default_scene(),
+        factory,
+        live,
+        app.state.scene_sync,
+        rate_hz=settings.twin_rate_hz,
+        seed=settings.twin_seed,
+    )
+    twin.bootstrap()
+    return twin
 
 
 def create_app(settings: Settings | None = None) -> FastAPI:
@@ -93,11 +118,30 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                     flush=True,
                 )
         app.state.scene_sync = SceneSync(scene)
+        live = LiveTargets(
+            factory, flush_hz=settings.targets_flush_hz, history=settings.targets_history
+        )
+        app.state.targets = live
+        twin = None
+        if settings.simulation:
+            twin = await run_in_threadpool(_start_twin, settings, factory, live, app)
+        app.state.twin = twin
         with factory() as session:
             app.state.scene_sync.load(session)
+        live.start()
+        if twin is not None:
+            twin.start()
+            print(
+                f"Digital twin: running {twin.scene.name!r} at {settings.twin_rate_hz:g} Hz "
+                f"({len(twin.camera_ids)} cameras, space {twin.space_id})",
+                flush=True,
+            )
         try:
             yield
         finally:
+            if twin is not None:
+                await run_in_threadpool(twin.stop)
+            await run_in_threadpool(live.stop)
             if executor is not None:
                 interrupted = await run_in_threadpool(executor.shutdown)
                 if interrupted:
@@ -119,6 +163,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.engine = engine
     app.state.session_factory = factory
     app.state.executor = None
+    app.state.twin = None
+    app.state.targets = LiveTargets(factory)
     app.state.token_cache = TokenCache()
     app.state.scene_sync = SceneSync(None)
     app.state.viser_host = "127.0.0.1"

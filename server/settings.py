@@ -32,6 +32,14 @@ class Settings(BaseSettings):
     viser_enabled: bool = True
     viser_port: int = Field(8080, ge=1, le=65535)
     simulation: bool = Field(False, description="Run the digital twin so the space is alive.")
+    twin_rate_hz: float = Field(5.0, gt=0, le=30, description="Frames per second of the twin.")
+    twin_seed: int = Field(0, ge=0, description="Seed of the twin's noise and motion.")
+    targets_flush_hz: float = Field(
+        1.0, gt=0, le=20, description="How often live positions are written to the database."
+    )
+    targets_history: int = Field(
+        2000, ge=10, description="Track points kept per target in the database."
+    )
 
     run_workers: int = Field(2, ge=1, le=64, description="Threads executing calibration runs.")
     run_executor: Literal["local", "external"] = Field(

@@ -193,3 +193,38 @@ class ApiToken(Timestamped, Base):
     token_hash: Mapped[str] = mapped_column(String(64), unique=True)
     scopes: Mapped[list[str]] = mapped_column(JSON)
     revoked: Mapped[bool] = mapped_column(Boolean, default=False)
+
+
+# Kinds of a located target.
+TARGET_KINDS = ("robot", "person", "external")
+
+
+class Target(Timestamped, Base):
+    """Something the camera network locates on the floor (the robot, a person, or a target
+    named by an external detector), with its latest position."""
+
+    __tablename__ = "targets"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    space_id: Mapped[int | None] = mapped_column(
+        ForeignKey("spaces.id", ondelete="SET NULL"), index=True
+    )
+    label: Mapped[str] = mapped_column(String(200), unique=True)
+    kind: Mapped[str] = mapped_column(String(20))
+    t: Mapped[float | None] = mapped_column(Float)
+    xy: Mapped[list[float] | None] = mapped_column(JSON)
+    cov: Mapped[list[list[float]] | None] = mapped_column(JSON)
+
+
+class TrackPoint(Timestamped, Base):
+    """One located position of a target: time (s, the source's clock), floor (x, y) metres and
+    its 2x2 covariance m^2."""
+
+    __tablename__ = "track_points"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    target_id: Mapped[int] = mapped_column(ForeignKey("targets.id", ondelete="CASCADE"), index=True)
+    t: Mapped[float] = mapped_column(Float)
+    x: Mapped[float] = mapped_column(Float)
+    y: Mapped[float] = mapped_column(Float)
+    cov: Mapped[list[list[float]]] = mapped_column(JSON)

@@ -161,7 +161,7 @@ class CameraRead(ReadSchema):
     K: list[list[float]] | None
     dist: list[float] | None
     T_world_camera: list[list[float]] | None
-    status: Literal["uncalibrated", "calibrated"]
+    status: Literal["uncalibrated", "nominal", "calibrated"]
     calibration_run_id: int | None
     created_at: UtcDatetime
     updated_at: UtcDatetime

@@ -1,0 +1,569 @@
+"""The running digital twin: the default home simulated in a background thread.
+
+The robot patrols and the scene's people walk; at `rate_hz` every ceiling camera's frame is
+rendered, the robot's marker and the people are detected in the images, located on the floor
+with the registry's current calibration of the cameras (core.localization, ML on the plane) and
+handed to the live targets store. The latest frame of each camera and its detections are kept
+for the API; the live 3D scene gets the agents, tracks and images at a throttled rate.
+
+The twin's scene is also the calibration object of the "network" calibration runs.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from sqlalchemy import select
+from sqlalchemy.orm import Session, sessionmaker
+
+from core.calibration.network import calibrate_network_marker
+from core.geometry.rotations import matrix_to_rotvec
+from core.localization import NetworkCamera, locate_ml
+from core.localization.detect import MarkerDetectorConfig, PersonDetector, detect_marker
+from core.sim import Pose2D, Renderer, Scene, SensorNoise, UnicycleBase, WorldState, world_state
+from core.sim.motion import Patrol
+from core.sim.render import camera_model
+from server.db.models import Camera, Robot, Room, Space
+
+if TYPE_CHECKING:
+    from server.services.scene_sync import SceneSync
+    from server.services.targets import LiveTargets
+
+log = logging.getLogger(__name__)
+
+CAMERA_NOMINAL = "nominal"
+# Physics step of the robot base (s); the twin steps it as often as a frame period needs.
+_BASE_DT = 0.05
+# People detections from different cameras closer than this (m) are one person.
+_PERSON_GATE_M = 0.8
+# Pushes to the 3D scene (agents, tracks) and camera images, at most this often (Hz).
+_SCENE_HZ = 5.0
+_IMAGE_HZ = 1.0
+
+
+# --------------------------------------------------------------------------------------------
+# Registry bootstrap
+
+
+def bootstrap_space(session: Session, scene: Scene) -> tuple[int, dict[str, int]]:
+    """Create the space, rooms, cameras (installed nominal calibration, status "nominal") and
+    robot of `scene` when the registry has no space yet; return (space id, camera name -> id)
+    of the space holding the scene's cameras."""
+    space = session.scalar(select(Space).order_by(Space.id).limit(1))
+    if space is None:
+        space = Space(name=scene.name, description="the digital twin's home")
+        session.add(space)
+        session.flush()
+        for room in scene.rooms:
+            polygon = [[float(x), float(y)] for x, y in room.polygon]
+            session.add(Room(space_id=space.id, name=room.name, polygon=polygon))
+        for spec in scene.cameras:
+            model = camera_model(spec)
+            session.add(
+                Camera(
+                    space_id=space.id,
+                    name=spec.name,
+                    width=model.width,
+                    height=model.height,
+                    K=model.K.tolist(),
+                    dist=model.dist.tolist(),
+                    T_world_camera=model.T_world_camera.tolist(),
+                    status=CAMERA_NOMINAL,
+                )
+            )
+        if scene.robot is not None:
+            session.add(
+                Robot(
+                    space_id=space.id,
+                    name=scene.robot.name,
+                    kinematic_model={
+                        "model": "unicycle",
+                        "base_radius": scene.robot.base_radius,
+                        "base_height": scene.robot.base_height,
+                        "limits": scene.robot.limits.model_dump(),
+                    },
+                )
+            )
+        session.commit()
+    names = [c.name for c in scene.cameras]
+    rows = session.execute(
+        select(Camera.id, Camera.name).where(Camera.space_id == space.id, Camera.name.in_(names))
+    ).all()
+    return space.id, {name: id for id, name in rows}
+
+
+def registry_cameras(
+    session: Session, ids: list[int]
+) -> tuple[dict[int, NetworkCamera], dict[int, str]]:
+    """Return the NetworkCamera of each camera of `ids` that has K and a pose, and the reason
+    for each one that cannot be used."""
+    usable: dict[int, NetworkCamera] = {}
+    refused: dict[int, str] = {}
+    found = {c.id: c for c in session.scalars(select(Camera).where(Camera.id.in_(ids)))}
+    for camera_id in ids:
+        camera = found.get(camera_id)
+        if camera is None:
+            refused[camera_id] = f"no camera with id {camera_id}"
+        elif camera.K is None:
+            refused[camera_id] = f"camera {camera_id} ({camera.name}) has no intrinsics K"
+        elif camera.T_world_camera is None:
+            refused[camera_id] = f"camera {camera_id} ({camera.name}) has no pose T_world_camera"
+        else:
+            usable[camera_id] = NetworkCamera.from_pose(
+                camera.K,
+                camera.dist,
+                camera.T_world_camera,
+                (camera.width, camera.height),
+                camera.name,
+            )
+    return usable, refused
+
+
+# --------------------------------------------------------------------------------------------
+# Network calibration drive
+
+
+def _rotation_deg(Ra: np.ndarray, Rb: np.ndarray) -> float:
+    return float(np.degrees(np.linalg.norm(matrix_to_rotvec((Ra @ Rb.T)[None])[0])))
+
+
+def network_calibration_drive(
+    scene: Scene, seed: int, *, spacing: float = 0.3, placement_sigma: float = 0.002
+) -> dict[str, Any]:
+    """Return the result of calibrating the scene's cameras by driving the robot's marker over
+    a grid of stops (the twin's network-calibration scenario, core.sim.scenarios), with each
+    calibrated camera's K, dist, T_world_camera, std, rms and its errors against the twin."""
+    from core.sim.scenarios import _free_floor_grid
+
+    if scene.robot is None or scene.robot.marker is None:
+        raise ValueError("the twin's robot carries no marker")
+    rng = np.random.default_rng(seed)
+    renderer = Renderer(scene)
+    marker = scene.robot.marker
+    grid = _free_floor_grid(scene, spacing, scene.robot.base_radius + 0.05)
+    grid = grid + rng.uniform(-0.1, 0.1, grid.shape) * spacing
+    yaw = rng.uniform(-math.pi, math.pi, len(grid))
+    truth = grid + placement_sigma * rng.standard_normal(grid.shape)
+    off = np.array(marker.offset)
+    c, s = np.cos(yaw), np.sin(yaw)
+    rot_off = np.stack([c * off[0] - s * off[1], s * off[0] + c * off[1]], 1)
+    cams = [renderer.camera(cs.name) for cs in scene.cameras]
+    C, M = len(cams), len(grid)
+    pixels = np.zeros((C, M, 2))
+    cov = np.tile(np.eye(2), (C, M, 1, 1))
+    seen = np.zeros((C, M), bool)
+    cfg = MarkerDetectorConfig(colour=marker.colour)
+    for j in range(M):
+        state = world_state(scene, 0.0, Pose2D(float(truth[j, 0]), float(truth[j, 1]), yaw[j]))
+        for k, cam in enumerate(cams):
+            frame = renderer.render(cam.name, state, rng=rng, noise=SensorNoise())
+            det = detect_marker(frame.image, cfg)
+            if det is not None:
+                pixels[k, j], cov[k, j], seen[k, j] = det.pixel, det.cov, True
+    net = calibrate_network_marker(
+        [cm.name for cm in cams],
+        [cm.K[:2, 2] for cm in cams],
+        [cm.dist for cm in cams],
+        pixels,
+        seen,
+        grid + rot_off,
+        marker.height,
+        pixel_cov=cov,
+        target_sigma=placement_sigma,
+        min_poses=8,
+    )
+    cameras = []
+    for cal in net.cameras:
+        true = next(cm for cm in cams if cm.name == cal.name)
+        f_true = 0.5 * (true.K[0, 0] + true.K[1, 1])
+        cameras.append(
+            {
+                "name": cal.name,
+                "K": cal.K.tolist(),
+                "dist": cal.dist.tolist(),
+                "T_world_camera": cal.T_world_camera.tolist(),
+                "std": {
+                    "f_px": float(cal.std[0]),
+                    "rvec_rad": cal.std[1:4].tolist(),
+                    "t_m": cal.std[4:7].tolist(),
+                },
+                "rms": cal.rms,
+                "poses_seen": cal.poses_seen,
+                "errors": {
+                    "focal_pct": float(100 * (cal.focal - f_true) / f_true),
+                    "position_m": float(np.linalg.norm(cal.position - true.position)),
+                    "rotation_deg": _rotation_deg(cal.R, true.R_camera_world),
+                },
+                "image_size": [true.width, true.height],
+            }
+        )
+    return {
+        "kind": "network",
+        "target": "marker",
+        "poses": M,
+        "detections": int(seen.sum()),
+        "rms": float(net.rms),
+        "cameras": cameras,
+        "rejected": [
+            {"name": r.name, "reason": r.reason, "poses_seen": r.poses_seen} for r in net.rejected
+        ],
+    }
+
+
+# --------------------------------------------------------------------------------------------
+# The running twin
+
+
+@dataclass
+class CameraFrame:
+    """The latest frame of a twin camera and what was detected in it."""
+
+    camera_id: int
+    name: str
+    t: float
+    image: np.ndarray
+    detections: list[dict[str, Any]] = field(default_factory=list)
+
+
+class Twin:
+    """The simulated home running in a background thread (never on the event loop)."""
+
+    def __init__(
+        self,
+        scene: Scene,
+        factory: sessionmaker[Session],
+        targets: LiveTargets,
+        scene_sync: SceneSync | None = None,
+        *,
+        rate_hz: float = 5.0,
+        seed: int = 0,
+    ) -> None:
+        self.scene = scene
+        self.space_id: int | None = None
+        self.camera_ids: dict[str, int] = {}
+        self._factory = factory
+        self._targets = targets
+        self._scene_sync = scene_sync
+        self._seed = seed
+        self.rate_hz = float(rate_hz)
+        self._renderer = Renderer(scene)
+        self._marker_cfg = (
+            MarkerDetectorConfig(colour=scene.robot.marker.colour)
+            if scene.robot is not None and scene.robot.marker is not None
+            else None
+        )
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._paused = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._frames: dict[int, CameraFrame] = {}
+        self._cameras: dict[int, NetworkCamera] = {}
+        self._cameras_loaded = 0.0
+        self._last_scene = 0.0
+        self._last_image = 0.0
+        self._people_labels: dict[str, np.ndarray] = {}
+        self.steps = 0
+        self.errors: list[float] = []
+        self._reset_state()
+
+    # -- lifecycle ---------------------------------------------------------------------------
+
+    def bootstrap(self) -> None:
+        """Register the scene's space in the registry (first start) and map its cameras."""
+        with self._factory() as session:
+            self.space_id, self.camera_ids = bootstrap_space(session, self.scene)
+        self._targets.space_id = self.space_id
+
+    def _reset_state(self) -> None:
+        robot = self.scene.robot
+        self._rng = np.random.default_rng(self._seed)
+        self._base = UnicycleBase.from_robot(robot, dt=_BASE_DT, rng=self._seed) if robot else None
+        self._patrol = Patrol(robot.patrol, robot.limits) if robot and robot.patrol else None
+        self.sim_time = 0.0
+        self._detectors = {cam.name: self._learn_background(cam.name) for cam in self.scene.cameras}
+        self._people_labels = {}
+        self.errors = []
+
+    def _learn_background(self, camera: str) -> PersonDetector:
+        empty = self.scene.model_copy(update={"people": [], "robot": None})
+        renderer = Renderer(empty)
+        detector = PersonDetector()
+        for i in range(5):
+            frame = renderer.render(camera, WorldState(0.0, None, ()), rng=i)
+            detector.learn(frame.image)
+        return detector
+
+    def start(self) -> None:
+        """Start the simulation thread."""
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._loop, name="twin", daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        """Stop the simulation thread (at the end of the current frame)."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=30)
+            self._thread = None
+
+    @property
+    def running(self) -> bool:
+        """Whether the thread runs and is not paused."""
+        return self._thread is not None and self._thread.is_alive() and not self._paused.is_set()
+
+    def pause(self) -> None:
+        """Hold the simulation clock until `resume`."""
+        self._paused.set()
+
+    def resume(self) -> None:
+        """Continue after `pause`."""
+        self._paused.clear()
+
+    def reset(self) -> None:
+        """Put the robot back at its start, the clock at 0 and forget the in-memory tracks."""
+        with self._lock:
+            self._reset_state()
+            self._frames.clear()
+        self._targets.clear_tracks(("robot", "person"))
+
+    def set_rate(self, rate_hz: float) -> None:
+        """Set the frame rate of the simulation (Hz)."""
+        self.rate_hz = float(rate_hz)
+
+    # -- reads -------------------------------------------------------------------------------
+
+    def state(self) -> dict[str, Any]:
+        """Return the twin's state: running, paused, sim time, robot pose, people, rate."""
+        with self._lock:
+            pose = self._base.state.pose if self._base is not None else None
+            people = list(world_state(self.scene, self.sim_time).people)
+            errors = np.array(self.errors[-200:])
+            return {
+                "enabled": True,
+                "running": self.running,
+                "paused": self._paused.is_set(),
+                "scene": self.scene.name,
+                "sim_time": self.sim_time,
+                "steps": self.steps,
+                "rate_hz": self.rate_hz,
+                "robot": None if pose is None else {"x": pose.x, "y": pose.y, "theta": pose.yaw},
+                "people": [{"x": x, "y": y} for x, y in people],
+                "robot_error_rms_m": float(np.sqrt(np.mean(errors**2))) if errors.size else None,
+                "cameras": self.camera_ids,
+            }
+
+    def frame(self, camera_id: int) -> CameraFrame | None:
+        """Return the latest frame of camera `camera_id`, None when it has none."""
+        with self._lock:
+            return self._frames.get(camera_id)
+
+    # -- the loop ----------------------------------------------------------------------------
+
+    def _loop(self) -> None:
+        next_time = time.monotonic()
+        while not self._stop.is_set():
+            period = 1.0 / max(self.rate_hz, 1e-3)
+            if not self._paused.is_set():
+                try:
+                    self.step(period)
+                except Exception:
+                    log.exception("twin step failed")
+            next_time = max(next_time + period, time.monotonic())
+            self._stop.wait(max(0.0, next_time - time.monotonic()))
+
+    def _network(self) -> dict[int, NetworkCamera]:
+        # The registry's calibration may change (a run applied): reload it every second.
+        now = time.monotonic()
+        if now - self._cameras_loaded > 1.0:
+            with self._factory() as session:
+                self._cameras, _ = registry_cameras(session, list(self.camera_ids.values()))
+            self._cameras_loaded = now
+        return self._cameras
+
+    def step(self, period: float) -> None:
+        """Advance the simulation by `period` seconds and process one frame of every camera."""
+        with self._lock:
+            if self._base is not None:
+                for _ in range(max(1, round(period / _BASE_DT))):
+                    cmd = self._patrol.command(self._base.state.pose) if self._patrol else (0, 0)
+                    self._base.step(*cmd)
+                self.sim_time = self._base.state.time
+            else:
+                self.sim_time += period
+            t = self.sim_time
+            state = world_state(
+                self.scene, t, self._base.state.pose if self._base is not None else None
+            )
+            network = self._network()
+            frames: dict[int, CameraFrame] = {}
+            marker_px: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+            people_px: dict[int, list[tuple[np.ndarray, np.ndarray]]] = {}
+            for spec in self.scene.cameras:
+                camera_id = self.camera_ids.get(spec.name)
+                if camera_id is None:
+                    continue
+                frame = self._renderer.render(spec.name, state, rng=self._rng)
+                cf = CameraFrame(camera_id, spec.name, t, frame.image)
+                marker = detect_marker(frame.image, self._marker_cfg) if self._marker_cfg else None
+                if marker is not None:
+                    marker_px[camera_id] = (marker.pixel, marker.cov)
+                    cf.detections.append(
+                        {"kind": "robot", "label": "robot", "pixel": marker.pixel.tolist()}
+                    )
+                persons = self._detectors[spec.name].detect(frame.image)
+                for p in persons:
+                    x, y, w, h = p.bbox
+                    # The robot is foreground too: a blob around the marker is the robot.
+                    if (
+                        marker is not None
+                        and x <= marker.pixel[0] <= x + w
+                        and y <= marker.pixel[1] <= y + h
+                    ):
+                        continue
+                    people_px.setdefault(camera_id, []).append((p.foot_pixel, p.cov))
+                    cf.detections.append(
+                        {
+                            "kind": "person",
+                            "label": "person",
+                            "pixel": p.foot_pixel.tolist(),
+                            "bbox": list(p.bbox),
+                        }
+                    )
+                frames[camera_id] = cf
+            self._frames = frames
+            robot_xy = self._locate_robot(t, state, network, marker_px)
+            self._locate_people(t, network, people_px, robot_xy)
+            self.steps += 1
+        self._push_scene(state, frames)
+
+    def _locate_robot(self, t, state, network, marker_px) -> np.ndarray | None:
+        robot = self.scene.robot
+        ids = [i for i in marker_px if i in network]
+        if robot is None or robot.marker is None or not ids or state.robot is None:
+            return None
+        pixels = np.stack([marker_px[i][0] for i in ids])[:, None]
+        cov = np.stack([marker_px[i][1] for i in ids])[:, None]
+        est = locate_ml([network[i] for i in ids], pixels, robot.marker.height, pixel_cov=cov)
+        if not est.valid[0]:
+            return None
+        xy = est.xy[0]
+        # The marker sits at its offset in the robot frame; the target is the robot's centre.
+        c, s = math.cos(state.robot.yaw), math.sin(state.robot.yaw)
+        ox, oy = robot.marker.offset
+        centre = xy - np.array([c * ox - s * oy, s * ox + c * oy])
+        truth = np.array([state.robot.x, state.robot.y])
+        self.errors.append(float(np.linalg.norm(centre - truth)))
+        self._targets.update("robot", "robot", t, centre.tolist(), est.cov[0].tolist())
+        return centre
+
+    def _locate_people(self, t, network, people_px, robot_xy) -> None:
+        # Each detection on its own (monocular ML at Z = 0), grouped across cameras by
+        # distance, then each group fused by ML over its cameras.
+        singles: list[tuple[int, np.ndarray, np.ndarray, np.ndarray]] = []
+        for camera_id, dets in people_px.items():
+            if camera_id not in network:
+                continue
+            px = np.stack([d[0] for d in dets])[None]
+            cov = np.stack([d[1] for d in dets])[None]
+            est = locate_ml([network[camera_id]], px, 0.0, pixel_cov=cov)
+            for j, ok in enumerate(est.valid):
+                if ok:
+                    singles.append((camera_id, est.xy[j], dets[j][0], dets[j][1]))
+        groups: list[list[tuple[int, np.ndarray, np.ndarray, np.ndarray]]] = []
+        for det in singles:
+            for group in groups:
+                if det[0] not in {g[0] for g in group} and (
+                    np.linalg.norm(group[0][1] - det[1]) < _PERSON_GATE_M
+                ):
+                    group.append(det)
+                    break
+            else:
+                groups.append([det])
+        fused = []
+        for group in groups:
+            cams = [network[g[0]] for g in group]
+            est = locate_ml(
+                cams,
+                np.stack([g[2] for g in group])[:, None],
+                0.0,
+                pixel_cov=np.stack([g[3] for g in group])[:, None],
+            )
+            # A camera that missed the marker sees the robot as foreground: not a person.
+            near_robot = robot_xy is not None and np.linalg.norm(est.xy[0] - robot_xy) < (
+                _PERSON_GATE_M
+            )
+            if est.valid[0] and not near_robot:
+                fused.append((est.xy[0], est.cov[0]))
+        # Labels stay with the nearest person of the previous frame.
+        previous = dict(self._people_labels)
+        labels: dict[str, np.ndarray] = {}
+        for xy, cov in fused:
+            best = min(
+                (k for k in previous if k not in labels),
+                key=lambda k: np.linalg.norm(previous[k] - xy),
+                default=None,
+            )
+            if best is None or np.linalg.norm(previous[best] - xy) > 1.0:
+                n = len(self._people_labels) + len(labels) + 1
+                best = f"person-{n}"
+                while best in previous or best in labels:
+                    n += 1
+                    best = f"person-{n}"
+            labels[best] = xy
+            self._targets.update(best, "person", t, xy.tolist(), cov.tolist())
+        self._people_labels = {**previous, **labels}
+
+    # -- the 3D scene ------------------------------------------------------------------------
+
+    def _push_scene(self, state: WorldState, frames: dict[int, CameraFrame]) -> None:
+        scene = self._scene_sync.scene if self._scene_sync is not None else None
+        if scene is None:
+            return
+        now = time.monotonic()
+        if now - self._last_scene < 1.0 / _SCENE_HZ:
+            return
+        self._last_scene = now
+        try:
+            robot = self.scene.robot
+            if state.robot is not None and robot is not None and hasattr(scene, "upsert_agent"):
+                scene.upsert_agent(
+                    {
+                        "id": "robot",
+                        "kind": "robot",
+                        "x": state.robot.x,
+                        "y": state.robot.y,
+                        "theta": state.robot.yaw,
+                        "radius": robot.base_radius,
+                        "height": robot.base_height,
+                    }
+                )
+            if hasattr(scene, "upsert_agent"):
+                for walker, (x, y) in zip(self.scene.people, state.people, strict=True):
+                    scene.upsert_agent(
+                        {
+                            "id": f"walker-{walker.name}",
+                            "kind": "person",
+                            "x": x,
+                            "y": y,
+                            "theta": 0.0,
+                            "radius": walker.radius,
+                            "height": walker.height,
+                        }
+                    )
+            if hasattr(scene, "set_track"):
+                _, items = self._targets.snapshot()
+                for item in items:
+                    if item["kind"] in ("robot", "person"):
+                        scene.set_track(item["label"], self._targets.track(item["label"])[-300:])
+            if hasattr(scene, "set_camera_image") and now - self._last_image >= 1.0 / _IMAGE_HZ:
+                self._last_image = now
+                for frame in frames.values():
+                    scene.set_camera_image(frame.camera_id, frame.image)
+        except Exception:
+            log.exception("pushing the twin to the 3D scene failed")

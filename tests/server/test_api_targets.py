@@ -1,0 +1,164 @@
+"""Localisation through the API: batched observations fused on the floor against projections
+of known cameras, refusals of unusable cameras and malformed bodies, targets and the stream."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+from starlette.websockets import WebSocketDisconnect
+
+from core.localization import NetworkCamera
+
+K = [[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]]
+DIST = [-0.1, 0.01, 0.0005, -0.0003, 0.0]
+
+
+def _cameras() -> list[NetworkCamera]:
+    return [
+        NetworkCamera.looking_at(K, DIST, pos, look, (640, 480))
+        for pos, look in (
+            ([0.0, 0.0, 2.8], [2.0, 1.5, 0.0]),
+            ([4.0, 3.0, 2.8], [2.0, 1.5, 0.0]),
+            ([4.0, 0.0, 2.8], [2.0, 1.5, 0.0]),
+        )
+    ]
+
+
+def _register(client, admin, cameras) -> list[int]:
+    ids = []
+    for k, cam in enumerate(cameras):
+        body = {
+            "name": f"cam{k}",
+            "width": 640,
+            "height": 480,
+            "K": K,
+            "dist": DIST,
+            "T_world_camera": cam.T_world_camera.tolist(),
+        }
+        response = client.post("/api/v1/cameras", json=body, headers=admin)
+        assert response.status_code == 201, response.text
+        ids.append(response.json()["id"])
+    return ids
+
+
+def test_observations_fuse_to_the_true_positions(client, admin):
+    cameras = _cameras()
+    ids = _register(client, admin, cameras)
+    rng = np.random.default_rng(1)
+    truth = rng.uniform([1.0, 0.5], [3.0, 2.5], (20, 2))
+    height = 0.36
+    observations = []
+    for j, xy in enumerate(truth):
+        X = np.array([[xy[0], xy[1], height]])
+        for cid, cam in zip(ids, cameras, strict=True):
+            observations.append(
+                {
+                    "camera_id": cid,
+                    "t": 0.5,
+                    "pixel": cam.project(X)[0].tolist(),
+                    "sigma_px": 0.5,
+                    "target": f"t{j}",
+                    "height": height,
+                }
+            )
+    response = client.post(
+        "/api/v1/observations", json={"observations": observations}, headers=admin
+    )
+    assert response.status_code == 200, response.text
+    positions = response.json()["positions"]
+    assert [p["target"] for p in positions] == [f"t{j}" for j in range(20)]
+    xy = np.array([p["xy"] for p in positions])
+    # Exact projections: the ML estimate is the true point up to the LM's stopping tolerance.
+    assert np.max(np.abs(xy - truth)) < 1e-9
+    for p in positions:
+        cov = np.array(p["cov"])
+        assert p["n_cameras"] == 3 and p["estimator"] == "ml" and p["status"] == "ok"
+        assert cov.shape == (2, 2) and np.all(np.linalg.eigvalsh(cov) > 0)
+        # 0.5 px at ~3 m with f = 500 px is a few mm: the covariance says so.
+        assert 1e-4 < np.sqrt(np.trace(cov)) < 1e-2
+
+    # The labelled positions become targets (written by the throttled writer).
+    deadline = time.monotonic() + 5
+    while time.monotonic() < deadline:
+        listed = client.get("/api/v1/targets?kind=external", headers=admin).json()
+        if listed["total"] == 20:
+            break
+        time.sleep(0.1)
+    assert listed["total"] == 20
+    first = listed["items"][0]
+    track = client.get(f"/api/v1/targets/{first['id']}/track", headers=admin).json()
+    assert len(track["points"]) == 1
+    assert np.allclose(track["points"][0]["xy"], first["xy"])
+    assert client.get("/api/v1/targets/999/track", headers=admin).status_code == 404
+
+
+def test_one_camera_gives_a_monocular_position_and_unposed_cameras_are_refused(client, admin):
+    cameras = _cameras()
+    ids = _register(client, admin, cameras[:1])
+    X = np.array([[2.0, 1.0, 0.0]])
+    body = {
+        "observations": [{"camera_id": ids[0], "t": 1, "pixel": cameras[0].project(X)[0].tolist()}]
+    }
+    response = client.post("/api/v1/observations", json=body, headers=admin)
+    assert response.status_code == 200, response.text
+    assert np.allclose(response.json()["positions"][0]["xy"], [2.0, 1.0], atol=1e-9)
+
+    bare = client.post(
+        "/api/v1/cameras", json={"name": "bare", "width": 640, "height": 480}, headers=admin
+    ).json()["id"]
+    body["observations"].append({"camera_id": bare, "t": 1, "pixel": [1, 2]})
+    response = client.post("/api/v1/observations", json=body, headers=admin)
+    assert response.status_code == 422
+    problem = response.json()
+    assert problem["errors"][0]["field"] == "observations.1.camera_id"
+    assert f"camera {bare}" in problem["detail"] and "intrinsics" in problem["detail"]
+
+
+@pytest.mark.parametrize(
+    "body",
+    [
+        {},
+        {"observations": []},
+        {"observations": [{"camera_id": 1, "t": 0, "pixel": [1]}]},
+        {"observations": [{"camera_id": 1, "t": 0, "pixel": [1, "x"]}]},
+        {"observations": [{"camera_id": 1, "t": 0, "pixel": [1, 2], "cov": [[1, 2], [3, 1]]}]},
+        {"observations": [{"camera_id": 1, "t": 0, "pixel": [1, 2], "sigma_px": -1}]},
+        {"observations": [{"camera_id": 0, "t": 0, "pixel": [1, 2]}]},
+        {"observations": [{"camera_id": 999, "t": 0, "pixel": [1, 2]}]},
+    ],
+)
+def test_malformed_observations_are_4xx(client, admin, body):
+    response = client.post("/api/v1/observations", json=body, headers=admin)
+    assert 400 <= response.status_code < 500, response.text
+    assert response.headers["content-type"] == "application/problem+json"
+
+
+def test_observations_need_a_token(client):
+    response = client.post("/api/v1/observations", json={"observations": []})
+    assert response.status_code == 401
+
+
+def test_stream_sends_positions_and_refuses_a_bad_token(client, admin):
+    cameras = _cameras()
+    ids = _register(client, admin, cameras)
+    X = np.array([[2.0, 1.5, 0.0]])
+    body = {
+        "observations": [
+            {"camera_id": cid, "t": 3.0, "pixel": cam.project(X)[0].tolist(), "target": "cup"}
+            for cid, cam in zip(ids, cameras, strict=True)
+        ]
+    }
+    assert client.post("/api/v1/observations", json=body, headers=admin).status_code == 200
+    with client.websocket_connect("/api/v1/ws/targets?token=test-admin-token") as ws:
+        message = ws.receive_json()
+    assert message["type"] == "positions" and message["t"] == 3.0
+    (target,) = message["targets"]
+    assert target["label"] == "cup" and target["kind"] == "external"
+    assert np.allclose(target["xy"], [2.0, 1.5], atol=1e-9)
+
+    with pytest.raises(WebSocketDisconnect) as info:
+        with client.websocket_connect("/api/v1/ws/targets?token=wrong") as ws:
+            ws.receive_json()
+    assert info.value.code == 1008
