@@ -3,6 +3,7 @@ and a client of the viser scene that reads what the scene server actually sends.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
@@ -81,10 +82,10 @@ class Service:
         return json.loads(raw) if raw else None
 
 
-@pytest.fixture(scope="module")
-def service(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Service]:
-    """Start `python -m server.cli serve` in a fresh data directory and wait for /health."""
-    data_dir = tmp_path_factory.mktemp("intspace-data")
+@contextlib.contextmanager
+def running_service(data_dir: Path, extra_env: dict[str, str] | None = None) -> Iterator[Service]:
+    """Start `python -m server.cli serve` with its data in `data_dir`, wait for /health, and stop
+    it with Ctrl-C (SIGINT) at the end, failing if it does not stop gracefully."""
     port, viser_port = free_port(), free_port()
     env = {
         **os.environ,
@@ -92,6 +93,7 @@ def service(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Service]:
         "INTSPACE_ADMIN_TOKEN": ADMIN_TOKEN,
         "INTSPACE_VISER_PORT": str(viser_port),
         "PYTHONUNBUFFERED": "1",
+        **(extra_env or {}),
     }
     env.pop("INTSPACE_DATABASE_URL", None)  # the default SQLite file in the data directory
     log_path = data_dir / "serve.log"
@@ -137,6 +139,24 @@ def service(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Service]:
                 process.kill()
                 process.wait(timeout=10)
                 pytest.fail(f"intspace serve did not stop within 20 s of Ctrl-C:\n{svc.log()}")
+
+
+@pytest.fixture(scope="module")
+def service(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Service]:
+    """Start `python -m server.cli serve` in a fresh data directory and wait for /health."""
+    with running_service(tmp_path_factory.mktemp("intspace-data")) as svc:
+        yield svc
+
+
+@pytest.fixture(scope="module")
+def start_service(tmp_path_factory: pytest.TempPathFactory):
+    """Return start(extra_env) -> a context manager running `intspace serve` with those extra
+    INTSPACE_* settings in a fresh data directory (a fixture, so tests need not import conftest)."""
+
+    def start(extra_env: dict[str, str] | None = None):
+        return running_service(tmp_path_factory.mktemp("intspace-data"), extra_env)
+
+    return start
 
 
 @pytest.fixture

@@ -6,12 +6,14 @@ import { renderOverview } from "./pages/overview.js";
 import { renderCameras, renderCamera } from "./pages/cameras.js";
 import { renderCalibration, renderRun } from "./pages/calibration.js";
 import { renderScene } from "./pages/scene.js";
+import { renderFloor } from "./pages/floor.js";
 
 // Routes: [pattern, nav section, page title, render(main, params, query) -> cleanup?]
 const ROUTES = [
   [/^\/overview$/, "overview", "Overview", renderOverview],
   [/^\/cameras$/, "cameras", "Cameras", renderCameras],
   [/^\/cameras\/(\d+)$/, "cameras", "Camera", renderCamera],
+  [/^\/floor$/, "floor", "Floor", renderFloor],
   [/^\/calibration$/, "calibration", "Calibration runs", renderCalibration],
   [/^\/calibration\/runs\/(\d+)$/, "calibration", "Calibration run", renderRun],
   [/^\/scene$/, "scene", "Live 3D scene", renderScene],
@@ -21,6 +23,7 @@ const ICONS = {
   overview: "M3 13h8V3H3zm0 8h8v-6H3zm10 0h8V11h-8zm0-18v6h8V3z",
   cameras:
     "M4 7h3l2-3h6l2 3h3a1 1 0 0 1 1 1v11a1 1 0 0 1-1 1H4a1 1 0 0 1-1-1V8a1 1 0 0 1 1-1zm8 11a4.5 4.5 0 1 0 0-9 4.5 4.5 0 0 0 0 9z",
+  floor: "M3 4h18v16H3zM11 4v6M11 14v6M3 12h8M15 12h6",
   calibration: "M3 3h18v18H3zM3 9h18M3 15h18M9 3v18M15 3v18",
   scene: "M12 2 3 7v10l9 5 9-5V7zm0 0v10m0 0 9-5m-9 5-9-5m9 5v10",
 };

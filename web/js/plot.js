@@ -91,7 +91,7 @@ export function barChart(values, { labels, unit = "px", title, reference, refere
 }
 
 /** The area centroid of a simple polygon [[x, y], ...] (vertex mean when it has no area). */
-function centroid(poly) {
+export function centroid(poly) {
   let a = 0;
   let cx = 0;
   let cy = 0;

@@ -25,6 +25,9 @@ const DISTORTION_MODELS = [
   ["k1k2p1p2k3", "k1, k2, p1, p2, k3"],
 ];
 const TERMINAL = new Set(["succeeded", "failed", "interrupted"]);
+// The acceptance targets of a network calibration in the default simulated home (spec 02):
+// focal length within 1 %, position within 2 cm, orientation within 0.3 degrees.
+const NETWORK_TARGETS = { focal_pct: 1, position_cm: 2, rotation_deg: 0.3 };
 const POLL_MS = 600;
 
 /**
@@ -321,6 +324,57 @@ function startForm(cameras, preselect) {
   return form;
 }
 
+/** Start a run of kind "network": the twin drives the robot's marker past every camera. */
+function networkPanel() {
+  const error = h("div", { "aria-live": "assertive" });
+  const seed = h("input", {
+    id: "network-seed",
+    type: "number",
+    min: 0,
+    step: 1,
+    value: "0",
+    testid: "network-seed",
+  });
+  const button = h(
+    "button",
+    {
+      class: "btn primary",
+      type: "button",
+      testid: "network-calibrate",
+      onClick: async () => {
+        mount(error);
+        button.disabled = true;
+        try {
+          const run = await api("/calibration-runs", {
+            method: "POST",
+            json: { kind: "network", options: { seed: Number(seed.value) || 0 } },
+          });
+          toast(`Network calibration run #${run.id} started`);
+          location.hash = `#/calibration/runs/${run.id}`;
+        } catch (err) {
+          mount(error, errorBox(err, "network-error"));
+        } finally {
+          button.disabled = false;
+        }
+      },
+    },
+    "Calibrate the camera network",
+  );
+  return panel(
+    "Network calibration",
+    "Every ceiling camera at once: the digital twin drives the robot's marker over the floor; " +
+      "each camera's focal length and pose come from its view of the marker, then a joint " +
+      "refinement",
+    h(
+      "div",
+      { class: "form-grid" },
+      h("label", { for: "network-seed" }, "Seed (noise and drive)", seed),
+      h("div", null, button),
+    ),
+    error,
+  );
+}
+
 export async function renderCalibration(main, _params, query) {
   const [{ items: cameras }, runs] = await Promise.all([
     list("/cameras", { limit: 200 }),
@@ -363,7 +417,98 @@ export async function renderCalibration(main, _params, query) {
             "run-needs-camera",
           ),
     ),
+    networkPanel(),
     panel("Runs", "Newest first", runsBody),
+  );
+}
+
+/** A per-camera error against the twin's truth, marked when it misses the target. */
+function errorCell(value, target, digits, testid) {
+  const ok = Math.abs(value) < target;
+  return h(
+    "td",
+    { class: `num ${ok ? "" : "bad-value"}`, testid, "data-value": value },
+    fmt(value, digits),
+    ok ? null : h("span", { class: "badge bad", style: { marginLeft: "6px" } }, "over"),
+  );
+}
+
+function networkResultView(run) {
+  const r = run.result;
+  const cams = r.cameras || [];
+  const rows = cams.map((c, i) => {
+    const e = c.errors || {};
+    const f = c.K ? (c.K[0][0] + c.K[1][1]) / 2 : null;
+    const pos = c.T_world_camera ? c.T_world_camera.slice(0, 3).map((row) => row[3]) : null;
+    return h(
+      "tr",
+      { testid: `network-row-${i}`, "data-camera": c.name },
+      h("td", null, c.camera_id ? h("a", { href: `#/cameras/${c.camera_id}` }, c.name) : c.name),
+      h("td", { class: "num" }, c.poses_seen ?? "–"),
+      h("td", { class: "num" }, fmt(f, 2)),
+      h(
+        "td",
+        { class: "num" },
+        pos ? pos.map((v) => fmt(v, 3)).join(", ") : "–",
+      ),
+      h("td", { class: "num" }, fmt(c.rms, 3)),
+      e.focal_pct !== undefined
+        ? errorCell(e.focal_pct, NETWORK_TARGETS.focal_pct, 3, `network-focal-${i}`)
+        : h("td", { class: "num" }, "–"),
+      e.position_m !== undefined
+        ? errorCell(e.position_m * 100, NETWORK_TARGETS.position_cm, 2, `network-position-${i}`)
+        : h("td", { class: "num" }, "–"),
+      e.rotation_deg !== undefined
+        ? errorCell(e.rotation_deg, NETWORK_TARGETS.rotation_deg, 3, `network-rotation-${i}`)
+        : h("td", { class: "num" }, "–"),
+    );
+  });
+  const rejected = r.rejected || [];
+  return panel(
+    "Cameras calibrated",
+    `${cams.length} cameras from ${r.poses ?? "–"} marker positions` +
+      (r.rms !== undefined ? `, overall RMS ${fmt(r.rms, 3)} px` : "") +
+      ". Errors against the digital twin's truth; targets: focal < 1 %, position < 2 cm, " +
+      "rotation < 0.3°.",
+    h(
+      "div",
+      { class: "table-wrap" },
+      h(
+        "table",
+        { testid: "network-results" },
+        h(
+          "thead",
+          null,
+          h(
+            "tr",
+            null,
+            [
+              "Camera",
+              "Poses seen",
+              "f (px)",
+              "Position (m)",
+              "RMS (px)",
+              "Focal error (%)",
+              "Position error (cm)",
+              "Rotation error (°)",
+            ].map((t, i) => h("th", { class: i ? "num" : null }, t)),
+          ),
+        ),
+        h("tbody", null, rows),
+      ),
+    ),
+    rejected.length
+      ? h(
+          "div",
+          { class: "alert", role: "note", testid: "network-rejected", style: { marginTop: "12px" } },
+          h("strong", null, "Not calibrated"),
+          h(
+            "ul",
+            null,
+            rejected.map((x) => h("li", null, h("code", null, x.name), `: ${x.reason}`)),
+          ),
+        )
+      : null,
   );
 }
 
@@ -485,7 +630,12 @@ export async function renderRun(main, [id], _query, setTitle) {
             h(
               "dd",
               { class: "num", testid: "run-rms" },
-              `${fmt(run.result.rms, 4)} px over ${run.result.per_view_rms.length} views`,
+              `${fmt(run.result.rms, 4)} px` +
+                (run.result.per_view_rms
+                  ? ` over ${run.result.per_view_rms.length} views`
+                  : run.result.cameras
+                    ? ` over ${run.result.cameras.length} cameras`
+                    : ""),
             ),
           ]
         : null,
@@ -508,7 +658,9 @@ export async function renderRun(main, [id], _query, setTitle) {
         ),
       ),
     );
-    if (run.status === "succeeded" && run.result) mount(body, resultView(run));
+    if (run.status === "succeeded" && run.result && run.kind === "network")
+      mount(body, networkResultView(run));
+    else if (run.status === "succeeded" && run.result?.K) mount(body, resultView(run));
     else if (run.status === "failed" || run.status === "interrupted")
       mount(
         body,

@@ -1,6 +1,6 @@
 // Cameras: the table with an add form, and one camera's intrinsics, history and exports.
 
-import { api, download, list } from "../api.js";
+import { api, download, getToken, list } from "../api.js";
 import { barChart } from "../plot.js";
 import {
   badge,
@@ -17,6 +17,96 @@ import {
 } from "../ui.js";
 
 const DIST_NAMES = ["k1", "k2", "p1", "p2", "k3"];
+const LIVE_MS = 500; // about 2 frames a second
+const LIVE_RETRY_MS = 5000; // when there is no frame (no twin): look again now and then
+
+/**
+ * The camera's latest frame with its detections drawn, refreshed about twice a second. The image
+ * is fetched with the token in the Authorization header (an <img src> would not send it) and
+ * shown from a blob URL. Returns {panel, stop}.
+ */
+function liveView(id) {
+  const img = h("img", {
+    class: "live-frame",
+    alt: "Latest frame of this camera with detections drawn",
+    testid: "camera-live-image",
+    hidden: true,
+  });
+  const status = h("span", { class: "small muted", testid: "camera-live-status" }, "Loading…");
+  const missing = h("div");
+  let url = null;
+  let timer = null;
+  let stopped = false;
+  let frames = 0;
+  const tick = async () => {
+    if (stopped) return;
+    let wait = LIVE_MS;
+    if (document.visibilityState === "hidden") {
+      timer = setTimeout(tick, wait);
+      return;
+    }
+    try {
+      const headers = { Accept: "image/jpeg" };
+      const token = getToken();
+      if (token) headers.Authorization = `Bearer ${token}`;
+      const response = await fetch(`/api/v1/cameras/${id}/frame.jpg?overlay=true`, { headers });
+      if (stopped) return;
+      if (!response.ok) {
+        wait = LIVE_RETRY_MS;
+        img.hidden = true;
+        status.textContent = "";
+        mount(
+          missing,
+          h(
+            "p",
+            { class: "empty", testid: "camera-live-missing" },
+            response.status === 404
+              ? "No live image: the digital twin is not running, or it has no frame of this " +
+                  "camera yet."
+              : `No live image (HTTP ${response.status}).`,
+          ),
+        );
+      } else {
+        const blob = await response.blob();
+        if (stopped) return;
+        const next = URL.createObjectURL(blob);
+        await new Promise((resolve) => {
+          img.onload = resolve;
+          img.onerror = resolve;
+          img.src = next;
+        });
+        if (url) URL.revokeObjectURL(url);
+        url = next;
+        frames += 1;
+        img.hidden = false;
+        img.dataset.frames = String(frames);
+        mount(missing);
+        const t = response.headers.get("x-sim-time") || response.headers.get("x-frame-time");
+        status.textContent =
+          `Refreshed ${new Date().toLocaleTimeString()}` + (t ? ` · sim time ${Number(t).toFixed(1)} s` : "");
+      }
+    } catch (err) {
+      status.textContent = `The service did not answer (${err.message}).`;
+      wait = LIVE_RETRY_MS;
+    }
+    if (!stopped) timer = setTimeout(tick, wait);
+  };
+  tick();
+  return {
+    panel: panel(
+      "Live image",
+      "The latest frame with the detections drawn (robot marker, people), about 2 per second",
+      img,
+      missing,
+      h("div", { style: { marginTop: "8px" } }, status),
+    ),
+    stop: () => {
+      stopped = true;
+      clearTimeout(timer);
+      if (url) URL.revokeObjectURL(url);
+    },
+  };
+}
 
 function cameraStatus(c) {
   return c.status || (c.K ? "calibrated" : "uncalibrated");
@@ -423,10 +513,13 @@ export async function renderCamera(main, [id], _query, setTitle) {
       )
     : null;
 
+  const live = liveView(id);
   mount(
     main,
     h("div", { class: "grid wide-left" }, intrinsics, details),
-    h("div", { class: residuals ? "grid two" : "grid" }, residuals, pose),
+    h("div", { class: "grid two" }, live.panel, pose),
+    residuals,
     panel("Calibration history", "Every calibration applied to this camera, newest first", history),
   );
+  return live.stop;
 }
