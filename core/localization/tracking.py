@@ -432,25 +432,25 @@ class FloorTracker:
             self._history[i].append(TrackPoint(t, x[j, :2].copy(), P[j, :2, :2].copy()))
 
     def _start(self, z: Array, R: Array, labs: NDArray[np.object_]) -> NDArray[np.int64]:
-        """Start tracks at unassigned measurements; return their ids (-1: not started)."""
+        """Start tracks at unassigned measurements; return their ids (-1: not started).
+
+        The most precise measurements go first, and each is checked against every track,
+        those it just started included: a measurement within `birth_gate` of a track with its
+        label (or of any unlabelled track, when it has none) is an outlier of that target, not a
+        new one, and a label starts at most one track.
+        """
         ids = np.full(z.shape[0], -1, dtype=np.int64)
-        if z.shape[0] == 0:
-            return ids
-        start = np.ones(z.shape[0], dtype=bool)
-        if self._ids:
-            nu = z[None, :, :] - self._x[:, None, :2]
-            d2, _ = _mahalanobis(nu, self._P[:, None, :2, :2] + R[None])
-            match, labelled = self._compatible(labs)
-            # An unlabelled outlier of a tracked target; a label that already has its track.
-            start &= ~np.any(match & (d2 <= self.config.birth_gate), axis=0)
-            start &= ~(labelled & match.any(axis=0))
-        seen: set[str] = set()
-        for j in np.flatnonzero(start).tolist():
+        order = np.argsort(R[:, 0, 0] * R[:, 1, 1] - R[:, 0, 1] * R[:, 1, 0], kind="stable")
+        for j in order.tolist():
             lab = labs[j]
-            if lab is not None:
-                if lab in seen:
+            same = np.array([other == lab for other in self._labels], dtype=bool)
+            if lab is not None and same.any():
+                continue
+            if same.any():
+                nu = z[j] - self._x[same, :2]
+                d2, _ = _mahalanobis(nu, self._P[same, :2, :2] + R[j])
+                if np.any(d2 <= self.config.birth_gate):
                     continue
-                seen.add(lab)
             ids[j] = self._birth(z[j], R[j], lab)
         return ids
 
@@ -526,11 +526,13 @@ class FloorTracker:
         d(x, y)); GNN-assign camera k's detections to the tracks under the gate on
         (u - u_i)^T S_ik^-1 (u - u_i). 3. Each track's detections (one per camera) are fused
         by `locate_ml` (all tracks in one batched call) into a floor measurement with its
-        inverse-Fisher covariance, which updates the track. 4. Detections no track took are
-        back-projected onto Z = h (`locate_monocular`, with covariance C); detections a, b
-        of different cameras are consistent when (p_a - p_b)^T (C_a + C_b)^-1 (p_a - p_b) is
-        within the gate; consistent groups (one detection per camera, pairwise consistent,
-        built greedily from the closest pairs) are fused by `locate_ml` and start tracks.
+        inverse-Fisher covariance, which updates the track unless it lies beyond `birth_gate`
+        from the prediction (then the group mixed targets and its detections are dropped).
+        4. Detections no track took are back-projected onto Z = h (`locate_monocular`, with
+        covariance C); detections a, b of different cameras are consistent when
+        (p_a - p_b)^T (C_a + C_b)^-1 (p_a - p_b) is within the gate; consistent groups (one
+        detection per camera, pairwise consistent, built greedily from the closest pairs) are
+        fused by `locate_ml` and start tracks.
         """
         if not self.cameras:
             raise InvalidInput(
@@ -551,6 +553,14 @@ class FloorTracker:
         if rows.size:
             est = self._fuse(rows, owner, cam, px, pcov)
             ok = est.valid
+            # Each camera passed its gate, but the group could still mix two targets: refuse
+            # a fused point that is implausible (beyond birth_gate) for its track.
+            d2, _ = _mahalanobis(
+                np.where(ok[:, None], est.xy, 0.0) - self._x[rows, :2],
+                self._P[rows, :2, :2] + np.where(ok[:, None, None], est.cov, np.eye(2)),
+            )
+            row_labelled = np.array([self._labels[i] is not None for i in rows], dtype=bool)
+            ok &= row_labelled | (d2 <= self.config.birth_gate)
             z, R = est.xy[ok], est.cov[ok]
             good = rows[ok]
             self._kalman_update(good, z, R)
