@@ -567,9 +567,24 @@ export async function renderRun(main, [id], _query, setTitle) {
           btn.disabled = true;
           mount(notice);
           try {
-            await api(`/calibration-runs/${run.id}/apply`, { method: "POST" });
+            const answer = await api(`/calibration-runs/${run.id}/apply`, { method: "POST" });
             applied = true;
             btn.textContent = "Applied";
+            if (run.kind === "network") {
+              const n = Array.isArray(answer) ? answer.length : 0;
+              toast(`Network calibration applied to ${n} cameras`);
+              mount(
+                notice,
+                h(
+                  "div",
+                  { class: "alert info", role: "status", testid: "run-applied" },
+                  `Applied to ${n} cameras: their intrinsics and poses now come from this run. `,
+                  h("a", { href: "#/cameras", testid: "run-camera-link" }, "Open the cameras"),
+                  ".",
+                ),
+              );
+              return;
+            }
             toast(`Calibration applied to camera #${run.camera_id}`);
             mount(
               notice,
@@ -591,7 +606,7 @@ export async function renderRun(main, [id], _query, setTitle) {
           }
         },
       },
-      applied ? "Applied" : "Apply to camera",
+      applied ? "Applied" : run.kind === "network" ? "Apply to the cameras" : "Apply to camera",
     );
 
   const draw = (run) => {
@@ -652,7 +667,9 @@ export async function renderRun(main, [id], _query, setTitle) {
           h(
             "div",
             { class: "form-actions", style: { marginTop: 0 } },
-            run.status === "succeeded" && run.camera_id ? applyButton(run) : null,
+            run.status === "succeeded" && (run.camera_id || run.kind === "network")
+              ? applyButton(run)
+              : null,
             h("a", { class: "btn", href: "#/calibration" }, "All runs"),
           ),
         ),
