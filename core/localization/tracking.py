@@ -17,7 +17,9 @@ d2 + ln det S, with d2 = nu^T S^-1 nu the squared Mahalanobis distance of the in
 nu = z_j - H s_i (S = H P H^T + R), i.e. the negative log-likelihood up to a constant, so a
 vague track does not win a detection over a precise one merely by its wide gate. Pairs with
 d2 above the chi-square gate (2 dof; 9.21 keeps 99 % of true detections) are forbidden, and
-scipy.optimize.linear_sum_assignment solves the rest. A measurement with a label (e.g.
+scipy.optimize.linear_sum_assignment solves the rest, in two rounds: the confirmed tracks
+first, then the tentative ones with what is left, so that a track started by a false detection
+next to a target cannot take that target's detection. A measurement with a label (e.g.
 "robot") can only go to the track with that label, and is not gated: the label already says
 which target it is.
 
@@ -406,7 +408,18 @@ class FloorTracker:
         d2, logdet = _mahalanobis(nu, S)
         match, labelled = self._compatible(labs)
         allowed = match & ((d2 <= self.config.gate) | labelled[None, :]) & np.isfinite(d2)
-        return _assign(d2 + logdet, allowed)
+        return self._assign_by_status(d2 + logdet, allowed)
+
+    def _assign_by_status(
+        self, cost: Array, allowed: NDArray[np.bool_]
+    ) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+        """Return GNN pairs (track rows, columns): confirmed tracks first, then tentative ones."""
+        confirmed = np.array(self._confirmed, dtype=bool)
+        r1, c1 = _assign(cost, allowed & confirmed[:, None])
+        rest = allowed & ~confirmed[:, None]
+        rest[:, c1] = False
+        r2, c2 = _assign(cost, rest)
+        return np.concatenate([r1, r2]), np.concatenate([c1, c2])
 
     def _kalman_update(self, rows: NDArray[np.intp], z: Array, R: Array) -> None:
         """Update tracks `rows` with measurements z (n, 2), R (n, 2, 2); Joseph form."""
@@ -645,7 +658,7 @@ class FloorTracker:
             d2, logdet = _mahalanobis(nu, S)
             gated = (d2 <= self.config.gate) | labelled[det][None, :]
             allowed = match[:, det] & gated & front[:, None] & np.isfinite(d2)
-            rows, cols = _assign(d2 + logdet, allowed)
+            rows, cols = self._assign_by_status(d2 + logdet, allowed)
             owner[det[cols]] = rows
         return owner
 
