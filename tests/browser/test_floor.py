@@ -242,3 +242,22 @@ def test_network_calibration_from_the_page(twin_service, browser_page: Page):
         applied = by_id[cam["camera_id"]]
         assert applied["status"] == "calibrated" and applied["calibration_run_id"] == run_id
         np.testing.assert_allclose(applied["T_world_camera"], cam["T_world_camera"], rtol=1e-12)
+
+
+def test_without_the_twin_the_pages_say_so(service, browser_page: Page):
+    # `service` runs without INTSPACE_SIMULATION: no twin, no space, no positions.
+    page = browser_page
+    camera = service.api("POST", "/cameras", {"name": "door", "width": 640, "height": 480})
+    sign_in(page, service.base_url, service.token)
+    page.get_by_test_id("nav-floor").click()
+    expect(page.get_by_test_id("twin-off")).to_contain_text("digital twin is not running")
+    expect(page.get_by_test_id("coverage-missing")).to_contain_text("no space")
+    expect(page.get_by_test_id("targets-empty")).to_be_visible()
+    expect(page.get_by_test_id("twin-pause")).to_have_count(0)
+    expect(page.get_by_test_id("floor-map")).to_be_visible()
+
+    page.goto(f"{service.base_url}/#/cameras/{camera['id']}")
+    expect(page.get_by_test_id("camera-live-missing")).to_contain_text(
+        "digital twin is not running"
+    )
+    expect(page.get_by_test_id("camera-live-image")).to_be_hidden()

@@ -621,7 +621,9 @@ export async function renderRun(main, [id], _query, setTitle) {
         null,
         run.camera_id
           ? h("a", { href: `#/cameras/${run.camera_id}` }, cameraName || `#${run.camera_id}`)
-          : "–",
+          : run.kind === "network"
+            ? "every camera of the digital twin's home"
+            : "–",
       ),
       h("dt", null, "Kind"),
       h("dd", null, [run.kind, run.source ? ` · ${run.source}` : ""]),
