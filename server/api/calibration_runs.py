@@ -5,7 +5,19 @@ from __future__ import annotations
 import re
 from typing import Annotated
 
-from fastapi import APIRouter, Depends, File, Form, HTTPException, Path, Query, UploadFile, status
+from fastapi import (
+    APIRouter,
+    Depends,
+    File,
+    Form,
+    HTTPException,
+    Path,
+    Query,
+    Request,
+    UploadFile,
+    status,
+)
+from pydantic import Field
 from sqlalchemy import select
 
 from server.api._crud import check_references, get_or_404, paginate
@@ -35,6 +47,7 @@ from server.schemas.calibration import (
 )
 from server.schemas.common import MAX_ID, Page
 from server.schemas.registry import CameraRead
+from server.schemas.twin import NetworkRunCreate
 from server.services.calibration import decode_image
 from server.services.runs import RunExecutor
 
@@ -60,8 +73,31 @@ def _queue(session, executor: RunExecutor | None, run: CalibrationRun) -> Calibr
     status_code=status.HTTP_202_ACCEPTED,
     dependencies=[WriteAccess],
 )
-def create_calibration_run(body: IntrinsicsRunCreate, session: SessionDep, executor: ExecutorDep):
-    """Queue a calibration from point correspondences; poll GET /calibration-runs/{id}."""
+def create_calibration_run(
+    body: Annotated[IntrinsicsRunCreate | NetworkRunCreate, Field(discriminator="kind")],
+    session: SessionDep,
+    executor: ExecutorDep,
+    request: Request,
+):
+    """Queue a calibration; poll GET /calibration-runs/{id}. Kind "intrinsics": Zhang's method
+    on point correspondences of one camera. Kind "network": the twin's calibration drive (the
+    robot's marker driven over the floor) calibrates every twin camera, intrinsics and pose."""
+    if isinstance(body, NetworkRunCreate):
+        twin = getattr(request.app.state, "twin", None)
+        if twin is None:
+            raise HTTPException(
+                status.HTTP_409_CONFLICT,
+                detail="a network run drives the digital twin's robot; start the service with "
+                "INTSPACE_SIMULATION=true",
+            )
+        run = CalibrationRun(
+            kind="network",
+            source="twin",
+            camera_id=None,
+            inputs={"space_id": twin.space_id, "cameras": dict(twin.camera_ids)},
+            options=body.options.model_dump(),
+        )
+        return _queue(session, executor, run)
     check_references(session, {"camera_id": (Camera, body.camera_id)})
     run = CalibrationRun(
         kind=body.kind,
@@ -179,16 +215,23 @@ def get_calibration_run(run_id: RunId, session: SessionDep):
     return get_or_404(session, CalibrationRun, run_id, "calibration run")
 
 
-@router.post("/{run_id}/apply", response_model=CameraRead, dependencies=[WriteAccess])
+@router.post(
+    "/{run_id}/apply",
+    response_model=CameraRead | list[CameraRead],
+    dependencies=[WriteAccess],
+)
 def apply_calibration_run(run_id: RunId, session: SessionDep, scene: SceneDep):
     """Set the camera's intrinsics from a successful run and record it in the camera's
-    calibration history; return the updated camera."""
+    calibration history; return the updated camera. A network run sets intrinsics and pose of
+    every camera it calibrated and returns the list of them."""
     run = get_or_404(session, CalibrationRun, run_id, "calibration run")
     if run.status != RUN_SUCCEEDED or run.result is None:
         raise HTTPException(
             status.HTTP_409_CONFLICT,
             detail=f"run {run_id} is {run.status}; only a succeeded run can be applied",
         )
+    if run.kind == "network":
+        return _apply_network(run, session, scene)
     if run.camera_id is None:
         raise HTTPException(
             status.HTTP_409_CONFLICT, detail=f"the camera of run {run_id} was deleted"
@@ -220,3 +263,38 @@ def apply_calibration_run(run_id: RunId, session: SessionDep, scene: SceneDep):
     session.commit()
     scene.camera_changed(camera)
     return camera
+
+
+def _apply_network(run: CalibrationRun, session, scene) -> list[Camera]:
+    updated = []
+    for result in run.result["cameras"] if run.result else []:
+        camera = session.get(Camera, result.get("camera_id") or 0)
+        if camera is None:
+            continue  # deleted since the run
+        camera.K = result["K"]
+        camera.dist = result["dist"]
+        camera.T_world_camera = result["T_world_camera"]
+        camera.status = "calibrated"
+        camera.calibration_run_id = run.id
+        camera.updated_at = utcnow()
+        width, height = result["image_size"]
+        session.add(
+            CameraCalibration(
+                camera_id=camera.id,
+                calibration_run_id=run.id,
+                K=result["K"],
+                dist=result["dist"],
+                rms=result["rms"],
+                image_width=width,
+                image_height=height,
+            )
+        )
+        updated.append(camera)
+    if not updated:
+        raise HTTPException(
+            status.HTTP_409_CONFLICT, detail=f"the cameras of run {run.id} were all deleted"
+        )
+    session.commit()
+    for camera in updated:
+        scene.camera_changed(camera)
+    return updated

@@ -7,6 +7,7 @@ from typing import Annotated, Any, Literal
 from pydantic import Field, model_validator
 
 from server.schemas.common import Finite, Id, PixelCount, ReadSchema, Schema, UtcDatetime
+from server.schemas.twin import NetworkRunResult
 
 # Lens models of core.calibration.calibrate_camera, by the coefficients they estimate.
 DistortionModel = Literal["none", "k1", "k1k2", "k1k2p1p2", "k1k2p1p2k3"]
@@ -77,11 +78,11 @@ class CalibrationResult(ReadSchema):
 class CalibrationRunRead(ReadSchema):
     id: int
     kind: str
-    source: Literal["correspondences", "images"]
+    source: Literal["correspondences", "images", "twin"]
     status: RunStatus
     camera_id: int | None
     options: dict[str, Any]
-    result: CalibrationResult | None
+    result: CalibrationResult | NetworkRunResult | None
     error: str | None
     created_at: UtcDatetime
     updated_at: UtcDatetime

@@ -88,6 +88,22 @@ def calibrate_from_images(
     return _result(calibration, used)
 
 
+def calibrate_network(inputs: dict[str, Any], options: dict[str, Any]) -> dict:
+    """Return the stored result of calibrating the twin's cameras by driving the robot's
+    marker (server.services.twin.network_calibration_drive), each camera named by its
+    registry id too."""
+    from core.sim import default_scene
+    from server.services.twin import network_calibration_drive
+
+    result = network_calibration_drive(
+        default_scene(), int(options.get("seed", 0)), spacing=float(options.get("spacing", 0.3))
+    )
+    ids = inputs.get("cameras", {})
+    for camera in result["cameras"]:
+        camera["camera_id"] = ids.get(camera["name"])
+    return result
+
+
 def board_object_points_for(cols: int, rows: int, square_m: float) -> np.ndarray:
     """Return the (cols * rows, 3) model points of a chessboard of inner corners, metres."""
     return board_object_points(Chessboard(cols, rows), square_m)

@@ -81,6 +81,8 @@ def _finish(session: Session, run_id: int, **values: Any) -> None:
 
 def compute(session: Session, run: CalibrationRun) -> dict[str, Any]:
     """Return the result of a claimed run (raising core's typed errors on bad data)."""
+    if run.kind == "network":
+        return calibration.calibrate_network(run.inputs, run.options)
     if run.source == "images":
         files = session.scalars(
             select(CalibrationRunFile.data)

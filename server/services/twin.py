@@ -23,12 +23,13 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session, sessionmaker
 
 from core.calibration.network import calibrate_network_marker
+from core.errors import InvalidInput
 from core.geometry.rotations import matrix_to_rotvec
 from core.localization import NetworkCamera, locate_ml
 from core.localization.detect import MarkerDetectorConfig, PersonDetector, detect_marker
-from core.sim import Pose2D, Renderer, Scene, SensorNoise, UnicycleBase, WorldState, world_state
+from core.sim import Pose2D, Scene, SensorNoise, UnicycleBase, WorldState, world_state
 from core.sim.motion import Patrol
-from core.sim.render import camera_model
+from core.sim.render import camera_model, renderer_for
 from server.db.models import Camera, Robot, Room, Space
 
 if TYPE_CHECKING:
@@ -142,9 +143,10 @@ def network_calibration_drive(
     from core.sim.scenarios import _free_floor_grid
 
     if scene.robot is None or scene.robot.marker is None:
-        raise ValueError("the twin's robot carries no marker")
+        raise InvalidInput("the twin's robot carries no marker to calibrate the network with")
     rng = np.random.default_rng(seed)
-    renderer = Renderer(scene)
+    # Shared with the running twin: the static layer of each camera is built once.
+    renderer = renderer_for(scene)
     marker = scene.robot.marker
     grid = _free_floor_grid(scene, spacing, scene.robot.base_radius + 0.05)
     grid = grid + rng.uniform(-0.1, 0.1, grid.shape) * spacing
@@ -252,7 +254,7 @@ class Twin:
         self._scene_sync = scene_sync
         self._seed = seed
         self.rate_hz = float(rate_hz)
-        self._renderer = Renderer(scene)
+        self._renderer = renderer_for(scene)
         self._marker_cfg = (
             MarkerDetectorConfig(colour=scene.robot.marker.colour)
             if scene.robot is not None and scene.robot.marker is not None
@@ -270,6 +272,7 @@ class Twin:
         self._people_labels: dict[str, np.ndarray] = {}
         self.steps = 0
         self.errors: list[float] = []
+        self._detectors: dict[str, PersonDetector] = {}
         self._reset_state()
 
     # -- lifecycle ---------------------------------------------------------------------------
@@ -286,16 +289,15 @@ class Twin:
         self._base = UnicycleBase.from_robot(robot, dt=_BASE_DT, rng=self._seed) if robot else None
         self._patrol = Patrol(robot.patrol, robot.limits) if robot and robot.patrol else None
         self.sim_time = 0.0
-        self._detectors = {cam.name: self._learn_background(cam.name) for cam in self.scene.cameras}
         self._people_labels = {}
         self.errors = []
 
     def _learn_background(self, camera: str) -> PersonDetector:
-        empty = self.scene.model_copy(update={"people": [], "robot": None})
-        renderer = Renderer(empty)
+        # The empty home: no robot, the people far outside every camera's view.
+        away = tuple((1e4, 1e4) for _ in self.scene.people)
         detector = PersonDetector()
-        for i in range(5):
-            frame = renderer.render(camera, WorldState(0.0, None, ()), rng=i)
+        for i in range(3):
+            frame = self._renderer.render(camera, WorldState(0.0, None, away), rng=i)
             detector.learn(frame.image)
         return detector
 
@@ -366,6 +368,11 @@ class Twin:
     # -- the loop ----------------------------------------------------------------------------
 
     def _loop(self) -> None:
+        # Built here, not at start-up: the cameras' static layers take seconds to render.
+        for cam in self.scene.cameras:
+            if self._stop.is_set():
+                return
+            self._detectors[cam.name] = self._learn_background(cam.name)
         next_time = time.monotonic()
         while not self._stop.is_set():
             period = 1.0 / max(self.rate_hz, 1e-3)
@@ -416,7 +423,8 @@ class Twin:
                     cf.detections.append(
                         {"kind": "robot", "label": "robot", "pixel": marker.pixel.tolist()}
                     )
-                persons = self._detectors[spec.name].detect(frame.image)
+                detector = self._detectors.get(spec.name)
+                persons = detector.detect(frame.image) if detector is not None else []
                 for p in persons:
                     x, y, w, h = p.bbox
                     # The robot is foreground too: a blob around the marker is the robot.

@@ -16,7 +16,7 @@ from server.app import create_app
 
 @pytest.fixture
 def twin_client(make_settings):
-    settings = make_settings(simulation=True, twin_rate_hz=10.0, targets_flush_hz=5.0)
+    settings = make_settings(simulation=True, twin_rate_hz=4.0, targets_flush_hz=5.0)
     with TestClient(create_app(settings)) as client:
         yield client
 
@@ -94,3 +94,51 @@ def test_twin_endpoints_without_the_twin(client, admin):
     response = client.get("/api/v1/cameras/1/frame.jpg", headers=admin)
     assert response.status_code == 404 and "twin is not running" in response.json()["detail"]
     assert client.post("/api/v1/twin/reset").status_code == 401
+
+
+def test_network_run_calibrates_every_twin_camera_and_apply_updates_them(
+    twin_client, admin, run_waiter
+):
+    client = twin_client
+    client.post("/api/v1/twin/pause", headers=admin)  # the drive renders on its own
+    submitted = client.post(
+        "/api/v1/calibration-runs",
+        json={"kind": "network", "options": {"seed": 3, "target": "marker"}},
+        headers=admin,
+    )
+    assert submitted.status_code == 202, submitted.text
+    assert submitted.json()["source"] == "twin"
+    run = run_waiter(client, submitted.json()["id"], timeout=120)
+    assert run["status"] == "succeeded", run["error"]
+    result = run["result"]
+    assert result["kind"] == "network" and not result["rejected"]
+    cameras = {c["id"]: c for c in client.get("/api/v1/cameras", headers=admin).json()["items"]}
+    assert {c["camera_id"] for c in result["cameras"]} == set(cameras)
+    for cam in result["cameras"]:
+        # The acceptance: focal 1 %, position 2 cm, orientation 0.3 deg (sigma 0.5 px
+        # class detections, a drive of >= 40 stops).
+        errors = cam["errors"]
+        assert abs(errors["focal_pct"]) < 1.0, cam
+        assert errors["position_m"] < 0.02, cam
+        assert errors["rotation_deg"] < 0.3, cam
+        assert cam["poses_seen"] >= 8 and cam["rms"] < 1.0 and cam["std"]["f_px"] > 0
+
+    applied = client.post(f"/api/v1/calibration-runs/{run['id']}/apply", headers=admin)
+    assert applied.status_code == 200, applied.text
+    assert len(applied.json()) == 4
+    for cam in result["cameras"]:
+        camera = client.get(f"/api/v1/cameras/{cam['camera_id']}", headers=admin).json()
+        assert camera["status"] == "calibrated" and camera["calibration_run_id"] == run["id"]
+        assert np.allclose(camera["K"], cam["K"])
+        assert np.allclose(camera["T_world_camera"], cam["T_world_camera"])
+        history = client.get(
+            f"/api/v1/cameras/{cam['camera_id']}/calibrations", headers=admin
+        ).json()
+        assert history["total"] == 1 and history["items"][0]["calibration_run_id"] == run["id"]
+
+
+def test_network_run_needs_the_twin(client, admin):
+    response = client.post("/api/v1/calibration-runs", json={"kind": "network"}, headers=admin)
+    assert response.status_code == 409 and "INTSPACE_SIMULATION" in response.json()["detail"]
+    bad = {"kind": "network", "options": {"target": "board"}}
+    assert client.post("/api/v1/calibration-runs", json=bad, headers=admin).status_code == 422
