@@ -17,11 +17,12 @@ d2 + ln det S, with d2 = nu^T S^-1 nu the squared Mahalanobis distance of the in
 nu = z_j - H s_i (S = H P H^T + R), i.e. the negative log-likelihood up to a constant, so a
 vague track does not win a detection over a precise one merely by its wide gate. Pairs with
 d2 above the chi-square gate (2 dof; 9.21 keeps 99 % of true detections) are forbidden, and
-scipy.optimize.linear_sum_assignment solves the rest, in two rounds: the confirmed tracks
-first, then the tentative ones with what is left, so that a track started by a false detection
-next to a target cannot take that target's detection. A measurement with a label (e.g.
-"robot") can only go to the track with that label, and is not gated: the label already says
-which target it is.
+scipy.optimize.linear_sum_assignment solves the rest, in rounds. First the measurements with a
+label (e.g. "robot"): each can only go to the track with that label, and is not gated, as the
+label already says which target it is. Then the unlabelled measurements, which may go to any
+track (a missing label says nothing), to the confirmed tracks first and the tentative ones with
+what is left, so that a track started by a false detection next to a target cannot take that
+target's detection.
 
 Track life: a measurement no track takes starts a tentative track (position from z, speed
 unknown: N(0, `initial_speed_std`^2) per axis), unless it is so close to an existing track
@@ -389,11 +390,11 @@ class FloorTracker:
         return FrameAssociation(t, track_ids, started, deleted)
 
     def _compatible(self, labs: NDArray[np.object_]) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
-        """Return (label match (T, M), labelled measurement (M,))."""
+        """Return (may pair (T, M): same label, or none on the measurement; labelled (M,))."""
         track_labs = np.empty(len(self._labels), dtype=object)
         track_labs[:] = self._labels
-        match = track_labs[:, None] == labs[None, :]
         labelled = np.array([lab is not None for lab in labs], dtype=bool)
+        match = (track_labs[:, None] == labs[None, :]) | ~labelled[None, :]
         return match, labelled
 
     def _associate_floor(
@@ -408,18 +409,28 @@ class FloorTracker:
         d2, logdet = _mahalanobis(nu, S)
         match, labelled = self._compatible(labs)
         allowed = match & ((d2 <= self.config.gate) | labelled[None, :]) & np.isfinite(d2)
-        return self._assign_by_status(d2 + logdet, allowed)
+        return self._assign_in_rounds(d2 + logdet, allowed, labelled)
 
-    def _assign_by_status(
-        self, cost: Array, allowed: NDArray[np.bool_]
+    def _assign_in_rounds(
+        self, cost: Array, allowed: NDArray[np.bool_], labelled: NDArray[np.bool_]
     ) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
-        """Return GNN pairs (track rows, columns): confirmed tracks first, then tentative ones."""
+        """Return GNN pairs (track rows, columns) of cost (T, M): labelled measurements first,
+        then unlabelled ones to confirmed tracks, then to tentative ones."""
         confirmed = np.array(self._confirmed, dtype=bool)
-        r1, c1 = _assign(cost, allowed & confirmed[:, None])
-        rest = allowed & ~confirmed[:, None]
-        rest[:, c1] = False
-        r2, c2 = _assign(cost, rest)
-        return np.concatenate([r1, r2]), np.concatenate([c1, c2])
+        rows: list[NDArray[np.intp]] = []
+        cols: list[NDArray[np.intp]] = []
+        free = allowed.copy()
+        for mask in (
+            labelled[None, :],
+            ~labelled[None, :] & confirmed[:, None],
+            ~labelled[None, :] & ~confirmed[:, None],
+        ):
+            r, c = _assign(cost, free & mask)
+            free[r, :] = False
+            free[:, c] = False
+            rows.append(r)
+            cols.append(c)
+        return np.concatenate(rows), np.concatenate(cols)
 
     def _kalman_update(self, rows: NDArray[np.intp], z: Array, R: Array) -> None:
         """Update tracks `rows` with measurements z (n, 2), R (n, 2, 2); Joseph form."""
@@ -448,20 +459,18 @@ class FloorTracker:
         """Start tracks at unassigned measurements; return their ids (-1: not started).
 
         The most precise measurements go first, and each is checked against every track,
-        those it just started included: a measurement within `birth_gate` of a track with its
-        label (or of any unlabelled track, when it has none) is an outlier of that target, not a
-        new one, and a label starts at most one track.
+        those it just started included: an unlabelled measurement within `birth_gate` of any
+        track is an outlier of that target, not a new one; a label starts at most one track.
         """
         ids = np.full(z.shape[0], -1, dtype=np.int64)
         order = np.argsort(R[:, 0, 0] * R[:, 1, 1] - R[:, 0, 1] * R[:, 1, 0], kind="stable")
         for j in order.tolist():
             lab = labs[j]
-            same = np.array([other == lab for other in self._labels], dtype=bool)
-            if lab is not None and same.any():
-                continue
-            if same.any():
-                nu = z[j] - self._x[same, :2]
-                d2, _ = _mahalanobis(nu, self._P[same, :2, :2] + R[j])
+            if lab is not None:
+                if lab in self._labels:
+                    continue
+            elif self._ids:
+                d2, _ = _mahalanobis(z[j] - self._x[:, :2], self._P[:, :2, :2] + R[j])
                 if np.any(d2 <= self.config.birth_gate):
                     continue
             ids[j] = self._birth(z[j], R[j], lab)
@@ -658,7 +667,7 @@ class FloorTracker:
             d2, logdet = _mahalanobis(nu, S)
             gated = (d2 <= self.config.gate) | labelled[det][None, :]
             allowed = match[:, det] & gated & front[:, None] & np.isfinite(d2)
-            rows, cols = self._assign_by_status(d2 + logdet, allowed)
+            rows, cols = self._assign_in_rounds(d2 + logdet, allowed, labelled[det])
             owner[det[cols]] = rows
         return owner
 

@@ -185,6 +185,14 @@ def test_labelled_measurements_go_to_their_track():
     assert res.track_ids.tolist() == [person, robot]
     labels = {tr.id: tr.label for tr in trk.tracks()}
     assert labels == {robot: "robot", person: None}
+    # A detection of the robot without its label may still update the robot's track (no
+    # duplicate), but a labelled one never goes to another track, however close.
+    at = {tr.id: tr.xy for tr in trk.tracks(t=0.2)}
+    res = trk.update(0.2, [at[robot]], R)
+    assert res.track_ids.tolist() == [robot]
+    at = {tr.id: tr.xy for tr in trk.tracks(t=0.3)}
+    res = trk.update(0.3, [at[person]], R, labels=["cart"])
+    assert res.started.tolist() == [True] and res.track_ids[0] not in (robot, person)
 
 
 def test_prediction_follows_constant_velocity():
