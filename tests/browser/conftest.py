@@ -236,6 +236,8 @@ def read_scene(port: int, timeout: float = 10.0) -> dict[str, dict[str, Any]]:
                     nodes[name]["position"] = m["position"]
                 elif kind == "SetOrientationMessage" and name in nodes:
                     nodes[name]["wxyz"] = m["wxyz"]
+                elif kind == "SceneNodeUpdateMessage" and name in nodes:
+                    nodes[name]["props"].update(m["updates"])  # e.g. a new frustum image
                 elif name is not None and "props" in m:
                     nodes[name] = {"type": kind, "props": m["props"]}
     raise TimeoutError(f"the viser server on port {port} sent no complete scene in {timeout} s")

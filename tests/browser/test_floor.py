@@ -16,6 +16,7 @@ import shutil
 import time
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
@@ -275,3 +276,30 @@ def test_without_the_twin_the_pages_say_so(service, browser_page: Page):
         "digital twin is not running"
     )
     expect(page.get_by_test_id("camera-live-image")).to_be_hidden()
+
+
+def test_the_3d_scene_shows_the_robot_people_tracks_and_camera_images(twin_service, scene_reader):
+    # What the viser server sends a viewer that connects: the twin's agents, their tracks and
+    # the cameras' latest images on the frusta (pushed at a throttled rate, hence the wait).
+    cameras = twin_service.api("GET", "/twin")["cameras"]
+    deadline = time.monotonic() + 15.0
+    while True:
+        nodes = scene_reader(twin_service.viser_port)
+        frusta = [nodes.get(f"/cameras/{i}/frustum") for i in cameras.values()]
+        with_image = [f for f in frusta if f and f["props"].get("_image_data") is not None]
+        ready = "/agents/robot" in nodes and "/tracks/robot" in nodes and with_image
+        if ready or time.monotonic() > deadline:
+            break
+        time.sleep(0.5)
+    assert "/agents/robot/body" in nodes and "/agents/robot/heading" in nodes
+    assert any(k.startswith("/agents/walker-") and k.endswith("/head") for k in nodes)
+    assert nodes["/tracks/robot"]["type"] == "LineSegmentsMessage"
+    assert with_image, "no camera image reached the scene"
+    # Downscaled to the scene's 320 px for the wire, the twin's 4:3 frame keeps its aspect.
+    image = cv2.imdecode(np.frombuffer(with_image[0]["props"]["_image_data"], np.uint8), 1)
+    assert image is not None and image.shape == (240, 320, 3)
+    # The robot stands where the twin has it (the scene is updated at 5 Hz; the robot drives
+    # well under 0.5 m/s, so 0.2 s of travel is the most it can lag).
+    twin = twin_service.api("GET", "/twin")
+    position = nodes["/agents/robot"]["position"]
+    assert np.hypot(position[0] - twin["robot"]["x"], position[1] - twin["robot"]["y"]) < 0.15
