@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import logging
 import threading
+import time
 from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
@@ -29,6 +30,7 @@ class LiveTarget:
     xy: list[float]
     cov: list[list[float]]
     id: int | None = None
+    seen_at: float = 0.0
     track: deque[tuple[float, float, float]] = field(default_factory=lambda: deque(maxlen=600))
     pending: list[tuple[float, list[float], list[list[float]]]] = field(default_factory=list)
 
@@ -64,17 +66,21 @@ class LiveTargets:
                 target = LiveTarget(label, kind, t, xy, cov)
                 self._targets[label] = target
             target.t, target.xy, target.cov = t, xy, cov
+            target.seen_at = time.monotonic()
             target.track.append((t, xy[0], xy[1]))
             # Only the newest point waits for the writer: the database history is throttled.
             target.pending = [(t, xy, cov)]
             self.version += 1
 
-    def snapshot(self) -> tuple[int, list[dict[str, Any]]]:
-        """Return (version, targets) with id, label, kind, t, xy, cov of each."""
+    def snapshot(self, max_age: float = 5.0) -> tuple[int, list[dict[str, Any]]]:
+        """Return (version, targets) with id, label, kind, t, xy, cov of each target updated
+        within the last `max_age` seconds (wall clock)."""
+        oldest = time.monotonic() - max_age
         with self._lock:
             items = [
                 {"id": v.id, "label": v.label, "kind": v.kind, "t": v.t, "xy": v.xy, "cov": v.cov}
                 for v in self._targets.values()
+                if v.seen_at >= oldest
             ]
             return self.version, items
 

@@ -3,8 +3,10 @@
 The robot patrols and the scene's people walk; at `rate_hz` every ceiling camera's frame is
 rendered, the robot's marker and the people are detected in the images, located on the floor
 with the registry's current calibration of the cameras (core.localization, ML on the plane) and
-handed to the live targets store. The latest frame of each camera and its detections are kept
-for the API; the live 3D scene gets the agents, tracks and images at a throttled rate.
+tracked (core.localization.tracking: constant-velocity Kalman filters, the robot's track
+labelled) and handed to the live targets store. The latest frame of each camera and its
+detections are kept for the API; the live 3D scene gets the agents, tracks and images at a
+throttled rate.
 
 The twin's scene is also the calibration object of the "network" calibration runs.
 """
@@ -27,6 +29,7 @@ from core.errors import InvalidInput
 from core.geometry.rotations import matrix_to_rotvec
 from core.localization import NetworkCamera, locate_ml
 from core.localization.detect import MarkerDetectorConfig, PersonDetector, detect_marker
+from core.localization.tracking import FloorTracker, TrackerConfig
 from core.sim import Pose2D, Scene, SensorNoise, UnicycleBase, WorldState, world_state
 from core.sim.motion import Patrol
 from core.sim.render import camera_model, renderer_for
@@ -45,6 +48,9 @@ _BASE_DT = 0.05
 _PERSON_GATE_M = 0.8
 # Pushes to the 3D scene (agents, tracks) and camera images, at most this often (Hz).
 _SCENE_HZ = 5.0
+# Acceleration spectral density of the tracker (m^2/s^3): walking people and a robot that
+# turns at its waypoints.
+_TRACKER_Q = 0.5
 _IMAGE_HZ = 1.0
 
 
@@ -269,10 +275,11 @@ class Twin:
         self._cameras_loaded = 0.0
         self._last_scene = 0.0
         self._last_image = 0.0
-        self._people_labels: dict[str, np.ndarray] = {}
         self.steps = 0
         self.errors: list[float] = []
         self._detectors: dict[str, PersonDetector] = {}
+        corners = np.array([p for room in scene.rooms for p in room.polygon], dtype=float)
+        self._floor_lo, self._floor_hi = corners.min(axis=0), corners.max(axis=0)
         self._reset_state()
 
     # -- lifecycle ---------------------------------------------------------------------------
@@ -289,7 +296,7 @@ class Twin:
         self._base = UnicycleBase.from_robot(robot, dt=_BASE_DT, rng=self._seed) if robot else None
         self._patrol = Patrol(robot.patrol, robot.limits) if robot and robot.patrol else None
         self.sim_time = 0.0
-        self._people_labels = {}
+        self._tracker = FloorTracker(TrackerConfig(q=_TRACKER_Q))
         self.errors = []
 
     def _learn_background(self, camera: str) -> PersonDetector:
@@ -445,12 +452,15 @@ class Twin:
                     )
                 frames[camera_id] = cf
             self._frames = frames
-            robot_xy = self._locate_robot(t, state, network, marker_px)
-            self._locate_people(t, network, people_px, robot_xy)
+            robot = self._locate_robot(state, network, marker_px)
+            people = self._locate_people(network, people_px, robot)
+            self._track(t, state, robot, people)
             self.steps += 1
         self._push_scene(state, frames)
 
-    def _locate_robot(self, t, state, network, marker_px) -> np.ndarray | None:
+    def _locate_robot(self, state, network, marker_px) -> tuple[np.ndarray, np.ndarray] | None:
+        """Return the robot's centre on the floor and its covariance from the marker's
+        detections, None when no calibrated camera saw it."""
         robot = self.scene.robot
         ids = [i for i in marker_px if i in network]
         if robot is None or robot.marker is None or not ids or state.robot is None:
@@ -460,19 +470,15 @@ class Twin:
         est = locate_ml([network[i] for i in ids], pixels, robot.marker.height, pixel_cov=cov)
         if not est.valid[0]:
             return None
-        xy = est.xy[0]
         # The marker sits at its offset in the robot frame; the target is the robot's centre.
         c, s = math.cos(state.robot.yaw), math.sin(state.robot.yaw)
         ox, oy = robot.marker.offset
-        centre = xy - np.array([c * ox - s * oy, s * ox + c * oy])
-        truth = np.array([state.robot.x, state.robot.y])
-        self.errors.append(float(np.linalg.norm(centre - truth)))
-        self._targets.update("robot", "robot", t, centre.tolist(), est.cov[0].tolist())
-        return centre
+        return est.xy[0] - np.array([c * ox - s * oy, s * ox + c * oy]), est.cov[0]
 
-    def _locate_people(self, t, network, people_px, robot_xy) -> None:
-        # Each detection on its own (monocular ML at Z = 0), grouped across cameras by
-        # distance, then each group fused by ML over its cameras.
+    def _locate_people(self, network, people_px, robot) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Return the people's floor positions and covariances: each detection located on its
+        own (ML at Z = 0, one camera), grouped across cameras by distance, and each group fused
+        by ML over its cameras."""
         singles: list[tuple[int, np.ndarray, np.ndarray, np.ndarray]] = []
         for camera_id, dets in people_px.items():
             if camera_id not in network:
@@ -495,37 +501,43 @@ class Twin:
                 groups.append([det])
         fused = []
         for group in groups:
-            cams = [network[g[0]] for g in group]
             est = locate_ml(
-                cams,
+                [network[g[0]] for g in group],
                 np.stack([g[2] for g in group])[:, None],
                 0.0,
                 pixel_cov=np.stack([g[3] for g in group])[:, None],
             )
             # A camera that missed the marker sees the robot as foreground: not a person.
-            near_robot = robot_xy is not None and np.linalg.norm(est.xy[0] - robot_xy) < (
+            near_robot = robot is not None and np.linalg.norm(est.xy[0] - robot[0]) < (
                 _PERSON_GATE_M
             )
-            if est.valid[0] and not near_robot:
+            if est.valid[0] and not near_robot and self._on_floor(est.xy[0]):
                 fused.append((est.xy[0], est.cov[0]))
-        # Labels stay with the nearest person of the previous frame.
-        previous = dict(self._people_labels)
-        labels: dict[str, np.ndarray] = {}
-        for xy, cov in fused:
-            best = min(
-                (k for k in previous if k not in labels),
-                key=lambda k: np.linalg.norm(previous[k] - xy),
-                default=None,
-            )
-            if best is None or np.linalg.norm(previous[best] - xy) > 1.0:
-                n = len(self._people_labels) + len(labels) + 1
-                best = f"person-{n}"
-                while best in previous or best in labels:
-                    n += 1
-                    best = f"person-{n}"
-            labels[best] = xy
-            self._targets.update(best, "person", t, xy.tolist(), cov.tolist())
-        self._people_labels = {**previous, **labels}
+        return fused
+
+    def _on_floor(self, xy: np.ndarray) -> bool:
+        # A foreground blob whose foot point lands outside the home is not a person.
+        return bool(np.all(xy >= self._floor_lo) and np.all(xy <= self._floor_hi))
+
+    def _track(self, t, state, robot, people) -> None:
+        """Update the tracker with this frame's floor positions (the robot's labelled) and
+        publish every confirmed track updated now; the robot's error against the truth is kept
+        for the state."""
+        measurements = ([robot] if robot is not None else []) + people
+        labels = (["robot"] if robot is not None else []) + [None] * len(people)
+        xy = np.array([m[0] for m in measurements]).reshape(-1, 2)
+        cov = np.array([m[1] for m in measurements]).reshape(-1, 2, 2)
+        self._tracker.update(t, xy, cov, labels)
+        for track in self._tracker.tracks(confirmed_only=True):
+            if track.last_update != t:
+                continue
+            if track.label == "robot":
+                label, kind = "robot", "robot"
+                truth = np.array([state.robot.x, state.robot.y])
+                self.errors.append(float(np.linalg.norm(track.xy - truth)))
+            else:
+                label, kind = f"person-{track.id}", "person"
+            self._targets.update(label, kind, t, track.xy.tolist(), track.xy_cov.tolist())
 
     # -- the 3D scene ------------------------------------------------------------------------
 

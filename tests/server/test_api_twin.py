@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
+from core.sim import default_scene, simulate_patrol
 from server.app import create_app
 
 
@@ -53,6 +54,12 @@ def test_twin_locates_the_robot_and_is_controlled(twin_client, admin):
     assert state["robot_error_rms_m"] < 0.03
     xy = np.array([p["xy"] for p in track["points"]])
     assert np.all(np.isfinite(xy)) and np.ptp(xy[:, 0]) > 0  # it moves
+    # The twin's drive is deterministic (seed 0, 0.05 s steps): replaying the patrol gives the
+    # true pose at each track point's time.
+    t = np.array([p["t"] for p in track["points"]])
+    truth = simulate_patrol(default_scene().robot, float(t.max()) + 0.1, dt=0.05, rng=0)
+    true_xy = truth.pose[np.round(t / 0.05).astype(int), :2]
+    assert np.max(np.linalg.norm(xy - true_xy, axis=1)) < 0.03
     assert all(np.array(p["cov"]).shape == (2, 2) for p in track["points"])
 
     frame = client.get(
