@@ -143,3 +143,33 @@ def display_image(image_bgr: NDArray[np.uint8], max_width: int) -> NDArray[np.ui
         size = (max_width, max(1, round(h * max_width / w)))
         img = cv2.resize(img, size, interpolation=cv2.INTER_AREA)
     return np.ascontiguousarray(img[:, :, ::-1])
+
+
+def parse_covariance(cov: Any) -> NDArray[np.float64]:
+    """Return a 2x2 position covariance (m^2) as a symmetric array; raise InvalidInput unless
+    it is finite, symmetric (to 1e-9 relative) and positive semi-definite."""
+    try:
+        c = np.asarray(cov, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise InvalidInput(f"a covariance must be a 2x2 numeric matrix: {exc}") from None
+    if c.shape != (2, 2) or not np.all(np.isfinite(c)):
+        raise InvalidInput(f"a covariance must be a finite 2x2 matrix, got shape {c.shape}")
+    scale = max(float(np.abs(c).max()), 1e-300)
+    if abs(c[0, 1] - c[1, 0]) > 1e-9 * scale:
+        raise InvalidInput(f"a covariance must be symmetric, got {c.tolist()}")
+    c = 0.5 * (c + c.T)
+    if np.linalg.eigvalsh(c)[0] < -1e-12 * scale:
+        raise InvalidInput(f"a covariance must be positive semi-definite, got {c.tolist()}")
+    return c
+
+
+def ellipse_2sigma(cov: NDArray[np.float64]) -> tuple[float, float, float]:
+    """Return the 2-sigma ellipse of a 2x2 covariance: semi-axes a >= b (m) and the angle of a
+    from world +X (rad), from its eigen-decomposition (semi-axis = 2 sqrt(eigenvalue))."""
+    w, v = np.linalg.eigh(cov)
+    w = np.clip(w, 0.0, None)
+    return (
+        2.0 * math.sqrt(w[1]),
+        2.0 * math.sqrt(w[0]),
+        math.atan2(float(v[1, 1]), float(v[0, 1])),
+    )

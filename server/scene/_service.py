@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import math
 import threading
 import time
 from collections.abc import Iterator, Mapping, Sequence
@@ -26,7 +27,9 @@ from server.scene._agents import (
     agent_id,
     check_image,
     display_image,
+    ellipse_2sigma,
     parse_agent,
+    parse_covariance,
     parse_track,
 )
 from server.scene._geometry import (
@@ -181,6 +184,7 @@ class SceneService:
         self._dirty_floor = True
         self._agents: dict[str, AgentSpec] = {}
         self._tracks: dict[str, np.ndarray] = {}
+        self._track_covs: dict[str, np.ndarray] = {}  # covariance of a track's newest point
         self._images: dict[int, np.ndarray] = {}  # newest accepted BGR image per camera
         self._image_times: dict[int, float] = {}  # when it was accepted (time.monotonic)
         self._dirty_agents: set[str] = set()
@@ -342,21 +346,34 @@ class SceneService:
         with self._cond:
             self._agents.pop(ident, None)
             self._tracks.pop(ident, None)
+            self._track_covs.pop(ident, None)
             self._dirty_agents.add(ident)
             self._dirty_tracks.add(ident)
             self._cond.notify_all()
 
-    def set_track(self, id: str, points: Sequence[Sequence[float]]) -> None:
+    def set_track(
+        self,
+        id: str,
+        points: Sequence[Sequence[float]],
+        cov: Sequence[Sequence[float]] | None = None,
+    ) -> None:
         """Replace a target's track by the poly-line through `points` ([[x, y], ...], m), drawn
         just above the floor; only the newest MAX_TRACK_POINTS are kept, and an empty list
-        removes the track. Raises InvalidInput (nothing changes) for malformed points."""
+        removes the track. `cov`, the 2x2 covariance (m^2) of the newest point, is drawn as its
+        2-sigma ellipse there (a flat translucent disc, true size). Raises InvalidInput
+        (nothing changes) for malformed points or a covariance that is not one."""
         ident = agent_id(id)
         track = parse_track(points)
+        covariance = None if cov is None else parse_covariance(cov)
         with self._cond:
             if len(track):
                 self._tracks[ident] = track
             else:
                 self._tracks.pop(ident, None)
+            if covariance is not None and len(track):
+                self._track_covs[ident] = covariance
+            else:
+                self._track_covs.pop(ident, None)
             self._dirty_tracks.add(ident)
             self._cond.notify_all()
 
@@ -501,7 +518,9 @@ class SceneService:
                 cameras = dict(self._cameras)
                 rooms = list(self._rooms)
                 moved = {i: self._agents.get(i) for i in self._dirty_agents}
-                tracks = {i: self._tracks.get(i) for i in self._dirty_tracks}
+                tracks = {
+                    i: (self._tracks.get(i), self._track_covs.get(i)) for i in self._dirty_tracks
+                }
                 images = {i: self._images.get(i) for i in self._dirty_images}
                 self._dirty_agents, self._dirty_tracks, self._dirty_images = set(), set(), set()
                 self._busy = True
@@ -652,7 +671,7 @@ class SceneService:
             font_screen_scale=0.8,
         )
 
-    def _draw_tracks(self, tracks: dict[str, np.ndarray | None]) -> None:
+    def _draw_tracks(self, tracks: dict[str, tuple[np.ndarray | None, np.ndarray | None]]) -> None:
         server = self._server
         if server is None or not tracks:
             return
@@ -660,8 +679,10 @@ class SceneService:
         with self._cond:
             kinds = {i: a.kind for i, a in self._agents.items()}
         with server.atomic():
-            for ident, points in sorted(tracks.items()):
+            for ident, (points, cov) in sorted(tracks.items()):
                 node = f"/tracks/{ident}"
+                colour = _COLOR_TRACK.get(kinds.get(ident, ""), _COLOR_TRACK_UNKNOWN)
+                self._draw_uncertainty(server, ident, points, cov, colour)
                 if points is None or len(points) < 2:
                     server.scene.remove_by_name(node)
                     if points is None:
@@ -674,13 +695,42 @@ class SceneService:
                 server.scene.add_line_segments(
                     node,
                     points=np.concatenate([segments, height], axis=2),
-                    colors=_COLOR_TRACK.get(kinds.get(ident, ""), _COLOR_TRACK_UNKNOWN),
+                    colors=colour,
                     thickness=2.5,
                     thickness_units="screen",
                 )
                 drawn[ident] = points
         with self._cond:
             self._drawn_tracks = drawn
+
+    @staticmethod
+    def _draw_uncertainty(
+        server: Any,
+        ident: str,
+        points: np.ndarray | None,
+        cov: np.ndarray | None,
+        colour: tuple[int, int, int],
+    ) -> None:
+        """Draw the 2-sigma ellipse of a track's newest point: a unit disc scaled to the
+        semi-axes and turned to the major axis (viser cylinders stand along +Z)."""
+        node = f"/uncertainty/{ident}"
+        if points is None or not len(points) or cov is None:
+            server.scene.remove_by_name(node)
+            return
+        a, b, angle = ellipse_2sigma(cov)
+        x, y = (float(v) for v in points[-1])
+        server.scene.add_cylinder(
+            node,
+            radius=1.0,
+            height=0.004,
+            color=colour,
+            opacity=0.35,
+            scale=(max(a, 1e-5), max(b, 1e-5), 1.0),  # a zero scale breaks the mesh normals
+            wxyz=(math.cos(angle / 2), 0.0, 0.0, math.sin(angle / 2)),
+            position=(x, y, _TRACK_HEIGHT / 2),
+            cast_shadow=False,
+            receive_shadow=False,
+        )
 
     @staticmethod
     def _park_origin(rooms: list[RoomView]) -> tuple[float, float]:

@@ -269,3 +269,37 @@ def test_agent_updates_do_not_block_and_state_survives_a_restart():
         assert service.server.scene.get_handle_by_name("/tracks/robot-1") is not None
     finally:
         service.stop()
+
+
+def test_track_covariance_is_a_2_sigma_ellipse_at_the_newest_point(scene):
+    # A covariance with axes 3 cm and 1 cm (1 sigma), the major one at 30 degrees from +X.
+    angle = math.radians(30.0)
+    R = yaw(angle)[:2, :2]
+    cov = R @ np.diag([0.03**2, 0.01**2]) @ R.T
+    scene.upsert_agent({"id": "p1", "kind": "person", "x": 2.0, "y": 1.0})
+    scene.set_track("p1", [[0.0, 0.0], [1.0, 0.5], [2.0, 1.0]], cov=cov.tolist())
+    assert scene.flush()
+    disc = scene.server.scene.get_handle_by_name("/uncertainty/p1")
+    assert disc is not None and disc.radius == 1.0
+    # Semi-axes 2 sigma: 6 cm and 2 cm, to rounding of the eigen-decomposition.
+    np.testing.assert_allclose(disc.scale, [0.06, 0.02, 1.0], rtol=1e-12)
+    np.testing.assert_allclose(disc.position[:2], [2.0, 1.0], atol=1e-12)
+    major = matrix_from_quaternion(disc.wxyz) @ [1.0, 0.0, 0.0]
+    # The major axis is a direction, not a heading: compare up to sign.
+    assert abs(abs(major @ [math.cos(angle), math.sin(angle), 0.0]) - 1.0) < 1e-12
+
+    scene.set_track("p1", [[0.0, 0.0], [1.0, 0.5]])  # no covariance: the ellipse goes
+    assert scene.flush()
+    assert scene.server.scene.get_handle_by_name("/uncertainty/p1") is None
+    for bad in (
+        [[1.0, 0.2], [0.3, 1.0]],
+        [[-1.0, 0.0], [0.0, 1.0]],
+        [[1.0, 0.0]],
+        [[np.nan, 0], [0, 1]],
+    ):
+        with pytest.raises(InvalidInput, match="covariance"):
+            scene.set_track("p1", [[0.0, 0.0], [1.0, 0.5]], cov=bad)
+    scene.set_track("p1", [[0.0, 0.0], [1.0, 0.5]], cov=cov)
+    scene.remove_agent("p1")  # takes its track and ellipse with it
+    assert scene.flush()
+    assert scene.server.scene.get_handle_by_name("/uncertainty/p1") is None
