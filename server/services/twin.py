@@ -275,6 +275,7 @@ class Twin:
         self._cameras_loaded = 0.0
         self._last_scene = 0.0
         self._last_image = 0.0
+        self._tracks_shown: set[str] = set()
         self.steps = 0
         self.errors: list[float] = []
         self._detectors: dict[str, PersonDetector] = {}
@@ -542,6 +543,9 @@ class Twin:
     # -- the 3D scene ------------------------------------------------------------------------
 
     def _push_scene(self, state: WorldState, frames: dict[int, CameraFrame]) -> None:
+        """Send the agents (true poses), the tracks (estimates) and the camera images to the
+        3D scene, at most `_SCENE_HZ` times a second; the scene only records them and returns,
+        its own thread draws."""
         scene = self._scene_sync.scene if self._scene_sync is not None else None
         if scene is None:
             return
@@ -551,7 +555,7 @@ class Twin:
         self._last_scene = now
         try:
             robot = self.scene.robot
-            if state.robot is not None and robot is not None and hasattr(scene, "upsert_agent"):
+            if state.robot is not None and robot is not None:
                 scene.upsert_agent(
                     {
                         "id": "robot",
@@ -563,25 +567,26 @@ class Twin:
                         "height": robot.base_height,
                     }
                 )
-            if hasattr(scene, "upsert_agent"):
-                for walker, (x, y) in zip(self.scene.people, state.people, strict=True):
-                    scene.upsert_agent(
-                        {
-                            "id": f"walker-{walker.name}",
-                            "kind": "person",
-                            "x": x,
-                            "y": y,
-                            "theta": 0.0,
-                            "radius": walker.radius,
-                            "height": walker.height,
-                        }
-                    )
-            if hasattr(scene, "set_track"):
-                _, items = self._targets.snapshot()
-                for item in items:
-                    if item["kind"] in ("robot", "person"):
-                        scene.set_track(item["label"], self._targets.track(item["label"])[-300:])
-            if hasattr(scene, "set_camera_image") and now - self._last_image >= 1.0 / _IMAGE_HZ:
+            for walker, (x, y) in zip(self.scene.people, state.people, strict=True):
+                scene.upsert_agent(
+                    {
+                        "id": f"walker-{walker.name}",
+                        "kind": "person",
+                        "x": x,
+                        "y": y,
+                        "theta": 0.0,
+                        "radius": walker.radius,
+                        "height": walker.height,
+                    }
+                )
+            _, items = self._targets.snapshot()
+            shown = {i["label"] for i in items if i["kind"] in ("robot", "person")}
+            for label in shown:
+                scene.set_track(label, self._targets.track(label)[-300:])
+            for label in self._tracks_shown - shown:
+                scene.set_track(label, [])  # a track that ended
+            self._tracks_shown = shown
+            if now - self._last_image >= 1.0 / _IMAGE_HZ:
                 self._last_image = now
                 for frame in frames.values():
                     scene.set_camera_image(frame.camera_id, frame.image)

@@ -149,3 +149,35 @@ def test_network_run_needs_the_twin(client, admin):
     assert response.status_code == 409 and "INTSPACE_SIMULATION" in response.json()["detail"]
     bad = {"kind": "network", "options": {"target": "board"}}
     assert client.post("/api/v1/calibration-runs", json=bad, headers=admin).status_code == 422
+
+
+class _SceneRecorder:
+    """Stands in for the 3D scene: records every call by method name."""
+
+    def __init__(self) -> None:
+        self.calls: dict[str, list[tuple]] = {}
+
+    def __getattr__(self, name):
+        def record(*args):
+            self.calls.setdefault(name, []).append(args)
+            return True
+
+        return record
+
+
+def test_twin_pushes_agents_tracks_and_images_to_the_scene(twin_client, admin):
+    recorder = _SceneRecorder()
+    twin_client.app.state.scene_sync.scene = recorder
+
+    def pushed():
+        return {"upsert_agent", "set_track", "set_camera_image"} <= set(recorder.calls)
+
+    _wait(pushed)
+    agents = {args[0]["id"]: args[0] for args in recorder.calls["upsert_agent"]}
+    assert agents["robot"]["kind"] == "robot" and "theta" in agents["robot"]
+    assert any(a["kind"] == "person" for a in agents.values())
+    robot_tracks = [args[1] for args in recorder.calls["set_track"] if args[0] == "robot"]
+    assert robot_tracks and all(len(p) == 2 for p in robot_tracks[-1])
+    camera_id, image = recorder.calls["set_camera_image"][0]
+    assert camera_id in twin_client.app.state.twin.camera_ids.values()
+    assert image.shape == (480, 640, 3)
