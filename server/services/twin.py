@@ -580,9 +580,10 @@ class Twin:
                     }
                 )
             _, items = self._targets.snapshot()
-            shown = {i["label"] for i in items if i["kind"] in ("robot", "person")}
-            for label in shown:
-                scene.set_track(label, self._targets.track(label)[-300:])
+            live = {i["label"]: i for i in items if i["kind"] in ("robot", "person")}
+            shown = set(live)
+            for label, item in live.items():
+                scene.set_track(label, self._targets.track(label)[-300:], item["cov"])
             for label in self._tracks_shown - shown:
                 scene.set_track(label, [])  # a track that ended
             self._tracks_shown = shown

@@ -176,8 +176,9 @@ def test_twin_pushes_agents_tracks_and_images_to_the_scene(twin_client, admin):
     agents = {args[0]["id"]: args[0] for args in recorder.calls["upsert_agent"]}
     assert agents["robot"]["kind"] == "robot" and "theta" in agents["robot"]
     assert any(a["kind"] == "person" for a in agents.values())
-    robot_tracks = [args[1] for args in recorder.calls["set_track"] if args[0] == "robot"]
-    assert robot_tracks and all(len(p) == 2 for p in robot_tracks[-1])
+    robot_tracks = [args for args in recorder.calls["set_track"] if args[0] == "robot"]
+    assert robot_tracks and all(len(p) == 2 for p in robot_tracks[-1][1])
+    assert np.array(robot_tracks[-1][2]).shape == (2, 2)  # the newest point's covariance
     camera_id, image = recorder.calls["set_camera_image"][0]
     assert camera_id in twin_client.app.state.twin.camera_ids.values()
     assert image.shape == (480, 640, 3)
