@@ -25,7 +25,7 @@ def list_cameras(
     session: SessionDep,
     page: PageDep,
     space_id: Annotated[int | None, Query(ge=1, le=MAX_ID)] = None,
-    status: Annotated[Literal["uncalibrated", "calibrated"] | None, Query()] = None,
+    status: Annotated[Literal["uncalibrated", "nominal", "calibrated"] | None, Query()] = None,
 ):
     """Return a page of cameras, optionally of one space or one status."""
     stmt = select(Camera).order_by(Camera.id)
