@@ -113,6 +113,9 @@ def test_first_page_interactive_and_sign_in(
     page.get_by_test_id("sign-out").click()
     expect(page.get_by_test_id("token-input")).to_be_visible()
     assert page.evaluate("localStorage.getItem('intspace.token')") is None
+    # Wait until the signed-out page has had all its refusals: one still in flight when the
+    # stored token below is set would make this page drop that token before the reload.
+    expect(page.get_by_test_id("page-error")).to_contain_text("access token")
 
     # A stored token the service no longer accepts is dropped, and the page says so.
     page.evaluate("localStorage.setItem('intspace.token', 'revoked-token')")
