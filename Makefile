@@ -15,7 +15,7 @@ $(STAMP): pyproject.toml
 	@touch $(STAMP)
 
 run: $(STAMP)
-	$(VENV)/bin/intspace serve
+	INTSPACE_SIMULATION=$${INTSPACE_SIMULATION:-true} $(VENV)/bin/intspace serve
 
 test: $(STAMP)
 	$(PY) -m pytest -q

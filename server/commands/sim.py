@@ -42,8 +42,9 @@ def _fail(msg: str) -> int:
 
 
 def _list(args: argparse.Namespace) -> int:
+    width = max(len(name) for name in SCENARIOS) + 2
     for name in SCENARIOS:
-        print(f"{name:24s} {DESCRIPTIONS.get(name, '')}")
+        print(f"{name:{width}s}{DESCRIPTIONS.get(name, '')}")
     return 0
 
 
