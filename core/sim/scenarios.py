@@ -184,6 +184,92 @@ def _true_network(renderer: Renderer) -> list[tuple[CameraModel, NetworkCamera]]
     return out
 
 
+@dataclass(frozen=True)
+class MarkerDrive:
+    """What a marker calibration drive produced: the network calibration, the scene's true
+    cameras (for errors against the twin), the number of stops and which camera saw which stop
+    (C, M)."""
+
+    calibration: Any  # core.calibration.network.NetworkCalibration
+    true_cameras: tuple[CameraModel, ...]
+    poses: int
+    seen: NDArray[np.bool_]
+
+
+def drive_marker_calibration(
+    scene: Scene,
+    seed: int,
+    *,
+    spacing: float = 0.3,
+    placement_sigma: float = 0.002,
+    noise: SensorNoise | None = _DEFAULT_NOISE,
+    min_poses: int = 8,
+    camera_poses: dict[str, int] | None = None,
+    refine_targets: bool = True,
+    renderer: Renderer | None = None,
+) -> MarkerDrive:
+    """Return the network calibration from driving the robot's marker over the free floor.
+
+    Programme: a grid of floor poses `spacing` metres apart (jittered, random yaw), stop and go;
+    the robot stops within `placement_sigma` metres (per axis, Gaussian) of each scripted pose,
+    which is what the calibration is told, with that standard deviation as its prior. Every
+    camera renders every stop and the marker is detected in the image (no ground truth); the
+    principal points and lens distortion are the scene's, as the marker kind requires.
+    `camera_poses` optionally caps how many stops a named camera sees; `renderer` reuses one
+    whose static layers are built. Raises InvalidInput for a scene without cameras or marker.
+    """
+    if scene.robot is None or scene.robot.marker is None:
+        raise InvalidInput("network-calibration needs a scene whose robot carries a marker")
+    if not scene.cameras:
+        raise InvalidInput("network-calibration needs a scene with cameras")
+    rng = np.random.default_rng(seed)
+    renderer = renderer or Renderer(scene)
+    marker = scene.robot.marker
+    grid = _free_floor_grid(scene, spacing, scene.robot.base_radius + 0.05)
+    grid = grid + rng.uniform(-0.1, 0.1, grid.shape) * spacing
+    yaw = rng.uniform(-math.pi, math.pi, len(grid))
+    truth = grid + placement_sigma * rng.standard_normal(grid.shape)
+    # The marker's floor position for a robot pose (x, y, yaw): its offset turned by yaw.
+    off = np.array(marker.offset)
+    c, s = np.cos(yaw), np.sin(yaw)
+    rot_off = np.stack([c * off[0] - s * off[1], s * off[0] + c * off[1]], 1)
+    cams = [renderer.camera(cs.name) for cs in scene.cameras]
+    C, M = len(cams), len(grid)
+    pixels = np.zeros((C, M, 2))
+    cov = np.tile(np.eye(2), (C, M, 1, 1))
+    seen = np.zeros((C, M), bool)
+    cfg = MarkerDetectorConfig(colour=marker.colour)
+    for j in range(M):
+        state = world_state(scene, 0.0, Pose2D(float(truth[j, 0]), float(truth[j, 1]), yaw[j]))
+        for k, cam in enumerate(cams):
+            frame = renderer.render(cam.name, state, rng=rng, noise=noise)
+            det = detect_marker(frame.image, cfg)
+            if det is not None:
+                pixels[k, j], cov[k, j], seen[k, j] = det.pixel, det.cov, True
+    for name, cap in (camera_poses or {}).items():
+        k = [cm.name for cm in cams].index(name)
+        idx = np.flatnonzero(seen[k])
+        seen[k, idx[cap:]] = False
+    net = calibrate_network_marker(
+        [cm.name for cm in cams],
+        [cm.K[:2, 2] for cm in cams],
+        [cm.dist for cm in cams],
+        pixels,
+        seen,
+        grid + rot_off,
+        marker.height,
+        pixel_cov=cov,
+        target_sigma=placement_sigma if refine_targets else 0.0,
+        min_poses=min_poses,
+    )
+    return MarkerDrive(net, tuple(cams), M, seen)
+
+
+def rotation_error_deg(Ra: Array, Rb: Array) -> float:
+    """Return the angle (degrees) of the rotation Ra Rb^T between two rotation matrices."""
+    return _rotation_angle_deg(Ra, Rb)
+
+
 # --------------------------------------------------------------------------------------------
 # Scenarios
 
@@ -225,51 +311,17 @@ def network_calibration(
         )
     if target != "marker":
         raise InvalidInput(f"unknown calibration target {target!r}; use 'marker' or 'board'")
-    scene = scene or default_scene()
-    if scene.robot is None or scene.robot.marker is None:
-        raise InvalidInput("network-calibration needs a scene whose robot carries a marker")
-    if not scene.cameras:
-        raise InvalidInput("network-calibration needs a scene with cameras")
-    rng = np.random.default_rng(seed)
-    renderer = Renderer(scene)
-    marker = scene.robot.marker
-    grid = _free_floor_grid(scene, spacing, scene.robot.base_radius + 0.05)
-    grid = grid + rng.uniform(-0.1, 0.1, grid.shape) * spacing
-    yaw = rng.uniform(-math.pi, math.pi, len(grid))
-    truth = grid + placement_sigma * rng.standard_normal(grid.shape)
-    # The marker's floor position for a robot pose (x, y, yaw): its offset turned by yaw.
-    off = np.array(marker.offset)
-    c, s = np.cos(yaw), np.sin(yaw)
-    rot_off = np.stack([c * off[0] - s * off[1], s * off[0] + c * off[1]], 1)
-    cams = [renderer.camera(cs.name) for cs in scene.cameras]
-    C, M = len(cams), len(grid)
-    pixels = np.zeros((C, M, 2))
-    cov = np.tile(np.eye(2), (C, M, 1, 1))
-    seen = np.zeros((C, M), bool)
-    cfg = MarkerDetectorConfig(colour=marker.colour)
-    for j in range(M):
-        state = world_state(scene, 0.0, Pose2D(float(truth[j, 0]), float(truth[j, 1]), yaw[j]))
-        for k, cam in enumerate(cams):
-            frame = renderer.render(cam.name, state, rng=rng, noise=noise)
-            det = detect_marker(frame.image, cfg)
-            if det is not None:
-                pixels[k, j], cov[k, j], seen[k, j] = det.pixel, det.cov, True
-    for name, cap in (camera_poses or {}).items():
-        k = [cm.name for cm in cams].index(name)
-        idx = np.flatnonzero(seen[k])
-        seen[k, idx[cap:]] = False
-    net = calibrate_network_marker(
-        [cm.name for cm in cams],
-        [cm.K[:2, 2] for cm in cams],
-        [cm.dist for cm in cams],
-        pixels,
-        seen,
-        grid + rot_off,
-        marker.height,
-        pixel_cov=cov,
-        target_sigma=placement_sigma if refine_targets else 0.0,
+    drive = drive_marker_calibration(
+        scene or default_scene(),
+        seed,
+        spacing=spacing,
+        placement_sigma=placement_sigma,
+        noise=noise,
         min_poses=min_poses,
+        camera_poses=camera_poses,
+        refine_targets=refine_targets,
     )
+    net, cams, M, seen = drive.calibration, drive.true_cameras, drive.poses, drive.seen
     errors = []
     for cal in net.cameras:
         true = next(cm for cm in cams if cm.name == cal.name)

@@ -24,13 +24,11 @@ import numpy as np
 from sqlalchemy import select
 from sqlalchemy.orm import Session, sessionmaker
 
-from core.calibration.network import calibrate_network_marker
 from core.errors import InvalidInput
-from core.geometry.rotations import matrix_to_rotvec
 from core.localization import NetworkCamera, locate_ml
 from core.localization.detect import MarkerDetectorConfig, PersonDetector, detect_marker
 from core.localization.tracking import FloorTracker, TrackerConfig
-from core.sim import Pose2D, Scene, SensorNoise, UnicycleBase, WorldState, world_state
+from core.sim import Scene, SensorNoise, UnicycleBase, WorldState, world_state
 from core.sim.motion import Patrol
 from core.sim.render import camera_model, renderer_for
 from server.db.models import Camera, Robot, Room, Space
@@ -136,56 +134,26 @@ def registry_cameras(
 # Network calibration drive
 
 
-def _rotation_deg(Ra: np.ndarray, Rb: np.ndarray) -> float:
-    return float(np.degrees(np.linalg.norm(matrix_to_rotvec((Ra @ Rb.T)[None])[0])))
-
-
 def network_calibration_drive(
     scene: Scene, seed: int, *, spacing: float = 0.3, placement_sigma: float = 0.002
 ) -> dict[str, Any]:
     """Return the result of calibrating the scene's cameras by driving the robot's marker over
     a grid of stops (the twin's network-calibration scenario, core.sim.scenarios), with each
     calibrated camera's K, dist, T_world_camera, std, rms and its errors against the twin."""
-    from core.sim.scenarios import _free_floor_grid
+    from core.sim.scenarios import drive_marker_calibration, rotation_error_deg
 
     if scene.robot is None or scene.robot.marker is None:
         raise InvalidInput("the twin's robot carries no marker to calibrate the network with")
-    rng = np.random.default_rng(seed)
     # Shared with the running twin: the static layer of each camera is built once.
-    renderer = renderer_for(scene)
-    marker = scene.robot.marker
-    grid = _free_floor_grid(scene, spacing, scene.robot.base_radius + 0.05)
-    grid = grid + rng.uniform(-0.1, 0.1, grid.shape) * spacing
-    yaw = rng.uniform(-math.pi, math.pi, len(grid))
-    truth = grid + placement_sigma * rng.standard_normal(grid.shape)
-    off = np.array(marker.offset)
-    c, s = np.cos(yaw), np.sin(yaw)
-    rot_off = np.stack([c * off[0] - s * off[1], s * off[0] + c * off[1]], 1)
-    cams = [renderer.camera(cs.name) for cs in scene.cameras]
-    C, M = len(cams), len(grid)
-    pixels = np.zeros((C, M, 2))
-    cov = np.tile(np.eye(2), (C, M, 1, 1))
-    seen = np.zeros((C, M), bool)
-    cfg = MarkerDetectorConfig(colour=marker.colour)
-    for j in range(M):
-        state = world_state(scene, 0.0, Pose2D(float(truth[j, 0]), float(truth[j, 1]), yaw[j]))
-        for k, cam in enumerate(cams):
-            frame = renderer.render(cam.name, state, rng=rng, noise=SensorNoise())
-            det = detect_marker(frame.image, cfg)
-            if det is not None:
-                pixels[k, j], cov[k, j], seen[k, j] = det.pixel, det.cov, True
-    net = calibrate_network_marker(
-        [cm.name for cm in cams],
-        [cm.K[:2, 2] for cm in cams],
-        [cm.dist for cm in cams],
-        pixels,
-        seen,
-        grid + rot_off,
-        marker.height,
-        pixel_cov=cov,
-        target_sigma=placement_sigma,
-        min_poses=8,
+    drive = drive_marker_calibration(
+        scene,
+        seed,
+        spacing=spacing,
+        placement_sigma=placement_sigma,
+        noise=SensorNoise(),
+        renderer=renderer_for(scene),
     )
+    net, cams = drive.calibration, drive.true_cameras
     cameras = []
     for cal in net.cameras:
         true = next(cm for cm in cams if cm.name == cal.name)
@@ -206,7 +174,7 @@ def network_calibration_drive(
                 "errors": {
                     "focal_pct": float(100 * (cal.focal - f_true) / f_true),
                     "position_m": float(np.linalg.norm(cal.position - true.position)),
-                    "rotation_deg": _rotation_deg(cal.R, true.R_camera_world),
+                    "rotation_deg": rotation_error_deg(cal.R, true.R_camera_world),
                 },
                 "image_size": [true.width, true.height],
             }
@@ -214,8 +182,8 @@ def network_calibration_drive(
     return {
         "kind": "network",
         "target": "marker",
-        "poses": M,
-        "detections": int(seen.sum()),
+        "poses": drive.poses,
+        "detections": int(drive.seen.sum()),
         "rms": float(net.rms),
         "cameras": cameras,
         "rejected": [
