@@ -265,9 +265,25 @@ def drive_marker_calibration(
     return MarkerDrive(net, tuple(cams), M, seen)
 
 
-def rotation_error_deg(Ra: Array, Rb: Array) -> float:
-    """Return the angle (degrees) of the rotation Ra Rb^T between two rotation matrices."""
-    return _rotation_angle_deg(Ra, Rb)
+@dataclass(frozen=True)
+class PoseErrors:
+    """Errors of a calibrated camera against the twin's true camera: focal length (% of the
+    true mean focal length), position (m) and orientation (degrees)."""
+
+    focal_pct: float
+    position_m: float
+    rotation_deg: float
+
+
+def calibration_errors(cal: Any, true: CameraModel) -> PoseErrors:
+    """Return the errors of `cal` (a core.calibration.network.CalibratedCamera) against the
+    scene's camera `true`."""
+    f_true = 0.5 * (true.K[0, 0] + true.K[1, 1])
+    return PoseErrors(
+        focal_pct=float(100 * (cal.focal - f_true) / f_true),
+        position_m=float(np.linalg.norm(cal.position - true.position)),
+        rotation_deg=_rotation_angle_deg(cal.R, true.R_camera_world),
+    )
 
 
 # --------------------------------------------------------------------------------------------
@@ -325,13 +341,13 @@ def network_calibration(
     errors = []
     for cal in net.cameras:
         true = next(cm for cm in cams if cm.name == cal.name)
-        f_true = 0.5 * (true.K[0, 0] + true.K[1, 1])
+        err = calibration_errors(cal, true)
         errors.append(
             CameraCalibrationError(
                 name=cal.name,
-                focal_error_pct=float(100 * (cal.focal - f_true) / f_true),
-                position_error_m=float(np.linalg.norm(cal.position - true.position)),
-                rotation_error_deg=_rotation_angle_deg(cal.R, true.R_camera_world),
+                focal_error_pct=err.focal_pct,
+                position_error_m=err.position_m,
+                rotation_error_deg=err.rotation_deg,
                 poses_seen=cal.poses_seen,
                 rms_px=cal.rms,
             )
@@ -550,13 +566,13 @@ def network_calibration_board(
     k_of = {cm.name: k for k, cm in enumerate(cams)}
     for cal in net.cameras:
         true = next(cm for cm in cams if cm.name == cal.name)
-        f_true = 0.5 * (true.K[0, 0] + true.K[1, 1])
+        err = calibration_errors(cal, true)
         errors.append(
             CameraCalibrationError(
                 name=cal.name,
-                focal_error_pct=float(100 * (cal.focal - f_true) / f_true),
-                position_error_m=float(np.linalg.norm(cal.position - true.position)),
-                rotation_error_deg=_rotation_angle_deg(cal.R, true.R_camera_world),
+                focal_error_pct=err.focal_pct,
+                position_error_m=err.position_m,
+                rotation_error_deg=err.rotation_deg,
                 poses_seen=cal.poses_seen,
                 rms_px=cal.rms,
                 principal_point_error_px=float(np.linalg.norm(cal.K[:2, 2] - true.K[:2, 2])),

@@ -140,7 +140,7 @@ def network_calibration_drive(
     """Return the result of calibrating the scene's cameras by driving the robot's marker over
     a grid of stops (the twin's network-calibration scenario, core.sim.scenarios), with each
     calibrated camera's K, dist, T_world_camera, std, rms and its errors against the twin."""
-    from core.sim.scenarios import drive_marker_calibration, rotation_error_deg
+    from core.sim.scenarios import calibration_errors, drive_marker_calibration
 
     if scene.robot is None or scene.robot.marker is None:
         raise InvalidInput("the twin's robot carries no marker to calibrate the network with")
@@ -157,7 +157,7 @@ def network_calibration_drive(
     cameras = []
     for cal in net.cameras:
         true = next(cm for cm in cams if cm.name == cal.name)
-        f_true = 0.5 * (true.K[0, 0] + true.K[1, 1])
+        err = calibration_errors(cal, true)
         cameras.append(
             {
                 "name": cal.name,
@@ -172,9 +172,9 @@ def network_calibration_drive(
                 "rms": cal.rms,
                 "poses_seen": cal.poses_seen,
                 "errors": {
-                    "focal_pct": float(100 * (cal.focal - f_true) / f_true),
-                    "position_m": float(np.linalg.norm(cal.position - true.position)),
-                    "rotation_deg": rotation_error_deg(cal.R, true.R_camera_world),
+                    "focal_pct": err.focal_pct,
+                    "position_m": err.position_m,
+                    "rotation_deg": err.rotation_deg,
                 },
                 "image_size": [true.width, true.height],
             }
