@@ -1,4 +1,9 @@
-"""Maps of the space: the coverage-and-accuracy map of the camera network (JSON or PNG)."""
+"""Maps of the space: the coverage-and-accuracy map of the camera network (JSON or PNG).
+
+The map honours occlusion by the home's walls and furniture when the space is the digital
+twin's home (its floor plan is the twin scene's); other spaces have no floor plan in the
+registry yet, so their map counts every camera that images a cell.
+"""
 
 from __future__ import annotations
 
@@ -6,18 +11,53 @@ from typing import Annotated, Literal
 
 import cv2
 import numpy as np
-from fastapi import APIRouter, HTTPException, Query, status
+from fastapi import APIRouter, HTTPException, Query, Request, status
 from fastapi.responses import JSONResponse, Response
 from sqlalchemy import select
+from sqlalchemy.orm import Session
 
 from core.localization import coverage_map
+from core.sim import Scene, default_scene
+from core.sim.occluders import scene_occluders
 from server.api.deps import ReadAccess, SessionDep
 from server.api.errors import PROBLEM_RESPONSES
 from server.db.models import Camera, Room, Space
 from server.schemas.common import MAX_ID
 from server.services.twin import registry_cameras
 
+# The PNG's map part is at most this many pixels (about 75 MB of BGR while it is drawn).
+_MAX_PNG_PIXELS = 25_000_000
+
 router = APIRouter(prefix="/maps", tags=["maps"], responses=PROBLEM_RESPONSES)
+
+
+def _floor_plan(request: Request, session: Session, space_id: int) -> Scene | None:
+    """Return the twin scene whose walls and furniture stand in the space, or None.
+
+    The running twin's scene when the twin lives in this space; otherwise the default home when
+    the space is its registered copy (the service was run with the twin before): same name and
+    the very same rooms, polygon for polygon.
+    """
+    twin = getattr(request.app.state, "twin", None)
+    if twin is not None and twin.space_id == space_id:
+        return twin.scene
+    scene = default_scene()
+    space = session.get(Space, space_id)
+    if space is None or space.name != scene.name:
+        return None
+    # Sorted here, not by the database, whose collation may order names differently.
+    rows = sorted(
+        session.execute(select(Room.name, Room.polygon).where(Room.space_id == space_id)).all(),
+        key=lambda row: str(row[0]),
+    )
+    want = sorted(scene.rooms, key=lambda r: r.name)
+    same = len(rows) == len(want) and all(
+        name == r.name
+        and np.shape(polygon) == (len(r.polygon), 2)
+        and np.allclose(polygon, r.polygon, rtol=0.0, atol=1e-9)
+        for (name, polygon), r in zip(rows, want, strict=False)
+    )
+    return scene if same else None
 
 
 @router.get(
@@ -26,6 +66,7 @@ router = APIRouter(prefix="/maps", tags=["maps"], responses=PROBLEM_RESPONSES)
     responses={200: {"content": {"application/json": {}, "image/png": {}}}},
 )
 def get_coverage(
+    request: Request,
     session: SessionDep,
     space_id: Annotated[int | None, Query(ge=1, le=MAX_ID)] = None,
     spacing: Annotated[float, Query(ge=0.02, le=5.0, description="Cell size, metres.")] = 0.1,
@@ -33,10 +74,21 @@ def get_coverage(
     pixel_sigma: Annotated[float, Query(gt=0, le=100, description="Detection noise, px.")] = 1.0,
     format: Annotated[Literal["json", "png"], Query()] = "json",
     scale: Annotated[int, Query(ge=1, le=40, description="PNG pixels per cell.")] = 8,
+    max_std: Annotated[
+        float | None,
+        Query(gt=0, le=100, description="PNG colour scale's upper end, metres of CRB std."),
+    ] = None,
 ) -> Response:
     """Return, over the floor bounds of the space's rooms, how many posed cameras see each cell
-    and the Cramer-Rao standard deviation of a position there (core.localization.coverage_map);
-    JSON, or a heat map PNG (bright = accurate, black = unseen)."""
+    and the Cramer-Rao standard deviation of a position there (core.localization.coverage_map).
+
+    A camera counts for a cell only when nothing stands between them: in the digital twin's
+    home its walls (with their doors) and furniture hide the floor behind them. JSON (with
+    `fraction_hidden`, the share of the (camera, cell) pairs in a camera's image that an
+    occluder hides, `occlusion` naming the floor plan used or null, and `occluders`, their
+    footprints), or a PNG floor plan: the heat map (bright = accurate, black = unseen, a grey
+    dot where only one camera sees), the walls in white, furniture outlined, and on the right
+    the colour scale in metres of CRB std and the legend."""
     if space_id is None:
         space_id = session.scalar(select(Space.id).order_by(Space.id).limit(1))
         if space_id is None:
@@ -63,6 +115,13 @@ def get_coverage(
             status.HTTP_422_UNPROCESSABLE_ENTITY,
             detail=f"spacing {spacing} m gives {cells:.0f} cells; use a larger spacing",
         )
+    if format == "png" and cells * scale**2 > _MAX_PNG_PIXELS:
+        raise HTTPException(
+            status.HTTP_422_UNPROCESSABLE_ENTITY,
+            detail=f"a {cells:.0f}-cell map at scale {scale} is too large a PNG; "
+            "use a larger spacing or a smaller scale",
+        )
+    plan = _floor_plan(request, session, space_id)
     cov = coverage_map(
         list(cameras.values()),
         (float(lo[0]), float(hi[0])),
@@ -70,15 +129,14 @@ def get_coverage(
         spacing=spacing,
         height=height,
         pixel_sigma=pixel_sigma,
+        occluders=None if plan is None else scene_occluders(plan),
     )
     if format == "png":
-        img = cov.heatmap()
-        # Rows are y growing downwards; flip so that +y points up as on a floor plan.
-        img = cv2.resize(img[::-1], None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST)
-        _, png = cv2.imencode(".png", img)
+        _, png = cv2.imencode(".png", cov.plan_image(scale, max_std=max_std))
         return Response(png.tobytes(), media_type="image/png")
     body = cov.to_dict()
     body.pop("seen_by")
+    body["occlusion"] = None if plan is None else f"twin scene {plan.name!r}"
     body["space_id"] = space_id
     body["camera_ids"] = list(cameras)
     body["fraction_covered"] = {"1": cov.fraction_covered(1), "2": cov.fraction_covered(2)}
