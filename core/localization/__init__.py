@@ -4,13 +4,17 @@ Cameras are described by `NetworkCamera`. The estimators (`locate_monocular`,
 `triangulate_linear`, `triangulate_on_plane`, `locate_ml`) take pixels (C, B, 2) from C cameras
 for B targets and return a `FloorEstimate` with covariances; `cramer_rao_bound` gives the best
 covariance any unbiased estimator can reach; `coverage_map` maps camera count and that bound
-over a floor grid; `FloorTracker` follows targets over time with Kalman filters and
-cross-camera association.
+over a floor grid, counting only cameras with a clear line of sight past walls and furniture
+(`Occluders`); `detect_frame` turns one camera image into the robot's and the people's
+detections; `Tracker` follows bodies over time with one asynchronous EKF fed by each camera's
+detections as they arrive.
 """
 
 from core.localization.bounds import CramerRaoBound, cramer_rao_bound
 from core.localization.cameras import NetworkCamera
 from core.localization.coverage import CoverageMap, coverage_map
+from core.localization.detect import BodyDetection, BodyModel, locate_body_axis
+from core.localization.detections import FrameDetection, detect_frame
 from core.localization.ground import (
     FloorEstimate,
     PointStatus,
@@ -19,33 +23,44 @@ from core.localization.ground import (
     triangulate_linear,
     triangulate_on_plane,
 )
+from core.localization.occluders import Box, DoorGap, Occluders, Wall, line_of_sight
 from core.localization.tracking import (
-    FloorTracker,
-    FrameAssociation,
+    FrameResult,
+    ReorderBuffer,
+    Tracker,
     TrackerConfig,
-    TrackPoint,
     TrackSnapshot,
-    TrackStatus,
+    TrackState,
     cv_process_noise,
     cv_transition,
 )
 
 __all__ = [
+    "BodyDetection",
+    "BodyModel",
+    "Box",
     "CoverageMap",
     "CramerRaoBound",
+    "DoorGap",
     "FloorEstimate",
-    "FloorTracker",
-    "FrameAssociation",
+    "FrameDetection",
+    "FrameResult",
     "NetworkCamera",
+    "Occluders",
     "PointStatus",
-    "TrackPoint",
+    "ReorderBuffer",
     "TrackSnapshot",
-    "TrackStatus",
+    "TrackState",
+    "Tracker",
     "TrackerConfig",
+    "Wall",
     "coverage_map",
     "cramer_rao_bound",
     "cv_process_noise",
     "cv_transition",
+    "detect_frame",
+    "line_of_sight",
+    "locate_body_axis",
     "locate_ml",
     "locate_monocular",
     "triangulate_linear",

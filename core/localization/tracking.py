@@ -1,49 +1,72 @@
-"""Multi-target tracking on the floor: constant-velocity Kalman filters with GNN association.
+"""Multi-target tracking on the floor from unsynchronised cameras: one asynchronous EKF.
 
-Each track is a target moving on the plane Z = h with the state s = (x, y, vx, vy) (m, m/s)
-and its covariance P (4 x 4). Between frames the state follows the continuous white noise
-acceleration model (Bar-Shalom, Li & Kirubarajan, "Estimation with Applications to Tracking and
-Navigation", 2001, sec. 6.2.2): per axis
+Each track is a body moving on the floor with the state s = (x, y, vx, vy) (m, m/s) and its
+covariance P (4 x 4). Between two updates, whatever their spacing, the state follows the
+continuous white noise acceleration model (Bar-Shalom, Li & Kirubarajan, "Estimation with
+Applications to Tracking and Navigation", 2001, sec. 6.2.2): per axis
 
     F(dt) = [[1, dt], [0, 1]],    Q(dt) = q [[dt^3 / 3, dt^2 / 2], [dt^2 / 2, dt]],
 
-with q the power spectral density of the acceleration (m^2 / s^3), so any time step, regular or
-not, is one prediction s <- F s, P <- F P F^T + Q. A measurement is a floor position z (2,)
-with its covariance R (2 x 2), H = [I 0]; the update is the Kalman filter's in Joseph form
-(ibid. sec. 5.2), which keeps P symmetric positive definite in floating point.
+with q the power spectral density of the acceleration (m^2 / s^3). Q is the integral of the
+continuous noise over the elapsed time, so frames that arrive milliseconds apart add
+milliseconds' worth of uncertainty and a camera that reports after a second adds a second's: the
+filter is the same whether the cameras are synchronised or not.
 
-Association per frame is global nearest neighbour: the cost of measurement j for track i is
-d2 + ln det S, with d2 = nu^T S^-1 nu the squared Mahalanobis distance of the innovation
-nu = z_j - H s_i (S = H P H^T + R), i.e. the negative log-likelihood up to a constant, so a
-vague track does not win a detection over a precise one merely by its wide gate. Pairs with
-d2 above the chi-square gate (2 dof; 9.21 keeps 99 % of true detections) are forbidden, and
-scipy.optimize.linear_sum_assignment solves the rest, in rounds. First the measurements with a
-label (e.g. "robot"): each can only go to the track with that label, and is not gated, as the
-label already says which target it is. Then the unlabelled measurements, which may go to any
-track (a missing label says nothing), to the confirmed tracks first and the tentative ones with
-what is left, so that a track started by a false detection next to a target cannot take that
-target's detection.
+A detection is a pixel u (2,) with its covariance R (2 x 2) of a point of the body at a known
+height h above the floor (the robot's marker, a person's axis point), seen by one camera k at
+time t. The measurement function is that camera's projection of (x, y, h), with lens distortion
+(core.localization._projection.project_plane), so the update is the extended Kalman filter's
+(ibid. sec. 10.3.2) with H = [J 0], J = d pi_k(x, y, h) / d(x, y) at the prediction, in Joseph
+form. One camera's detection moves a track along the directions that camera resolves; the
+next camera's, milliseconds later, along its own: a body seen by one camera is tracked, one
+seen by several is fused, and no detections are grouped across cameras.
 
-Track life: a measurement no track takes starts a tentative track (position from z, speed
-unknown: N(0, `initial_speed_std`^2) per axis), unless it is so close to an existing track
-(d2 below `birth_gate`) that it is that target's outlier rather than a new one. A tentative
-track is confirmed when it has been updated in `confirm_hits` (M) of its first
-`confirm_window` (N) frames, deleted otherwise; any track is deleted when it has not been
-updated for more than `max_miss_time` seconds.
+Where two confirmed tracks could both explain a detection almost equally well (their costs
+within `ambiguity`), the detection keeps the track alive but does not move it: crossing
+bodies coast through the crossing on their own velocities instead of being pulled onto each
+other's paths, which is what swaps identities.
 
-Two entry points per frame: `FloorTracker.update` takes floor positions (from the estimators
-of core.localization.ground); `FloorTracker.update_detections` takes raw per-camera pixel
-detections, associates them with the tracks camera by camera (reprojecting each predicted
-track and its covariance into the image), fuses each track's cross-camera group by maximum
-likelihood on the plane (`locate_ml`), and groups the leftover detections of different cameras
-into new targets by the Mahalanobis consistency of their back-projections onto Z = h.
+Association, frame by frame (one camera, one time): the cost of detection j for track i is
+d2 + ln det S, with d2 = nu^T S^-1 nu the squared Mahalanobis distance of the pixel innovation
+nu = u_j - pi_k(x_i) (S = J P J^T + R): the negative log-likelihood up to a constant, so a vague
+track does not win a detection from a precise one merely by its wide gate. Pairs above the
+chi-square gate or of incompatible kinds (a "robot" detection never updates a "person" track;
+"unknown" matches both) are forbidden, and scipy.optimize.linear_sum_assignment solves the
+rest in rounds: detections with a label go to the track of that label; then confirmed and
+coasting tracks take their detections; then tentative tracks take what is left, so a track born
+from clutter beside a target cannot take that target's detection.
+
+Life cycle, by elapsed time (never by frame count, since cameras report at their own rates):
+
+* a detection no track takes starts a TENTATIVE track at its back-projection onto Z = h (speed
+  unknown: N(0, `initial_speed_std`^2) per axis), unless it lies within `min_separation` metres
+  of a live track or within `birth_gate` of it: two bodies do not stand inside each other, so it
+  is that target's outlier (a second blob of one person, the robot's body seen as a person);
+* a tentative track carries the log-likelihood ratio of "a body" against "clutter" of what the
+  cameras reported (the sequential track score of Blackman & Popoli, "Design and Analysis of
+  Modern Tracking Systems", 1999, sec. 6.2): each update adds ln(p_D N(nu; 0, S) / lambda),
+  lambda the clutter density per pixel, and each frame of a camera that has the track in view
+  but gave it no detection adds ln(1 - p_D). A track born from clutter collects small or
+  negative terms (its detections fall anywhere in a wide gate) and is soon dropped; a body's
+  collect large ones. It becomes CONFIRMED when its score reaches `confirm_score` with at
+  least `confirm_hits` updates within `confirm_window` seconds of its birth, and is dropped
+  when the score falls below `drop_score`, the window passes, or it goes
+  `tentative_timeout` seconds without an update;
+* a confirmed track becomes COASTING after `coast_after` seconds without an update (predicted
+  only; an update makes it confirmed again), and ENDED after `end_after` seconds without one,
+  or earlier when its position standard deviation exceeds `max_position_std` (it could be
+  anywhere): ended tracks leave the tracker and are reported once.
+
+Time is Unix seconds (or any one clock): frames must come in time order; `ReorderBuffer` puts
+frames of several cameras that arrive out of order back in order within a latency window.
 """
 
 from __future__ import annotations
 
+import heapq
+import itertools
 import math
-from collections import deque
-from collections.abc import Sequence
+from collections.abc import Hashable, Mapping, Sequence
 from dataclasses import dataclass, field
 from enum import StrEnum
 
@@ -52,96 +75,138 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import linear_sum_assignment
 
 from core.errors import InvalidInput
-from core.localization._checks import as_cameras, check_height
 from core.localization._projection import inv2, project_plane, transposed
 from core.localization.cameras import NetworkCamera
-from core.localization.ground import FloorEstimate, locate_ml, locate_monocular
+from core.localization.ground import locate_monocular
+from core.localization.occluders import Occluders, line_of_sight
 
 Array = NDArray[np.float64]
 
 # Chi-square quantiles with 2 degrees of freedom: -2 ln(1 - p).
 CHI2_2DOF_99 = 9.2103
+CHI2_2DOF_999 = 13.816
 CHI2_2DOF_999999 = 27.631
 # Cost of a forbidden pairing: above any allowed cost, which is clipped below it.
 _FORBIDDEN = 1e9
 _MAX_COST = 1e8
 
+KINDS = ("robot", "person", "unknown")
 
-class TrackStatus(StrEnum):
-    """A track's stage: tentative until M of its first N frames hit, then confirmed."""
+
+class TrackState(StrEnum):
+    """A track's stage in its life cycle."""
 
     TENTATIVE = "tentative"
     CONFIRMED = "confirmed"
+    COASTING = "coasting"
+    ENDED = "ended"
+
+
+LIVE_STATES = (TrackState.CONFIRMED, TrackState.COASTING)
+
+
+def _positive(name: str, value: object) -> None:
+    if not isinstance(value, int | float) or not math.isfinite(value) or value <= 0:
+        raise InvalidInput(f"TrackerConfig.{name} must be a positive number, got {value!r}")
 
 
 @dataclass(frozen=True)
 class TrackerConfig:
-    """Settings of a `FloorTracker`.
+    """Settings of a `Tracker`.
 
     q: acceleration power spectral density, m^2 / s^3 (about the squared change of speed per
-    second a target makes: 0.1-1 for walking people). gate: squared Mahalanobis gate (chi-square,
-    2 dof). birth_gate: a measurement within this squared distance of a track starts no new one.
-    confirm_hits, confirm_window: M of N. max_miss_time: seconds without an update before a track
-    is deleted. initial_speed_std: prior speed standard deviation per axis of a new track, m/s.
-    height: Z of the tracked plane, metres (for pixel detections). history_length: how many
-    (t, xy, cov) updates each track keeps.
+    second a target makes: people start, stop and turn). gate: squared Mahalanobis gate on the
+    pixel innovation (chi-square, 2 dof). birth_gate: squared Mahalanobis distance on the floor
+    within which a free detection is an existing track's outlier, not a new body;
+    min_separation: metres, the same in plain distance. initial_speed_std: prior speed standard
+    deviation per axis of a new track, m/s. Confirmation: a tentative track's score (module
+    docstring) must reach confirm_score with at least confirm_hits updates within
+    confirm_window (s) of its birth; below drop_score, or not updated for tentative_timeout (s),
+    it is dropped. p_detect: probability that a camera detects a body it has in view;
+    clutter_density: false detections per pixel per frame. ambiguity: a confirmed track's
+    detection that another track explains within this many log-likelihood units counts as a
+    sighting but does not update the state (crossing bodies coast through the crossing on
+    their velocities; 0 turns it off). coast_after, end_after (s): time without an update
+    before a confirmed track coasts and ends; max_position_std (m): a coasting track whose
+    position standard deviation (the larger axis) exceeds it ends.
     """
 
-    q: float = 0.5
-    gate: float = CHI2_2DOF_99
+    q: float = 2.0
+    gate: float = CHI2_2DOF_999
     birth_gate: float = CHI2_2DOF_999999
-    confirm_hits: int = 3
-    confirm_window: int = 5
-    max_miss_time: float = 1.0
+    min_separation: float = 0.45
     initial_speed_std: float = 1.0
-    height: float = 0.0
-    history_length: int = 1000
+    confirm_hits: int = 3
+    confirm_score: float = 20.0
+    drop_score: float = -6.0
+    p_detect: float = 0.9
+    clutter_density: float = 1e-5
+    confirm_window: float = 1.0
+    tentative_timeout: float = 0.4
+    ambiguity: float = 3.0
+    coast_after: float = 0.5
+    end_after: float = 5.0
+    max_position_std: float = 1.0
 
     def __post_init__(self) -> None:
-        for name in ("q", "gate", "birth_gate", "max_miss_time", "initial_speed_std"):
-            value = getattr(self, name)
-            if not isinstance(value, int | float) or not math.isfinite(value) or value <= 0:
-                raise InvalidInput(f"TrackerConfig.{name} must be a positive number, got {value!r}")
-        check_height(self.height)
-        for name in ("confirm_hits", "confirm_window", "history_length"):
-            value = getattr(self, name)
-            if not isinstance(value, int) or value < 1:
-                raise InvalidInput(f"TrackerConfig.{name} must be an integer >= 1, got {value!r}")
-        if self.confirm_hits > self.confirm_window:
+        for name in (
+            "q",
+            "gate",
+            "birth_gate",
+            "initial_speed_std",
+            "confirm_window",
+            "tentative_timeout",
+            "coast_after",
+            "end_after",
+            "max_position_std",
+            "clutter_density",
+        ):
+            _positive(name, getattr(self, name))
+        if not isinstance(self.min_separation, int | float) or not self.min_separation >= 0:
             raise InvalidInput(
-                f"confirm_hits (M = {self.confirm_hits}) cannot exceed confirm_window "
-                f"(N = {self.confirm_window}): a track could never be confirmed"
+                f"TrackerConfig.min_separation must be >= 0 metres, got {self.min_separation!r}"
+            )
+        if not 0.0 < self.p_detect < 1.0:
+            raise InvalidInput(f"TrackerConfig.p_detect must lie in (0, 1), got {self.p_detect!r}")
+        if not (math.isfinite(self.confirm_score) and math.isfinite(self.drop_score)) or not (
+            self.drop_score < 0.0 < self.confirm_score
+        ):
+            raise InvalidInput(
+                "TrackerConfig needs drop_score < 0 < confirm_score (log-likelihood ratios), "
+                f"got {self.drop_score!r} and {self.confirm_score!r}"
+            )
+        if not isinstance(self.confirm_hits, int) or self.confirm_hits < 1:
+            raise InvalidInput(
+                f"TrackerConfig.confirm_hits must be an integer >= 1, got {self.confirm_hits!r}"
+            )
+        if self.end_after < self.coast_after:
+            raise InvalidInput(
+                f"end_after ({self.end_after} s) cannot be shorter than coast_after "
+                f"({self.coast_after} s): a track would end before it coasts"
             )
 
 
 @dataclass(frozen=True)
-class TrackPoint:
-    """One update of a track: time t (s), filtered position xy (2,) m, its covariance (2, 2) m^2."""
-
-    t: float
-    xy: Array
-    cov: Array
-
-
-@dataclass(frozen=True)
 class TrackSnapshot:
-    """A track at time t: state (4,) = (x, y, vx, vy) in m and m/s, cov (4, 4), its status, the
-    number of updates (`hits`), the time of the last one, and its past updates (`history`)."""
+    """A track at time t: id, kind, label (None unless a labelled detection started it), life
+    cycle state, state (4,) = (x, y, vx, vy) in m and m/s with cov (4, 4), number of updates
+    (`hits`), time of the first and of the last update (`first_seen`, `last_seen`)."""
 
     id: int
+    kind: str
     label: str | None
-    status: TrackStatus
+    state: TrackState
     t: float
-    state: Array
+    x: Array
     cov: Array
     hits: int
-    last_update: float
-    history: tuple[TrackPoint, ...] = field(repr=False)
+    first_seen: float
+    last_seen: float
 
     @property
     def xy(self) -> Array:
         """Position (2,), metres."""
-        return self.state[:2]
+        return self.x[:2]
 
     @property
     def xy_cov(self) -> Array:
@@ -151,20 +216,24 @@ class TrackSnapshot:
     @property
     def velocity(self) -> Array:
         """Velocity (2,), m/s."""
-        return self.state[2:]
+        return self.x[2:]
 
 
 @dataclass(frozen=True)
-class FrameAssociation:
-    """What one frame did: `track_ids` (M,) the id of the track each measurement (or detection)
-    updated or started, -1 when it was dropped (outside every gate yet too close to a track to
-    start one, a second measurement of one label, or a detection that could not be located);
-    `started` (M,) whether it started that track; `deleted` the ids of the tracks deleted."""
+class FrameResult:
+    """What one camera frame did: `track_ids` (D,) the id of the track each detection updated
+    or started (-1: none took it and it started none); `started` (D,) whether it started that
+    track; `updated` the snapshots, after the update, of the tracks this frame updated (new
+    tentative tracks included); `ended` the tracks that ended at this frame's time; `dropped`
+    the ids of tentative tracks dropped unconfirmed."""
 
     t: float
+    camera: Hashable
     track_ids: NDArray[np.int64]
     started: NDArray[np.bool_]
-    deleted: tuple[int, ...]
+    updated: tuple[TrackSnapshot, ...]
+    ended: tuple[TrackSnapshot, ...]
+    dropped: tuple[int, ...]
 
 
 def cv_transition(dt: float) -> Array:
@@ -188,9 +257,9 @@ def cv_process_noise(dt: float, q: float) -> Array:
     return Q
 
 
-def _as_time(t: float) -> float:
+def _as_time(t: object) -> float:
     try:
-        value = float(t)
+        value = float(t)  # type: ignore[arg-type]
     except (TypeError, ValueError):
         raise InvalidInput(f"t must be a time in seconds, got {t!r}") from None
     if not math.isfinite(value):
@@ -216,16 +285,22 @@ def _as_covariances(cov: ArrayLike, n: int, name: str) -> Array:
     return c
 
 
-def _as_labels(labels: Sequence[str | None] | None, n: int) -> NDArray[np.object_]:
-    out = np.empty(n, dtype=object)
-    if labels is None:
-        return out
-    if isinstance(labels, str) or len(labels) != n:
-        raise InvalidInput(f"labels must be a sequence of {n} strings or None, one per measurement")
-    for i, lab in enumerate(labels):
-        if lab is not None and not isinstance(lab, str):
-            raise InvalidInput(f"labels must be strings or None, got {type(lab).__name__}")
-        out[i] = lab
+def _as_strings(
+    values: Sequence[str | None] | str | None, n: int, name: str, allowed: tuple[str, ...] = ()
+) -> list[str | None]:
+    if values is None:
+        return [None] * n
+    if isinstance(values, str):
+        values = [values] * n
+    if len(values) != n:
+        raise InvalidInput(f"{name} must hold {n} values, one per detection, got {len(values)}")
+    out: list[str | None] = []
+    for v in values:
+        if v is not None and not isinstance(v, str):
+            raise InvalidInput(f"{name} must be strings or None, got {type(v).__name__}")
+        if allowed and v is not None and v not in allowed:
+            raise InvalidInput(f"{name} must be one of {', '.join(allowed)}, got {v!r}")
+        out.append(v)
     return out
 
 
@@ -235,6 +310,27 @@ def _mahalanobis(nu: Array, S: Array) -> tuple[Array, Array]:
     d2 = np.einsum("...i,...ij,...j->...", nu, S_inv, nu)
     with np.errstate(divide="ignore", invalid="ignore"):
         return d2, np.log(det)
+
+
+def _ambiguous(
+    cost: Array,
+    allowed: NDArray[np.bool_],
+    rows: NDArray[np.intp],
+    cols: NDArray[np.intp],
+    margin: float,
+) -> NDArray[np.bool_]:
+    """Return, for each assigned pair (rows[k], cols[k]), whether another track could take its
+    detection almost as likely: that pairing's cost (a negative log-likelihood) within `margin`
+    of the pair's. Two bodies that cross stand inside each other's gates; an
+    update with a detection that may be the other body's would bend a track towards it and,
+    repeated, swap the two."""
+    if margin <= 0 or rows.size == 0:
+        return np.zeros(rows.size, dtype=bool)
+    c = np.where(allowed, cost, np.inf)
+    own = c[rows, cols]
+    other_track = c[:, cols].copy()
+    other_track[rows, np.arange(rows.size)] = np.inf
+    return other_track.min(axis=0) - own < margin
 
 
 def _assign(cost: Array, allowed: NDArray[np.bool_]) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
@@ -252,73 +348,104 @@ def _assign(cost: Array, allowed: NDArray[np.bool_]) -> tuple[NDArray[np.intp], 
     return rows_any[r[keep]], cols_any[c[keep]]
 
 
-class FloorTracker:
-    """Tracks many targets on the floor plane from floor positions or per-camera detections.
+class Tracker:
+    """Tracks bodies on the floor from the detections of unsynchronised cameras (see module).
 
-    cameras: the calibrated network, needed only by `update_detections`. config: a
-    `TrackerConfig`. Time is in seconds and must not decrease from one call to the next.
-    Track ids are positive integers, never reused.
+    cameras: the calibrated cameras, a mapping from any key (a registry id, a name) to a
+    `NetworkCamera`, or a sequence (keys 0, 1, ...). config: a `TrackerConfig`. occluders: the
+    walls and furniture of the floor plan (core.localization.occluders), when known: a camera
+    whose view of a tentative track is hidden by them is not expected to detect it. Frames go to
+    `update` in time order; `advance` moves the clock without a frame (ending silent tracks).
+    Track ids are positive integers, never reused (`next_id` sets the first one, so a restarted
+    tracker can go on from stored ids).
     """
 
     def __init__(
         self,
+        cameras: Mapping[Hashable, NetworkCamera] | Sequence[NetworkCamera] | None = None,
         config: TrackerConfig | None = None,
-        cameras: Sequence[NetworkCamera] | None = None,
+        *,
+        next_id: int = 1,
+        occluders: Occluders | None = None,
     ) -> None:
         self.config = TrackerConfig() if config is None else config
         if not isinstance(self.config, TrackerConfig):
             raise InvalidInput(f"config must be a TrackerConfig, got {type(config).__name__}")
-        self.cameras: tuple[NetworkCamera, ...] = () if cameras is None else as_cameras(cameras)
+        self.cameras: dict[Hashable, NetworkCamera] = {}
+        if cameras is not None:
+            items = cameras.items() if isinstance(cameras, Mapping) else enumerate(cameras)
+            for key, cam in items:
+                self.set_camera(key, cam)
+        if not isinstance(next_id, int) or next_id < 1:
+            raise InvalidInput(f"next_id must be an integer >= 1, got {next_id!r}")
+        self._next_id = next_id
+        if occluders is not None and not isinstance(occluders, Occluders):
+            raise InvalidInput(f"occluders must be Occluders, got {type(occluders).__name__}")
+        self.occluders = occluders
         self._t: float | None = None
         self._x = np.zeros((0, 4))
         self._P = np.zeros((0, 4, 4))
         self._ids: list[int] = []
+        self._kinds: list[str] = []
         self._labels: list[str | None] = []
-        self._confirmed: list[bool] = []
-        self._frames: list[int] = []  # frames seen since birth, birth included
+        self._states: list[TrackState] = []
         self._hits: list[int] = []
+        self._first: list[float] = []
         self._last: list[float] = []
-        self._history: list[deque[TrackPoint]] = []
-        self._next_id = 1
+        self._score: list[float] = []
+        self._height: list[float] = []
 
-    # -- state ---------------------------------------------------------------------------------
+    # -- cameras and state ---------------------------------------------------------------------
+
+    def set_camera(self, key: Hashable, camera: NetworkCamera) -> None:
+        """Add or replace the calibration of camera `key` (e.g. after a calibration run)."""
+        if not isinstance(camera, NetworkCamera):
+            raise InvalidInput(f"camera {key!r} must be a NetworkCamera, got {type(camera)}")
+        self.cameras[key] = camera
 
     @property
     def time(self) -> float | None:
-        """Time of the last frame (s), None before the first."""
+        """Time of the last frame or `advance` (s), None before the first."""
         return self._t
+
+    @property
+    def next_id(self) -> int:
+        """The id the next track will get."""
+        return self._next_id
 
     def __len__(self) -> int:
         return len(self._ids)
 
     def tracks(
-        self, t: float | None = None, *, confirmed_only: bool = False
+        self, t: float | None = None, *, states: Sequence[TrackState] | None = None
     ) -> tuple[TrackSnapshot, ...]:
-        """Return snapshots of the tracks, predicted to time t (s) if given (not stored)."""
-        x, P = self._x, self._P
-        when = self._t
+        """Return snapshots of the tracks in `states` (all when None), predicted to time t (s)
+        if given (the tracker itself is not moved)."""
+        x, P, when = self._x, self._P, self._t
         if t is not None:
             t = _as_time(t)
             x, P = self._predicted(t)
             when = t
-        out = []
-        for i, tid in enumerate(self._ids):
-            if confirmed_only and not self._confirmed[i]:
-                continue
-            out.append(
-                TrackSnapshot(
-                    id=tid,
-                    label=self._labels[i],
-                    status=TrackStatus.CONFIRMED if self._confirmed[i] else TrackStatus.TENTATIVE,
-                    t=float("nan") if when is None else when,
-                    state=x[i].copy(),
-                    cov=P[i].copy(),
-                    hits=self._hits[i],
-                    last_update=self._last[i],
-                    history=tuple(self._history[i]),
-                )
-            )
-        return tuple(out)
+        keep = None if states is None else set(states)
+        return tuple(
+            self._snapshot(i, x, P, when)
+            for i in range(len(self._ids))
+            if keep is None or self._states[i] in keep
+        )
+
+    def _snapshot(self, i: int, x: Array, P: Array, when: float | None) -> TrackSnapshot:
+        return TrackSnapshot(
+            id=self._ids[i],
+            kind=self._kinds[i],
+            label=self._labels[i],
+            state=self._states[i],
+            t=float("nan") if when is None else when,
+            x=x[i].copy(),
+            cov=P[i].copy(),
+            hits=self._hits[i],
+            first_seen=self._first[i],
+            last_seen=self._last[i],
+        )
 
     def _predicted(self, t: float) -> tuple[Array, Array]:
         """Return every track's state (T, 4) and covariance (T, 4, 4) predicted to time t."""
@@ -327,8 +454,8 @@ class FloorTracker:
         dt = t - self._t
         if dt < 0:
             raise InvalidInput(
-                f"time went backwards: t = {t} s is before the last frame at {self._t} s; "
-                "feed frames in time order"
+                f"time went backwards: t = {t} s is before the tracker's time {self._t} s; "
+                "feed frames in time order (ReorderBuffer sorts frames that arrive late)"
             )
         if dt == 0 or not self._ids:
             return self._x, self._P
@@ -337,149 +464,291 @@ class FloorTracker:
         P = F @ self._P @ F.T + cv_process_noise(dt, self.config.q)
         return x, P
 
-    def predict(self, t: float) -> None:
-        """Advance every track to time t (s): s <- F s, P <- F P F^T + Q (vectorised)."""
+    def advance(self, t: float) -> tuple[TrackSnapshot, ...]:
+        """Move every track to time t (s) without a measurement; return the tracks that ended."""
         t = _as_time(t)
         self._x, self._P = self._predicted(t)
         self._t = t
+        ended, _ = self._manage()
+        return ended
 
-    # -- floor measurements --------------------------------------------------------------------
+    # -- one camera frame ----------------------------------------------------------------------
 
     def update(
         self,
+        camera: Hashable,
         t: float,
-        xy: ArrayLike,
-        cov: ArrayLike,
-        labels: Sequence[str | None] | None = None,
-    ) -> FrameAssociation:
-        """Return what the frame at time t did after updating the tracks with floor measurements.
+        pixels: ArrayLike,
+        pixel_cov: ArrayLike | None = None,
+        *,
+        heights: ArrayLike = 0.0,
+        kinds: Sequence[str | None] | str | None = None,
+        labels: Sequence[str | None] | str | None = None,
+        pixel_sigma: float = 1.0,
+    ) -> FrameResult:
+        """Return what one frame of camera `camera` at time t (s) did to the tracks.
 
-        xy: (M, 2) positions on the floor, metres; cov: (M, 2, 2) or one (2, 2) for all, m^2
-        (e.g. `FloorEstimate.xy` and `.cov` of the valid targets); labels: M strings or None.
-        Predicts to t, associates by GNN with Mahalanobis gating, updates, starts, confirms and
-        deletes tracks. M = 0 is a frame without detections.
+        pixels: (D, 2) distorted pixels of D detections (D = 0: the camera saw nothing);
+        pixel_cov: (D, 2, 2) or (2, 2) px^2, or None for pixel_sigma^2 I; heights: (D,) or one
+        value, metres above the floor of the point each pixel measures; kinds: "robot",
+        "person", "unknown" or None (unknown) per detection; labels: an identity the sender is
+        sure of (e.g. "robot" for the one robot's marker), or None.
+        Predicts the tracks to t, associates, updates (EKF), starts tracks, and moves the life
+        cycle on (module docstring).
         """
+        if camera not in self.cameras:
+            known = ", ".join(repr(k) for k in self.cameras) or "none"
+            raise InvalidInput(f"unknown camera {camera!r}; the tracker's cameras: {known}")
         t = _as_time(t)
-        try:
-            z = np.array(xy, dtype=np.float64)
-        except (TypeError, ValueError) as exc:
-            raise InvalidInput(f"xy must be numeric, shape (M, 2): {exc}") from None
-        if z.size == 0:
-            z = z.reshape(0, 2)
-        if z.ndim != 2 or z.shape[1] != 2:
-            raise InvalidInput(f"xy must have shape (M, 2), got {z.shape}")
-        if not np.all(np.isfinite(z)):
-            raise InvalidInput("xy contains NaN or infinite values; drop invalid estimates first")
-        R = _as_covariances(cov, z.shape[0], "cov")
-        labs = _as_labels(labels, z.shape[0])
-        self.predict(t)
+        cam = self.cameras[camera]
+        px, R, h, kind, lab = self._parse(pixels, pixel_cov, heights, kinds, labels, pixel_sigma)
+        self._x, self._P = self._predicted(t)
+        self._t = t
+        n = px.shape[0]
+        track_ids = np.full(n, -1, dtype=np.int64)
+        started = np.zeros(n, dtype=bool)
+        touched: list[int] = []
         n_old = len(self._ids)
-        rows, cols = self._associate_floor(z, R, labs)
-        track_ids = np.full(z.shape[0], -1, dtype=np.int64)
-        ids = np.array(self._ids, dtype=np.int64)
-        track_ids[cols] = ids[rows]
-        self._kalman_update(rows, z[cols], R[cols])
         hit = np.zeros(n_old, dtype=bool)
-        hit[rows] = True
-        unassigned = np.setdiff1d(np.arange(z.shape[0]), cols)
-        started = np.zeros(z.shape[0], dtype=bool)
-        new_ids = self._start(z[unassigned], R[unassigned], labs[unassigned])
-        track_ids[unassigned] = new_ids
-        started[unassigned] = new_ids >= 0
-        deleted = self._manage(hit)
-        return FrameAssociation(t, track_ids, started, deleted)
+        if n:
+            rows, cols, loglik, ambiguous = self._associate(cam, px, R, h, kind, lab)
+            if rows.size:
+                sure = ~ambiguous
+                if sure.any():
+                    self._ekf_update(cam, rows[sure], px[cols[sure]], R[cols[sure]], h[cols[sure]])
+                hit[rows] = True
+                gain = np.log(self.config.p_detect / self.config.clutter_density) + loglik
+                for i, j, g in zip(rows.tolist(), cols.tolist(), gain.tolist(), strict=True):
+                    if self._states[i] is TrackState.TENTATIVE:
+                        self._score[i] += g
+                    self._height[i] = float(h[j])
+                    self._hits[i] += 1
+                    self._last[i] = t
+                    if self._states[i] is TrackState.COASTING:
+                        self._states[i] = TrackState.CONFIRMED
+                    if self._kinds[i] == "unknown" and kind[j] != "unknown":
+                        self._kinds[i] = kind[j]
+                    track_ids[j] = self._ids[i]
+                    touched.append(self._ids[i])
+            free = np.setdiff1d(np.arange(n), cols)
+        self._score_misses(cam, hit)
+        if n:
+            if free.size:
+                for j, tid in self._births(cam, free, px, R, h, kind, lab):
+                    track_ids[j] = tid
+                    started[j] = True
+                    touched.append(tid)
+        ended, dropped = self._manage()
+        index = {tid: i for i, tid in enumerate(self._ids)}
+        updated = tuple(
+            self._snapshot(index[tid], self._x, self._P, t) for tid in touched if tid in index
+        )
+        return FrameResult(t, camera, track_ids, started, updated, ended, dropped)
 
-    def _compatible(self, labs: NDArray[np.object_]) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
-        """Return (may pair (T, M): same label, or none on the measurement; labelled (M,))."""
-        track_labs = np.empty(len(self._labels), dtype=object)
-        track_labs[:] = self._labels
-        labelled = np.array([lab is not None for lab in labs], dtype=bool)
-        match = (track_labs[:, None] == labs[None, :]) | ~labelled[None, :]
-        return match, labelled
+    def _parse(
+        self,
+        pixels: ArrayLike,
+        pixel_cov: ArrayLike | None,
+        heights: ArrayLike,
+        kinds: Sequence[str | None] | str | None,
+        labels: Sequence[str | None] | str | None,
+        pixel_sigma: float,
+    ) -> tuple[Array, Array, Array, list[str], list[str | None]]:
+        try:
+            px = np.array(pixels, dtype=np.float64)
+        except (TypeError, ValueError) as exc:
+            raise InvalidInput(f"pixels must be numeric, shape (D, 2): {exc}") from None
+        if px.size == 0:
+            px = px.reshape(0, 2)
+        if px.ndim != 2 or px.shape[1] != 2:
+            raise InvalidInput(f"pixels must have shape (D, 2), got {px.shape}")
+        if not np.all(np.isfinite(px)):
+            raise InvalidInput("pixels contain NaN or infinite values")
+        n = px.shape[0]
+        if pixel_cov is None:
+            sigma = float(pixel_sigma)
+            if not math.isfinite(sigma) or sigma <= 0:
+                raise InvalidInput(f"pixel_sigma must be a positive number of pixels, got {sigma}")
+            R = np.broadcast_to(np.eye(2) * sigma**2, (n, 2, 2)).copy()
+        else:
+            R = _as_covariances(pixel_cov, n, "pixel_cov")
+        try:
+            h = np.array(heights, dtype=np.float64)
+        except (TypeError, ValueError) as exc:
+            raise InvalidInput(f"heights must be numeric metres: {exc}") from None
+        if h.ndim == 0:
+            h = np.full(n, float(h))
+        if h.shape != (n,) or not np.all(np.isfinite(h)) or np.any(np.abs(h) > 10.0):
+            raise InvalidInput(f"heights must be {n} finite values in [-10, 10] m, one per pixel")
+        kind = [k or "unknown" for k in _as_strings(kinds, n, "kinds", KINDS)]
+        lab = _as_strings(labels, n, "labels")
+        named = [v for v in lab if v is not None]
+        if len(named) != len(set(named)):
+            raise InvalidInput("a camera frame holds the same label twice")
+        return px, R, h, kind, lab
 
-    def _associate_floor(
-        self, z: Array, R: Array, labs: NDArray[np.object_]
-    ) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
-        """Return the GNN pairs (track rows, measurement indices) of floor measurements."""
-        if not self._ids or z.shape[0] == 0:
+    def _project(self, cam: NetworkCamera, h: Array) -> tuple[Array, Array, NDArray[np.bool_]]:
+        """Return every track projected at each detection's height: pixels (T, D, 2), the
+        Jacobians d pixel / d(x, y) (T, D, 2, 2) and whether the camera can see the point
+        (T, D): in front and within the field of view. The last matters: outside the field of
+        view the distortion polynomial folds points back into the image, where a track could
+        take a detection that is not its own."""
+        T, D = len(self._ids), h.size
+        u = np.empty((T, D, 2))
+        J = np.empty((T, D, 2, 2))
+        seen = np.empty((T, D), dtype=bool)
+        xy = self._x[:, :2]
+        for value in np.unique(h):
+            sel = np.flatnonzero(h == value)
+            proj = project_plane(cam, xy, float(value), jacobian=True)
+            assert proj.jacobian is not None
+            u[:, sel] = proj.pixels[:, None]
+            J[:, sel] = proj.jacobian[:, None]
+            Xc = np.column_stack([xy, np.full(T, float(value))]) @ cam.R.T + cam.t
+            z = np.where(Xc[:, 2] > 1e-6, Xc[:, 2], 1.0)
+            r2 = (Xc[:, 0] ** 2 + Xc[:, 1] ** 2) / z**2
+            ok = (Xc[:, 2] > 1e-6) & (r2 <= cam.fov_radius**2)
+            seen[:, sel] = ok[:, None]
+        return u, J, seen
+
+    def _associate(
+        self,
+        cam: NetworkCamera,
+        px: Array,
+        R: Array,
+        h: Array,
+        kind: list[str],
+        lab: list[str | None],
+    ) -> tuple[NDArray[np.intp], NDArray[np.intp], Array, NDArray[np.bool_]]:
+        """Return the (track rows, detection columns) of this frame's assignment, each pair's
+        log-likelihood ln N(nu; 0, S), and whether the pair is ambiguous (`_ambiguous`)."""
+        T, D = len(self._ids), px.shape[0]
+        if T == 0:
             empty = np.zeros(0, dtype=np.intp)
-            return empty, empty
-        nu = z[None, :, :] - self._x[:, None, :2]  # (T, M, 2)
-        S = self._P[:, None, :2, :2] + R[None]  # (T, M, 2, 2)
-        d2, logdet = _mahalanobis(nu, S)
-        match, labelled = self._compatible(labs)
-        allowed = match & ((d2 <= self.config.gate) | labelled[None, :]) & np.isfinite(d2)
-        return self._assign_in_rounds(d2 + logdet, allowed, labelled)
+            return empty, empty, np.zeros(0), np.zeros(0, dtype=bool)
+        u, J, front = self._project(cam, h)
+        S = J @ self._P[:, None, :2, :2] @ transposed(J) + R[None]
+        d2, logdet = _mahalanobis(px[None] - u, S)
+        cost = d2 + logdet
+        tk = np.array(self._kinds, dtype=object)
+        dk = np.array(kind, dtype=object)
+        compatible = (tk[:, None] == dk[None, :]) | (tk[:, None] == "unknown")
+        compatible |= (dk == "unknown")[None, :]
+        ok = front & np.isfinite(d2) & compatible
+        tl = np.array(self._labels, dtype=object)
+        dl = np.array(lab, dtype=object)
+        det_labelled = np.array([v is not None for v in lab], dtype=bool)
+        trk_labelled = np.array([v is not None for v in self._labels], dtype=bool)
+        # A label says which target it is: only that track, and no gate.
+        same_label = (tl[:, None] == dl[None, :]) & det_labelled[None, :]
+        gated = ok & (d2 <= self.config.gate) & ~det_labelled[None, :] & ~trk_labelled[:, None]
+        rows_out: list[NDArray[np.intp]] = []
+        cols_out: list[NDArray[np.intp]] = []
+        free_rows = np.ones(T, dtype=bool)
+        free_cols = np.ones(D, dtype=bool)
+        mature = np.array([s is not TrackState.TENTATIVE for s in self._states], dtype=bool)
+        rounds = (ok & same_label, gated & mature[:, None], gated & ~mature[:, None])
+        ambiguous_out: list[NDArray[np.bool_]] = []
+        for k, allowed in enumerate(rounds):
+            allowed = allowed & free_rows[:, None] & free_cols[None, :]
+            r, c = _assign(cost, allowed)
+            free_rows[r] = False
+            free_cols[c] = False
+            rows_out.append(r)
+            cols_out.append(c)
+            ambiguous_out.append(
+                _ambiguous(cost, rounds[1], r, c, self.config.ambiguity)
+                if k == 1
+                else np.zeros(r.size, dtype=bool)
+            )
+        rows, cols = np.concatenate(rows_out), np.concatenate(cols_out)
+        loglik = -0.5 * (d2[rows, cols] + logdet[rows, cols]) - math.log(2.0 * math.pi)
+        return rows, cols, loglik, np.concatenate(ambiguous_out)
 
-    def _assign_in_rounds(
-        self, cost: Array, allowed: NDArray[np.bool_], labelled: NDArray[np.bool_]
-    ) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
-        """Return GNN pairs (track rows, columns) of cost (T, M): labelled measurements first,
-        then unlabelled ones to confirmed tracks, then to tentative ones."""
-        confirmed = np.array(self._confirmed, dtype=bool)
-        rows: list[NDArray[np.intp]] = []
-        cols: list[NDArray[np.intp]] = []
-        free = allowed.copy()
-        for mask in (
-            labelled[None, :],
-            ~labelled[None, :] & confirmed[:, None],
-            ~labelled[None, :] & ~confirmed[:, None],
-        ):
-            r, c = _assign(cost, free & mask)
-            free[r, :] = False
-            free[:, c] = False
-            rows.append(r)
-            cols.append(c)
-        return np.concatenate(rows), np.concatenate(cols)
-
-    def _kalman_update(self, rows: NDArray[np.intp], z: Array, R: Array) -> None:
-        """Update tracks `rows` with measurements z (n, 2), R (n, 2, 2); Joseph form."""
-        if rows.size == 0:
+    def _score_misses(self, cam: NetworkCamera, hit: NDArray[np.bool_]) -> None:
+        """Add ln(1 - p_D) to the score of each tentative track that this camera has in view
+        (at the height of its last detection, not hidden by the occluders) but did not detect
+        in this frame."""
+        idx = [i for i in range(hit.size) if not hit[i] and self._states[i] is TrackState.TENTATIVE]
+        if not idx:
             return
+        rows = np.asarray(idx, dtype=np.intp)
+        heights = np.asarray([self._height[i] for i in idx])
+        pts = np.column_stack([self._x[rows, :2], heights])
+        seen = cam.in_view(pts)
+        if self.occluders is not None and seen.any():
+            seen[seen] = line_of_sight(cam.center[None], pts[seen], self.occluders)[0]
+        miss = math.log(1.0 - self.config.p_detect)
+        for i in rows[seen].tolist():
+            self._score[i] += miss
+
+    def _ekf_update(
+        self, cam: NetworkCamera, rows: NDArray[np.intp], z: Array, R: Array, h: Array
+    ) -> None:
+        """Update tracks `rows` with one pixel each (EKF, Joseph form), vectorised."""
         x = self._x[rows]
         P = self._P[rows]
-        S = P[:, :2, :2] + R
-        S_inv = inv2(S)[0]
-        K = P[:, :, :2] @ S_inv  # (n, 4, 2)
-        nu = z - x[:, :2]
-        x = x + (K @ nu[:, :, None])[:, :, 0]
-        A = np.broadcast_to(np.eye(4), P.shape).copy()
-        A[:, :, :2] -= K  # I - K H with H = [I 0]
-        P = A @ P @ transposed(A) + K @ R @ transposed(K)
-        P = 0.5 * (P + transposed(P))
+        u = np.empty((rows.size, 2))
+        H = np.zeros((rows.size, 2, 4))
+        for value in np.unique(h):
+            sel = np.flatnonzero(h == value)
+            proj = project_plane(cam, x[sel, :2], float(value), jacobian=True)
+            assert proj.jacobian is not None
+            u[sel] = proj.pixels
+            H[sel, :, :2] = proj.jacobian
+        Ht = transposed(H)
+        S = H @ P @ Ht + R
+        S_inv, _ = inv2(S)
+        K = P @ Ht @ S_inv  # (n, 4, 2)
+        x = x + np.einsum("nij,nj->ni", K, z - u)
+        IKH = np.eye(4)[None] - K @ H
+        P = IKH @ P @ transposed(IKH) + K @ R @ transposed(K)
         self._x[rows] = x
-        self._P[rows] = P
-        t = float(self._t) if self._t is not None else 0.0
-        for j, i in enumerate(rows.tolist()):
-            self._hits[i] += 1
-            self._last[i] = t
-            self._history[i].append(TrackPoint(t, x[j, :2].copy(), P[j, :2, :2].copy()))
+        self._P[rows] = 0.5 * (P + transposed(P))
 
-    def _start(self, z: Array, R: Array, labs: NDArray[np.object_]) -> NDArray[np.int64]:
-        """Start tracks at unassigned measurements; return their ids (-1: not started).
-
-        The most precise measurements go first, and each is checked against every track,
-        those it just started included: an unlabelled measurement within `birth_gate` of any
-        track is an outlier of that target, not a new one; a label starts at most one track.
-        """
-        ids = np.full(z.shape[0], -1, dtype=np.int64)
-        order = np.argsort(R[:, 0, 0] * R[:, 1, 1] - R[:, 0, 1] * R[:, 1, 0], kind="stable")
+    def _births(
+        self,
+        cam: NetworkCamera,
+        free: NDArray[np.intp],
+        px: Array,
+        R: Array,
+        h: Array,
+        kind: list[str],
+        lab: list[str | None],
+    ) -> list[tuple[int, int]]:
+        """Start tentative tracks at the free detections that are no existing body; return
+        (detection index, new id) pairs. The most precise detections go first, each checked
+        against every track, those it just started included."""
+        cfg = self.config
+        xy = np.full((px.shape[0], 2), np.nan)
+        C = np.broadcast_to(np.eye(2), (px.shape[0], 2, 2)).copy()
+        for value in np.unique(h[free]):
+            sel = free[h[free] == value]
+            est = locate_monocular(cam, px[sel], float(value), pixel_cov=R[sel])
+            v = est.valid
+            xy[sel[v]] = est.xy[v]
+            C[sel[v]] = est.cov[v]
+        out: list[tuple[int, int]] = []
+        order = free[np.argsort(np.linalg.det(R[free]), kind="stable")]
         for j in order.tolist():
-            lab = labs[j]
-            if lab is not None:
-                if lab in self._labels:
+            if not np.all(np.isfinite(xy[j])):
+                continue
+            if lab[j] is not None and lab[j] in self._labels:
+                continue
+            if self._ids and lab[j] is None:
+                diff = xy[j] - self._x[:, :2]
+                if np.any(np.einsum("ij,ij->i", diff, diff) < cfg.min_separation**2):
                     continue
-            elif self._ids:
-                d2, _ = _mahalanobis(z[j] - self._x[:, :2], self._P[:, :2, :2] + R[j])
-                if np.any(d2 <= self.config.birth_gate):
+                d2, _ = _mahalanobis(diff, self._P[:, :2, :2] + C[j])
+                if np.any(d2 <= cfg.birth_gate):
                     continue
-            ids[j] = self._birth(z[j], R[j], lab)
-        return ids
+            out.append((j, self._birth(xy[j], C[j], kind[j], lab[j], float(h[j]))))
+        return out
 
-    def _birth(self, z: Array, R: Array, label: str | None) -> int:
-        x = np.array([z[0], z[1], 0.0, 0.0])
+    def _birth(self, xy: Array, C: Array, kind: str, label: str | None, height: float) -> int:
+        x = np.array([xy[0], xy[1], 0.0, 0.0])
         P = np.zeros((4, 4))
-        P[:2, :2] = R
+        P[:2, :2] = C
         P[2, 2] = P[3, 3] = self.config.initial_speed_std**2
         tid = self._next_id
         self._next_id += 1
@@ -487,292 +756,121 @@ class FloorTracker:
         self._x = np.concatenate([self._x, x[None]])
         self._P = np.concatenate([self._P, P[None]])
         self._ids.append(tid)
+        self._kinds.append(kind)
         self._labels.append(label)
-        self._confirmed.append(self.config.confirm_hits <= 1)
-        self._frames.append(0)
+        # A label is an identity the sender is sure of: nothing left to confirm.
+        confirmed = self.config.confirm_hits <= 1 or label is not None
+        self._states.append(TrackState.CONFIRMED if confirmed else TrackState.TENTATIVE)
         self._hits.append(1)
+        self._first.append(t)
         self._last.append(t)
-        hist: deque[TrackPoint] = deque(maxlen=self.config.history_length)
-        hist.append(TrackPoint(t, z.copy(), R.copy()))
-        self._history.append(hist)
+        self._score.append(0.0)
+        self._height.append(height)
         return tid
 
-    def _manage(self, hit: NDArray[np.bool_]) -> tuple[int, ...]:
-        """Count the frame for the tracks that existed before it (`hit` says which were updated),
-        confirm after M of N, delete the tracks that missed too long or failed confirmation."""
+    def _manage(self) -> tuple[tuple[TrackSnapshot, ...], tuple[int, ...]]:
+        """Move the life cycle on at the tracker's time; return (ended, dropped ids)."""
         cfg = self.config
         t = float(self._t) if self._t is not None else 0.0
         keep = np.ones(len(self._ids), dtype=bool)
-        for i in range(len(hit)):
-            self._frames[i] += 1
-            if not self._confirmed[i]:
-                if self._hits[i] >= cfg.confirm_hits:
-                    self._confirmed[i] = True
-                elif self._frames[i] >= cfg.confirm_window:
+        ended: list[TrackSnapshot] = []
+        dropped: list[int] = []
+        for i, st in enumerate(self._states):
+            silent = t - self._last[i]
+            if st is TrackState.TENTATIVE:
+                if self._hits[i] >= cfg.confirm_hits and self._score[i] >= cfg.confirm_score:
+                    self._states[i] = TrackState.CONFIRMED
+                elif (
+                    t - self._first[i] > cfg.confirm_window
+                    or silent > cfg.tentative_timeout
+                    or self._score[i] < cfg.drop_score
+                ):
                     keep[i] = False
-            if t - self._last[i] > cfg.max_miss_time:
-                keep[i] = False
-        for i in range(len(hit), len(self._ids)):
-            self._frames[i] = 1
-        if keep.all():
-            return ()
-        deleted = tuple(tid for tid, k in zip(self._ids, keep, strict=True) if not k)
-        idx = np.flatnonzero(keep)
-        self._x = self._x[idx]
-        self._P = self._P[idx]
-        for name in ("_ids", "_labels", "_confirmed", "_frames", "_hits", "_last", "_history"):
-            old = getattr(self, name)
-            setattr(self, name, [old[i] for i in idx.tolist()])
-        return deleted
+                    dropped.append(self._ids[i])
+                continue
+            if silent > cfg.coast_after:
+                self._states[i] = TrackState.COASTING
+            if self._states[i] is TrackState.COASTING:
+                P = self._P[i, :2, :2]
+                worst = 0.5 * (P[0, 0] + P[1, 1]) + math.hypot(0.5 * (P[0, 0] - P[1, 1]), P[0, 1])
+                if silent > cfg.end_after or worst > cfg.max_position_std**2:
+                    self._states[i] = TrackState.ENDED
+                    ended.append(self._snapshot(i, self._x, self._P, t))
+                    keep[i] = False
+        if not keep.all():
+            idx = np.flatnonzero(keep)
+            self._x = self._x[idx]
+            self._P = self._P[idx]
+            for name in (
+                "_ids",
+                "_kinds",
+                "_labels",
+                "_states",
+                "_hits",
+                "_first",
+                "_last",
+                "_score",
+                "_height",
+            ):
+                old = getattr(self, name)
+                setattr(self, name, [old[i] for i in idx.tolist()])
+        return tuple(ended), tuple(dropped)
 
-    # -- per-camera detections -----------------------------------------------------------------
 
-    def update_detections(
-        self,
-        t: float,
-        camera_index: ArrayLike,
-        pixels: ArrayLike,
-        pixel_cov: ArrayLike | None = None,
-        *,
-        pixel_sigma: float = 1.0,
-        labels: Sequence[str | None] | None = None,
-    ) -> FrameAssociation:
-        """Return what the frame did after updating the tracks with raw per-camera detections.
+@dataclass(order=True)
+class _Queued:
+    t: float
+    seq: int
+    frame: object = field(compare=False)
 
-        camera_index: (D,) integers into `cameras`; pixels: (D, 2) distorted pixels; pixel_cov:
-        (D, 2, 2) or (2, 2) px^2, or None for sigma^2 I with sigma = pixel_sigma (px); labels: D
-        strings or None. A camera sees each target at most once.
 
-        1. Predict the tracks to t. 2. For each camera k, project each predicted position onto
-        the image, u_i = pi_k(x_i, y_i, h), with S_ik = J P_xy J^T + Sigma_pixel (J = d pi_k /
-        d(x, y)); GNN-assign camera k's detections to the tracks under the gate on
-        (u - u_i)^T S_ik^-1 (u - u_i). 3. Each track's detections (one per camera) are fused
-        by `locate_ml` (all tracks in one batched call) into a floor measurement with its
-        inverse-Fisher covariance, which updates the track unless it lies beyond `birth_gate`
-        from the prediction (then the group mixed targets and its detections are dropped).
-        4. Detections no track took are back-projected onto Z = h (`locate_monocular`, with
-        covariance C); detections a, b of different cameras are consistent when
-        (p_a - p_b)^T (C_a + C_b)^-1 (p_a - p_b) is within the gate; consistent groups (one
-        detection per camera, pairwise consistent, built greedily from the closest pairs) are
-        fused by `locate_ml` and start tracks.
-        """
-        if not self.cameras:
-            raise InvalidInput(
-                "update_detections needs the camera network: construct FloorTracker(cameras=...)"
-            )
+class ReorderBuffer:
+    """Puts frames from several cameras back in time order within a latency window.
+
+    `push(t, frame)` queues a frame captured at time t; `pop_ready(now)` returns, oldest first,
+    the frames captured at or before now - latency, and closes the window up to that time. A
+    frame that arrives older than that (the tracker has moved past it) is refused by `push`
+    (returns False) and counted in `late`. `limit` bounds the frames held; beyond it the
+    oldest are released early.
+    """
+
+    def __init__(self, latency: float = 0.15, limit: int = 10_000) -> None:
+        if not math.isfinite(latency) or latency < 0:
+            raise InvalidInput(f"latency must be >= 0 seconds, got {latency}")
+        if not isinstance(limit, int) or limit < 1:
+            raise InvalidInput(f"limit must be an integer >= 1, got {limit!r}")
+        self.latency = float(latency)
+        self.limit = limit
+        self._heap: list[_Queued] = []
+        self._seq = itertools.count()
+        self._released: float = -math.inf
+        self.late = 0
+
+    def __len__(self) -> int:
+        return len(self._heap)
+
+    @property
+    def released(self) -> float:
+        """The time up to which frames were released (-inf before any): older ones are late."""
+        return self._released
+
+    def push(self, t: float, frame: object) -> bool:
+        """Queue `frame` captured at time t (s); return False (and count it) when it is late."""
         t = _as_time(t)
-        cam, px, pcov, labs = self._parse_detections(
-            camera_index, pixels, pixel_cov, pixel_sigma, labels
-        )
-        self.predict(t)
-        n_det = cam.size
-        n_old = len(self._ids)
-        track_ids = np.full(n_det, -1, dtype=np.int64)
-        started = np.zeros(n_det, dtype=bool)
-        owner = self._associate_pixels(cam, px, pcov, labs)  # (D,) track row or -1
-        hit = np.zeros(n_old, dtype=bool)
-        rows = np.unique(owner[owner >= 0])
-        if rows.size:
-            est = self._fuse(rows, owner, cam, px, pcov)
-            ok = est.valid
-            # Each camera passed its gate, but the group could still mix two targets: refuse
-            # a fused point that is implausible (beyond birth_gate) for its track.
-            d2, _ = _mahalanobis(
-                np.where(ok[:, None], est.xy, 0.0) - self._x[rows, :2],
-                self._P[rows, :2, :2] + np.where(ok[:, None, None], est.cov, np.eye(2)),
-            )
-            row_labelled = np.array([self._labels[i] is not None for i in rows], dtype=bool)
-            ok &= row_labelled | (d2 <= self.config.birth_gate)
-            z, R = est.xy[ok], est.cov[ok]
-            good = rows[ok]
-            self._kalman_update(good, z, R)
-            hit[good] = True
-            ids = np.array(self._ids, dtype=np.int64)
-            fused = np.isin(owner, good)
-            track_ids[fused] = ids[owner[fused]]
-        free = np.flatnonzero(owner < 0)
-        if free.size:
-            groups = self._group(free, cam, px, pcov, labs)
-            if groups:
-                self._start_groups(groups, cam, px, pcov, labs, track_ids, started)
-        deleted = self._manage(hit)
-        return FrameAssociation(t, track_ids, started, deleted)
+        if t < self._released:
+            self.late += 1
+            return False
+        heapq.heappush(self._heap, _Queued(t, next(self._seq), frame))
+        return True
 
-    def _parse_detections(
-        self,
-        camera_index: ArrayLike,
-        pixels: ArrayLike,
-        pixel_cov: ArrayLike | None,
-        pixel_sigma: float,
-        labels: Sequence[str | None] | None,
-    ) -> tuple[NDArray[np.intp], Array, Array, NDArray[np.object_]]:
-        cam_raw = np.asarray(camera_index)
-        if cam_raw.size == 0:
-            cam_raw = cam_raw.reshape(0).astype(np.intp)
-        if cam_raw.ndim != 1 or not np.issubdtype(cam_raw.dtype, np.integer):
-            raise InvalidInput(
-                f"camera_index must be a 1-D integer array (D,), got dtype {cam_raw.dtype} "
-                f"shape {cam_raw.shape}"
-            )
-        cam = cam_raw.astype(np.intp)
-        n = cam.size
-        if np.any(cam < 0) or np.any(cam >= len(self.cameras)):
-            raise InvalidInput(
-                f"camera_index must lie in [0, {len(self.cameras)}) (the tracker's cameras)"
-            )
-        try:
-            px = np.array(pixels, dtype=np.float64)
-        except (TypeError, ValueError) as exc:
-            raise InvalidInput(f"pixels must be numeric, shape (D, 2): {exc}") from None
-        if px.size == 0:
-            px = px.reshape(0, 2)
-        if px.shape != (n, 2):
-            raise InvalidInput(f"pixels must have shape ({n}, 2), got {px.shape}")
-        if not np.all(np.isfinite(px)):
-            raise InvalidInput("pixels contain NaN or infinite values")
-        if pixel_cov is None:
-            sigma = float(pixel_sigma)
-            if not math.isfinite(sigma) or sigma <= 0:
-                raise InvalidInput(f"pixel_sigma must be a positive number of pixels, got {sigma}")
-            pcov = np.broadcast_to(np.eye(2) * sigma**2, (n, 2, 2)).copy()
-        else:
-            pcov = _as_covariances(pixel_cov, n, "pixel_cov")
-        labs = _as_labels(labels, n)
-        named = [(int(k), lab) for k, lab in zip(cam, labs, strict=True) if lab is not None]
-        if len(named) != len(set(named)):
-            raise InvalidInput("a camera reports the same label twice in one frame")
-        return cam, px, pcov, labs
-
-    def _associate_pixels(
-        self, cam: NDArray[np.intp], px: Array, pcov: Array, labs: NDArray[np.object_]
-    ) -> NDArray[np.intp]:
-        """Return the track row each detection was assigned to (-1: none), camera by camera."""
-        owner = np.full(cam.size, -1, dtype=np.intp)
-        if not self._ids or cam.size == 0:
-            return owner
-        h = self.config.height
-        xy = self._x[:, :2]
-        Pxy = self._P[:, :2, :2]
-        match, labelled = self._compatible(labs)
-        for k, camera in enumerate(self.cameras):
-            det = np.flatnonzero(cam == k)
-            if det.size == 0:
-                continue
-            proj = project_plane(camera, xy, h, jacobian=True)
-            J = proj.jacobian
-            assert J is not None
-            front = proj.depth > 0
-            S = (J @ Pxy @ transposed(J))[:, None] + pcov[det][None]  # (T, n, 2, 2)
-            nu = px[det][None, :, :] - proj.pixels[:, None, :]
-            d2, logdet = _mahalanobis(nu, S)
-            gated = (d2 <= self.config.gate) | labelled[det][None, :]
-            allowed = match[:, det] & gated & front[:, None] & np.isfinite(d2)
-            rows, cols = self._assign_in_rounds(d2 + logdet, allowed, labelled[det])
-            owner[det[cols]] = rows
-        return owner
-
-    def _fuse(
-        self,
-        rows: NDArray[np.intp],
-        owner: NDArray[np.intp],
-        cam: NDArray[np.intp],
-        px: Array,
-        pcov: Array,
-    ) -> FloorEstimate:
-        """Return the ML floor estimate of each track row's detection group (one batched call)."""
-        slot = np.searchsorted(rows, owner)
-        sel = np.flatnonzero(owner >= 0)
-        return self._locate(rows.size, slot[sel], cam[sel], px[sel], pcov[sel])
-
-    def _locate(
-        self, n_groups: int, group: NDArray[np.intp], cam: NDArray[np.intp], px: Array, pcov: Array
-    ) -> FloorEstimate:
-        """Return the ML estimates of n_groups targets; detection i belongs to group[i]."""
-        n_cam = len(self.cameras)
-        pixels = np.zeros((n_cam, n_groups, 2))
-        cov = np.broadcast_to(np.eye(2), (n_cam, n_groups, 2, 2)).copy()
-        visible = np.zeros((n_cam, n_groups), dtype=bool)
-        pixels[cam, group] = px
-        cov[cam, group] = pcov
-        visible[cam, group] = True
-        return locate_ml(self.cameras, pixels, self.config.height, visible=visible, pixel_cov=cov)
-
-    def _group(
-        self,
-        free: NDArray[np.intp],
-        cam: NDArray[np.intp],
-        px: Array,
-        pcov: Array,
-        labs: NDArray[np.object_],
-    ) -> list[list[int]]:
-        """Return groups of the free detections that are one target seen by different cameras.
-
-        Each free detection is back-projected onto Z = h with its covariance; pairs of different
-        cameras and the same label whose points agree within the gate are merged, closest pair
-        first, as long as a group holds one detection per camera and stays pairwise consistent.
-        Detections whose ray misses the plane are left out.
-        """
-        h = self.config.height
-        xy = np.full((free.size, 2), np.nan)
-        C = np.broadcast_to(np.eye(2), (free.size, 2, 2)).copy()
-        ok = np.zeros(free.size, dtype=bool)
-        for k, camera in enumerate(self.cameras):
-            sel = np.flatnonzero(cam[free] == k)
-            if sel.size == 0:
-                continue
-            est = locate_monocular(camera, px[free[sel]], h, pixel_cov=pcov[free[sel]])
-            v = est.valid
-            xy[sel[v]] = est.xy[v]
-            C[sel[v]] = est.cov[v]
-            ok[sel[v]] = True
-        idx = np.flatnonzero(ok)
-        det = free[idx]
-        p, Cv = xy[idx], C[idx]
-        n = det.size
-        if n == 0:
-            return []
-        d2, _ = _mahalanobis(p[:, None] - p[None, :], Cv[:, None] + Cv[None, :])
-        c = cam[det]
-        lab = labs[det]
-        consistent = (c[:, None] != c[None, :]) & (lab[:, None] == lab[None, :])
-        consistent &= d2 <= self.config.gate
-        members: list[list[int]] = [[i] for i in range(n)]
-        group_of = list(range(n))
-        a, b = np.nonzero(np.triu(consistent, 1))
-        for i, j in zip(*(x[np.argsort(d2[a, b], kind="stable")] for x in (a, b)), strict=True):
-            gi, gj = group_of[i], group_of[j]
-            if gi == gj:
-                continue
-            A, B = members[gi], members[gj]
-            if not consistent[np.ix_(A, B)].all():
-                continue  # also catches two detections of one camera
-            members[gi] = A + B
-            members[gj] = []
-            for m in B:
-                group_of[m] = gi
-        return [[int(det[m]) for m in g] for g in members if g]
-
-    def _start_groups(
-        self,
-        groups: list[list[int]],
-        cam: NDArray[np.intp],
-        px: Array,
-        pcov: Array,
-        labs: NDArray[np.object_],
-        track_ids: NDArray[np.int64],
-        started: NDArray[np.bool_],
-    ) -> None:
-        """Locate each group by ML and start its track; fill track_ids and started in place."""
-        members = np.concatenate([np.asarray(g, dtype=np.intp) for g in groups])
-        group = np.repeat(np.arange(len(groups)), [len(g) for g in groups])
-        est = self._locate(len(groups), group, cam[members], px[members], pcov[members])
-        ok = np.flatnonzero(est.valid)
-        if ok.size == 0:
-            return
-        group_labs = np.empty(len(groups), dtype=object)
-        group_labs[:] = [labs[g[0]] for g in groups]
-        ids = self._start(est.xy[ok], est.cov[ok], group_labs[ok])
-        for gi, tid in zip(ok.tolist(), ids.tolist(), strict=True):
-            if tid >= 0:
-                track_ids[groups[gi]] = tid
-                started[groups[gi]] = True
+    def pop_ready(self, now: float) -> list[tuple[float, object]]:
+        """Return the (t, frame) pairs captured at or before now - latency (oldest first), and
+        the oldest beyond `limit`."""
+        horizon = _as_time(now) - self.latency
+        out: list[tuple[float, object]] = []
+        while self._heap and (self._heap[0].t <= horizon or len(self._heap) > self.limit):
+            item = heapq.heappop(self._heap)
+            out.append((item.t, item.frame))
+            self._released = max(self._released, item.t)
+        self._released = max(self._released, horizon)
+        return out

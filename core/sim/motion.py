@@ -11,6 +11,7 @@ So the odometry is a sensor of its own whose drift has the statistics configured
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 
@@ -253,21 +254,29 @@ def walker_positions(walker: Walker, times: ArrayLike) -> Array:
 
     It walks its waypoint polyline at constant speed from the first waypoint; with `loop` it
     returns along the closing segment and goes round again, otherwise it turns back at the ends.
+    Reaching waypoint i it stands still for `pauses[i]` seconds (the first waypoint's pause
+    comes at the end of each round, so the walk starts at once).
     """
     t = np.atleast_1d(np.asarray(times, dtype=np.float64))
     w = np.asarray(walker.waypoints, dtype=np.float64)
-    if walker.loop:
-        w = np.vstack([w, w[:1]])
-    seg = np.linalg.norm(np.diff(w, axis=0), axis=1)
-    cum = np.concatenate([[0.0], np.cumsum(seg)])
-    total = cum[-1]
-    if total <= 0:
+    n = len(w)
+    pauses = np.asarray(walker.pauses if walker.pauses else [0.0] * n, dtype=np.float64)
+    order = [*range(n), 0] if walker.loop else [*range(n), *range(n - 2, -1, -1)]
+    # Key frames of one round: (time, position), a pause being two key frames at one place.
+    key_t = [0.0]
+    key_p = [w[order[0]]]
+    for a, b in itertools.pairwise(order):
+        key_t.append(key_t[-1] + float(np.linalg.norm(w[b] - w[a])) / walker.speed)
+        key_p.append(w[b])
+        if pauses[b] > 0:
+            key_t.append(key_t[-1] + float(pauses[b]))
+            key_p.append(w[b])
+    kt = np.asarray(key_t)
+    kp = np.asarray(key_p)
+    if kt[-1] <= 0:
         return np.repeat(w[:1], len(t), axis=0)
-    s = walker.speed * t
-    s = np.mod(s, total) if walker.loop else total - np.abs(np.mod(s, 2 * total) - total)
-    i = np.clip(np.searchsorted(cum, s, side="right") - 1, 0, len(seg) - 1)
-    f = np.where(seg[i] > 0, (s - cum[i]) / np.where(seg[i] > 0, seg[i], 1.0), 0.0)
-    return w[i] + f[:, None] * (w[i + 1] - w[i])
+    s = np.mod(t, kt[-1])
+    return np.stack([np.interp(s, kt, kp[:, 0]), np.interp(s, kt, kp[:, 1])], axis=1)
 
 
 def world_state(scene: Scene, time: float, robot: Pose2D | None = None) -> WorldState:

@@ -320,15 +320,29 @@ class Landmark(_Model):
 
 class Walker(_Model):
     """A scripted person: walks the polyline of `waypoints` at `speed` m/s, back and forth
-    (`loop` false) or around (`loop` true); body a vertical cylinder of radius and height."""
+    (`loop` false) or around (`loop` true), standing still for `pauses[i]` seconds each time
+    it reaches waypoint i (none when `pauses` is empty); body a vertical cylinder of radius
+    and height."""
 
     name: Name
     waypoints: Annotated[list[Vec2], Field(min_length=2)]
     speed: Positive = 0.8
     loop: bool = False
+    pauses: list[Annotated[float, Field(ge=0.0, le=3600.0, allow_inf_nan=False)]] = Field(
+        default_factory=list
+    )
     radius: Positive = 0.2
     height: Positive = 1.7
     colour: Colour = (40, 110, 60)
+
+    @model_validator(mode="after")
+    def _pause_per_waypoint(self) -> Walker:
+        if self.pauses and len(self.pauses) != len(self.waypoints):
+            raise ValueError(
+                f"pauses must hold one value per waypoint ({len(self.waypoints)}), "
+                f"got {len(self.pauses)}"
+            )
+        return self
 
 
 class Scene(_Model):

@@ -1,0 +1,97 @@
+"""One camera frame's detections for the tracker: the robot's marker and the people, unlabelled.
+
+`detect_frame` is what the twin's loop and a camera node both call on each image: the robot's
+top marker (core.localization.detect.detect_marker) is a "robot" detection of a point at the
+marker's height; each foreground blob of the person detector that does not hold the marker is a
+"person" detection: with the camera's calibration, the image of the foot of the body's axis
+(PersonDetector.detect_bodies, a cylinder fitted to the silhouette), else the blob's lowest
+point. The result is the tracker's input (core.localization.tracking): pixel, pixel
+covariance, kind and the height of the point the pixel measures.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from core.localization.cameras import NetworkCamera
+from core.localization.detect import MarkerDetectorConfig, PersonDetector, detect_marker
+
+Array = NDArray[np.float64]
+
+# A blob whose fitted body is shorter than this (m) is not a standing person: the robot's body
+# seen by a camera that missed its marker, a pet, a bag.
+MIN_PERSON_HEIGHT_M = 1.0
+
+
+@dataclass(frozen=True)
+class FrameDetection:
+    """One detection: kind ("robot" or "person"), distorted pixel (2,), its covariance (2, 2)
+    px^2, height (m) of the point the pixel measures, and the blob's box (x, y, w, h) px."""
+
+    kind: str
+    pixel: Array
+    cov: Array
+    height: float
+    bbox: tuple[int, int, int, int] | None = None
+
+    def to_dict(self) -> dict[str, object]:
+        """Return the detection as JSON-ready values (no "bbox" key without a box)."""
+        out: dict[str, object] = {
+            "kind": self.kind,
+            "pixel": [float(v) for v in self.pixel],
+            "cov": np.asarray(self.cov, dtype=float).tolist(),
+            "height": float(self.height),
+        }
+        if self.bbox is not None:
+            out["bbox"] = [int(v) for v in self.bbox]
+        return out
+
+
+def detect_frame(
+    image: NDArray[np.uint8],
+    *,
+    marker: MarkerDetectorConfig | None = None,
+    marker_height: float = 0.0,
+    people: PersonDetector | None = None,
+    camera: NetworkCamera | None = None,
+) -> list[FrameDetection]:
+    """Return the robot and people detected in one BGR image.
+
+    marker: the robot's marker settings (None: no robot detection) and marker_height its
+    height above the floor (m); people: a person detector with its background learnt (None: no
+    people); camera: the camera's calibration, which locates a person at the axis of their
+    body rather than at the near edge of the silhouette (strongly preferred: the edge is a body
+    radius off, towards the camera). A foreground blob around the marker is the robot's body,
+    not a person, and so is a blob whose fitted body is shorter than MIN_PERSON_HEIGHT_M.
+    """
+    out: list[FrameDetection] = []
+    found = detect_marker(image, marker) if marker is not None else None
+    if found is not None:
+        out.append(FrameDetection("robot", found.pixel, found.cov, float(marker_height)))
+    if people is None:
+        return out
+
+    def holds_marker(box: tuple[int, int, int, int]) -> bool:
+        x, y, w, h = box
+        return found is not None and x <= found.pixel[0] <= x + w and y <= found.pixel[1] <= y + h
+
+    if camera is None:
+        for p in people.detect(image):
+            box = _box(p.bbox)
+            if not holds_marker(box):
+                out.append(FrameDetection("person", p.foot_pixel, p.cov, 0.0, box))
+        return out
+    for b in people.detect_bodies(image, camera):
+        box = _box(b.bbox)
+        if holds_marker(box) or b.body_height < MIN_PERSON_HEIGHT_M:
+            continue
+        out.append(FrameDetection("person", b.pixel, b.cov, float(b.height), box))
+    return out
+
+
+def _box(bbox: object) -> tuple[int, int, int, int]:
+    x, y, w, h = (int(v) for v in bbox)  # type: ignore[attr-defined]
+    return (x, y, w, h)
