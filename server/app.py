@@ -36,6 +36,7 @@ from server.services.auth import TokenCache
 from server.services.runs import RunExecutor, interrupt_unfinished_runs
 from server.services.scene_sync import SceneSync
 from server.services.targets import LiveTargets
+from server.services.tracking import TrackingService
 from server.settings import Settings
 from server.version import VERSION
 
@@ -75,6 +76,7 @@ def _start_twin(settings: Settings, factory, live: LiveTargets, app: FastAPI):
         default_scene(),
         factory,
         live,
+        app.state.tracking,
         app.state.scene_sync,
         rate_hz=settings.twin_rate_hz,
         seed=settings.twin_seed,
@@ -119,9 +121,17 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                 )
         app.state.scene_sync = SceneSync(scene)
         live = LiveTargets(
-            factory, flush_hz=settings.targets_flush_hz, history=settings.targets_history
+            factory,
+            flush_hz=settings.targets_flush_hz,
+            track_hz=settings.track_points_hz,
+            track_retention_s=settings.track_retention_s,
+            detection_retention_s=settings.detection_retention_s,
         )
         app.state.targets = live
+        with factory() as session:
+            live.close_stale(session)
+        tracking = TrackingService(factory, live, latency=settings.tracker_latency_s)
+        app.state.tracking = tracking
         twin = None
         if settings.simulation:
             twin = await run_in_threadpool(_start_twin, settings, factory, live, app)
@@ -129,6 +139,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         with factory() as session:
             app.state.scene_sync.load(session)
         live.start()
+        tracking.start()
         if twin is not None:
             twin.start()
             print(
@@ -141,6 +152,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         finally:
             if twin is not None:
                 await run_in_threadpool(twin.stop)
+            await run_in_threadpool(tracking.stop)
             await run_in_threadpool(live.stop)
             if executor is not None:
                 interrupted = await run_in_threadpool(executor.shutdown)
@@ -165,6 +177,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.executor = None
     app.state.twin = None
     app.state.targets = LiveTargets(factory)
+    app.state.tracking = None
     app.state.token_cache = TokenCache()
     app.state.scene_sync = SceneSync(None)
     app.state.viser_host = "127.0.0.1"

@@ -35,10 +35,23 @@ class Settings(BaseSettings):
     twin_rate_hz: float = Field(5.0, gt=0, le=30, description="Frames per second of the twin.")
     twin_seed: int = Field(0, ge=0, description="Seed of the twin's noise and motion.")
     targets_flush_hz: float = Field(
-        1.0, gt=0, le=20, description="How often live positions are written to the database."
+        2.0, gt=0, le=20, description="How often live targets are written to the database."
     )
-    targets_history: int = Field(
-        2000, ge=10, description="Track points kept per target in the database."
+    track_points_hz: float = Field(
+        20.0, ge=1, le=100, description="Track points stored per second per target, at most."
+    )
+    track_retention_s: float = Field(
+        7 * 86400.0, gt=0, description="Track points and ended targets kept this long (s)."
+    )
+    detection_retention_s: float = Field(
+        86400.0, gt=0, description="Stored detections kept this long (s)."
+    )
+    tracker_latency_s: float = Field(
+        0.15,
+        ge=0,
+        le=5,
+        description="How long the tracker waits for late camera frames before it takes a "
+        "frame (s): frames are put in time order within this window.",
     )
 
     run_workers: int = Field(2, ge=1, le=64, description="Threads executing calibration runs.")

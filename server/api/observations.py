@@ -1,4 +1,12 @@
-"""Localisation of batched detections: POST /observations -> floor positions with covariance."""
+"""Batched detections in: stored, fed to the space's tracker, and labelled groups located at once.
+
+POST /observations takes the detections of any cameras (spec 08: unlabelled, several per camera
+frame, each with its kind where the sender knows it). They are committed to the detections
+table before the answer, then queued for the tracker of the cameras' space
+(server.services.tracking), which makes and follows the targets. Detections that carry a
+`target` label are also located at once by maximum likelihood on the plane, per (target, t),
+and returned, as before the tracker existed.
+"""
 
 from __future__ import annotations
 
@@ -7,12 +15,14 @@ from typing import Annotated
 import numpy as np
 from fastapi import APIRouter, Depends, Request
 from fastapi.responses import JSONResponse
+from sqlalchemy import select
 
 from core.localization import PointStatus, locate_ml
 from server.api.deps import SessionDep, WriteAccess
 from server.api.errors import PROBLEM_RESPONSES, FieldProblem
+from server.db.models import Camera
 from server.schemas.localization import ObservationBatch, PositionBatch
-from server.services.targets import LiveTargets
+from server.services.tracking import DetectionIn, TrackingService
 from server.services.twin import registry_cameras
 
 router = APIRouter(tags=["localization"], responses=PROBLEM_RESPONSES)
@@ -25,9 +35,9 @@ _STATUS = {
 }
 
 
-async def get_targets(request: Request) -> LiveTargets | None:
-    """Return the live targets store (None before the app started)."""
-    return getattr(request.app.state, "targets", None)
+async def get_tracking(request: Request) -> TrackingService | None:
+    """Return the trackers' service (None before the app started)."""
+    return getattr(request.app.state, "tracking", None)
 
 
 @router.post(
@@ -38,11 +48,13 @@ async def get_targets(request: Request) -> LiveTargets | None:
 def post_observations(
     body: ObservationBatch,
     session: SessionDep,
-    live: Annotated[LiveTargets | None, Depends(get_targets)],
+    tracking: Annotated[TrackingService | None, Depends(get_tracking)],
 ):
-    """Return the floor position of each (target, t) of the batch: its detections from every
-    camera fused by maximum likelihood on the plane Z = height (core.localization.locate_ml).
-    Every camera must have intrinsics and a pose; a camera may see a (target, t) once."""
+    """Store the batch's detections and queue them for the space's tracker; return how many
+    were stored and queued, and the floor position of each labelled (target, t): its
+    detections from every camera fused by maximum likelihood on the plane Z = height
+    (core.localization.locate_ml). Every camera must have intrinsics and a pose; a camera may
+    see a labelled (target, t) once; unlabelled detections may be many per camera frame."""
     obs = body.observations
     camera_ids = sorted({o.camera_id for o in obs})
     cameras, refused = registry_cameras(session, camera_ids)
@@ -53,6 +65,47 @@ def post_observations(
                 f"observations.{index}.camera_id",
                 f"{refused[o.camera_id]}; calibrate and pose it before sending its detections",
             )
+    labelled = [i for i, o in enumerate(obs) if o.target is not None]
+    positions = _locate_labelled(obs, labelled, cameras) if labelled else []
+    detections = [
+        DetectionIn(
+            camera_id=o.camera_id,
+            t=o.t,
+            pixel=(o.pixel[0], o.pixel[1]),
+            cov=_cov(o),
+            kind=o.kind or "unknown",
+            height=o.height,
+            label=o.target,
+        )
+        for o in obs
+    ]
+    space_of = _spaces(session, camera_ids)
+    if tracking is not None:
+        result = tracking.ingest(session, detections, space_of)
+        stored, frames, late = result.stored, result.frames, result.late
+    else:  # pragma: no cover - the app always has its tracking service once started
+        stored, frames, late = 0, 0, 0
+    return JSONResponse({"stored": stored, "frames": frames, "late": late, "positions": positions})
+
+
+def _cov(o) -> tuple[tuple[float, float], tuple[float, float]]:
+    if o.cov is not None:
+        (a, b), (c, d) = o.cov
+        return ((a, b), (c, d))
+    s2 = (o.sigma_px or 1.0) ** 2
+    return ((s2, 0.0), (0.0, s2))
+
+
+def _spaces(session, camera_ids: list[int]) -> dict[int, int | None]:
+    rows = session.execute(select(Camera.id, Camera.space_id).where(Camera.id.in_(camera_ids)))
+    return {cid: sid for cid, sid in rows}
+
+
+def _locate_labelled(every, index: list[int], cameras) -> list[dict]:
+    """Return the ML floor position of each labelled (target, t, height) group of the
+    observations `every[i]` for i in `index`."""
+    obs = [every[i] for i in index]
+    camera_ids = sorted({o.camera_id for o in obs})
     column = {cid: k for k, cid in enumerate(camera_ids)}
     groups: dict[tuple[str | None, float, float], int] = {}
     n = len(obs)
@@ -67,11 +120,7 @@ def post_observations(
             g = groups[key] = len(groups)
         cam[i], group[i] = column[o.camera_id], g
         pix[i] = o.pixel
-        if o.cov is not None:
-            cov[i] = o.cov
-        else:
-            s2 = (o.sigma_px or 1.0) ** 2
-            cov[i] = ((s2, 0.0), (0.0, s2))
+        cov[i] = _cov(o)
     C, B = len(camera_ids), len(groups)
     pair = cam * B + group
     _, first, counts = np.unique(pair, return_index=True, return_counts=True)
@@ -79,7 +128,7 @@ def post_observations(
         i = int(first[np.argmax(counts > 1)])
         raise FieldProblem(
             422,
-            f"observations.{i}",
+            f"observations.{index[i]}",
             f"camera {obs[i].camera_id} has more than one detection of target "
             f"{obs[i].target!r} at t = {obs[i].t}; send one per camera, target and time",
         )
@@ -119,6 +168,4 @@ def post_observations(
                 "status": _STATUS[PointStatus(int(status[b]))],
             }
         )
-        if ok and target is not None and live is not None:
-            live.update(target, "external", t, p_xy, p_cov)
-    return JSONResponse({"positions": positions})
+    return positions

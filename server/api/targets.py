@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import time
 from typing import Annotated, Literal
 
 from fastapi import APIRouter, Path, Query, WebSocket, WebSocketDisconnect, status
@@ -14,8 +15,9 @@ from server.api.deps import PageDep, ReadAccess, SessionDep
 from server.api.errors import PROBLEM_RESPONSES
 from server.db.models import Target, TrackPoint
 from server.schemas.common import MAX_ID, Page
-from server.schemas.localization import TargetRead, Track
+from server.schemas.localization import TargetRead, Track, TrackSet
 from server.services.auth import authenticate
+from server.services.targets import LIVE
 
 router = APIRouter(tags=["localization"], responses=PROBLEM_RESPONSES)
 TargetId = Annotated[int, Path(ge=1, le=MAX_ID)]
@@ -27,13 +29,60 @@ _STREAM_HZ = 10.0
 def list_targets(
     session: SessionDep,
     page: PageDep,
-    kind: Annotated[Literal["robot", "person", "external"] | None, Query()] = None,
+    kind: Annotated[Literal["robot", "person", "unknown"] | None, Query()] = None,
+    state: Annotated[
+        Literal["live", "all"],
+        Query(description="live: confirmed and coasting targets; all: ended ones too."),
+    ] = "live",
 ):
-    """Return a page of targets with their latest position, optionally of one kind."""
-    stmt = select(Target).order_by(Target.id)
+    """Return a page of targets with their latest position and life cycle state, newest
+    first (by last update): the live ones, or all with state=all; optionally of one kind."""
+    stmt = select(Target).order_by(Target.last_seen.desc().nulls_last(), Target.id.desc())
+    if state == "live":
+        stmt = stmt.where(Target.state.in_(LIVE))
     if kind is not None:
         stmt = stmt.where(Target.kind == kind)
     return paginate(session, stmt, page)
+
+
+@router.get("/targets/tracks", response_model=TrackSet, dependencies=[ReadAccess])
+def list_tracks(
+    session: SessionDep,
+    state: Annotated[Literal["live", "all"], Query()] = "live",
+    since: Annotated[
+        float | None, Query(allow_inf_nan=False, description="Unix seconds; default: 60 s ago.")
+    ] = None,
+    points: Annotated[int, Query(ge=1, le=2000, description="Newest points per target.")] = 400,
+    targets: Annotated[int, Query(ge=1, le=200, description="Newest targets.")] = 50,
+):
+    """Return the recent track of each of the newest targets (live, or all) in one answer: the
+    newest `points` points at or after `since`, oldest first, so a page draws where everyone
+    went without a request per target."""
+    since = time.time() - 60.0 if since is None else since
+    stmt = select(Target).where(Target.last_seen >= since)
+    if state == "live":
+        stmt = stmt.where(Target.state.in_(LIVE))
+    rows = session.scalars(
+        stmt.order_by(Target.last_seen.desc().nulls_last(), Target.id.desc()).limit(targets)
+    ).all()
+    out = []
+    for row in rows:
+        pts = session.execute(
+            select(TrackPoint.t, TrackPoint.x, TrackPoint.y)
+            .where(TrackPoint.target_id == row.id, TrackPoint.t >= since)
+            .order_by(TrackPoint.t.desc())
+            .limit(points)
+        ).all()
+        out.append(
+            {
+                "target_id": row.id,
+                "label": row.label,
+                "kind": row.kind,
+                "state": row.state,
+                "points": [[t, x, y] for t, x, y in reversed(pts)],
+            }
+        )
+    return {"since": since, "tracks": out}
 
 
 @router.get("/targets/{target_id}", response_model=TargetRead, dependencies=[ReadAccess])
@@ -47,15 +96,26 @@ def get_track(
     target_id: TargetId,
     session: SessionDep,
     since: Annotated[float | None, Query(allow_inf_nan=False, description="Seconds.")] = None,
+    until: Annotated[
+        float | None,
+        Query(
+            allow_inf_nan=False,
+            description="Seconds: only points before this time, to page back from the oldest "
+            "point of the previous page.",
+        ),
+    ] = None,
     limit: Annotated[int, Query(ge=1, le=10_000)] = 1000,
 ):
     """Return the target's track points (t, xy, cov), oldest first: the newest `limit` points
-    at or after `since`."""
+    at or after `since` and before `until` (Unix seconds, the observations' own times)."""
     get_or_404(session, Target, target_id, "target")
     stmt = select(TrackPoint).where(TrackPoint.target_id == target_id)
     if since is not None:
         stmt = stmt.where(TrackPoint.t >= since)
-    rows = session.scalars(stmt.order_by(TrackPoint.id.desc()).limit(limit)).all()
+    if until is not None:
+        stmt = stmt.where(TrackPoint.t < until)
+    order = (TrackPoint.t.desc(), TrackPoint.id.desc())
+    rows = session.scalars(stmt.order_by(*order).limit(limit)).all()
     points = [{"t": p.t, "xy": [p.x, p.y], "cov": p.cov} for p in reversed(rows)]
     return {"target_id": target_id, "points": points}
 
@@ -78,9 +138,9 @@ def _token_ok(websocket: WebSocket, token: str | None) -> bool:
 
 @router.websocket("/ws/targets")
 async def stream_targets(websocket: WebSocket, token: str | None = None) -> None:
-    """Stream {"type": "positions", "t", "targets": [{id, label, kind, xy, cov}]} whenever a
-    position changes, at most 10 times a second. Authenticate with ?token=<read token>; a bad
-    token closes the socket with code 1008."""
+    """Stream {"type": "positions", "t", "targets": [{id, label, kind, state, xy, cov}]} of
+    the live targets whenever one changes, at most 10 times a second. Authenticate with
+    ?token=<read token>; a bad token closes the socket with code 1008."""
     await websocket.accept()
     if not await run_in_threadpool(_token_ok, websocket, token):
         await websocket.close(code=status.WS_1008_POLICY_VIOLATION, reason="bad or missing token")
@@ -98,7 +158,8 @@ async def stream_targets(websocket: WebSocket, token: str | None = None) -> None
                         "type": "positions",
                         "t": max((i["t"] for i in items), default=None),
                         "targets": [
-                            {k: i[k] for k in ("id", "label", "kind", "xy", "cov")} for i in items
+                            {k: i[k] for k in ("id", "label", "kind", "state", "xy", "cov")}
+                            for i in items
                         ],
                     }
                 )

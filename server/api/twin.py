@@ -116,7 +116,7 @@ def camera_frame(
                 cv2.rectangle(image, (x, y), (x + w, y + h), colour, 1)
             cv2.circle(image, (u, v), 8, colour, 2, cv2.LINE_AA)
             cv2.putText(
-                image, det["label"], (u + 10, v - 10), cv2.FONT_HERSHEY_SIMPLEX, 0.5, colour, 1
+                image, det["kind"], (u + 10, v - 10), cv2.FONT_HERSHEY_SIMPLEX, 0.5, colour, 1
             )
     _, jpg = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 85])
     return Response(jpg.tobytes(), media_type="image/jpeg", headers={"Cache-Control": "no-store"})

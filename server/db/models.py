@@ -195,13 +195,16 @@ class ApiToken(Timestamped, Base):
     revoked: Mapped[bool] = mapped_column(Boolean, default=False)
 
 
-# Kinds of a located target.
-TARGET_KINDS = ("robot", "person", "external")
+# Kinds of a located target and of a detection: one vocabulary (spec 08).
+TARGET_KINDS = ("robot", "person", "unknown")
+# Life cycle states of a target (core.localization.tracking.TrackState); live = the first two.
+TARGET_STATES = ("confirmed", "coasting", "ended")
 
 
 class Target(Timestamped, Base):
-    """Something the camera network locates on the floor (the robot, a person, or a target
-    named by an external detector), with its latest position."""
+    """A body the space's tracker follows on the floor (the robot, a person, or of unknown
+    kind): its label, life cycle state, first and last update times (Unix seconds) and its
+    latest position."""
 
     __tablename__ = "targets"
 
@@ -211,20 +214,47 @@ class Target(Timestamped, Base):
     )
     label: Mapped[str] = mapped_column(String(200), unique=True)
     kind: Mapped[str] = mapped_column(String(20))
+    state: Mapped[str] = mapped_column(String(20), default="confirmed", index=True)
+    track_id: Mapped[int | None] = mapped_column(Integer)
+    first_seen: Mapped[float | None] = mapped_column(Float)
+    last_seen: Mapped[float | None] = mapped_column(Float, index=True)
     t: Mapped[float | None] = mapped_column(Float)
     xy: Mapped[list[float] | None] = mapped_column(JSON)
     cov: Mapped[list[list[float]] | None] = mapped_column(JSON)
 
 
 class TrackPoint(Timestamped, Base):
-    """One located position of a target: time (s, the source's clock), floor (x, y) metres and
-    its 2x2 covariance m^2."""
+    """One tracked position of a target: time (Unix seconds, the observation's own), floor
+    (x, y) metres and its 2x2 covariance m^2."""
 
     __tablename__ = "track_points"
 
     id: Mapped[int] = mapped_column(Integer, primary_key=True)
     target_id: Mapped[int] = mapped_column(ForeignKey("targets.id", ondelete="CASCADE"), index=True)
-    t: Mapped[float] = mapped_column(Float)
+    t: Mapped[float] = mapped_column(Float, index=True)
     x: Mapped[float] = mapped_column(Float)
     y: Mapped[float] = mapped_column(Float)
     cov: Mapped[list[list[float]]] = mapped_column(JSON)
+
+
+class Detection(Timestamped, Base):
+    """One detection a camera sent (spec 08): camera, capture time (Unix seconds), distorted
+    pixel (u, v) with its covariance (cxx, cxy, cyy) px^2, kind, the height (m) of the point it
+    measures, and the label when the sender knew the target."""
+
+    __tablename__ = "detections"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    space_id: Mapped[int | None] = mapped_column(
+        ForeignKey("spaces.id", ondelete="CASCADE"), index=True
+    )
+    camera_id: Mapped[int] = mapped_column(ForeignKey("cameras.id", ondelete="CASCADE"))
+    t: Mapped[float] = mapped_column(Float, index=True)
+    u: Mapped[float] = mapped_column(Float)
+    v: Mapped[float] = mapped_column(Float)
+    cxx: Mapped[float] = mapped_column(Float)
+    cxy: Mapped[float] = mapped_column(Float)
+    cyy: Mapped[float] = mapped_column(Float)
+    kind: Mapped[str] = mapped_column(String(20))
+    height: Mapped[float] = mapped_column(Float)
+    label: Mapped[str | None] = mapped_column(String(200))

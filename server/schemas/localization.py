@@ -16,15 +16,21 @@ Cov2 = Annotated[
 MAX_OBSERVATIONS = 100_000
 
 
+Kind = Literal["robot", "person", "unknown"]
+
+
 class Observation(Schema):
-    """One detection: the camera, its time (s, the sender's clock), the distorted pixel and its
-    uncertainty (sigma_px, or a 2x2 covariance px^2), the target's label and height (m)."""
+    """One detection: the camera, its capture time (Unix seconds on the service's clock), the
+    distorted pixel and its uncertainty (sigma_px, or a 2x2 covariance px^2; 1 px when
+    neither), its kind where the sender knows it, the height (m) of the point it measures, and
+    the target's label only when the sender knows which target it is."""
 
     camera_id: Id
     t: Finite
     pixel: Pixel
     sigma_px: Annotated[float, Field(gt=0, le=1000, allow_inf_nan=False)] | None = None
     cov: Cov2 | None = None
+    kind: Kind | None = None
     target: Annotated[str, Field(min_length=1, max_length=200)] | None = None
     height: Annotated[float, Field(ge=-10, le=10, allow_inf_nan=False)] = 0.0
 
@@ -54,13 +60,27 @@ class Position(ReadSchema):
 
 
 class PositionBatch(ReadSchema):
-    positions: list[Position]
+    stored: int = Field(description="Detections committed to the database.")
+    frames: int = Field(description="Camera frames (camera, time) queued for the tracker.")
+    late: int = Field(
+        description="Frames older than what the space's tracker already processed: stored, "
+        "not tracked."
+    )
+    positions: list[Position] = Field(
+        description="The labelled (target, t) groups located at once by ML on the plane."
+    )
+
+
+TargetState = Literal["confirmed", "coasting", "ended"]
 
 
 class TargetRead(ReadSchema):
     id: int
     label: str
     kind: str
+    state: TargetState
+    first_seen: float | None = Field(description="First update, Unix seconds.")
+    last_seen: float | None = Field(description="Latest update, Unix seconds.")
     space_id: int | None
     t: float | None
     xy: list[float] | None
@@ -78,3 +98,16 @@ class TrackPointRead(ReadSchema):
 class Track(ReadSchema):
     target_id: int
     points: list[TrackPointRead]
+
+
+class RecentTrack(ReadSchema):
+    target_id: int
+    label: str
+    kind: str
+    state: TargetState
+    points: list[list[float]] = Field(description="[t, x, y] rows, oldest first.")
+
+
+class TrackSet(ReadSchema):
+    since: float
+    tracks: list[RecentTrack]

@@ -1,6 +1,12 @@
-"""Live targets: the latest position of everything the network locates, kept in memory for the
-stream and the scene, and written to the database (targets + track points) by a background
-thread at a throttled rate with a bounded history per target."""
+"""Live targets: what the spaces' trackers follow, kept in memory for the stream and the scene,
+and written to the database (targets with their life cycle, track points at the tracker's
+rate) by a background thread, under a retention by time.
+
+A target is one track of a space's tracker (core.localization.tracking), keyed by (space id,
+track id). Its points are stored at most `track_hz` times a second, each with the time of the
+observation that produced it; the ended ones leave memory once written. Track points and
+detections older than their retention are deleted, as are ended targets not seen since.
+"""
 
 from __future__ import annotations
 
@@ -11,97 +17,176 @@ from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
 
-from sqlalchemy import delete, select
+from sqlalchemy import delete, func, select, update
 from sqlalchemy.orm import Session, sessionmaker
 
 from server.db.base import utcnow
-from server.db.models import Target, TrackPoint
+from server.db.models import Detection, Target, TrackPoint
 
 log = logging.getLogger(__name__)
+
+LIVE = ("confirmed", "coasting")
+# In-memory track of each live target for the 3D scene and the floor page (points).
+_MEMORY_POINTS = 600
 
 
 @dataclass
 class LiveTarget:
     """One target's latest state and its recent track (t, x, y) in memory."""
 
+    space_id: int | None
+    track_id: int
     label: str
     kind: str
+    state: str
+    first_seen: float
+    last_seen: float
     t: float
     xy: list[float]
     cov: list[list[float]]
+    velocity: list[float] = field(default_factory=lambda: [0.0, 0.0])
     id: int | None = None
-    seen_at: float = 0.0
-    track: deque[tuple[float, float, float]] = field(default_factory=lambda: deque(maxlen=600))
+    track: deque[tuple[float, float, float]] = field(
+        default_factory=lambda: deque(maxlen=_MEMORY_POINTS)
+    )
     pending: list[tuple[float, list[float], list[list[float]]]] = field(default_factory=list)
+    dirty: bool = True
+    last_stored: float = -float("inf")
 
 
 class LiveTargets:
-    """Thread-safe store of live targets. `update` is cheap (memory only); `start` runs the
-    writer thread that flushes the latest point of each target every 1 / flush_hz seconds and
-    keeps at most `history` track points per target in the database."""
+    """Thread-safe store of the live targets of every space. `update`, `set_state` and `end`
+    are cheap (memory only); `start` runs the writer thread that flushes every 1 / flush_hz
+    seconds and applies the retention once a minute."""
 
     def __init__(
         self,
         factory: sessionmaker[Session],
         *,
-        flush_hz: float = 1.0,
-        history: int = 2000,
+        flush_hz: float = 2.0,
+        track_hz: float = 20.0,
+        track_retention_s: float = 7 * 86400.0,
+        detection_retention_s: float = 86400.0,
         space_id: int | None = None,
     ) -> None:
         self._factory = factory
         self._period = 1.0 / flush_hz
-        self._history = history
+        self._min_dt = 1.0 / track_hz
+        self.track_retention_s = track_retention_s
+        self.detection_retention_s = detection_retention_s
         self.space_id = space_id
         self._lock = threading.Lock()
-        self._targets: dict[str, LiveTarget] = {}
+        self._targets: dict[tuple[int | None, int], LiveTarget] = {}
+        self._ended: list[LiveTarget] = []
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self._last_retention = 0.0
         self.version = 0
 
-    def update(self, label: str, kind: str, t: float, xy: list[float], cov: list[list[float]]):
-        """Record a new position of target `label` (created on first sight)."""
+    # -- from the trackers -----------------------------------------------------------------------
+
+    def update(
+        self,
+        space_id: int | None,
+        track_id: int,
+        *,
+        label: str | None,
+        kind: str,
+        state: str,
+        first_seen: float,
+        t: float,
+        xy: list[float],
+        cov: list[list[float]],
+        velocity: list[float] | None = None,
+    ) -> None:
+        """Record a new position of a track (its target is created on first sight)."""
+        key = (space_id, track_id)
         with self._lock:
-            target = self._targets.get(label)
+            target = self._targets.get(key)
             if target is None:
-                target = LiveTarget(label, kind, t, xy, cov)
-                self._targets[label] = target
-            target.t, target.xy, target.cov = t, xy, cov
-            target.seen_at = time.monotonic()
+                name = label or f"{kind}-{space_id if space_id is not None else 0}-{track_id}"
+                target = LiveTarget(
+                    space_id, track_id, name, kind, state, first_seen, t, t, xy, cov
+                )
+                self._targets[key] = target
+            target.kind, target.state = kind, state
+            target.t, target.xy, target.cov, target.last_seen = t, xy, cov, t
+            if velocity is not None:
+                target.velocity = velocity
             target.track.append((t, xy[0], xy[1]))
-            # Only the newest point waits for the writer: the database history is throttled.
-            target.pending = [(t, xy, cov)]
+            if t - target.last_stored >= self._min_dt - 1e-9:
+                target.pending.append((t, xy, cov))
+                target.last_stored = t
+            target.dirty = True
             self.version += 1
 
-    def snapshot(self, max_age: float = 5.0) -> tuple[int, list[dict[str, Any]]]:
-        """Return (version, targets) with id, label, kind, t, xy, cov of each target updated
-        within the last `max_age` seconds (wall clock)."""
-        oldest = time.monotonic() - max_age
+    def set_state(self, space_id: int | None, track_id: int, state: str) -> None:
+        """Record a track's new life cycle state (e.g. coasting)."""
+        with self._lock:
+            target = self._targets.get((space_id, track_id))
+            if target is not None and target.state != state:
+                target.state = state
+                target.dirty = True
+                self.version += 1
+
+    def end(self, space_id: int | None, track_id: int) -> None:
+        """Record that a track ended: it leaves the live set once written."""
+        with self._lock:
+            target = self._targets.pop((space_id, track_id), None)
+            if target is not None:
+                target.state = "ended"
+                target.dirty = True
+                self._ended.append(target)
+                self.version += 1
+
+    def end_space(self, space_id: int | None) -> None:
+        """End every live target of a space (its tracker was reset)."""
+        with self._lock:
+            keys = [k for k in self._targets if k[0] == space_id]
+        for key in keys:
+            self.end(*key)
+
+    # -- reads -----------------------------------------------------------------------------------
+
+    def snapshot(self) -> tuple[int, list[dict[str, Any]]]:
+        """Return (version, live targets) with id, label, kind, state, t, xy, cov, first_seen."""
         with self._lock:
             items = [
-                {"id": v.id, "label": v.label, "kind": v.kind, "t": v.t, "xy": v.xy, "cov": v.cov}
+                {
+                    "id": v.id,
+                    "space_id": v.space_id,
+                    "label": v.label,
+                    "kind": v.kind,
+                    "state": v.state,
+                    "t": v.t,
+                    "xy": v.xy,
+                    "cov": v.cov,
+                    "velocity": v.velocity,
+                    "first_seen": v.first_seen,
+                    "last_seen": v.last_seen,
+                }
                 for v in self._targets.values()
-                if v.seen_at >= oldest
             ]
             return self.version, items
 
     def track(self, label: str) -> list[list[float]]:
-        """Return the in-memory track [[x, y], ...] of `label` (oldest first)."""
-        with self._lock:
-            target = self._targets.get(label)
-            return [] if target is None else [[x, y] for _, x, y in target.track]
-
-    def get(self, label: str) -> LiveTarget | None:
-        """Return the live target called `label`, None when it was never seen."""
-        with self._lock:
-            return self._targets.get(label)
-
-    def clear_tracks(self, kinds: tuple[str, ...]) -> None:
-        """Forget the in-memory tracks of targets of `kinds` (the database keeps its history)."""
+        """Return the in-memory track [[x, y], ...] of the live target `label` (oldest first)."""
         with self._lock:
             for target in self._targets.values():
-                if target.kind in kinds:
-                    target.track.clear()
-                    target.pending.clear()
+                if target.label == label:
+                    return [[x, y] for _, x, y in target.track]
+            return []
+
+    def get(self, label: str) -> LiveTarget | None:
+        """Return the live target called `label`, None when there is none."""
+        with self._lock:
+            return next((v for v in self._targets.values() if v.label == label), None)
+
+    def __len__(self) -> int:
+        with self._lock:
+            return len(self._targets)
+
+    # -- the writer ------------------------------------------------------------------------------
 
     def start(self) -> None:
         """Start the writer thread."""
@@ -121,48 +206,83 @@ class LiveTargets:
         while not self._stop.wait(self._period):
             try:
                 self.flush()
+                if time.monotonic() - self._last_retention > 60.0:
+                    self._last_retention = time.monotonic()
+                    self.apply_retention()
             except Exception:
                 log.exception("writing targets failed")
 
     def flush(self) -> int:
-        """Write the pending points to the database; return how many were written."""
+        """Write the changed targets and their pending points; return the points written."""
         with self._lock:
-            batch = [(v, v.pending) for v in self._targets.values() if v.pending]
-            for v, _ in batch:
+            batch = [v for v in self._targets.values() if v.dirty] + self._ended
+            self._ended = []
+            work = []
+            for v in batch:
+                work.append(
+                    (
+                        v,
+                        v.pending,
+                        (v.state, v.t, v.xy, v.cov, v.first_seen, v.last_seen, v.kind),
+                    )
+                )
                 v.pending = []
-        if not batch:
+                v.dirty = False
+        if not work:
             return 0
         written = 0
         with self._factory() as session:
-            for live, points in batch:
+            for live, points, (state, t, xy, cov, first, last, kind) in work:
                 row = session.get(Target, live.id) if live.id is not None else None
                 if row is None:
                     row = session.scalar(select(Target).where(Target.label == live.label))
                 if row is None:
-                    row = Target(label=live.label, kind=live.kind, space_id=self.space_id)
+                    row = Target(label=live.label, space_id=live.space_id, first_seen=first)
                     session.add(row)
-                    session.flush()
-                t, xy, cov = points[-1]
-                row.t, row.xy, row.cov, row.updated_at = t, xy, cov, utcnow()
-                for t, xy, cov in points:
-                    session.add(TrackPoint(target_id=row.id, t=t, x=xy[0], y=xy[1], cov=cov))
-                    written += 1
+                row.kind, row.state, row.track_id = kind, state, live.track_id
+                row.t, row.xy, row.cov, row.last_seen = t, xy, cov, last
+                if row.first_seen is None:
+                    row.first_seen = first
+                row.updated_at = utcnow()
+                session.flush()
                 live.id = row.id
-                self._prune(session, row.id)
+                if points:
+                    session.execute(
+                        TrackPoint.__table__.insert(),
+                        [
+                            {"target_id": row.id, "t": pt, "x": pxy[0], "y": pxy[1], "cov": pcov}
+                            for pt, pxy, pcov in points
+                        ],
+                    )
+                    written += len(points)
             session.commit()
         return written
 
-    def _prune(self, session: Session, target_id: int) -> None:
-        oldest_kept = session.scalar(
-            select(TrackPoint.id)
-            .where(TrackPoint.target_id == target_id)
-            .order_by(TrackPoint.id.desc())
-            .offset(self._history - 1)
-            .limit(1)
-        )
-        if oldest_kept is not None:
-            session.execute(
-                delete(TrackPoint).where(
-                    TrackPoint.target_id == target_id, TrackPoint.id < oldest_kept
-                )
-            )
+    def apply_retention(self, now: float | None = None) -> dict[str, int]:
+        """Delete track points, detections and ended targets older than their retention;
+        return how many rows of each went."""
+        now = time.time() if now is None else now
+        track_cut = now - self.track_retention_s
+        det_cut = now - self.detection_retention_s
+        with self._factory() as session:
+            points = session.execute(delete(TrackPoint).where(TrackPoint.t < track_cut)).rowcount
+            dets = session.execute(delete(Detection).where(Detection.t < det_cut)).rowcount
+            old = select(Target.id).where(Target.state == "ended", Target.last_seen < track_cut)
+            ids = list(session.scalars(old))
+            if ids:
+                session.execute(delete(TrackPoint).where(TrackPoint.target_id.in_(ids)))
+                session.execute(delete(Target).where(Target.id.in_(ids)))
+            session.commit()
+        return {"track_points": points or 0, "detections": dets or 0, "targets": len(ids)}
+
+    def close_stale(self, session: Session) -> int:
+        """Mark targets left live by an earlier run of the service as ended; return how many.
+        Their trackers' state did not survive the restart."""
+        result = session.execute(update(Target).where(Target.state.in_(LIVE)).values(state="ended"))
+        session.commit()
+        return result.rowcount or 0
+
+    def next_track_id(self, session: Session, space_id: int | None) -> int:
+        """Return the first track id a new tracker of `space_id` may use (after the stored)."""
+        stmt = select(func.max(Target.track_id)).where(Target.space_id == space_id)
+        return int(session.scalar(stmt) or 0) + 1

@@ -1,12 +1,12 @@
 """The running digital twin: the default home simulated in a background thread.
 
 The robot patrols and the scene's people walk; at `rate_hz` every ceiling camera's frame is
-rendered, the robot's marker and the people are detected in the images, located on the floor
-with the registry's current calibration of the cameras (core.localization, ML on the plane) and
-tracked (core.localization.tracking: constant-velocity Kalman filters, the robot's track
-labelled) and handed to the live targets store. The latest frame of each camera and its
-detections are kept for the API; the live 3D scene gets the agents, tracks and images at a
-throttled rate.
+rendered and its robot marker and people detected (core.localization.detections.detect_frame,
+what a camera node calls too). The detections, unlabelled and stamped with the frame's capture
+time on the service's clock (the twin's clock mapped to Unix seconds), go to the same ingest as
+POST /observations (server.services.tracking): stored, then tracked by the space's one tracker.
+The latest frame of each camera and its detections are kept for the API; the live 3D scene gets
+the agents, tracks and images at a throttled rate.
 
 The twin's scene is also the calibration object of the "network" calibration runs.
 """
@@ -14,9 +14,9 @@ The twin's scene is also the calibration object of the "network" calibration run
 from __future__ import annotations
 
 import logging
-import math
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -24,31 +24,30 @@ import numpy as np
 from sqlalchemy import select
 from sqlalchemy.orm import Session, sessionmaker
 
-from core.errors import InvalidInput
-from core.localization import NetworkCamera, locate_ml
-from core.localization.detect import MarkerDetectorConfig, PersonDetector, detect_marker
-from core.localization.tracking import FloorTracker, TrackerConfig
-from core.sim import Scene, SensorNoise, UnicycleBase, WorldState, world_state
+from core.localization import NetworkCamera
+from core.localization.detect import MarkerDetectorConfig, PersonDetector
+from core.localization.detections import detect_frame
+from core.sim import Scene, UnicycleBase, WorldState, world_state
 from core.sim.motion import Patrol
+from core.sim.occluders import scene_occluders
 from core.sim.render import camera_model, renderer_for
 from server.db.models import Camera, Robot, Room, Space
+from server.services.tracking import DetectionIn
 
 if TYPE_CHECKING:
     from server.services.scene_sync import SceneSync
     from server.services.targets import LiveTargets
+    from server.services.tracking import TrackingService
 
 log = logging.getLogger(__name__)
 
 CAMERA_NOMINAL = "nominal"
 # Physics step of the robot base (s); the twin steps it as often as a frame period needs.
 _BASE_DT = 0.05
-# People detections from different cameras closer than this (m) are one person.
-_PERSON_GATE_M = 0.8
 # Pushes to the 3D scene (agents, tracks) and camera images, at most this often (Hz).
 _SCENE_HZ = 5.0
-# Acceleration spectral density of the tracker (m^2/s^3): walking people and a robot that
-# turns at its waypoints.
-_TRACKER_Q = 0.5
+# How many of the robot track's errors against the truth the state keeps.
+_ERRORS_KEPT = 2000
 _IMAGE_HZ = 1.0
 
 
@@ -131,68 +130,6 @@ def registry_cameras(
 
 
 # --------------------------------------------------------------------------------------------
-# Network calibration drive
-
-
-def network_calibration_drive(
-    scene: Scene, seed: int, *, spacing: float = 0.3, placement_sigma: float = 0.002
-) -> dict[str, Any]:
-    """Return the result of calibrating the scene's cameras by driving the robot's marker over
-    a grid of stops (the twin's network-calibration scenario, core.sim.scenarios), with each
-    calibrated camera's K, dist, T_world_camera, std, rms and its errors against the twin."""
-    from core.sim.scenarios import calibration_errors, drive_marker_calibration
-
-    if scene.robot is None or scene.robot.marker is None:
-        raise InvalidInput("the twin's robot carries no marker to calibrate the network with")
-    # Shared with the running twin: the static layer of each camera is built once.
-    drive = drive_marker_calibration(
-        scene,
-        seed,
-        spacing=spacing,
-        placement_sigma=placement_sigma,
-        noise=SensorNoise(),
-        renderer=renderer_for(scene),
-    )
-    net, cams = drive.calibration, drive.true_cameras
-    cameras = []
-    for cal in net.cameras:
-        true = next(cm for cm in cams if cm.name == cal.name)
-        err = calibration_errors(cal, true)
-        cameras.append(
-            {
-                "name": cal.name,
-                "K": cal.K.tolist(),
-                "dist": cal.dist.tolist(),
-                "T_world_camera": cal.T_world_camera.tolist(),
-                "std": {
-                    "f_px": float(cal.std[0]),
-                    "rvec_rad": cal.std[1:4].tolist(),
-                    "t_m": cal.std[4:7].tolist(),
-                },
-                "rms": cal.rms,
-                "poses_seen": cal.poses_seen,
-                "errors": {
-                    "focal_pct": err.focal_pct,
-                    "position_m": err.position_m,
-                    "rotation_deg": err.rotation_deg,
-                },
-                "image_size": [true.width, true.height],
-            }
-        )
-    return {
-        "kind": "network",
-        "target": "marker",
-        "poses": drive.poses,
-        "detections": int(drive.seen.sum()),
-        "rms": float(net.rms),
-        "cameras": cameras,
-        "rejected": [
-            {"name": r.name, "reason": r.reason, "poses_seen": r.poses_seen} for r in net.rejected
-        ],
-    }
-
-
-# --------------------------------------------------------------------------------------------
 # The running twin
 
 
@@ -215,16 +152,22 @@ class Twin:
         scene: Scene,
         factory: sessionmaker[Session],
         targets: LiveTargets,
+        tracking: TrackingService | None,
         scene_sync: SceneSync | None = None,
         *,
         rate_hz: float = 5.0,
         seed: int = 0,
+        clock: Any = time.time,
     ) -> None:
         self.scene = scene
         self.space_id: int | None = None
         self.camera_ids: dict[str, int] = {}
         self._factory = factory
         self._targets = targets
+        self._tracking = tracking
+        self._clock = clock
+        # Unix time of the twin's clock zero: a frame at sim time s was captured at epoch + s.
+        self._epoch = clock()
         self._scene_sync = scene_sync
         self._seed = seed
         self.rate_hz = float(rate_hz)
@@ -240,15 +183,13 @@ class Twin:
         self._thread: threading.Thread | None = None
         self._frames: dict[int, CameraFrame] = {}
         self._cameras: dict[int, NetworkCamera] = {}
-        self._cameras_loaded = 0.0
+        self._cameras_loaded = -float("inf")
         self._last_scene = 0.0
         self._last_image = 0.0
         self._tracks_shown: set[str] = set()
         self.steps = 0
-        self.errors: list[float] = []
+        self.errors: deque[float] = deque(maxlen=_ERRORS_KEPT)
         self._detectors: dict[str, PersonDetector] = {}
-        corners = np.array([p for room in scene.rooms for p in room.polygon], dtype=float)
-        self._floor_lo, self._floor_hi = corners.min(axis=0), corners.max(axis=0)
         self._reset_state()
 
     # -- lifecycle ---------------------------------------------------------------------------
@@ -257,7 +198,9 @@ class Twin:
         """Register the scene's space in the registry (first start) and map its cameras."""
         with self._factory() as session:
             self.space_id, self.camera_ids = bootstrap_space(session, self.scene)
-        self._targets.space_id = self.space_id
+        if self._tracking is not None:
+            # The floor plan is what an installer knows of the home (not the twin's truth).
+            self._tracking.set_floor_plan(self.space_id, scene_occluders(self.scene))
 
     def _reset_state(self) -> None:
         robot = self.scene.robot
@@ -265,8 +208,11 @@ class Twin:
         self._base = UnicycleBase.from_robot(robot, dt=_BASE_DT, rng=self._seed) if robot else None
         self._patrol = Patrol(robot.patrol, robot.limits) if robot and robot.patrol else None
         self.sim_time = 0.0
-        self._tracker = FloorTracker(TrackerConfig(q=_TRACKER_Q))
-        self.errors = []
+        self._epoch = self._clock()
+        self.errors = deque(maxlen=_ERRORS_KEPT)
+        # (capture time, sim time, robot x, robot y) of recent frames, for scoring only.
+        self._truth: deque[tuple[float, float, float, float]] = deque(maxlen=_ERRORS_KEPT)
+        self._scored_until = -float("inf")
 
     def _learn_background(self, camera: str) -> PersonDetector:
         # The empty home: no robot, the people far outside every camera's view.
@@ -296,11 +242,17 @@ class Twin:
         return self._thread is not None and self._thread.is_alive() and not self._paused.is_set()
 
     def pause(self) -> None:
-        """Hold the simulation clock until `resume`."""
+        """Hold the simulation clock (and the space's tracks) until `resume`."""
         self._paused.set()
+        if self._tracking is not None:
+            self._tracking.hold(self.space_id)
 
     def resume(self) -> None:
-        """Continue after `pause`."""
+        """Continue after `pause`; the twin's clock goes on from the service's clock now."""
+        with self._lock:
+            self._epoch = self._clock() - self.sim_time
+        if self._tracking is not None:
+            self._tracking.release(self.space_id)
         self._paused.clear()
 
     def reset(self) -> None:
@@ -308,7 +260,8 @@ class Twin:
         with self._lock:
             self._reset_state()
             self._frames.clear()
-        self._targets.clear_tracks(("robot", "person"))
+        if self._tracking is not None:
+            self._tracking.reset(self.space_id)
 
     def set_rate(self, rate_hz: float) -> None:
         """Set the frame rate of the simulation (Hz)."""
@@ -321,7 +274,7 @@ class Twin:
         with self._lock:
             pose = self._base.state.pose if self._base is not None else None
             people = list(world_state(self.scene, self.sim_time).people)
-            errors = np.array(self.errors[-200:])
+            errors = np.array(list(self.errors)[-200:])
             return {
                 "enabled": True,
                 "running": self.running,
@@ -361,7 +314,8 @@ class Twin:
             self._stop.wait(max(0.0, next_time - time.monotonic()))
 
     def _network(self) -> dict[int, NetworkCamera]:
-        # The registry's calibration may change (a run applied): reload it every second.
+        # The registry's calibration, as a camera node reads it: the detector locates a person
+        # at the body's axis with it. A calibration run may change it: reload every second.
         now = time.monotonic()
         if now - self._cameras_loaded > 1.0:
             with self._factory() as session:
@@ -370,7 +324,8 @@ class Twin:
         return self._cameras
 
     def step(self, period: float) -> None:
-        """Advance the simulation by `period` seconds and process one frame of every camera."""
+        """Advance the simulation by `period` seconds and process one frame of every camera:
+        render, detect, and hand the detections to the space's tracker."""
         with self._lock:
             if self._base is not None:
                 for _ in range(max(1, round(period / _BASE_DT))):
@@ -380,133 +335,98 @@ class Twin:
             else:
                 self.sim_time += period
             t = self.sim_time
+            # The twin's clock maps to the service's: a frame is stamped with its capture time.
+            # When rendering falls behind real time the mapping slips, never the stamps' order.
+            now = self._clock()
+            if self._epoch + t < now:
+                self._epoch = now - t
+            stamp = self._epoch + t
             state = world_state(
                 self.scene, t, self._base.state.pose if self._base is not None else None
             )
-            network = self._network()
+            robot = self.scene.robot
+            marker_height = robot.marker.height if robot is not None and robot.marker else 0.0
             frames: dict[int, CameraFrame] = {}
-            marker_px: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-            people_px: dict[int, list[tuple[np.ndarray, np.ndarray]]] = {}
+            network = self._network()
             for spec in self.scene.cameras:
                 camera_id = self.camera_ids.get(spec.name)
                 if camera_id is None:
                     continue
                 frame = self._renderer.render(spec.name, state, rng=self._rng)
-                cf = CameraFrame(camera_id, spec.name, t, frame.image)
-                marker = detect_marker(frame.image, self._marker_cfg) if self._marker_cfg else None
-                if marker is not None:
-                    marker_px[camera_id] = (marker.pixel, marker.cov)
-                    cf.detections.append(
-                        {"kind": "robot", "label": "robot", "pixel": marker.pixel.tolist()}
-                    )
-                detector = self._detectors.get(spec.name)
-                persons = detector.detect(frame.image) if detector is not None else []
-                for p in persons:
-                    x, y, w, h = p.bbox
-                    # The robot is foreground too: a blob around the marker is the robot.
-                    if (
-                        marker is not None
-                        and x <= marker.pixel[0] <= x + w
-                        and y <= marker.pixel[1] <= y + h
-                    ):
-                        continue
-                    people_px.setdefault(camera_id, []).append((p.foot_pixel, p.cov))
-                    cf.detections.append(
-                        {
-                            "kind": "person",
-                            "label": "person",
-                            "pixel": p.foot_pixel.tolist(),
-                            "bbox": list(p.bbox),
-                        }
+                cf = CameraFrame(camera_id, spec.name, stamp, frame.image)
+                found = detect_frame(
+                    frame.image,
+                    marker=self._marker_cfg,
+                    marker_height=marker_height,
+                    people=self._detectors.get(spec.name),
+                    camera=network.get(camera_id),
+                )
+                detections = []
+                for d in found:
+                    cf.detections.append(d.to_dict())
+                    # The marker's colour is this robot's own: its detection names the robot.
+                    label = robot.name if d.kind == "robot" and robot is not None else None
+                    detections.append(
+                        DetectionIn(
+                            camera_id=camera_id,
+                            t=stamp,
+                            pixel=(float(d.pixel[0]), float(d.pixel[1])),
+                            cov=(
+                                (float(d.cov[0, 0]), float(d.cov[0, 1])),
+                                (float(d.cov[1, 0]), float(d.cov[1, 1])),
+                            ),
+                            kind=d.kind,
+                            height=d.height,
+                            label=label,
+                        )
                     )
                 frames[camera_id] = cf
+                if self._tracking is not None and detections:
+                    with self._factory() as session:
+                        self._tracking.ingest(session, detections, {camera_id: self.space_id})
             self._frames = frames
-            robot = self._locate_robot(state, network, marker_px)
-            people = self._locate_people(network, people_px, robot)
-            self._track(t, state, robot, people)
             self.steps += 1
+        self._score_robot(state)
         self._push_scene(state, frames)
 
-    def _locate_robot(self, state, network, marker_px) -> tuple[np.ndarray, np.ndarray] | None:
-        """Return the robot's centre on the floor and its covariance from the marker's
-        detections, None when no calibrated camera saw it."""
+    def _score_robot(self, state: WorldState) -> None:
+        """Keep the error of the live robot track against the twin's robot at the track's own
+        time (the truth is used for scoring only, never by the pipeline)."""
+        if state.robot is None:
+            return
+        with self._lock:
+            self._truth.append(
+                (self._epoch + self.sim_time, self.sim_time, state.robot.x, state.robot.y)
+            )
         robot = self.scene.robot
-        ids = [i for i in marker_px if i in network]
-        if robot is None or robot.marker is None or not ids or state.robot is None:
+        live = self._targets.get(robot.name) if robot is not None else None
+        # The robot's target at its latest update, scored once per update.
+        if live is None or live.state != "confirmed" or live.t <= self._scored_until:
+            return
+        self._scored_until = live.t
+        truth = self.truth_at(np.array([live.t]))
+        if truth is not None and np.all(np.isfinite(truth)):
+            self.errors.append(float(np.linalg.norm(np.asarray(live.xy) - truth[0])))
+
+    def sim_time_at(self, stamps: np.ndarray) -> np.ndarray:
+        """Return the twin's simulated times (N,) of capture times `stamps` (N,) Unix seconds
+        (NaN outside the recent history)."""
+        with self._lock:
+            hist = np.array(self._truth, dtype=np.float64).reshape(-1, 4)
+        if hist.shape[0] < 2:
+            return np.full(np.shape(stamps), np.nan)
+        return np.interp(stamps, hist[:, 0], hist[:, 1], left=np.nan, right=np.nan)
+
+    def truth_at(self, stamps: np.ndarray) -> np.ndarray | None:
+        """Return the robot's true floor position (N, 2) at capture times `stamps` (N,),
+        linearly between frames (NaN outside the recent history); None without a robot."""
+        with self._lock:
+            hist = np.array(self._truth, dtype=np.float64).reshape(-1, 4)
+        if hist.shape[0] < 2:
             return None
-        pixels = np.stack([marker_px[i][0] for i in ids])[:, None]
-        cov = np.stack([marker_px[i][1] for i in ids])[:, None]
-        est = locate_ml([network[i] for i in ids], pixels, robot.marker.height, pixel_cov=cov)
-        if not est.valid[0]:
-            return None
-        # The marker sits at its offset in the robot frame; the target is the robot's centre.
-        c, s = math.cos(state.robot.yaw), math.sin(state.robot.yaw)
-        ox, oy = robot.marker.offset
-        return est.xy[0] - np.array([c * ox - s * oy, s * ox + c * oy]), est.cov[0]
-
-    def _locate_people(self, network, people_px, robot) -> list[tuple[np.ndarray, np.ndarray]]:
-        """Return the people's floor positions and covariances: each detection located on its
-        own (ML at Z = 0, one camera), grouped across cameras by distance, and each group fused
-        by ML over its cameras."""
-        singles: list[tuple[int, np.ndarray, np.ndarray, np.ndarray]] = []
-        for camera_id, dets in people_px.items():
-            if camera_id not in network:
-                continue
-            px = np.stack([d[0] for d in dets])[None]
-            cov = np.stack([d[1] for d in dets])[None]
-            est = locate_ml([network[camera_id]], px, 0.0, pixel_cov=cov)
-            for j, ok in enumerate(est.valid):
-                if ok:
-                    singles.append((camera_id, est.xy[j], dets[j][0], dets[j][1]))
-        groups: list[list[tuple[int, np.ndarray, np.ndarray, np.ndarray]]] = []
-        for det in singles:
-            for group in groups:
-                if det[0] not in {g[0] for g in group} and (
-                    np.linalg.norm(group[0][1] - det[1]) < _PERSON_GATE_M
-                ):
-                    group.append(det)
-                    break
-            else:
-                groups.append([det])
-        fused = []
-        for group in groups:
-            est = locate_ml(
-                [network[g[0]] for g in group],
-                np.stack([g[2] for g in group])[:, None],
-                0.0,
-                pixel_cov=np.stack([g[3] for g in group])[:, None],
-            )
-            # A camera that missed the marker sees the robot as foreground: not a person.
-            near_robot = robot is not None and np.linalg.norm(est.xy[0] - robot[0]) < (
-                _PERSON_GATE_M
-            )
-            if est.valid[0] and not near_robot and self._on_floor(est.xy[0]):
-                fused.append((est.xy[0], est.cov[0]))
-        return fused
-
-    def _on_floor(self, xy: np.ndarray) -> bool:
-        # A foreground blob whose foot point lands outside the home is not a person.
-        return bool(np.all(xy >= self._floor_lo) and np.all(xy <= self._floor_hi))
-
-    def _track(self, t, state, robot, people) -> None:
-        """Update the tracker with this frame's floor positions (the robot's labelled) and
-        publish every confirmed track updated now; the robot's error against the truth is kept
-        for the state."""
-        measurements = ([robot] if robot is not None else []) + people
-        labels = (["robot"] if robot is not None else []) + [None] * len(people)
-        xy = np.array([m[0] for m in measurements]).reshape(-1, 2)
-        cov = np.array([m[1] for m in measurements]).reshape(-1, 2, 2)
-        self._tracker.update(t, xy, cov, labels)
-        for track in self._tracker.tracks(confirmed_only=True):
-            if track.last_update != t:
-                continue
-            if track.label == "robot":
-                label, kind = "robot", "robot"
-                truth = np.array([state.robot.x, state.robot.y])
-                self.errors.append(float(np.linalg.norm(track.xy - truth)))
-            else:
-                label, kind = f"person-{track.id}", "person"
-            self._targets.update(label, kind, t, track.xy.tolist(), track.xy_cov.tolist())
+        x = np.interp(stamps, hist[:, 0], hist[:, 2], left=np.nan, right=np.nan)
+        y = np.interp(stamps, hist[:, 0], hist[:, 3], left=np.nan, right=np.nan)
+        return np.column_stack([x, y])
 
     # -- the 3D scene ------------------------------------------------------------------------
 

@@ -1,5 +1,6 @@
-"""Localisation through the API: batched observations fused on the floor against projections
-of known cameras, refusals of unusable cameras and malformed bodies, targets and the stream."""
+"""Localisation through the API: batched observations stored and tracked, labelled groups fused
+on the floor against projections of known cameras, refusals of unusable cameras and malformed
+bodies, targets with their life cycle, tracks and the stream."""
 
 from __future__ import annotations
 
@@ -49,6 +50,7 @@ def test_observations_fuse_to_the_true_positions(client, admin):
     rng = np.random.default_rng(1)
     truth = rng.uniform([1.0, 0.5], [3.0, 2.5], (20, 2))
     height = 0.36
+    now = time.time()
     observations = []
     for j, xy in enumerate(truth):
         X = np.array([[xy[0], xy[1], height]])
@@ -56,7 +58,7 @@ def test_observations_fuse_to_the_true_positions(client, admin):
             observations.append(
                 {
                     "camera_id": cid,
-                    "t": 0.5,
+                    "t": now,
                     "pixel": cam.project(X)[0].tolist(),
                     "sigma_px": 0.5,
                     "target": f"t{j}",
@@ -67,6 +69,7 @@ def test_observations_fuse_to_the_true_positions(client, admin):
         "/api/v1/observations", json={"observations": observations}, headers=admin
     )
     assert response.status_code == 200, response.text
+    assert response.json()["stored"] == 60 and response.json()["frames"] == 3
     positions = response.json()["positions"]
     assert [p["target"] for p in positions] == [f"t{j}" for j in range(20)]
     xy = np.array([p["xy"] for p in positions])
@@ -79,14 +82,23 @@ def test_observations_fuse_to_the_true_positions(client, admin):
         # 0.5 px at ~3 m with f = 500 px is a few mm: the covariance says so.
         assert 1e-4 < np.sqrt(np.trace(cov)) < 1e-2
 
-    # The labelled positions become targets (written by the throttled writer).
+    # The labelled detections become targets through the tracker (written by the throttled
+    # writer), each at the tracker's estimate from its three cameras. Seen once, they coast
+    # and end within a second or two, so the history lists them (state=all).
     deadline = time.monotonic() + 5
     while time.monotonic() < deadline:
-        listed = client.get("/api/v1/targets?kind=external", headers=admin).json()
+        listed = client.get("/api/v1/targets?state=all", headers=admin).json()
         if listed["total"] == 20:
             break
         time.sleep(0.1)
     assert listed["total"] == 20
+    by_label = {t["label"]: t for t in listed["items"]}
+    for j, xy in enumerate(truth):
+        target = by_label[f"t{j}"]
+        assert target["state"] in ("confirmed", "coasting", "ended")
+        assert target["first_seen"] == pytest.approx(now)
+        # Exact pixels through three sequential EKF updates: within a millimetre of the truth.
+        assert np.linalg.norm(np.array(target["xy"]) - xy) < 1e-3
     first = listed["items"][0]
     track = client.get(f"/api/v1/targets/{first['id']}/track", headers=admin).json()
     assert len(track["points"]) == 1
@@ -98,9 +110,8 @@ def test_one_camera_gives_a_monocular_position_and_unposed_cameras_are_refused(c
     cameras = _cameras()
     ids = _register(client, admin, cameras[:1])
     X = np.array([[2.0, 1.0, 0.0]])
-    body = {
-        "observations": [{"camera_id": ids[0], "t": 1, "pixel": cameras[0].project(X)[0].tolist()}]
-    }
+    px = cameras[0].project(X)[0].tolist()
+    body = {"observations": [{"camera_id": ids[0], "t": 1, "pixel": px, "target": "a"}]}
     response = client.post("/api/v1/observations", json=body, headers=admin)
     assert response.status_code == 200, response.text
     assert np.allclose(response.json()["positions"][0]["xy"], [2.0, 1.0], atol=1e-9)
@@ -144,21 +155,83 @@ def test_stream_sends_positions_and_refuses_a_bad_token(client, admin):
     cameras = _cameras()
     ids = _register(client, admin, cameras)
     X = np.array([[2.0, 1.5, 0.0]])
+    now = time.time()
     body = {
         "observations": [
-            {"camera_id": cid, "t": 3.0, "pixel": cam.project(X)[0].tolist(), "target": "cup"}
+            {"camera_id": cid, "t": now, "pixel": cam.project(X)[0].tolist(), "target": "cup"}
             for cid, cam in zip(ids, cameras, strict=True)
         ]
     }
     assert client.post("/api/v1/observations", json=body, headers=admin).status_code == 200
+    deadline = time.monotonic() + 5
     with client.websocket_connect("/api/v1/ws/targets?token=test-admin-token") as ws:
-        message = ws.receive_json()
-    assert message["type"] == "positions" and message["t"] == 3.0
+        while time.monotonic() < deadline:
+            message = ws.receive_json()
+            if message["targets"]:
+                break
+    assert message["type"] == "positions" and message["t"] == pytest.approx(now)
     (target,) = message["targets"]
-    assert target["label"] == "cup" and target["kind"] == "external"
-    assert np.allclose(target["xy"], [2.0, 1.5], atol=1e-9)
+    assert target["label"] == "cup" and target["kind"] == "unknown"
+    assert target["state"] in ("confirmed", "coasting")
+    assert np.linalg.norm(np.array(target["xy"]) - [2.0, 1.5]) < 1e-3
 
     with pytest.raises(WebSocketDisconnect) as info:
         with client.websocket_connect("/api/v1/ws/targets?token=wrong") as ws:
             ws.receive_json()
     assert info.value.code == 1008
+
+
+def test_targets_live_by_default_newest_first_and_tracks_page_back(client, admin):
+    """A target seen for a while, then silent: live while it is tracked, ended afterwards (only
+    in state=all); its stored track pages back with `until`."""
+    cameras = _cameras()
+    ids = _register(client, admin, cameras)
+    now = time.time()
+    for _ in range(30):  # a walker at 0.4 m/s, stamped as a live camera would stamp it
+        time.sleep(0.02)
+        t = time.time()
+        X = np.array([[1.5 + 0.4 * (t - now), 1.5, 1.0]])
+        body = {
+            "observations": [
+                {
+                    "camera_id": cid,
+                    "t": t,
+                    "pixel": cam.project(X)[0].tolist(),
+                    "kind": "person",
+                    "height": 1.0,
+                    "sigma_px": 0.5,
+                }
+                for cid, cam in zip(ids, cameras, strict=True)
+            ]
+        }
+        assert client.post("/api/v1/observations", json=body, headers=admin).status_code == 200
+    deadline = time.monotonic() + 5
+    live = []
+    while time.monotonic() < deadline and not live:
+        live = client.get("/api/v1/targets", headers=admin).json()["items"]
+        time.sleep(0.05)
+    (target,) = live
+    assert target["kind"] == "person" and target["state"] in ("confirmed", "coasting")
+    assert target["first_seen"] >= now and target["last_seen"] > target["first_seen"]
+    # The tracker's rate is kept (at most track_points_hz points a second are stored).
+    client.app.state.targets.flush()
+    track = client.get(f"/api/v1/targets/{target['id']}/track", headers=admin).json()["points"]
+    assert len(track) >= 6
+    older = client.get(
+        f"/api/v1/targets/{target['id']}/track?limit=3&until={track[5]['t']}", headers=admin
+    ).json()["points"]
+    assert [p["t"] for p in older] == [p["t"] for p in track[2:5]]
+    # Silence: the target ends and leaves the live list, the history keeps it.
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline:
+        if not client.get("/api/v1/targets", headers=admin).json()["items"]:
+            break
+        time.sleep(0.1)
+    assert client.get("/api/v1/targets", headers=admin).json()["items"] == []
+    client.app.state.targets.flush()
+    history = client.get("/api/v1/targets?state=all", headers=admin).json()["items"]
+    assert [t["state"] for t in history] == ["ended"]
+    recent = client.get("/api/v1/targets/tracks?state=all", headers=admin).json()["tracks"]
+    whole = client.get(f"/api/v1/targets/{target['id']}/track", headers=admin).json()["points"]
+    assert recent[0]["target_id"] == target["id"]
+    assert [p[0] for p in recent[0]["points"]] == [p["t"] for p in whole]

@@ -49,16 +49,20 @@ def test_twin_locates_the_robot_and_is_controlled(twin_client, admin):
     track = _wait(robot_track)
     state = client.get("/api/v1/twin", headers=admin).json()
     assert state["enabled"] and state["running"] and state["sim_time"] > 0
-    # The located robot against the twin's true pose, frame by frame: the marker detector's
-    # ~0.1 px on cameras 3-5 m away is a few millimetres; a few cm is the bar.
+    # The tracked robot against the twin's true pose at each update's own time: the marker
+    # detector's ~0.1 px on cameras 3-5 m away is a few millimetres; a few cm is the bar.
     assert state["robot_error_rms_m"] < 0.03
     xy = np.array([p["xy"] for p in track["points"]])
     assert np.all(np.isfinite(xy)) and np.ptp(xy[:, 0]) > 0  # it moves
-    # The twin's drive is deterministic (seed 0, 0.05 s steps): replaying the patrol gives the
-    # true pose at each track point's time.
+    # Track points carry their capture times on the service's clock (Unix seconds); the twin
+    # maps them back to its simulated clock, and its drive is deterministic (seed 0, 0.05 s
+    # steps): replaying the patrol gives the true pose at each point's time.
     t = np.array([p["t"] for p in track["points"]])
-    truth = simulate_patrol(default_scene().robot, float(t.max()) + 0.1, dt=0.05, rng=0)
-    true_xy = truth.pose[np.round(t / 0.05).astype(int), :2]
+    assert abs(t.max() - time.time()) < 30
+    sim = client.app.state.twin.sim_time_at(t)
+    assert np.all(np.isfinite(sim))
+    truth = simulate_patrol(default_scene().robot, float(sim.max()) + 0.1, dt=0.05, rng=0)
+    true_xy = truth.pose[np.round(sim / 0.05).astype(int), :2]
     assert np.max(np.linalg.norm(xy - true_xy, axis=1)) < 0.03
     assert all(np.array(p["cov"]).shape == (2, 2) for p in track["points"])
 
@@ -89,10 +93,15 @@ def test_twin_locates_the_robot_and_is_controlled(twin_client, admin):
     names = [s["name"] for s in client.get("/api/v1/twin/scenarios", headers=admin).json()]
     assert "network-calibration" in names
 
+    # After the reset the robot's track forms again and the stream shows it.
+    deadline = time.monotonic() + 20
     with client.websocket_connect("/api/v1/ws/targets?token=test-admin-token") as ws:
-        message = ws.receive_json()
+        while time.monotonic() < deadline:
+            message = ws.receive_json()
+            if "robot" in {t["kind"] for t in message["targets"]}:
+                break
     assert message["type"] == "positions"
-    assert "robot" in {t["label"] for t in message["targets"]}
+    assert "robot" in {t["kind"] for t in message["targets"]}
 
 
 def test_twin_endpoints_without_the_twin(client, admin):

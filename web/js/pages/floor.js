@@ -208,11 +208,12 @@ export async function renderFloor(main) {
   const gHeat = s("g", { class: "heat" });
   const gRooms = s("g");
   const gCams = s("g");
+  const gHistory = s("g");
   const gTracks = s("g");
   const gTruth = s("g");
   const gEllipses = s("g");
   const gTargets = s("g");
-  svg.append(gHeat, gRooms, gCams, gTracks, gTruth, gEllipses, gTargets);
+  svg.append(gHeat, gRooms, gCams, gHistory, gTracks, gTruth, gEllipses, gTargets);
 
   for (const room of rooms.items) {
     const poly = room.polygon || [];
@@ -371,8 +372,8 @@ export async function renderFloor(main) {
     // One scale per kind (the robot's marker is located far better than a person's feet): a
     // round factor that makes the kind's largest ellipse visible.
     const notes = [];
-    for (const kind of ["robot", "person", "external"]) {
-      const ofKind = items.filter((t) => t.cov && (t.kind === kind || (kind === "external" && !["robot", "person"].includes(t.kind))));
+    for (const kind of ["robot", "person", "unknown"]) {
+      const ofKind = items.filter((t) => t.cov && (t.kind === kind || (kind === "unknown" && !["robot", "person"].includes(t.kind))));
       if (!ofKind.length) continue;
       const largest = Math.max(...ofKind.map((t) => ellipse2Sigma(t.cov).a));
       const needed = largest > 0 ? MIN_ELLIPSE_PX / (largest * tf.scale) : 1;
@@ -389,7 +390,7 @@ export async function renderFloor(main) {
         .filter(([, pts]) => pts.length > 1)
         .map(([label, pts]) =>
           s("polyline", {
-            class: `track ${latest.get(label)?.kind || "external"}`,
+            class: `track ${latest.get(label)?.kind || "unknown"}`,
             points: pts.map((p) => `${X(p[0]).toFixed(1)},${Y(p[1]).toFixed(1)}`).join(" "),
             testid: `track-${label}`,
             "data-points": pts.length,
@@ -400,7 +401,7 @@ export async function renderFloor(main) {
     gTargets.replaceChildren();
     for (const t of items) {
       const [x, y] = t.xy;
-      const kind = ["robot", "person"].includes(t.kind) ? t.kind : "external";
+      const kind = ["robot", "person"].includes(t.kind) ? t.kind : "unknown";
       if (t.cov) {
         const e = ellipse2Sigma(t.cov);
         gEllipses.append(
@@ -450,6 +451,7 @@ export async function renderFloor(main) {
           { testid: `target-row-${t.label}` },
           h("td", null, t.label),
           h("td", null, t.kind),
+          h("td", null, t.state || "–"),
           h("td", { class: "num" }, fmt(t.xy[0], 3)),
           h("td", { class: "num" }, fmt(t.xy[1], 3)),
           h("td", { class: "num" }, e ? fmt((e.a / 2) * 1000, 1) : "–"),
@@ -458,8 +460,16 @@ export async function renderFloor(main) {
     );
   };
 
+  // items: the whole live set (the stream and GET /targets send every live target), so a
+  // target missing from it has ended and leaves the plan with its track.
   const accept = (items, t) => {
     const seen = new Set();
+    for (const label of [...latest.keys()]) {
+      if (!items.some((x) => x.label === label)) {
+        latest.delete(label);
+        tracks.delete(label);
+      }
+    }
     for (const target of items) {
       if (!target.label || !Array.isArray(target.xy)) continue;
       seen.add(target.label);
@@ -478,21 +488,43 @@ export async function renderFloor(main) {
     drawTargets();
   };
 
-  // Earlier positions, so a track shows where a target went before the page opened.
+  // Earlier positions of every live target in one request, so a track shows where a target
+  // went before the page opened.
   const initial = targetsOf(targets0.value);
-  await Promise.all(
-    initial
-      .filter((t) => t.id !== null && t.id !== undefined)
-      .map(async (t) => {
-        try {
-          const pts = trackPoints(await api(`/targets/${t.id}/track?limit=${TRACK_POINTS}`));
-          if (pts.length) tracks.set(t.label, pts.slice(-TRACK_POINTS));
-        } catch {
-          /* no history yet: the live stream fills the track */
-        }
-      }),
-  );
+  try {
+    const recent = await api(`/targets/tracks?points=${TRACK_POINTS}`);
+    for (const tr of recent.tracks || []) {
+      const pts = tr.points.map((p) => [p[1], p[2]]);
+      if (pts.length) tracks.set(tr.label, pts);
+    }
+  } catch {
+    /* no history yet: the live stream fills the tracks */
+  }
   accept(initial);
+
+  // Ended targets of the last ten minutes, on request: grey dashed tracks under the live ones.
+  const historyToggle = h("input", { type: "checkbox", testid: "history-toggle" });
+  const historyNote = h("span", { class: "small muted", testid: "history-note" }, "");
+  const drawHistory = async () => {
+    gHistory.replaceChildren();
+    historyNote.textContent = "";
+    if (!historyToggle.checked) return;
+    const since = Date.now() / 1000 - 600;
+    const body = await api(`/targets/tracks?state=all&since=${since}&targets=200`);
+    const ended = (body.tracks || []).filter((tr) => tr.state === "ended");
+    historyNote.textContent = `${ended.length} ended in the last 10 min`;
+    for (const tr of ended) {
+      if (tr.points.length < 2) continue;
+      gHistory.append(
+        s("polyline", {
+          class: `track ended ${tr.kind}`,
+          points: tr.points.map((p) => `${X(p[1]).toFixed(1)},${Y(p[2]).toFixed(1)}`).join(" "),
+          testid: `history-${tr.label}`,
+        }),
+      );
+    }
+  };
+  historyToggle.addEventListener("change", () => drawHistory().catch(toastError));
 
   let stopped = false;
   let pollTimer = null;
@@ -699,6 +731,12 @@ export async function renderFloor(main) {
         h(
           "div",
           { class: "floor-foot" },
+          h("label", { class: "small" }, historyToggle, " show ended targets (last 10 min) "),
+          historyNote,
+        ),
+        h(
+          "div",
+          { class: "floor-foot" },
           cov ? modeButtons : null,
           legendBox,
           readout,
@@ -725,8 +763,8 @@ export async function renderFloor(main) {
                 h(
                   "tr",
                   null,
-                  ["Target", "Kind", "x (m)", "y (m)", "Std (mm)"].map((t, i) =>
-                    h("th", { class: i >= 2 ? "num" : null }, t),
+                  ["Target", "Kind", "State", "x (m)", "y (m)", "Std (mm)"].map((t, i) =>
+                    h("th", { class: i >= 3 ? "num" : null }, t),
                   ),
                 ),
               ),
