@@ -1,4 +1,4 @@
-"""`intspace sim run SCENARIO [--seed N] [--scene FILE] [--json]`, `intspace sim list`.
+"""`intspace sim run SCENARIO [--seed N] [--scene FILE] [--minutes M] [--json]`, `sim list`.
 
 Runs a named scenario of the digital twin (core.sim.scenarios) on the default home or on a
 scene file (YAML or JSON, validated by core.sim.load_scene) and prints its metrics: a summary,
@@ -29,6 +29,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     run.add_argument("scenario", metavar="SCENARIO", help="scenario name (see `sim list`)")
     run.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     run.add_argument("--scene", type=Path, metavar="FILE", help="scene file, YAML or JSON")
+    run.add_argument(
+        "--minutes",
+        type=float,
+        metavar="M",
+        help="simulated length of a timed scenario (tracking, tracking-async); shorter runs "
+        "keep the same conditions",
+    )
     run.add_argument("--json", action="store_true", help="print one JSON object")
     run.set_defaults(func=_run)
     ls = sub.add_parser("list", help="list the scenarios")
@@ -62,7 +69,7 @@ def _run(args: argparse.Namespace) -> int:
         except IntspaceError as exc:
             return _fail(f"{args.scene}: {' '.join(str(exc).split())}")
     try:
-        result = run_scenario(args.scenario, scene, args.seed)
+        result = run_scenario(args.scenario, scene, args.seed, minutes=args.minutes)
     except IntspaceError as exc:
         return _fail(" ".join(str(exc).split()))
     data = result.to_dict()
@@ -75,6 +82,17 @@ def _run(args: argparse.Namespace) -> int:
 
 def _print_summary(data: dict[str, Any]) -> None:
     print(f"{data['scenario']} (seed {data['seed']})")
+    if "idf1" in data:
+        print(
+            f"  {data['minutes']:g} min, {data['targets']} bodies, {data['camera_count']} cameras,"
+            f" {data['frames']} frames, {data['detections']} detections"
+        )
+        print(
+            f"  IDF1 {data['idf1']:.4f}  MOTA {data['mota']:.4f}  identity switches "
+            f"{data['id_switches']}  most live targets {data['max_live_targets']}"
+        )
+        print(f"  person RMSE {100 * data['person_rmse_m']:.2f} cm")
+        return
     if "cameras" in data:
         print(f"  target {data['target_kind']}, {data['poses']} poses, {data['detections']} det.")
         print("  camera            focal %   pos cm   rot deg   poses   rms px")
