@@ -7,7 +7,8 @@ detection in the images, calibration; time.perf_counter and time.process_time) a
 camera's errors against the twin: focal %, centre cm, orientation degrees, reprojection RMS
 pixels, and for the board kind the principal point error and the distortion error (pixels,
 over the region the board covered and over the whole image). The spec's targets are focal
-within 1 %, centre within 2 cm, orientation within 0.3 degrees.
+within 1 %, centre within 2 cm, orientation within 0.3 degrees; the marker kind's accuracy
+against drive length, pixel noise and its Cramer-Rao bound is bench/bench_network_accuracy.py.
 """
 
 from __future__ import annotations
@@ -25,9 +26,12 @@ TARGETS = {"focal_pct": 1.0, "position_cm": 2.0, "rotation_deg": 0.3}
 
 
 def _print(result: NetworkCalibrationResult, wall: float, cpu: float) -> None:
+    drive = "" if result.drive_s is None else f", a {result.drive_s:.0f} s drive"
     print(
         f"{result.scenario} seed {result.seed}: {wall:.1f} s wall, {cpu:.1f} s CPU, "
-        f"{result.poses} poses, {result.detections} detections; distortion {result.distortion}"
+        f"{result.poses} poses{drive}, {result.detections} detections at "
+        f"{result.sigma_px:.3f} px (measured); joint RMS {result.rms_px:.3f} px; "
+        f"intrinsics: {result.intrinsics_from}; distortion {result.distortion}"
     )
     board = result.target_kind == "board"
     head = (

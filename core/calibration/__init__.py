@@ -8,6 +8,7 @@ from core.calibration.detect import (
     board_object_points,
     find_charuco,
     find_chessboard,
+    find_chessboard_on_background,
     find_circle_grid,
 )
 from core.calibration.io import (
@@ -53,6 +54,7 @@ __all__ = [
     "estimate_plane_pose",
     "find_charuco",
     "find_chessboard",
+    "find_chessboard_on_background",
     "find_circle_grid",
     "focal_from_homography",
     "from_opencv_json",

@@ -233,6 +233,7 @@ def calibrate_camera(
     distortion: str = "k1k2p1p2",
     max_iterations: int = 100,
     ftol: float = 1e-14,
+    initial_K: ArrayLike | None = None,
 ) -> CameraCalibration:
     """Return the calibration of a camera from m views of a planar pattern (Zhang 2000).
 
@@ -250,7 +251,9 @@ def calibrate_camera(
     DegenerateConfiguration (views that do not fix the intrinsics), ConvergenceError.
     `max_iterations` and `ftol` tune the refinement: the LM stops when an accepted step lowers
     the cost by less than `ftol` relative (1e-14: past OpenCV's own stopping point, so both
-    report the same optimum).
+    report the same optimum). `initial_K` (3, 3) replaces the closed form's K as the starting
+    point (for views whose strong lens distortion, which the closed form ignores, leaves
+    B = K^-T K^-1 indefinite; a nominal K is enough).
     """
     if distortion not in DISTORTION_MODELS:
         raise InvalidInput(
@@ -301,7 +304,12 @@ def calibrate_camera(
             Hs[j] = dlt_homography(obj[j], img[j])
         except DegenerateConfiguration as exc:
             raise DegenerateConfiguration(f"view {j}: {exc}") from None
-    K0 = intrinsics_from_homographies(Hs, (w, h), skew=skew)
+    if initial_K is None:
+        K0 = intrinsics_from_homographies(Hs, (w, h), skew=skew)
+    else:
+        K0 = np.asarray(initial_K, dtype=np.float64)
+        if K0.shape != (3, 3) or not np.all(np.isfinite(K0)) or K0[0, 0] <= 0 or K0[1, 1] <= 0:
+            raise InvalidInput(f"initial_K must be a finite (3, 3) camera matrix, got {K0}")
     poses0 = pose_from_homography(Hs, K0, X[..., :2])
     dist0 = np.zeros(5)
     n_radial = min(2, len(dist_idx))

@@ -91,19 +91,39 @@ def left_jacobian_so3(rvec: ArrayLike) -> Array:
     return np.eye(3) + a[..., None, None] * k + b[..., None, None] * (k @ k)
 
 
+def distortion_model(x: Array, y: Array, dist: ArrayLike) -> tuple[Array, Array, Array, Array]:
+    """Return (x_d, y_d, rad, r^2) for ideal normalised coordinates x, y (any shape) and the
+    coefficients (k1, k2, p1, p2, k3): the one implementation of the model of the module
+    docstring, shared by projection, undistortion and the localisation estimators."""
+    k1, k2, p1, p2, k3 = (float(v) for v in np.asarray(dist, dtype=np.float64).reshape(5))
+    xx, yy, xy2 = x * x, y * y, 2.0 * x * y
+    r2 = xx + yy
+    rad = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    xd = x * rad + p1 * xy2 + p2 * (r2 + 2.0 * xx)
+    yd = y * rad + p1 * (r2 + 2.0 * yy) + p2 * xy2
+    return xd, yd, rad, r2
+
+
+def distortion_jacobian(
+    x: Array, y: Array, rad: Array, r2: Array, dist: ArrayLike
+) -> tuple[Array, Array, Array]:
+    """Return (a11, a12, a22): d(x_d, y_d) / d(x, y) = [[a11, a12], [a12, a22]] (symmetric)
+    at x, y, with rad and r^2 from `distortion_model`."""
+    k1, k2, p1, p2, k3 = (float(v) for v in np.asarray(dist, dtype=np.float64).reshape(5))
+    drad = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)  # d rad / d r^2
+    a11 = rad + 2.0 * x * x * drad + 2.0 * p1 * y + 6.0 * p2 * x
+    a12 = 2.0 * x * y * drad + 2.0 * p1 * x + 2.0 * p2 * y
+    a22 = rad + 2.0 * y * y * drad + 6.0 * p1 * y + 2.0 * p2 * x
+    return a11, a12, a22
+
+
 def distort_normalized(xy: ArrayLike, dist: ArrayLike | None) -> Array:
     """Return distorted normalised coordinates (..., 2) of ideal ones xy (..., 2).
 
     OpenCV's radial (k1, k2, k3) and tangential (p1, p2) model, see the module docstring.
     """
     p = np.asarray(xy, dtype=np.float64)
-    k1, k2, p1, p2, k3 = as_distortion(dist)
-    x, y = p[..., 0], p[..., 1]
-    xx, yy, xy2 = x * x, y * y, 2.0 * x * y
-    r2 = xx + yy
-    rad = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    xd = x * rad + p1 * xy2 + p2 * (r2 + 2.0 * xx)
-    yd = y * rad + p1 * (r2 + 2.0 * yy) + p2 * xy2
+    xd, yd, _, _ = distortion_model(p[..., 0], p[..., 1], as_distortion(dist))
     return np.stack([xd, yd], -1)
 
 
@@ -174,7 +194,6 @@ def _project(
     (no per-point Python, no stacking of many small arrays), filling one Jacobian array.
     """
     fx, fy, cx, cy, s = (float(v) for v in intr)
-    k1, k2, p1, p2, k3 = (float(v) for v in dist)
     R = rotvec_to_matrix(rv)
     RX = X @ np.swapaxes(R, -1, -2)
     Xc = RX + tv[..., None, :]
@@ -182,13 +201,7 @@ def _project(
     iz = 1.0 / depth
     x = Xc[..., 0] * iz
     y = Xc[..., 1] * iz
-    xx = x * x
-    yy = y * y
-    xy2 = 2.0 * x * y
-    r2 = xx + yy
-    rad = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    xd = x * rad + p1 * xy2 + p2 * (r2 + 2.0 * xx)
-    yd = y * rad + p1 * (r2 + 2.0 * yy) + p2 * xy2
+    xd, yd, rad, r2 = distortion_model(x, y, dist)
     pts = np.empty((*x.shape, 2))
     pts[..., 0] = fx * xd + s * yd + cx
     pts[..., 1] = fy * yd + cy
@@ -213,17 +226,15 @@ def _project(
     jv[..., 5] = vy * r2
     jv[..., 6] = vy * r4
     jv[..., 9] = vy * (r4 * r2)
-    ryy = r2 + 2.0 * yy
-    rxx = r2 + 2.0 * xx
+    xy2 = 2.0 * x * y
+    ryy = r2 + 2.0 * y * y
+    rxx = r2 + 2.0 * x * x
     ju[..., 7] = fx * xy2 + s * ryy
     ju[..., 8] = fx * rxx + s * xy2
     jv[..., 7] = fy * ryy
     jv[..., 8] = fy * xy2
     # d(x_d, y_d) / d(x, y) = [[a11, a12], [a12, a22]].
-    drad2 = 2.0 * (k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2))
-    a11 = rad + xx * drad2 + 2.0 * p1 * y + 6.0 * p2 * x
-    a12 = 0.5 * xy2 * drad2 + 2.0 * (p1 * x + p2 * y)
-    a22 = rad + yy * drad2 + 6.0 * p1 * y + 2.0 * p2 * x
+    a11, a12, a22 = distortion_jacobian(x, y, rad, r2, dist)
     # d(u, v) / d(x, y) = [[fx, s], [0, fy]] @ A, then / d Xc through (x, y) = (X, Y) / Z.
     b11 = (fx * a11 + s * a12) * iz
     b12 = (fx * a12 + s * a22) * iz
@@ -270,24 +281,19 @@ def undistort_points(
         raise InvalidInput(f"pixels must be (..., 2) and K (3, 3); got {uv.shape}, {Km.shape}")
     fx, s, cx = Km[0, 0], Km[0, 1], Km[0, 2]
     fy, cy = Km[1, 1], Km[1, 2]
-    k1, k2, p1, p2, k3 = as_distortion(dist)
+    d = as_distortion(dist)
     yd = (uv[..., 1] - cy) / fy
     xd = (uv[..., 0] - cx - s * yd) / fx
     x, y = xd.copy(), yd.copy()
-    if np.any(as_distortion(dist)):
+    if np.any(d):
         scale = max(1.0, float(np.max(np.abs(xd), initial=0.0)))
         scale = max(scale, float(np.max(np.abs(yd), initial=0.0)))
         step = np.inf
         for _ in range(max_iterations):
-            xx, yy, xy = x * x, y * y, x * y
-            r2 = xx + yy
-            rad = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-            ex = x * rad + 2.0 * p1 * xy + p2 * (r2 + 2.0 * xx) - xd
-            ey = y * rad + p1 * (r2 + 2.0 * yy) + 2.0 * p2 * xy - yd
-            drad = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)
-            a11 = rad + 2.0 * xx * drad + 2.0 * p1 * y + 6.0 * p2 * x
-            a12 = 2.0 * xy * drad + 2.0 * p1 * x + 2.0 * p2 * y
-            a22 = rad + 2.0 * yy * drad + 6.0 * p1 * y + 2.0 * p2 * x
+            fx_d, fy_d, rad, r2 = distortion_model(x, y, d)
+            ex = fx_d - xd
+            ey = fy_d - yd
+            a11, a12, a22 = distortion_jacobian(x, y, rad, r2, d)
             det = a11 * a22 - a12 * a12
             dx = (a22 * ex - a12 * ey) / det
             dy = (a11 * ey - a12 * ex) / det

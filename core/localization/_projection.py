@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from core.geometry.camera import distortion_jacobian, distortion_model
 from core.localization.cameras import NetworkCamera
 
 Array = NDArray[np.float64]
@@ -33,30 +34,21 @@ def distort_to_pixels(
 ) -> tuple[Array, Array | None]:
     """Return the pixels (B, 2) of ideal normalised coordinates m (B, 2) and B = d pixel / d m.
 
-    The model of core.geometry.camera (OpenCV's radial-tangential distortion, then K), restated
-    here because the estimators need only this 2 x 2 Jacobian: project_points' full set (pose,
-    intrinsics, distortion) costs about ten times more on a batch. The tests hold the two
-    implementations equal.
+    The model of core.geometry.camera (`distortion_model`, `distortion_jacobian`: OpenCV's
+    radial-tangential distortion), then K; only this 2 x 2 Jacobian, which costs about a tenth
+    of project_points' full set (pose, intrinsics, distortion) on a batch.
     """
     K = camera.K
     fx, s, cx, fy, cy = K[0, 0], K[0, 1], K[0, 2], K[1, 1], K[1, 2]
-    k1, k2, p1, p2, k3 = camera.dist
     x = m[:, 0]
     y = m[:, 1]
-    xx, yy, xy = x * x, y * y, x * y
-    r2 = xx + yy
-    rad = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    xd = x * rad + 2.0 * p1 * xy + p2 * (r2 + 2.0 * xx)
-    yd = y * rad + p1 * (r2 + 2.0 * yy) + 2.0 * p2 * xy
+    xd, yd, rad, r2 = distortion_model(x, y, camera.dist)
     pixels = np.empty_like(m)
     pixels[:, 0] = fx * xd + s * yd + cx
     pixels[:, 1] = fy * yd + cy
     if not jacobian:
         return pixels, None
-    drad = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)  # d rad / d r^2
-    a11 = rad + 2.0 * xx * drad + 2.0 * p1 * y + 6.0 * p2 * x
-    a12 = 2.0 * xy * drad + 2.0 * p1 * x + 2.0 * p2 * y
-    a22 = rad + 2.0 * yy * drad + 6.0 * p1 * y + 2.0 * p2 * x
+    a11, a12, a22 = distortion_jacobian(x, y, rad, r2, camera.dist)
     B = np.empty((m.shape[0], 2, 2))
     B[:, 0, 0] = fx * a11 + s * a12
     B[:, 0, 1] = fx * a12 + s * a22

@@ -7,7 +7,6 @@ from typing import Annotated, Any, Literal
 from pydantic import Field, model_validator
 
 from server.schemas.common import Finite, Id, PixelCount, ReadSchema, Schema, UtcDatetime
-from server.schemas.twin import NetworkRunResult
 
 # Lens models of core.calibration.calibrate_camera, by the coefficients they estimate.
 DistortionModel = Literal["none", "k1", "k1k2", "k1k2p1p2", "k1k2p1p2k3"]
@@ -72,6 +71,105 @@ class CalibrationResult(ReadSchema):
     image_size: list[int]
     views_used: list[int] | None = Field(
         None, description="Indices of the uploaded images in which the pattern was found."
+    )
+
+
+class NetworkCameraErrors(ReadSchema):
+    """A calibrated camera's errors against the twin's true camera (scoring)."""
+
+    focal_pct: float = Field(description="Focal length error, percent of the truth (signed).")
+    position_m: float = Field(
+        description="Optical centre position error, metres, in the world frame the robot's "
+        "start pose defines."
+    )
+    rotation_deg: float = Field(description="Orientation error (angle of R_est R_true^T), deg.")
+    aligned_position_m: float | None = Field(
+        None,
+        description="Position error after removing the floor rigid motion (x, y, yaw) that "
+        "best aligns all calibrated centres: the network's own geometry, metres.",
+    )
+    aligned_rotation_deg: float | None = Field(
+        None, description="Orientation error after the same alignment, degrees."
+    )
+
+
+class NetworkCameraBound(ReadSchema):
+    """The Cramer-Rao bound of the same errors (standard deviation of the focal length in
+    percent; root mean square position m and orientation deg)."""
+
+    focal_pct: float | None = None
+    position_m: float | None = None
+    rotation_deg: float | None = None
+    aligned_position_m: float | None = None
+    aligned_rotation_deg: float | None = None
+
+
+class NetworkCameraResult(ReadSchema):
+    name: str
+    camera_id: int | None = None
+    K: list[list[float]]
+    dist: list[float]
+    T_world_camera: list[list[float]]
+    std: dict[str, Any] = Field(
+        description="Standard deviations scaled by the measured residual variance: f_px (of "
+        "(fx + fy) / 2, pixels), rvec_rad, t_m and `parameters` by name (fx, fy, cx, cy px; "
+        "k1..k3, p1, p2; rx, ry, rz rad; tx, ty, tz m)."
+    )
+    rms: float = Field(description="RMS reprojection error of its detections, pixels.")
+    poses_seen: int
+    outliers: int = 0
+    pose_residuals: list[list[float]] = Field(
+        default_factory=list,
+        description="Per detection used: [pose index, residual x px, residual y px] "
+        "(projected minus detected).",
+    )
+    errors: NetworkCameraErrors = Field(description="Against the twin's true camera.")
+    bound: NetworkCameraBound | None = None
+    image_size: list[int]
+
+
+class AccuracyCamera(ReadSchema):
+    name: str
+    errors: NetworkCameraErrors
+    bound: NetworkCameraBound
+
+
+class AccuracyRowRead(ReadSchema):
+    """One drive of the accuracy study: true projections plus Gaussian noise of sigma_px."""
+
+    stops: int = Field(description="Stops planned (poses: driven, with the second pass).")
+    poses: int
+    drive_s: float = Field(description="Simulated seconds of driving.")
+    sigma_px: float = Field(description="Pixel noise standard deviation per axis, pixels.")
+    cameras: list[AccuracyCamera]
+    rejected: list[str]
+
+
+class NetworkRunResult(ReadSchema):
+    """What a network calibration produced: every calibrated camera, and those left out."""
+
+    kind: Literal["network"]
+    target: str
+    poses: int = Field(description="Robot stops.")
+    detections: int
+    drive_s: float | None = Field(None, description="Simulated seconds of driving.")
+    sigma_px: float | None = Field(
+        None, description="Pixel noise of the detections measured against the truth, pixels."
+    )
+    intrinsics_from: str | None = None
+    rms_px: float | None = Field(None, description="Joint reprojection RMS, pixels.")
+    rms_whitened: float | None = Field(
+        None, description="Joint RMS in units of the detections' standard deviations."
+    )
+    residual_variance: float | None = None
+    pose_rms_px: list[float | None] = Field(
+        default_factory=list, description="Reprojection RMS per stop over its cameras, pixels."
+    )
+    cameras: list[NetworkCameraResult]
+    rejected: list[dict[str, Any]]
+    accuracy: list[AccuracyRowRead] = Field(
+        default_factory=list,
+        description="Errors and Cramer-Rao bounds against drive length and pixel noise.",
     )
 
 

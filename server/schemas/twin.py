@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Literal
 
 from pydantic import Field
 
@@ -37,7 +37,10 @@ class Scenario(ReadSchema):
 class NetworkOptions(Schema):
     seed: int = Field(0, ge=0, le=2**31 - 1)
     target: Literal["marker"] = "marker"
-    spacing: float = Field(0.3, ge=0.15, le=2.0, description="Stops' grid spacing, metres.")
+    stops: int = Field(32, ge=6, le=200, description="Stops of the robot's planned drive.")
+    study: bool = Field(
+        True, description="Also report the accuracy against drive length and pixel noise."
+    )
 
 
 class NetworkRunCreate(Schema):
@@ -47,32 +50,3 @@ class NetworkRunCreate(Schema):
     options: NetworkOptions = Field(default_factory=NetworkOptions)
 
 
-class CameraErrors(ReadSchema):
-    focal_pct: float = Field(description="Focal length error, percent of the truth (signed).")
-    position_m: float = Field(description="Optical centre position error, metres.")
-    rotation_deg: float = Field(description="Orientation error (angle of R_est R_true^T), deg.")
-
-
-class NetworkCameraResult(ReadSchema):
-    name: str
-    camera_id: int | None = None
-    K: list[list[float]]
-    dist: list[float]
-    T_world_camera: list[list[float]]
-    std: dict[str, Any] = Field(description="Standard deviations of f (px), rvec (rad), t (m).")
-    rms: float = Field(description="RMS reprojection error of its detections, pixels.")
-    poses_seen: int
-    errors: CameraErrors = Field(description="Against the twin's true camera.")
-    image_size: list[int]
-
-
-class NetworkRunResult(ReadSchema):
-    """What a network calibration produced: every calibrated camera, and those left out."""
-
-    kind: Literal["network"]
-    target: str
-    poses: int
-    detections: int
-    rms: float
-    cameras: list[NetworkCameraResult]
-    rejected: list[dict[str, Any]]

@@ -10,8 +10,14 @@ import numpy as np
 
 from core.calibration.detect import Chessboard, board_object_points, find_chessboard
 from core.calibration.io import CalibrationRecord, to_opencv_yaml, to_ros_yaml
+from core.calibration.network import CalibratedCamera
 from core.calibration.zhang import CameraCalibration, calibrate_camera
-from core.errors import PatternNotFound
+from core.errors import InvalidInput, PatternNotFound
+from core.sim import Scene, SensorNoise
+from core.sim.network_drive import drive_marker_calibration
+from core.sim.network_scenarios import INTRINSICS_FROM_BOARD, accuracy_study, camera_errors
+from core.sim.render import renderer_for
+from core.sim.scenario_records import CameraCalibrationError
 
 
 def decode_image(data: bytes, max_pixels: int) -> np.ndarray | None:
@@ -90,13 +96,14 @@ def calibrate_from_images(
 
 def calibrate_network(inputs: dict[str, Any], options: dict[str, Any]) -> dict:
     """Return the stored result of calibrating the twin's cameras by driving the robot's
-    marker (server.services.twin.network_calibration_drive), each camera named by its
-    registry id too."""
+    marker (`network_calibration_drive`), each camera named by its registry id too."""
     from core.sim import default_scene
-    from server.services.twin import network_calibration_drive
 
     result = network_calibration_drive(
-        default_scene(), int(options.get("seed", 0)), spacing=float(options.get("spacing", 0.3))
+        default_scene(),
+        int(options.get("seed", 0)),
+        stops=int(options.get("stops", 32)),
+        study=bool(options.get("study", True)),
     )
     ids = inputs.get("cameras", {})
     for camera in result["cameras"]:
@@ -128,3 +135,119 @@ def calibration_yaml(
         camera_name=camera_name,
     )
     return to_ros_yaml(record) if fmt == "ros" else to_opencv_yaml(record)
+
+
+def _std_of(cal: CalibratedCamera) -> dict[str, Any]:
+    """Return a calibrated camera's standard deviations by parameter, with the focal length's
+    (fx + fy) / 2 from the covariance."""
+    names = list(cal.parameter_names)
+    std = dict(zip(names, (float(v) for v in cal.std), strict=True))
+    a = np.zeros(len(names))
+    for n in ("fx", "fy"):
+        if n in names:
+            a[names.index(n)] = 0.5
+    f_std = float(np.sqrt(max(a @ cal.covariance @ a, 0.0))) if cal.covariance.size else 0.0
+    return {
+        "f_px": f_std,
+        "rvec_rad": [std.get(n, 0.0) for n in ("rx", "ry", "rz")],
+        "t_m": [std.get(n, 0.0) for n in ("tx", "ty", "tz")],
+        "parameters": std,
+    }
+
+
+def _camera_errors(e: CameraCalibrationError) -> dict[str, Any]:
+    return {
+        "focal_pct": e.focal_error_pct,
+        "position_m": e.position_error_m,
+        "rotation_deg": e.rotation_error_deg,
+        "aligned_position_m": e.aligned_position_error_m,
+        "aligned_rotation_deg": e.aligned_rotation_error_deg,
+    }
+
+
+def _camera_bound(e: CameraCalibrationError) -> dict[str, Any]:
+    return {
+        "focal_pct": e.bound_focal_pct,
+        "position_m": e.bound_position_m,
+        "rotation_deg": e.bound_rotation_deg,
+        "aligned_position_m": e.bound_aligned_position_m,
+        "aligned_rotation_deg": e.bound_aligned_rotation_deg,
+    }
+
+
+def network_calibration_drive(
+    scene: Scene, seed: int, *, stops: int = 32, study: bool = True
+) -> dict[str, Any]:
+    """Return the result of calibrating the scene's cameras by the robot's marker
+    (core.sim.network_drive: each camera's own chessboard calibration, the robot driving
+    `stops` stops, the marker detected in rendered images, the joint calibration with the
+    odometry as prior), with each calibrated camera's K, dist, T_world_camera, standard
+    deviations, per-pose residuals, its errors against the twin and their Cramer-Rao bound;
+    with `study`, the errors and bounds as functions of drive length and pixel noise for this
+    seed (core.sim.network_scenarios.accuracy_study)."""
+    if scene.robot is None or scene.robot.marker is None:
+        raise InvalidInput("the twin's robot carries no marker to calibrate the network with")
+    # Shared with the running twin: the static layer of each camera is built once.
+    renderer = renderer_for(scene)
+    md = drive_marker_calibration(scene, seed, stops=stops, noise=SensorNoise(), renderer=renderer)
+    net = md.calibration
+    scored = {e.name: e for e in camera_errors(net, md.true_cameras, md.bound)}
+    true = {cm.name: cm for cm in md.true_cameras}
+    cameras = []
+    for cal in net.cameras:
+        e = scored[cal.name]
+        cameras.append(
+            {
+                "name": cal.name,
+                "K": cal.K.tolist(),
+                "dist": cal.dist.tolist(),
+                "T_world_camera": cal.T_world_camera.tolist(),
+                "std": _std_of(cal),
+                "rms": cal.rms,
+                "poses_seen": cal.poses_seen,
+                "outliers": cal.outliers,
+                "pose_residuals": [
+                    [int(j), float(r[0]), float(r[1])]
+                    for j, r in zip(cal.pose_index, cal.residuals, strict=True)
+                ],
+                "errors": _camera_errors(e),
+                "bound": _camera_bound(e),
+                "image_size": [true[cal.name].width, true[cal.name].height],
+            }
+        )
+    accuracy = []
+    if study:
+        rows = accuracy_study(scene, (seed,), session=md.intrinsics, renderer=renderer)
+        for row in rows:
+            accuracy.append(
+                {
+                    "stops": row.stops,
+                    "poses": row.poses,
+                    "drive_s": row.drive_s,
+                    "sigma_px": row.sigma_px,
+                    "cameras": [
+                        {"name": c.name, "errors": _camera_errors(c), "bound": _camera_bound(c)}
+                        for c in row.cameras
+                    ],
+                    "rejected": list(row.rejected),
+                }
+            )
+    pose_rms = net.pose_rms_px
+    return {
+        "kind": "network",
+        "target": "marker",
+        "poses": md.poses,
+        "detections": int(md.seen.sum()),
+        "drive_s": md.drive.duration_s,
+        "sigma_px": md.observations.sigma_px,
+        "intrinsics_from": INTRINSICS_FROM_BOARD,
+        "rms_px": net.rms_px,
+        "rms_whitened": net.rms_whitened,
+        "residual_variance": net.residual_variance,
+        "pose_rms_px": [None if not np.isfinite(v) else float(v) for v in pose_rms],
+        "cameras": cameras,
+        "rejected": [
+            {"name": r.name, "reason": r.reason, "poses_seen": r.poses_seen} for r in net.rejected
+        ],
+        "accuracy": accuracy,
+    }

@@ -370,3 +370,27 @@ def test_shutdown_interrupts_the_run_in_progress(make_settings, admin, monkeypat
         run = client.get(f"/api/v1/calibration-runs/{run_id}", headers=admin).json()
     assert run["status"] == "interrupted" and "shutdown" in run["error"]
     assert run["result"] is None
+
+
+def test_network_drive_result_is_stored_and_read_with_its_diagnostics():
+    # The service's network run on the twin (a shortened drive, no accuracy study): what it
+    # stores reads back through the run schema with the issue's fields, labelled.
+    from core.sim import default_scene
+    from server.schemas.calibration import NetworkRunResult
+    from server.services.calibration import network_calibration_drive
+
+    result = network_calibration_drive(default_scene(), 2, stops=16, study=False)
+    read = NetworkRunResult.model_validate(result)
+    assert read.drive_s is not None and 0 < read.drive_s < 300
+    assert read.sigma_px is not None and 0 < read.sigma_px < 1.0
+    assert read.intrinsics_from and "chessboard" in read.intrinsics_from
+    assert read.rms_px is not None and read.rms_whitened is not None
+    assert len(read.pose_rms_px) == read.poses
+    for cam in read.cameras:
+        assert len(cam.pose_residuals) == cam.poses_seen - cam.outliers
+        # Pooled per camera: the residuals' RMS is the camera's rms (pixels).
+        r = np.array(cam.pose_residuals)[:, 1:]
+        assert abs(np.sqrt(np.mean(np.sum(r**2, axis=1))) - cam.rms) < 1e-9
+        assert cam.std["f_px"] > 0 and "cx" in cam.std["parameters"]
+        assert cam.bound is not None and cam.bound.position_m > 0
+        assert abs(cam.errors.focal_pct) < 1.0

@@ -49,3 +49,22 @@ def test_missing_scene_file_and_unknown_scenario(
     assert main(["sim", "run", "nope"]) == 2
     err = capsys.readouterr().err
     assert "cannot read scene file" in err and "unknown scenario" in err
+
+
+def test_tracking_async_json_contract(capsys: pytest.CaptureFixture[str]) -> None:
+    # Shortened, never eased: the scenario's conditions with half a minute of walking.
+    assert main(["sim", "run", "tracking-async", "--seed", "5", "--minutes", "0.5", "--json"]) == 0
+    data = json.loads(capsys.readouterr().out)
+    keys = {"minutes", "targets", "idf1", "mota", "id_switches", "max_live_targets"}
+    assert keys | {"person_rmse_m"} <= set(data)
+    assert data["minutes"] == 0.5 and data["targets"] == 3
+    assert data["conditions"]["noise_px"] == 0.7 and data["conditions"]["miss"] == 0.05
+
+
+def test_minutes_is_refused_where_a_scenario_has_no_length(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    assert main(["sim", "run", "localization", "--minutes", "2"]) == 2
+    assert "no length" in capsys.readouterr().err
+    assert main(["sim", "run", "tracking-async", "--minutes", "0"]) == 2
+    assert "positive" in capsys.readouterr().err

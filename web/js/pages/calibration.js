@@ -11,6 +11,7 @@ import {
   matrixTable,
   mount,
   panel,
+  s,
   statusBadge,
   toast,
   when,
@@ -433,6 +434,127 @@ function errorCell(value, target, digits, testid) {
   );
 }
 
+// Series colours of the accuracy plot, one per pixel noise level.
+const SERIES = ["#2563eb", "#d97706", "#dc2626", "#059669", "#7c3aed"];
+
+/**
+ * A line plot of the worst camera's error against the drive's length (simulated seconds), one
+ * series per pixel noise: solid the measured error, dashed its Cramer-Rao bound.
+ * `pick(cameraEntry)` returns [error, bound] in the plotted unit.
+ */
+function accuracyPlot(rows, pick, { title, unit, target, testid }) {
+  const W = 560;
+  const H = 280;
+  const m = { top: 24, right: 110, bottom: 40, left: 56 };
+  const iw = W - m.left - m.right;
+  const ih = H - m.top - m.bottom;
+  const sigmas = [...new Set(rows.map((r) => r.sigma_px))].sort((a, b) => a - b);
+  const worst = (r, k) =>
+    Math.max(...r.cameras.map((c) => pick(c)[k]).filter((v) => Number.isFinite(v)), 0);
+  const pts = rows.map((r) => ({ x: r.drive_s, s: r.sigma_px, e: worst(r, 0), b: worst(r, 1) }));
+  const xmax = Math.max(...pts.map((p) => p.x), 1) * 1.05;
+  const ymax = Math.max(...pts.map((p) => Math.max(p.e, p.b)), target || 0, 1e-9) * 1.1;
+  const x = (v) => m.left + (v / xmax) * iw;
+  const y = (v) => m.top + ih - (v / ymax) * ih;
+  const svg = s("svg", { class: "plot", viewBox: `0 0 ${W} ${H}`, role: "img", testid });
+  svg.append(s("title", null, title));
+  for (let i = 0; i <= 4; i += 1) {
+    const v = (ymax * i) / 4;
+    svg.append(
+      s("line", { class: "grid-line", x1: m.left, x2: m.left + iw, y1: y(v), y2: y(v) }),
+      s("text", { x: m.left - 8, y: y(v) + 4, "text-anchor": "end" }, v.toPrecision(2)),
+    );
+  }
+  for (let i = 0; i <= 4; i += 1) {
+    const v = (xmax * i) / 4;
+    svg.append(
+      s("text", { x: x(v), y: m.top + ih + 16, "text-anchor": "middle" }, v.toFixed(0)),
+    );
+  }
+  svg.append(
+    s("line", { class: "axis", x1: m.left, x2: m.left + iw, y1: y(0), y2: y(0) }),
+    s("text", { x: m.left + iw / 2, y: H - 6, "text-anchor": "middle" }, "drive (s)"),
+    s(
+      "text",
+      { x: 14, y: m.top + ih / 2, transform: `rotate(-90 14 ${m.top + ih / 2})`, "text-anchor": "middle" },
+      `worst camera (${unit})`,
+    ),
+  );
+  if (target) {
+    svg.append(
+      s("line", { class: "mean", x1: m.left, x2: m.left + iw, y1: y(target), y2: y(target) }),
+      s("text", { class: "mean-label", x: m.left + iw, y: y(target) - 6, "text-anchor": "end" }, `target ${target} ${unit}`),
+    );
+  }
+  sigmas.forEach((sg, k) => {
+    const colour = SERIES[k % SERIES.length];
+    const ser = pts.filter((p) => p.s === sg).sort((a, b) => a.x - b.x);
+    const line = (key, dash) =>
+      s("polyline", {
+        points: ser.map((p) => `${x(p.x)},${y(p[key])}`).join(" "),
+        fill: "none",
+        stroke: colour,
+        "stroke-width": 2,
+        "stroke-dasharray": dash ? "5 4" : null,
+      });
+    svg.append(line("e", false), line("b", true));
+    for (const p of ser) {
+      const dot = s("circle", { cx: x(p.x), cy: y(p.e), r: 3, fill: colour, "data-value": p.e });
+      dot.append(s("title", null, `sigma ${sg} px, ${p.x.toFixed(0)} s: ${p.e.toPrecision(3)} ${unit} (bound ${p.b.toPrecision(3)})`));
+      svg.append(dot);
+    }
+    svg.append(
+      s("line", { x1: W - m.right + 12, x2: W - m.right + 32, y1: m.top + 14 * k + 6, y2: m.top + 14 * k + 6, stroke: colour, "stroke-width": 2 }),
+      s("text", { x: W - m.right + 36, y: m.top + 14 * k + 10 }, `σ ${sg} px`),
+    );
+  });
+  svg.append(
+    s("text", { x: W - m.right + 12, y: m.top + 14 * sigmas.length + 14 }, "dashed: bound"),
+  );
+  return svg;
+}
+
+function accuracyView(r) {
+  const rows = r.accuracy || [];
+  if (!rows.length) return null;
+  const e = (c, key) => [c.errors?.[key], c.bound?.[key]];
+  return panel(
+    "Accuracy against drive length and pixel noise",
+    "For this seed: drives of increasing length, the marker's true projections with Gaussian " +
+      "pixel noise, calibrated and scored against the twin; solid the worst camera's error, " +
+      "dashed its Cramer-Rao bound. Absolute: in the world frame the robot's start pose " +
+      "defines (limited by the odometry's heading drift); aligned: the network's own geometry.",
+    h(
+      "div",
+      { class: "plots", testid: "network-accuracy" },
+      accuracyPlot(rows, (c) => e(c, "position_m").map((v) => 100 * v), {
+        title: "Position error, absolute",
+        unit: "cm",
+        target: NETWORK_TARGETS.position_cm,
+        testid: "accuracy-position",
+      }),
+      accuracyPlot(rows, (c) => e(c, "rotation_deg"), {
+        title: "Rotation error, absolute",
+        unit: "°",
+        target: NETWORK_TARGETS.rotation_deg,
+        testid: "accuracy-rotation",
+      }),
+      accuracyPlot(rows, (c) => e(c, "aligned_position_m").map((v) => 100 * v), {
+        title: "Position error, aligned",
+        unit: "cm",
+        target: NETWORK_TARGETS.position_cm,
+        testid: "accuracy-aligned-position",
+      }),
+      accuracyPlot(rows, (c) => e(c, "aligned_rotation_deg"), {
+        title: "Rotation error, aligned",
+        unit: "°",
+        target: NETWORK_TARGETS.rotation_deg,
+        testid: "accuracy-aligned-rotation",
+      }),
+    ),
+  );
+}
+
 function networkResultView(run) {
   const r = run.result;
   const cams = r.cameras || [];
@@ -461,15 +583,32 @@ function networkResultView(run) {
       e.rotation_deg !== undefined
         ? errorCell(e.rotation_deg, NETWORK_TARGETS.rotation_deg, 3, `network-rotation-${i}`)
         : h("td", { class: "num" }, "–"),
+      h("td", { class: "num", testid: `network-aligned-${i}` },
+        e.aligned_position_m != null
+          ? `${fmt(e.aligned_position_m * 100, 2)} cm, ${fmt(e.aligned_rotation_deg, 3)}°`
+          : "–"),
+      h("td", { class: "num", testid: `network-bound-${i}` },
+        c.bound
+          ? `${fmt(c.bound.position_m * 100, 2)} cm, ${fmt(c.bound.rotation_deg, 3)}° ` +
+              `(aligned ${fmt(c.bound.aligned_position_m * 100, 2)} cm, ` +
+              `${fmt(c.bound.aligned_rotation_deg, 3)}°)`
+          : "–"),
     );
   });
   const rejected = r.rejected || [];
   return panel(
     "Cameras calibrated",
     `${cams.length} cameras from ${r.poses ?? "–"} marker positions` +
-      (r.rms !== undefined ? `, overall RMS ${fmt(r.rms, 3)} px` : "") +
-      ". Errors against the digital twin's truth; targets: focal < 1 %, position < 2 cm, " +
-      "rotation < 0.3°.",
+      (r.drive_s != null ? ` over a ${fmt(r.drive_s, 0)} s drive` : "") +
+      (r.sigma_px != null ? `, detections within ${fmt(r.sigma_px, 3)} px RMS of the truth` : "") +
+      (r.rms_px != null
+        ? `; reprojection RMS ${fmt(r.rms_px, 3)} px over all detections ` +
+          `(${fmt(r.rms_whitened, 2)} standard deviations)`
+        : "") +
+      (r.intrinsics_from ? `. Intrinsics: ${r.intrinsics_from}` : "") +
+      ". Errors against the digital twin's truth (absolute: in the frame of the robot's start " +
+      "pose; aligned: after the best floor alignment), beside their Cramer-Rao bound; " +
+      "targets: focal < 1 %, position < 2 cm, rotation < 0.3°.",
     h(
       "div",
       { class: "table-wrap" },
@@ -491,6 +630,8 @@ function networkResultView(run) {
               "Focal error (%)",
               "Position error (cm)",
               "Rotation error (°)",
+              "Aligned error",
+              "Bound",
             ].map((t, i) => h("th", { class: i ? "num" : null }, t)),
           ),
         ),
@@ -647,7 +788,7 @@ export async function renderRun(main, [id], _query, setTitle) {
             h(
               "dd",
               { class: "num", testid: "run-rms" },
-              `${fmt(run.result.rms, 4)} px` +
+              `${fmt(run.result.rms ?? run.result.rms_px, 4)} px` +
                 (run.result.per_view_rms
                   ? ` over ${run.result.per_view_rms.length} views`
                   : run.result.cameras
@@ -678,7 +819,7 @@ export async function renderRun(main, [id], _query, setTitle) {
       ),
     );
     if (run.status === "succeeded" && run.result && run.kind === "network")
-      mount(body, networkResultView(run));
+      mount(body, networkResultView(run), accuracyView(run.result));
     else if (run.status === "succeeded" && run.result?.K) mount(body, resultView(run));
     else if (run.status === "failed" || run.status === "interrupted")
       mount(

@@ -1,0 +1,51 @@
+"""Calibrating a camera network by driving the robot with a target over the floor (02 §1).
+
+Two target kinds:
+
+* `calibrate_network_marker`: a marker on the robot, one image point per stop; each camera's
+  intrinsics and distortion from its own calibration (`IntrinsicsPrior`), the robot's poses
+  from its odometry (`odometry_prior`), all refined jointly; `marker_network_bound` gives the
+  Cramer-Rao bound of that calibration.
+* `calibrate_network_board`: a chessboard mounted on the robot; each camera gets a full Zhang
+  calibration chained into the world by the robot's poses.
+
+Both return a `NetworkCalibration` of `CalibratedCamera`s and `RejectedCamera`s.
+"""
+
+from core.calibration.network._board import calibrate_network_board
+from core.calibration.network._marker import (
+    INTRINSIC_PARAMETERS,
+    CameraBound,
+    IntrinsicsPrior,
+    calibrate_network_marker,
+    centre_rotation_jacobian,
+    floor_gauge_projector,
+    marker_network_bound,
+)
+from core.calibration.network._odometry import (
+    OdometryPrior,
+    SlipModel,
+    compose_increments,
+    increment_jacobian,
+    odometry_prior,
+)
+from core.calibration.network._records import CalibratedCamera, NetworkCalibration, RejectedCamera
+
+__all__ = [
+    "INTRINSIC_PARAMETERS",
+    "CalibratedCamera",
+    "CameraBound",
+    "IntrinsicsPrior",
+    "NetworkCalibration",
+    "OdometryPrior",
+    "RejectedCamera",
+    "SlipModel",
+    "calibrate_network_board",
+    "calibrate_network_marker",
+    "centre_rotation_jacobian",
+    "compose_increments",
+    "floor_gauge_projector",
+    "increment_jacobian",
+    "marker_network_bound",
+    "odometry_prior",
+]

@@ -1,0 +1,675 @@
+"""Calibrating a camera network by driving a marker over the floor (02 §1, marker kind).
+
+The robot carries a marker at a known height h and offset in its frame, and drives from a known
+start pose (which defines the world frame) through M stops; at each stop every camera that sees
+the marker gives one detection (pixel and covariance). Each camera's intrinsics and distortion
+come from its own calibration (a chessboard shown to it, core.calibration.calibrate_camera)
+with their covariance; the robot's poses come from its odometry, as independent increments
+between stops with their covariance (`odometry_prior`), so the absolute poses carry the
+odometry's correlated covariance.
+
+1. Initialisation per camera: the detections undistorted with the camera's own intrinsics and
+   the marker's floor positions give its pose (a plane pose,
+   core.calibration.estimate_plane_pose). The odometry drifts (up to a metre and ten degrees
+   over a long drive), so the drive is taken in growing windows of stops, each solved as in
+   step 2 from the previous one's solution; a camera enters with the corrected positions of
+   the stops it saw (`_grow`). A camera that saw fewer than `min_poses` stops, or
+   whose stops are collinear (the smaller principal standard deviation of their floor positions
+   below `min_spread` metres: the plane pose is undetermined), is rejected by name with the
+   reason; the others still calibrate.
+2. Joint maximum a-posteriori refinement by LM (core.optim, dense over every unknown: the
+   increments couple all poses after them). Unknowns: per camera its free intrinsics and
+   distortion theta_c and its pose (rvec_c, t_c); the increment corrections eps_j (M, 3). It
+   minimises
+
+       sum_(c, j seen) || W_cj (pi_c(X_j(inc + eps)) - u_cj) ||^2
+           + sum_c || L_c^T (theta_c - theta_c0) ||^2 + sum_j || L_j^T eps_j ||^2,
+
+   with X_j the marker at pose j (start composed with the corrected increments), W_cj^T W_cj
+   the inverse detection covariance, L_c L_c^T and L_j L_j^T the inverse prior covariances.
+   The start pose is held fixed, so the world frame has no gauge freedom left. Detections whose
+   whitened residual exceeds `outlier_sigma` (a partly hidden marker) are dropped and the
+   problem solved again.
+3. Covariance: the inverse Gauss-Newton information, scaled by the measured residual variance
+   SSE / (N - d). `marker_network_bound` evaluates the same information at the true parameters:
+   the Cramer-Rao bound of the calibration (unit residual variance).
+
+Units: metres, radians, pixels.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from core.calibration.network._odometry import (
+    OdometryPrior,
+    compose_increments,
+    increment_jacobian,
+)
+from core.calibration.network._records import CalibratedCamera, NetworkCalibration, RejectedCamera
+from core.calibration.pose import estimate_plane_pose
+from core.calibration.zhang import CameraCalibration
+from core.errors import ConvergenceError, DegenerateConfiguration, InvalidInput, NotEnoughPoints
+from core.geometry.camera import (
+    DISTORTION_NAMES,
+    distort_normalized,
+    intrinsics_to_matrix,
+    left_jacobian_so3,
+    project_points,
+)
+from core.geometry.rotations import matrix_to_rotvec, rotvec_to_matrix
+from core.optim import solve_sparse_lm
+
+Array = NDArray[np.float64]
+
+#: The intrinsic parameters a camera's own calibration may supply, in the order used here.
+INTRINSIC_PARAMETERS: tuple[str, ...] = ("fx", "fy", "cx", "cy", *DISTORTION_NAMES)
+_POSE_NAMES = ("rx", "ry", "rz", "tx", "ty", "tz")
+
+
+@dataclass(frozen=True)
+class IntrinsicsPrior:
+    """A camera's own calibration as a prior: K (3, 3) pixels, dist (5,) OpenCV coefficients,
+    `names` the estimated parameters among INTRINSIC_PARAMETERS (the others are held at their
+    values) and `cov` (p, p) their covariance (pixels^2; unitless for distortion)."""
+
+    K: Array
+    dist: Array
+    names: tuple[str, ...]
+    cov: Array
+
+    @classmethod
+    def from_calibration(cls, cal: CameraCalibration) -> IntrinsicsPrior:
+        """Return the prior of a Zhang calibration (its estimate and covariance; skew, when it
+        was estimated, is held at its value)."""
+        names = tuple(n for n in INTRINSIC_PARAMETERS if n in cal.parameter_names)
+        idx = [cal.parameter_names.index(n) for n in names]
+        return cls(cal.K.copy(), cal.dist.copy(), names, cal.covariance[np.ix_(idx, idx)].copy())
+
+    @property
+    def values(self) -> Array:
+        """The estimated parameters' values (p,), in the order of `names`."""
+        full = np.concatenate([[self.K[0, 0], self.K[1, 1], self.K[0, 2], self.K[1, 2]], self.dist])
+        return full[[INTRINSIC_PARAMETERS.index(n) for n in self.names]]
+
+
+@dataclass(frozen=True)
+class CameraBound:
+    """The Cramer-Rao bound of one camera's calibration: standard deviation of the focal length
+    (fx + fy) / 2 in percent, root mean square position error (sqrt of the trace of the
+    centre's covariance) metres and root mean square orientation error degrees, in the world
+    frame the start pose defines; `aligned_position_m`, `aligned_rotation_deg` the same after
+    the floor rigid motion that best aligns all the cameras' centres is removed
+    (`floor_gauge_projector`: the network's own geometry; NaN with fewer than 2 cameras)."""
+
+    name: str
+    focal_pct: float
+    position_m: float
+    rotation_deg: float
+    aligned_position_m: float
+    aligned_rotation_deg: float
+
+
+@dataclass(frozen=True)
+class _Cam:
+    name: str
+    index: int  # into the caller's cameras
+    prior: IntrinsicsPrior
+    rvec: Array
+    t: Array
+    seen: NDArray[np.bool_]
+
+
+def _chol_whitener(cov: Array) -> Array:
+    """Return W (..., n, n) with W^T W = cov^-1."""
+    return np.swapaxes(np.linalg.cholesky(np.linalg.inv(cov)), -1, -2)
+
+
+def centre_rotation_jacobian(R: Array, t: Array) -> Array:
+    """Return d (c, phi) / d (rvec, t) (6, 6) of a camera with R_camera_world = exp(rvec) = R
+    and t_camera_world = t: c = -R^T t its centre (metres) and phi its orientation error as a
+    world-frame rotation vector (R_world_camera_est = exp(phi) R_world_camera). A perturbed
+    rotation exp(rvec + d) is exp(J_l d) R (J_l the left Jacobian of SO(3)), so
+    d c = -R^T [t]x J_l d - R^T dt and phi = -R^T J_l d."""
+    Jl = left_jacobian_so3(matrix_to_rotvec(R))
+    tx = np.array([[0.0, -t[2], t[1]], [t[2], 0.0, -t[0]], [-t[1], t[0], 0.0]])
+    F = np.zeros((6, 6))
+    F[:3, :3] = -R.T @ tx @ Jl
+    F[:3, 3:] = -R.T
+    F[3:, :3] = -R.T @ Jl
+    return F
+
+
+def floor_gauge_projector(centres: ArrayLike) -> Array:
+    """Return T (6 C, 6 C) that removes from per-camera errors (centre (3), world rotation
+    vector (3), camera by camera) the floor rigid motion (x, y, yaw) that best aligns the
+    centres (least squares over their x, y): the errors of the network's own geometry, free of
+    where its world frame was put. First order; needs C >= 2 cameras (a 2D Procrustes fit)."""
+    c = np.asarray(centres, dtype=np.float64).reshape(-1, 3)
+    C = len(c)
+    G = np.zeros((6 * C, 3))
+    B = np.zeros((2 * C, 6 * C))
+    for k in range(C):
+        G[6 * k : 6 * k + 3] = [[1.0, 0.0, -c[k, 1]], [0.0, 1.0, c[k, 0]], [0.0, 0.0, 0.0]]
+        G[6 * k + 5, 2] = 1.0
+        B[2 * k, 6 * k] = B[2 * k + 1, 6 * k + 1] = 1.0
+    return np.eye(6 * C) - G @ np.linalg.pinv(B @ G) @ B
+
+
+def disc_centre_offset(
+    X: Array, rvec: Array, t: Array, K: Array, dist: Array, radius: float
+) -> Array:
+    """Return the pixel offset (M, 2) of the centre of a horizontal disc's image from the
+    image of its centre, for discs of `radius` metres centred at X (M, 3).
+
+    A detector's blob centroid is the centre of the disc's image ellipse, which perspective
+    moves off the projected centre (by up to ~0.1 px for the twin's 5 cm marker at 3 m): the
+    disc maps by H = [R e1, R e2, R X + t] (normalised image) to the conic
+    C = H^-T diag(1, 1, -r^2) H^-1 (Hartley & Zisserman eq. 2.13), whose centre is
+    -C[:2, :2]^-1 C[:2, 2]; both centres are then distorted and mapped through K."""
+    if radius <= 0:
+        return np.zeros((len(X), 2))
+    R = rotvec_to_matrix(rvec)
+    Xc = X @ R.T + t
+    H = np.empty((len(X), 3, 3))
+    H[:, :, 0] = R[:, 0]
+    H[:, :, 1] = R[:, 1]
+    H[:, :, 2] = Xc
+    Hi = np.linalg.inv(H)
+    C = np.swapaxes(Hi, -1, -2) @ np.diag([1.0, 1.0, -(radius**2)]) @ Hi
+    centre = -np.linalg.solve(C[:, :2, :2], C[:, :2, 2:3])[..., 0]
+    point = Xc[:, :2] / Xc[:, 2:3]
+    d = distort_normalized(np.stack([centre, point]), dist)
+    px = d @ K[:2, :2].T
+    return np.asarray(px[0] - px[1])
+
+
+class _MarkerProblem:
+    """The joint refinement (module docstring, step 2) for core.optim.solve_sparse_lm, as one
+    dense block: global = every camera's (free intrinsics, rvec, t), then eps (3 M)."""
+
+    def __init__(
+        self,
+        cams: Sequence[_Cam],
+        pixels: Array,
+        whiten: Array,
+        used: NDArray[np.bool_],
+        odometry: OdometryPrior,
+        offset: Array,
+        height: float,
+        radius: float = 0.0,
+    ) -> None:
+        self.cams = cams
+        self.radius = radius
+        self.uv = pixels  # (C, M, 2)
+        self.W = whiten  # (C, M, 2, 2)
+        self.used = used  # (C, M)
+        self.odo = odometry
+        self.off = offset
+        self.h = height
+        sizes = [len(c.prior.names) + 6 for c in cams]
+        self.start = np.concatenate([[0], np.cumsum(sizes)]).astype(int)
+        self.M = len(odometry.increments)
+        self.n_cam = int(self.start[-1])
+        self.n = self.n_cam + 3 * self.M
+        self.Lc = [_chol_whitener(c.prior.cov) if len(c.prior.names) else None for c in cams]
+        self.Lj = _chol_whitener(odometry.cov)  # (M, 3, 3)
+
+    def x0(self) -> Array:
+        parts = [np.concatenate([c.prior.values, c.rvec, c.t]) for c in self.cams]
+        return np.concatenate([*parts, np.zeros(3 * self.M)])
+
+    def unpack(self, g: Array, k: int) -> tuple[Array, Array, Array, Array]:
+        """Return K (3, 3), dist (5,), rvec (3,), t (3,) of camera k."""
+        c = self.cams[k]
+        p = g[self.start[k] : self.start[k + 1]]
+        full = np.concatenate(
+            [[c.prior.K[0, 0], c.prior.K[1, 1], c.prior.K[0, 2], c.prior.K[1, 2]], c.prior.dist]
+        )
+        full[[INTRINSIC_PARAMETERS.index(n) for n in c.prior.names]] = p[:-6]
+        K = intrinsics_to_matrix([full[0], full[1], full[2], full[3], c.prior.K[0, 1]])
+        return K, full[4:9].copy(), p[-6:-3], p[-3:]
+
+    def poses(self, g: Array) -> Array:
+        """Return the robot poses (M, 3) for the corrected increments."""
+        eps = g[self.n_cam :].reshape(self.M, 3)
+        return compose_increments(self.odo.start, self.odo.increments + eps)
+
+    def marker(self, poses: Array) -> tuple[Array, Array]:
+        """Return the marker's world points (M, 3) and d X / d pose (M, 3, 3)."""
+        c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
+        ro = np.stack([c * self.off[0] - s * self.off[1], s * self.off[0] + c * self.off[1]], 1)
+        X = np.column_stack([poses[:, :2] + ro, np.full(len(poses), self.h)])
+        dX = np.zeros((len(poses), 3, 3))
+        dX[:, 0, 0] = dX[:, 1, 1] = 1.0
+        dX[:, 0, 2] = -ro[:, 1]
+        dX[:, 1, 2] = ro[:, 0]
+        return X, dX
+
+    def jacobians(self, g: Array, loc: Array) -> tuple[Array, Array, Array]:
+        C, M = len(self.cams), self.M
+        poses = self.poses(g)
+        X, dX = self.marker(poses)
+        eps = g[self.n_cam :].reshape(M, 3)
+        D = increment_jacobian(self.odo.start, self.odo.increments + eps).reshape(M, 3, 3 * M)
+        n_int = [len(c.prior.names) for c in self.cams]
+        rows = 2 * C * M + sum(n_int) + 3 * M
+        res = np.zeros(rows)
+        J = np.zeros((rows, self.n))
+        r = 0
+        for k, cam in enumerate(self.cams):
+            K, d, rv, t = self.unpack(g, k)
+            pr = project_points(X, rv, t, K, d, jacobians=True)
+            assert pr.d_intrinsics is not None and pr.d_distortion is not None
+            assert pr.d_pose is not None
+            w = self.used[k][:, None, None] * self.W[k]  # (M, 2, 2)
+            # The ellipse-centre offset is second order in the disc's size: it enters the
+            # prediction, its derivatives are left out of the Jacobian.
+            pred = pr.points + disc_centre_offset(X, rv, t, K, d, self.radius)
+            res[r : r + 2 * M] = np.einsum("mij,mj->mi", w, pred - self.uv[k]).ravel()
+            d_all = np.concatenate([pr.d_intrinsics[..., :4], pr.d_distortion], axis=-1)
+            sel = [INTRINSIC_PARAMETERS.index(n) for n in cam.prior.names]
+            jc = np.concatenate([d_all[..., sel], pr.d_pose], axis=-1)  # (M, 2, P)
+            J[r : r + 2 * M, self.start[k] : self.start[k + 1]] = (w @ jc).reshape(2 * M, -1)
+            # Xc = R X + t: d pixel / d X = (d pixel / d t) R.
+            dpix = pr.d_pose[..., 3:6] @ rotvec_to_matrix(rv) @ dX  # (M, 2, 3)
+            J[r : r + 2 * M, self.n_cam :] = np.einsum("mab,mbk->mak", w @ dpix, D).reshape(
+                2 * M, -1
+            )
+            r += 2 * M
+        for k, cam in enumerate(self.cams):
+            L = self.Lc[k]
+            if L is None:
+                continue
+            p = g[self.start[k] : self.start[k] + n_int[k]]
+            res[r : r + n_int[k]] = L @ (p - cam.prior.values)
+            J[r : r + n_int[k], self.start[k] : self.start[k] + n_int[k]] = L
+            r += n_int[k]
+        res[r:] = np.einsum("mij,mj->mi", self.Lj, eps).ravel()
+        for j in range(M):
+            J[r + 3 * j : r + 3 * j + 3, self.n_cam + 3 * j : self.n_cam + 3 * j + 3] = self.Lj[j]
+        return res[None], J[None], np.zeros((1, rows, 0))
+
+    def residuals(self, g: Array, loc: Array) -> Array:
+        return self.jacobians(g, loc)[0]
+
+    def pixel_rows(self, res: Array) -> Array:
+        """Return the whitened pixel residuals (C, M, 2) from a residual vector."""
+        C = len(self.cams)
+        return res.ravel()[: 2 * C * self.M].reshape(C, self.M, 2)
+
+
+def _init_camera(
+    name: str,
+    index: int,
+    prior: IntrinsicsPrior,
+    xy: Array,
+    uv: Array,
+    seen: NDArray[np.bool_],
+    height: float,
+    min_poses: int,
+    min_spread: float,
+) -> _Cam | RejectedCamera:
+    n = int(seen.sum())
+    if n < min_poses:
+        return RejectedCamera(name, f"too few poses: saw {n}, needs at least {min_poses}", n)
+    pts = xy[seen]
+    spread = float(np.sqrt(max(np.linalg.eigvalsh(np.cov(pts.T))[0], 0.0)))
+    if spread < min_spread:
+        return RejectedCamera(
+            name,
+            f"degenerate (collinear) track: the poses it saw spread {100 * spread:.1f} cm "
+            f"across their line, needs {100 * min_spread:.0f} cm; drive across its view",
+            n,
+        )
+    try:
+        pose = estimate_plane_pose(pts, uv[seen], prior.K, prior.dist)
+    except (DegenerateConfiguration, NotEnoughPoints, ConvergenceError) as exc:
+        return RejectedCamera(name, f"the camera's pose could not be initialised: {exc}", n)
+    # The plane frame is the world shifted up by h: Xc = R (X - h e3) + t.
+    t = pose.t - pose.R[:, 2] * height
+    return _Cam(name, index, prior, matrix_to_rotvec(pose.R), t, seen.copy())
+
+
+def _grow(
+    names: Sequence[str],
+    intrinsics: Sequence[IntrinsicsPrior],
+    uv: Array,
+    vis: NDArray[np.bool_],
+    cov: Array,
+    odometry: OdometryPrior,
+    off: Array,
+    height: float,
+    radius: float,
+    min_poses: int,
+    min_spread: float,
+    max_iterations: int,
+    window: int = 15,
+) -> tuple[list[_Cam], list[RejectedCamera], Array]:
+    """Return the cameras that can be calibrated, those rejected and a starting point for the
+    joint refinement, found stop by stop: the odometry drifts (metres and degrees over a long
+    drive), so cameras initialised from the raw odometry can start too far from each other for
+    the refinement to converge. The drive is taken in growing windows of `window` stops; each
+    window's problem is solved from the previous window's solution (its new stops placed by
+    the odometry from the last corrected pose), and a camera enters when the stops it saw
+    within the window first suffice, initialised from the corrected positions."""
+    C, M = len(names), len(odometry.increments)
+    eps = np.zeros((M, 3))
+    state: dict[int, Array] = {}  # camera index -> its global parameters
+    cams: dict[int, _Cam] = {}
+    last_reject: dict[int, RejectedCamera] = {}
+    ends = [*range(window, M, window), M]
+    for end in ends:
+        sub = OdometryPrior(odometry.start, odometry.increments[:end], odometry.cov[:end])
+        poses = compose_increments(sub.start, sub.increments + eps[:end])
+        c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
+        xy = poses[:, :2] + np.stack([c * off[0] - s * off[1], s * off[0] + c * off[1]], 1)
+        for k in range(C):
+            if k in cams:
+                continue
+            r = _init_camera(
+                names[k],
+                k,
+                intrinsics[k],
+                xy,
+                uv[k, :end],
+                vis[k, :end],
+                height,
+                min_poses,
+                min_spread,
+            )
+            if isinstance(r, RejectedCamera):
+                last_reject[k] = r
+                continue
+            cams[k] = r
+            state[k] = np.concatenate([r.prior.values, r.rvec, r.t])
+            last_reject.pop(k, None)
+        if not cams or max_iterations == 0:
+            continue
+        order = sorted(cams)
+        in_cams = [cams[k] for k in order]
+        problem = _MarkerProblem(
+            in_cams,
+            np.where(vis[order, :end, None], uv[order, :end], 0.0),
+            _chol_whitener(cov[order, :end]),
+            vis[order, :end],
+            sub,
+            off,
+            height,
+            radius,
+        )
+        g0 = np.concatenate([*(state[k] for k in order), eps[:end].ravel()])
+        sol = solve_sparse_lm(problem, g0, np.zeros((1, 0)), max_iterations=max_iterations)
+        for i, k in enumerate(order):
+            state[k] = sol.x_global[problem.start[i] : problem.start[i + 1]].copy()
+        eps[:end] = sol.x_global[problem.n_cam :].reshape(end, 3)
+    order = sorted(cams)
+    g = np.concatenate([*(state[k] for k in order), eps.ravel()]) if order else eps.ravel()
+    return [cams[k] for k in order], [last_reject[k] for k in sorted(last_reject)], g
+
+
+def _check_inputs(
+    names: Sequence[str],
+    intrinsics: Sequence[IntrinsicsPrior],
+    pixels: ArrayLike,
+    visible: ArrayLike,
+    odometry: OdometryPrior,
+    pixel_cov: ArrayLike | None,
+    pixel_sigma: float,
+) -> tuple[Array, NDArray[np.bool_], Array]:
+    C = len(names)
+    uv = np.asarray(pixels, dtype=np.float64)
+    vis = np.asarray(visible, dtype=bool)
+    M = len(odometry.increments)
+    if len(intrinsics) != C or uv.shape != (C, M, 2) or vis.shape != (C, M):
+        raise InvalidInput(
+            f"need one intrinsics prior per camera, pixels (C, M, 2) and visible (C, M) for "
+            f"C = {C} names and M = {M} odometry stops; got {len(intrinsics)} priors, "
+            f"{uv.shape}, {vis.shape}"
+        )
+    if not np.all(np.isfinite(uv[vis])):
+        raise InvalidInput("the visible pixels must be finite")
+    if pixel_cov is None:
+        if not pixel_sigma > 0:
+            raise InvalidInput(f"pixel_sigma must be > 0 pixels, got {pixel_sigma}")
+        cov = np.broadcast_to(pixel_sigma**2 * np.eye(2), (C, M, 2, 2)).copy()
+    else:
+        cov = np.asarray(pixel_cov, dtype=np.float64).reshape(C, M, 2, 2).copy()
+        cov[~vis] = np.eye(2)
+        if np.any(np.linalg.eigvalsh(cov)[..., 0] <= 0):
+            raise InvalidInput("pixel_cov must be positive definite where visible")
+    return uv, vis, cov
+
+
+def calibrate_network_marker(
+    names: Sequence[str],
+    intrinsics: Sequence[IntrinsicsPrior],
+    pixels: ArrayLike,
+    visible: ArrayLike,
+    odometry: OdometryPrior,
+    height: float,
+    *,
+    offset: tuple[float, float] = (0.0, 0.0),
+    radius: float = 0.0,
+    pixel_cov: ArrayLike | None = None,
+    pixel_sigma: float = 0.5,
+    min_poses: int = 6,
+    min_spread: float = 0.15,
+    outlier_sigma: float = 5.0,
+    refine: bool = True,
+    max_iterations: int = 50,
+) -> NetworkCalibration:
+    """Return the calibrated network from a marker driven over the floor (module docstring).
+
+    names: C camera names; intrinsics: C priors from each camera's own calibration; pixels
+    (C, M, 2) detected marker centres (distorted pixels, anything where unseen); visible (C, M)
+    bool; odometry: the start pose and the M increments between stops with their covariance
+    (`odometry_prior`); height: the marker's Z (metres); offset: the marker's (x, y) in the
+    robot frame (metres); radius: the marker disc's radius (metres; 0 for a point-like marker
+    such as an LED): a blob detector measures the centre of the disc's image ellipse, which
+    the model predicts (`disc_centre_offset`). pixel_cov (C, M, 2, 2) px^2 per detection, or
+    pixel_sigma (px) for all. A camera that cannot be calibrated is listed in `rejected`, never
+    raised; InvalidInput for inconsistent shapes or values.
+    """
+    uv, vis, cov = _check_inputs(
+        names, intrinsics, pixels, visible, odometry, pixel_cov, pixel_sigma
+    )
+    M = len(odometry.increments)
+    off = np.asarray(offset, dtype=np.float64).reshape(2)
+    recorded = odometry.poses
+    cams, rejected, g_init = _grow(
+        names,
+        intrinsics,
+        uv,
+        vis,
+        cov,
+        odometry,
+        off,
+        float(height),
+        float(radius),
+        min_poses,
+        min_spread,
+        max_iterations if refine else 0,
+    )
+    prior_cov = odometry.pose_covariance()
+    if not cams:
+        tcov = np.stack([prior_cov[3 * j : 3 * j + 3, 3 * j : 3 * j + 3] for j in range(M)])
+        nan = float("nan")
+        return NetworkCalibration((), tuple(rejected), recorded, tcov, nan, nan, nan, 0)
+    idx = [cm.index for cm in cams]
+    used = vis[idx].copy()
+    W = _chol_whitener(cov[idx])
+    pix = np.where(vis[idx][..., None], uv[idx], 0.0)
+    g = g_init
+    iterations = 0
+    for _ in range(3):
+        problem = _MarkerProblem(cams, pix, W, used, odometry, off, float(height), float(radius))
+        start = g
+        n_res = int(2 * used.sum() + sum(len(cm.prior.names) for cm in cams) + 3 * M)
+        sol = solve_sparse_lm(
+            problem,
+            start,
+            np.zeros((1, 0)),
+            max_iterations=max_iterations if refine else 0,
+            ftol=1e-12,
+            n_residuals=n_res,
+        )
+        g, iterations = sol.x_global, iterations + sol.iterations
+        e = np.linalg.norm(problem.pixel_rows(problem.residuals(g, sol.x_local)), axis=-1)
+        keep = used & (e <= outlier_sigma)
+        if np.array_equal(keep, used):
+            break
+        used = keep
+    assert g is not None
+    s2 = sol.residual_variance
+    gcov = sol.global_covariance(s2)
+    poses = problem.poses(g)
+    X, _ = problem.marker(poses)
+    out = []
+    sq_px = sq_w = 0.0
+    x0 = problem.x0()
+    for k, cm in enumerate(cams):
+        K, d, rv, t = problem.unpack(g, k)
+        u = used[k]
+        pred = project_points(X[u], rv, t, K, d).points
+        pred = pred + disc_centre_offset(X[u], rv, t, K, d, float(radius))
+        resid = pred - uv[cm.index][u]
+        sq_px += float(np.sum(resid**2))
+        sq_w += float(np.sum(np.einsum("mij,mj->mi", W[k][u], resid) ** 2))
+        K0, _, rv0, t0 = problem.unpack(x0, k)
+        sl = slice(problem.start[k], problem.start[k + 1])
+        out.append(
+            CalibratedCamera(
+                name=cm.name,
+                K=K,
+                dist=d,
+                R=rotvec_to_matrix(rv),
+                t=t.copy(),
+                std=np.sqrt(np.maximum(np.diag(gcov)[sl], 0.0)),
+                residuals=resid,
+                poses_seen=int(vis[cm.index].sum()),
+                outliers=int(vis[cm.index].sum() - u.sum()),
+                initial_K=K0,
+                initial_R=rotvec_to_matrix(rv0),
+                initial_t=t0.copy(),
+                parameter_names=(*cm.prior.names, *_POSE_NAMES),
+                pose_index=np.flatnonzero(u),
+                covariance=gcov[sl, sl].copy(),
+            )
+        )
+    # Covariance of the poses: D Cov(eps) D^T per pose (the blocks on the diagonal).
+    D = increment_jacobian(odometry.start, odometry.increments + g[problem.n_cam :].reshape(M, 3))
+    D2 = D.reshape(3 * M, 3 * M)
+    ce = gcov[problem.n_cam :, problem.n_cam :]
+    pc = D2 @ ce @ D2.T
+    tcov = np.stack([pc[3 * j : 3 * j + 3, 3 * j : 3 * j + 3] for j in range(M)])
+    n = max(int(used.sum()), 1)
+    return NetworkCalibration(
+        cameras=tuple(out),
+        rejected=tuple(rejected),
+        targets=poses,
+        target_cov=tcov,
+        rms_px=float(np.sqrt(sq_px / n)),
+        rms_whitened=float(np.sqrt(sq_w / (2 * n))),
+        residual_variance=float(s2),
+        iterations=iterations,
+    )
+
+
+def marker_network_bound(
+    names: Sequence[str],
+    intrinsics: Sequence[IntrinsicsPrior],
+    true_K: ArrayLike,
+    true_dist: ArrayLike,
+    true_R: ArrayLike,
+    true_t: ArrayLike,
+    true_poses: ArrayLike,
+    visible: ArrayLike,
+    odometry: OdometryPrior,
+    height: float,
+    *,
+    offset: tuple[float, float] = (0.0, 0.0),
+    pixel_cov: ArrayLike | None = None,
+    pixel_sigma: float = 0.5,
+) -> tuple[CameraBound, ...]:
+    """Return the Cramer-Rao bound of each camera's calibration by `calibrate_network_marker`.
+
+    The inverse of the problem's Gauss-Newton information (unit-variance whitened residuals)
+    at the true parameters: true_K (C, 3, 3), true_dist (C, 5), true_R (C, 3, 3) and true_t
+    (C, 3) (R_camera_world, t_camera_world), true_poses (M, 3) the robot's true stops; the
+    priors (intrinsics' and odometry increments' covariances) and the detections' visibility
+    and covariance as the calibration has them. For scoring and planning (which drive length
+    and pixel noise reach a target): it needs the truth.
+    """
+    C = len(names)
+    Ks = np.asarray(true_K, dtype=np.float64).reshape(C, 3, 3)
+    ds = np.asarray(true_dist, dtype=np.float64).reshape(C, 5)
+    Rs = np.asarray(true_R, dtype=np.float64).reshape(C, 3, 3)
+    ts = np.asarray(true_t, dtype=np.float64).reshape(C, 3)
+    P = np.asarray(true_poses, dtype=np.float64).reshape(-1, 3)
+    M = len(odometry.increments)
+    if len(P) != M:
+        raise InvalidInput(f"true_poses must be (M, 3) with M = {M}; got {P.shape}")
+    uv = np.zeros((C, M, 2))
+    _, vis, cov = _check_inputs(names, intrinsics, uv, visible, odometry, pixel_cov, pixel_sigma)
+    # Linearise at the truth: increments that compose to the true poses, priors centred on it.
+    prev = np.vstack([odometry.start, P[:-1]])
+    rel = P[:, :2] - prev[:, :2]
+    cp, sp = np.cos(prev[:, 2]), np.sin(prev[:, 2])
+    inc = np.column_stack(
+        [
+            cp * rel[:, 0] + sp * rel[:, 1],
+            -sp * rel[:, 0] + cp * rel[:, 1],
+            (P[:, 2] - prev[:, 2] + np.pi) % (2 * np.pi) - np.pi,
+        ]
+    )
+    odo = OdometryPrior(odometry.start, inc, odometry.cov)
+    cams = []
+    for k in range(C):
+        pr = intrinsics[k]
+        truth = IntrinsicsPrior(Ks[k], ds[k], pr.names, pr.cov)
+        cams.append(_Cam(names[k], k, truth, matrix_to_rotvec(Rs[k]), ts[k], vis[k]))
+    problem = _MarkerProblem(
+        cams, uv, _chol_whitener(cov), vis, odo, np.asarray(offset, float), float(height)
+    )
+    _, J, _ = problem.jacobians(problem.x0(), np.zeros((1, 0)))
+    info = J[0].T @ J[0]
+    cov_all = np.linalg.inv(info)
+    F = np.zeros((6 * C, problem.n))
+    focal_rows = np.zeros((C, problem.n))
+    for k in range(C):
+        end = problem.start[k + 1]
+        F[6 * k : 6 * k + 6, end - 6 : end] = centre_rotation_jacobian(Rs[k], ts[k])
+        names_k = cams[k].prior.names
+        f = 0.5 * (Ks[k, 0, 0] + Ks[k, 1, 1])
+        for n in ("fx", "fy"):
+            if n in names_k:
+                focal_rows[k, problem.start[k] + names_k.index(n)] = 0.5 * 100 / f
+    Y = F @ cov_all @ F.T
+    centres = np.einsum("kji,kj->ki", Rs, -ts)
+    Ya = np.full_like(Y, np.nan)
+    if C >= 2:
+        T = floor_gauge_projector(centres)
+        Ya = T @ Y @ T.T
+    fvar = np.einsum("ki,ij,kj->k", focal_rows, cov_all, focal_rows)
+
+    def rt(a: Array, k: int, i: int) -> float:
+        return float(np.sqrt(np.trace(a[6 * k + i : 6 * k + i + 3, 6 * k + i : 6 * k + i + 3])))
+
+    out = []
+    for k, name in enumerate(names):
+        out.append(
+            CameraBound(
+                name=name,
+                focal_pct=float(np.sqrt(fvar[k])),
+                position_m=rt(Y, k, 0),
+                rotation_deg=float(np.degrees(rt(Y, k, 3))),
+                aligned_position_m=rt(Ya, k, 0),
+                aligned_rotation_deg=float(np.degrees(rt(Ya, k, 3))),
+            )
+        )
+    return tuple(out)

@@ -1,0 +1,424 @@
+"""The renderer: each camera's frame of a world state (or of a shown chessboard), with its
+ground truth."""
+
+from __future__ import annotations
+
+import math
+from collections import OrderedDict
+from typing import Any, TypedDict
+
+import cv2
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from core.errors import InvalidInput
+from core.geometry.camera import distort_normalized
+from core.sim._geometry import yaw_matrix
+from core.sim.motion import Pose2D, WorldState
+from core.sim.render._camera import CameraModel, Frame, SensorNoise, camera_model
+from core.sim.render._layers import (
+    _board_geometry,
+    _in_world,
+    _lens_maps,
+    _robot_geometry,
+    _static_faces,
+    _StaticFace,
+    _View,
+)
+from core.sim.render._raster import _Target
+from core.sim.render._textures import _bgr
+from core.sim.scene import Board, CeilingCamera, Scene
+
+Array = NDArray[np.float64]
+Image = NDArray[Any]  # uint8 images; typed loosely because cv2 returns its own array type
+
+# The default image degradation (frozen: safe to share as a default argument).
+_DEFAULT_NOISE = SensorNoise()
+
+# --------------------------------------------------------------------------------------------
+# The renderer
+
+
+class _RobotTruth(TypedDict, total=False):
+    marker_world: Array
+    marker_pixel: Array
+    marker_ellipse_pixel: Array
+    marker_visible: bool
+    board_corners_world: Array
+    board_corner_pixels: Array
+    board_visible: bool
+
+
+class Renderer:
+    """Renders a scene's cameras; caches each camera's static layer and lens map on first use.
+
+    supersample: the static layer is rasterised at this many times the resolution and box
+    filtered (anti-aliasing); object_supersample: the same for the textures of moving planar
+    objects (marker, board), per frame. near: the near plane in metres.
+    """
+
+    def __init__(
+        self,
+        scene: Scene,
+        *,
+        supersample: int = 2,
+        object_supersample: int = 2,
+        near: float = 0.05,
+    ) -> None:
+        if supersample < 1 or object_supersample < 1 or not near > 0:
+            raise InvalidInput("supersample and object_supersample must be >= 1, near > 0")
+        self.scene = scene
+        self.supersample = int(supersample)
+        self.object_supersample = int(object_supersample)
+        self.near = float(near)
+        self._faces: list[_StaticFace] | None = None
+        self._views: dict[CeilingCamera, _View] = {}
+        self._robot = _robot_geometry(scene.robot) if scene.robot is not None else None
+        self._banks: dict[tuple[float, int], NDArray[np.int16]] = {}
+
+    def camera(self, camera: str | CeilingCamera) -> CameraModel:
+        """Return the CameraModel of a scene camera (by name) or of a given camera."""
+        return self._view(camera).camera
+
+    def _view(self, camera: str | CeilingCamera) -> _View:
+        cam_spec = self.scene.camera(camera) if isinstance(camera, str) else camera
+        view = self._views.get(cam_spec)
+        if view is None:
+            view = self._build_view(camera_model(cam_spec))
+            self._views[cam_spec] = view
+        return view
+
+    def _build_view(self, cam: CameraModel) -> _View:
+        if np.any(cam.dist != 0):
+            Kc, mx, my = _lens_maps(cam)
+            map1, map2 = cv2.convertMaps(mx, my, cv2.CV_16SC2)
+            wc = math.ceil(float(mx.max())) + 3
+            hc = math.ceil(float(my.max())) + 3
+        else:
+            Kc, map1, map2 = cam.K.copy(), None, None
+            wc, hc = cam.width, cam.height
+        s = self.supersample
+        A = np.array([[s, 0, (s - 1) / 2], [0, s, (s - 1) / 2], [0, 0, 1.0]])
+        bg = _bgr(self.scene.background).astype(np.uint8)
+        tgt = _Target(
+            img=np.broadcast_to(bg, (hc * s, wc * s, 3)).copy(),
+            depth=np.full((hc * s, wc * s), np.inf, np.float32),
+            K=A @ Kc,
+            R=cam.R_camera_world,
+            t=cam.t_camera_world,
+            near=self.near,
+        )
+        if self._faces is None:
+            self._faces = _static_faces(self.scene)
+        for f in self._faces:
+            if float(f.normal @ (cam.position - f.poly.mean(0))) <= 1e-9:
+                continue
+            if f.texture is not None:
+                tgt.textured(f.poly, f.texture, convex=f.convex, level=0)
+            elif f.colour is not None:
+                tgt.fill(f.poly, f.colour, f.convex)
+        if s > 1:
+            img = cv2.resize(tgt.img, (wc, hc), interpolation=cv2.INTER_AREA)
+            depth = tgt.depth.reshape(hc, s, wc, s).min(axis=(1, 3))
+        else:
+            img, depth = tgt.img, tgt.depth
+        return _View(cam, Kc, img, np.ascontiguousarray(depth), map1, map2)
+
+    def sees(
+        self, camera: str | CeilingCamera, points: ArrayLike, tol: float = 0.02
+    ) -> NDArray[np.bool_]:
+        """Return, for world points (N, 3) metres, whether the camera sees each one: in front,
+        inside the image and not hidden by the static scene (walls, furniture) by more than
+        `tol` metres of depth."""
+        view = self._view(camera)
+        cam = view.camera
+        P = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        Pc = P @ cam.R_camera_world.T + cam.t_camera_world
+        ok = Pc[:, 2] > self.near
+        px = cam.project(P)
+        ok &= (px[:, 0] >= 0) & (px[:, 0] <= cam.width - 1)
+        ok &= (px[:, 1] >= 0) & (px[:, 1] <= cam.height - 1)
+        q = np.where(ok[:, None], Pc, [0.0, 0.0, 1.0]) @ view.Kc.T
+        uc = np.clip(np.rint(q[:, 0] / q[:, 2]).astype(int), 0, view.static_depth.shape[1] - 1)
+        vc = np.clip(np.rint(q[:, 1] / q[:, 2]).astype(int), 0, view.static_depth.shape[0] - 1)
+        ok &= Pc[:, 2] <= view.static_depth[vc, uc] + tol
+        return ok
+
+    def _noise(self, sigma: float, n: int) -> NDArray[np.int16]:
+        bank = self._banks.get((sigma, n))
+        if bank is None:
+            rng = np.random.default_rng(0x5EED)
+            bank = np.rint(rng.standard_normal(2 * n) * sigma).astype(np.int16)
+            self._banks[(sigma, n)] = bank
+        return bank
+
+    def render(
+        self,
+        camera: str | CeilingCamera,
+        state: WorldState,
+        *,
+        rng: np.random.Generator | int | None = None,
+        noise: SensorNoise | None = _DEFAULT_NOISE,
+    ) -> Frame:
+        """Return the Frame that `camera` (a scene camera's name, or any CeilingCamera) sees of
+        the scene in `state`. `rng` seeds the sensor noise (same seed, same image); `noise`
+        None renders a noiseless, unblurred image."""
+        view = self._view(camera)
+        cam = view.camera
+        tgt = _Target(
+            img=view.static_img.copy(),
+            depth=view.static_depth.copy(),
+            K=view.Kc,
+            R=cam.R_camera_world,
+            t=cam.t_camera_world,
+            near=self.near,
+        )
+        if len(state.people) != len(self.scene.people):
+            raise InvalidInput(
+                f"state has {len(state.people)} people, the scene {len(self.scene.people)}"
+            )
+        for w, p in zip(self.scene.people, state.people, strict=True):
+            body = _bgr(w.colour)
+            tgt.cylinder(p, 0.0, w.height, w.radius, body * 0.85, body)
+        truth = self._draw_robot(tgt, cam, state.robot)
+        img, gain = self._develop(view, tgt.img, rng, noise)
+        return Frame(
+            image=img,
+            camera=cam,
+            time=state.time,
+            robot=state.robot,
+            people=state.people,
+            gain=gain,
+            **truth,
+        )
+
+    def render_board(
+        self,
+        camera: str | CeilingCamera,
+        board: Board,
+        T_world_board: ArrayLike,
+        *,
+        rng: np.random.Generator | int | None = None,
+        noise: SensorNoise | None = _DEFAULT_NOISE,
+        people: tuple[tuple[float, float], ...] = (),
+    ) -> Frame:
+        """Return the Frame `camera` sees of a chessboard held at `T_world_board` (4, 4) in
+        the room without the robot (an installer showing a printed board to the camera), with
+        the walkers at `people` (their floor positions, in the scene's order; none when empty).
+
+        The board frame has its origin at the first inner corner, x along the columns, y down
+        the rows, z = x cross y into the board (the printed face looks along -z), so the
+        inner corners are core.calibration.board_object_points(Chessboard(cols, rows), square)
+        mapped by T_world_board. Ground truth: board_corners_world, board_corner_pixels and
+        board_visible (all corners in front, inside the image, printed face towards the
+        camera and not hidden by the static scene)."""
+        T = np.asarray(T_world_board, dtype=np.float64)
+        if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+            raise InvalidInput(f"T_world_board must be a finite (4, 4) pose, got {T.shape}")
+        view = self._view(camera)
+        cam = view.camera
+        tgt = _Target(
+            img=view.static_img.copy(),
+            depth=view.static_depth.copy(),
+            K=view.Kc,
+            R=cam.R_camera_world,
+            t=cam.t_camera_world,
+            near=self.near,
+        )
+        if people:
+            if len(people) != len(self.scene.people):
+                raise InvalidInput(
+                    f"{len(people)} people given, the scene has {len(self.scene.people)}"
+                )
+            for w, q in zip(self.scene.people, people, strict=True):
+                body = _bgr(w.colour)
+                tgt.cylinder(q, 0.0, w.height, w.radius, body * 0.85, body)
+        cols, rows = board.inner_corners
+        s = board.square_size
+        R, p = T[:3, :3], T[:3, 3]
+        centre = p + R @ np.array([(cols - 1) * s / 2, (rows - 1) * s / 2, 0.0])
+        tex, poly, corners, normal = _board_geometry(board, centre, R[:, 0], R[:, 1])
+        px = cam.project(corners)
+        front = float(normal @ (cam.position - poly.mean(0))) > 0
+        visible = bool(
+            front
+            and np.all(cam.depth(corners) > self.near)
+            and np.all(_in_image(cam, px))
+            and np.all(_unoccluded(tgt, corners))
+        )
+        if front:
+            tgt.textured(poly, tex, supersample=self.object_supersample)
+        else:
+            tgt.fill(poly, np.array([90.0, 90.0, 90.0]))
+        img, gain = self._develop(view, tgt.img, rng, noise)
+        return Frame(
+            image=img,
+            camera=cam,
+            time=0.0,
+            robot=None,
+            people=(),
+            board_corners_world=corners,
+            board_corner_pixels=px,
+            board_visible=visible,
+            gain=gain,
+        )
+
+    def _develop(
+        self,
+        view: _View,
+        ideal: Image,
+        rng: np.random.Generator | int | None,
+        noise: SensorNoise | None,
+    ) -> tuple[Image, float]:
+        """Return the sensor image (lens remap, blur, gain, noise) of an ideal canvas and the
+        exposure gain it was taken with."""
+        img = ideal
+        if view.map1 is not None and view.map2 is not None:
+            img = cv2.remap(img, view.map1, view.map2, cv2.INTER_LINEAR)
+        gen = np.random.default_rng(rng)
+        gain = 1.0
+        if noise is not None:
+            if noise.blur_sigma > 0:
+                img = cv2.GaussianBlur(img, (0, 0), noise.blur_sigma)
+            gain = noise.gain * (1.0 + noise.gain_jitter * float(gen.standard_normal()))
+            if gain != 1.0:
+                img = cv2.convertScaleAbs(img, alpha=max(gain, 0.0))
+            if noise.sigma > 0:
+                n = img.size
+                bank = self._noise(noise.sigma, n)
+                off = int(gen.integers(0, n + 1))
+                img = cv2.add(img, bank[off : off + n].reshape(img.shape), dtype=cv2.CV_8U)
+        return img, gain
+
+    def _draw_robot(self, tgt: _Target, cam: CameraModel, pose: Pose2D | None) -> _RobotTruth:
+        g = self._robot
+        if g is None or pose is None:
+            return _RobotTruth()
+        r = g.robot
+        R = yaw_matrix(pose.yaw)
+        p = np.array([pose.x, pose.y, 0.0])
+        tgt.cylinder(
+            (pose.x, pose.y), 0.0, r.base_height, r.base_radius, _bgr(r.colour), _bgr(r.top_colour)
+        )
+        truth = _RobotTruth()
+        if g.marker_tex is not None and r.marker is not None:
+            centre = R @ np.array([r.marker.offset[0], r.marker.offset[1], r.marker.height]) + p
+            px = cam.project(centre)
+            # Visibility is decided against the depth buffer before the disc is drawn, so the
+            # disc cannot hide itself; the board (drawn later) is checked afterwards.
+            ang = np.linspace(0.0, 2 * np.pi, 16, endpoint=False)
+            rim = centre + r.marker.radius * np.stack([np.cos(ang), np.sin(ang), 0 * ang], 1)
+            pts = np.vstack([centre, rim])
+            seen = bool(
+                np.all(cam.depth(pts) > self.near)
+                and np.all(_in_image(cam, cam.project(pts)))
+                and np.all(_unoccluded(tgt, pts))
+            )
+            tex = _in_world(g.marker_tex, R, p)
+            n = tex.levels[0].shape[0]
+            o0 = tex.o - (tex.u + tex.v) / 2
+            poly = np.array([o0, o0 + tex.u * n, o0 + (tex.u + tex.v) * n, o0 + tex.v * n])
+            tgt.textured(poly, tex, alpha=True, supersample=self.object_supersample)
+            truth["marker_world"] = centre
+            truth["marker_pixel"] = px[0]
+            truth["marker_ellipse_pixel"] = _disc_image_centre(cam, centre, r.marker.radius)
+            truth["marker_visible"] = seen
+        if g.board_tex is not None:
+            assert g.board_poly is not None and g.board_corners is not None
+            assert g.board_normal is not None
+            poly = g.board_poly @ R.T + p
+            normal = R @ g.board_normal
+            corners = g.board_corners @ R.T + p
+            px = cam.project(corners)
+            front = float(normal @ (cam.position - poly.mean(0))) > 0
+            truth["board_visible"] = bool(
+                front
+                and np.all(cam.depth(corners) > self.near)
+                and np.all(_in_image(cam, px))
+                and np.all(_unoccluded(tgt, corners))
+            )
+            if front:
+                tgt.textured(
+                    poly, _in_world(g.board_tex, R, p), supersample=self.object_supersample
+                )
+            else:
+                tgt.fill(poly, np.array([90.0, 90.0, 90.0]))
+            truth["board_corners_world"] = corners
+            truth["board_corner_pixels"] = px
+            if truth.get("marker_visible"):
+                # Hidden by the board if something now lies clearly in front of the disc.
+                c = truth["marker_world"][None]
+                truth["marker_visible"] = bool(_unoccluded(tgt, c, tol=0.05)[0])
+        return truth
+
+
+def _in_image(cam: CameraModel, px: Array) -> NDArray[np.bool_]:
+    """Return whether pixels (N, 2) lie inside the camera's image."""
+    return (
+        (px[:, 0] >= 0)
+        & (px[:, 0] <= cam.width - 1)
+        & (px[:, 1] >= 0)
+        & (px[:, 1] <= cam.height - 1)
+    )
+
+
+def _unoccluded(tgt: _Target, X: Array, tol: float = 0.0) -> NDArray[np.bool_]:
+    """Return whether world points (N, 3) lie in front of tgt's z-buffer (+ tol metres)."""
+    Pc = tgt.to_camera(X)
+    uv = np.rint(tgt.to_pixels(Pc)).astype(int)
+    inside = (uv[:, 0] >= 0) & (uv[:, 0] < tgt.w) & (uv[:, 1] >= 0) & (uv[:, 1] < tgt.h)
+    uvc = np.clip(uv, 0, [tgt.w - 1, tgt.h - 1])
+    return inside & (Pc[:, 2] <= tgt.depth[uvc[:, 1], uvc[:, 0]] + tol)
+
+
+def _disc_image_centre(cam: CameraModel, centre: Array, radius: float) -> Array:
+    """Return the distorted pixel (2,) of the centre of a horizontal disc's image ellipse.
+
+    The disc x^2 + y^2 <= r^2 in its plane maps by H = K [R e1, R e2, R c + t] to the conic
+    C' = H^-T diag(1, 1, -r^2) H^-1 (Hartley & Zisserman eq. 2.13), whose centre -A^-1 b (A its
+    upper-left 2x2 block, b its last column's top) is the area centroid of the ideal image of
+    the disc; it is mapped through the lens distortion like any ideal point.
+    """
+    H = cam.K @ np.stack(
+        [
+            cam.R_camera_world[:, 0],
+            cam.R_camera_world[:, 1],
+            cam.R_camera_world @ centre + cam.t_camera_world,
+        ],
+        1,
+    )
+    Hi = np.linalg.inv(H)
+    C = Hi.T @ np.diag([1.0, 1.0, -(radius**2)]) @ Hi
+    c = -np.linalg.solve(C[:2, :2], C[:2, 2])
+    xn = np.linalg.solve(cam.K, np.array([c[0], c[1], 1.0]))
+    xd = distort_normalized(xn[:2] / xn[2], cam.dist)
+    return (cam.K @ np.array([xd[0], xd[1], 1.0]))[:2]
+
+
+_RENDERERS: OrderedDict[int, tuple[Scene, Renderer]] = OrderedDict()
+
+
+def renderer_for(scene: Scene) -> Renderer:
+    """Return a cached Renderer of `scene` (the 4 most recently used scenes are kept)."""
+    hit = _RENDERERS.get(id(scene))
+    if hit is not None and hit[0] is scene:
+        _RENDERERS.move_to_end(id(scene))
+        return hit[1]
+    r = Renderer(scene)
+    _RENDERERS[id(scene)] = (scene, r)
+    while len(_RENDERERS) > 4:
+        _RENDERERS.popitem(last=False)
+    return r
+
+
+def render(
+    scene: Scene,
+    camera: str | CeilingCamera,
+    state: WorldState,
+    *,
+    rng: np.random.Generator | int | None = None,
+    noise: SensorNoise | None = _DEFAULT_NOISE,
+) -> Frame:
+    """Return the Frame `camera` sees of `scene` in `state` (see Renderer.render); the
+    scene's static layers are cached between calls."""
+    return renderer_for(scene).render(camera, state, rng=rng, noise=noise)

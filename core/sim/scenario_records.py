@@ -1,0 +1,143 @@
+"""The typed records the twin's scenarios return; each has `to_dict()` giving JSON-ready values."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from typing import Any, Protocol
+
+
+@dataclass(frozen=True)
+class CameraCalibrationError:
+    """One camera's calibration against the twin: focal error in percent of the true
+    (fx + fy) / 2 (signed, of the estimated (fx + fy) / 2), optical-centre position error
+    metres, orientation error degrees (angle of R_est R_true^T), poses seen, reprojection RMS
+    pixels (`rms_px`).
+
+    Marker kind (None otherwise): `aligned_position_error_m`, `aligned_rotation_error_deg` the
+    errors after removing the floor rigid motion (x, y, yaw) that best aligns all calibrated
+    centres to the true ones (the network's own geometry, free of how well the odometry tied it
+    to the start pose), and the Cramer-Rao bound of each of the five numbers (`bound_*`:
+    standard deviation of the focal length in percent, root mean square position and
+    orientation errors).
+
+    Board kind only (None otherwise): principal point error pixels (distance), and distortion
+    error pixels: the largest difference between the estimated and the true lens distortion
+    displacement, f_true |(D_est(x) - x) - (D_true(x) - x)| over ideal normalised rays x (the
+    distortion alone, focal and principal point errors excluded), over the part of the image
+    the board's detections covered (their convex hull; `distortion_error_px`) and over the
+    whole image (`distortion_error_full_px`, extrapolated where the board never went: the
+    image's upper part sees walls the robot cannot reach)."""
+
+    name: str
+    focal_error_pct: float
+    position_error_m: float
+    rotation_error_deg: float
+    poses_seen: int
+    rms_px: float
+    aligned_position_error_m: float | None = None
+    aligned_rotation_error_deg: float | None = None
+    bound_focal_pct: float | None = None
+    bound_position_m: float | None = None
+    bound_rotation_deg: float | None = None
+    bound_aligned_position_m: float | None = None
+    bound_aligned_rotation_deg: float | None = None
+    principal_point_error_px: float | None = None
+    distortion_error_px: float | None = None
+    distortion_error_full_px: float | None = None
+
+
+@dataclass(frozen=True)
+class RejectedCameraReport:
+    """A camera the calibration left out, with the reason."""
+
+    name: str
+    reason: str
+    poses_seen: int
+
+
+@dataclass(frozen=True)
+class AccuracyRow:
+    """One drive of an accuracy study: `seed`, `stops` planned for the first pass (`poses`
+    driven, with the second pass), simulated `drive_s` seconds (within the study's budget),
+    pixel noise `sigma_px` (true projections plus Gaussian noise), and the calibrated cameras'
+    errors and bounds."""
+
+    seed: int
+    stops: int
+    poses: int
+    drive_s: float
+    sigma_px: float
+    cameras: tuple[CameraCalibrationError, ...]
+    rejected: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class NetworkCalibrationResult:
+    """Metrics of `network-calibration` (marker) and `network-calibration-board`.
+
+    poses: robot stops; detections: camera-stop pairs seen; drive_s: simulated seconds of
+    driving (None for the board kind, whose robot is placed at each stop); sigma_px: the pixel
+    noise of the detections measured against the truth (RMS per axis); intrinsics_from: where
+    each camera's intrinsics came from; distortion: how the lens distortion was treated;
+    rms_px: the joint reprojection RMS over all detections, pixels; rms_whitened: the same in
+    units of the detections' standard deviations; placement_sigma_m: the board kind's placement
+    noise (None for the marker); `accuracy`: an accuracy study (errors and bounds as functions
+    of drive length and pixel noise), empty unless asked for."""
+
+    scenario: str
+    seed: int
+    target_kind: str
+    poses: int
+    detections: int
+    drive_s: float | None
+    sigma_px: float
+    intrinsics_from: str
+    distortion: str
+    rms_px: float
+    rms_whitened: float
+    cameras: tuple[CameraCalibrationError, ...]
+    rejected: tuple[RejectedCameraReport, ...]
+    placement_sigma_m: float | None = None
+    accuracy: tuple[AccuracyRow, ...] = ()
+
+    def to_dict(self) -> dict[str, Any]:
+        """Return the record as JSON-ready values."""
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class LocalizationResult:
+    """Metrics of `localization` / `localization-images`: samples located, pixel noise sigma
+    (given, or measured from the detections), RMSE metres per estimator (mono, linear,
+    constrained, ml) and the Cramer-Rao root mean trace for the cameras ML used."""
+
+    scenario: str
+    seed: int
+    samples: int
+    sigma_px: float
+    rmse_m: dict[str, float]
+    crb_rmse_m: float
+    measured_sigma_px: float | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        """Return the record as JSON-ready values."""
+        return asdict(self)
+
+
+class ScenarioResult(Protocol):
+    """What every scenario returns (these records, and those of scenarios registered from
+    other modules): its name, its seed and `to_dict()` giving JSON-ready values."""
+
+    @property
+    def scenario(self) -> str:
+        """The scenario's registered name."""
+        ...
+
+    @property
+    def seed(self) -> int:
+        """The seed it ran with."""
+        ...
+
+    def to_dict(self) -> dict[str, Any]:
+        """Return the record as JSON-ready values."""
+        ...
