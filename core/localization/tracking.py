@@ -472,6 +472,18 @@ class Tracker:
         ended, _ = self._manage()
         return ended
 
+    def shift(self, dt: float) -> None:
+        """Move the tracker's clock and every track's times on by dt seconds without any
+        motion or added uncertainty: a pause of the cameras' world (the twin held still), so
+        that its tracks neither coast nor end over it."""
+        dt = _as_time(dt)
+        if dt < 0:
+            raise InvalidInput(f"a shift must not go back in time, got {dt} s")
+        if self._t is not None:
+            self._t += dt
+        self._first = [v + dt for v in self._first]
+        self._last = [v + dt for v in self._last]
+
     # -- one camera frame ----------------------------------------------------------------------
 
     def update(

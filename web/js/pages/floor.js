@@ -484,7 +484,14 @@ export async function renderFloor(main) {
       tracks.set(target.label, pts);
     }
     const when = t ?? Math.max(0, ...items.map((x) => x.t || 0));
-    clock.textContent = Number.isFinite(when) && when > 0 ? `t = ${fmt(when, 2)} s` : "";
+    // Capture times are Unix seconds on the service's clock: shown as the time of day.
+    clock.textContent =
+      Number.isFinite(when) && when > 0
+        ? `seen at ${new Date(when * 1000).toLocaleTimeString([], { hour12: false })}.${String(
+            Math.floor((when % 1) * 10),
+          )}`
+        : "";
+    clock.dataset.t = Number.isFinite(when) ? String(when) : "";
     drawTargets();
   };
 
@@ -731,7 +738,12 @@ export async function renderFloor(main) {
         h(
           "div",
           { class: "floor-foot" },
-          h("label", { class: "small" }, historyToggle, " show ended targets (last 10 min) "),
+          h(
+            "label",
+            { class: "small", style: { display: "inline-flex", gap: "0.4em", alignItems: "center" } },
+            historyToggle,
+            "show ended targets (last 10 min)",
+          ),
           historyNote,
         ),
         h(
