@@ -24,6 +24,7 @@ from server.api import (
     robots,
     rooms,
     spaces,
+    streams,
     system,
     targets,
     tokens,
@@ -63,6 +64,7 @@ def api_router() -> APIRouter:
         targets,
         maps,
         twin,
+        streams,
     ):
         router.include_router(module.router)
     return router
@@ -80,6 +82,7 @@ def _start_twin(settings: Settings, factory, live: LiveTargets, app: FastAPI):
         app.state.scene_sync,
         rate_hz=settings.twin_rate_hz,
         seed=settings.twin_seed,
+        detect=settings.twin_detection == "internal",
     )
     twin.bootstrap()
     return twin

@@ -13,6 +13,7 @@ _COMMAND_MODULES = (
     "server.commands.serve",
     "server.commands.db",
     "server.commands.sim",
+    "server.commands.node",
 )
 
 

@@ -34,6 +34,12 @@ class Settings(BaseSettings):
     simulation: bool = Field(False, description="Run the digital twin so the space is alive.")
     twin_rate_hz: float = Field(5.0, gt=0, le=30, description="Frames per second of the twin.")
     twin_seed: int = Field(0, ge=0, description="Seed of the twin's noise and motion.")
+    twin_detection: Literal["internal", "external"] = Field(
+        "internal",
+        description="internal: the twin detects in its frames and feeds the tracker; "
+        "external: it only renders, and camera nodes (`intspace node`) read its streams "
+        "(/cameras/{id}/stream.mjpg) and post the detections.",
+    )
     targets_flush_hz: float = Field(
         2.0, gt=0, le=20, description="How often live targets are written to the database."
     )

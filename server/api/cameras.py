@@ -1,10 +1,14 @@
-"""Cameras: image size, intrinsics, distortion, pose; calibration history and export."""
+"""Cameras: image size, intrinsics, distortion, pose; calibration history and export; health
+from their camera nodes' heartbeats."""
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+import threading
+import time
+from dataclasses import dataclass
+from typing import Annotated, Any, Literal
 
-from fastapi import APIRouter, HTTPException, Path, Query, status
+from fastapi import APIRouter, HTTPException, Path, Query, Request, status
 from fastapi.responses import PlainTextResponse
 from sqlalchemy import select
 
@@ -13,27 +17,143 @@ from server.api.deps import PageDep, ReadAccess, SceneDep, SessionDep, WriteAcce
 from server.api.errors import PROBLEM_RESPONSES
 from server.db.models import Camera, CameraCalibration, Space
 from server.schemas.common import MAX_ID, Page
-from server.schemas.registry import CameraCalibrationRead, CameraCreate, CameraRead, CameraUpdate
+from server.schemas.registry import (
+    CameraCalibrationRead,
+    CameraCreate,
+    CameraHealth,
+    CameraHeartbeat,
+    CameraRead,
+    CameraUpdate,
+)
 from server.services.calibration import calibration_yaml
 
 router = APIRouter(prefix="/cameras", tags=["cameras"], responses=PROBLEM_RESPONSES)
 CameraId = Annotated[int, Path(ge=1, le=MAX_ID)]
+
+# A camera whose node has not reported for this long (s) is offline.
+OFFLINE_AFTER_S = 5.0
+# A camera with no frame for this long (s), or two frame periods if longer, is stalled.
+STALLED_AFTER_S = 2.0
+
+
+@dataclass(frozen=True)
+class _Beat:
+    received: float
+    body: CameraHeartbeat
+    first_received: float
+    online_since: float | None
+
+
+class CameraHealthBook:
+    """The latest heartbeat of each camera, in memory (a restarted service learns them again
+    within a second); statuses are computed when read, so no timer runs."""
+
+    def __init__(self, clock: Any = time.time) -> None:
+        self._clock = clock
+        self._lock = threading.Lock()
+        self._beats: dict[int, _Beat] = {}
+
+    @staticmethod
+    def _status(beat: _Beat | None, now: float) -> tuple[str, float | None]:
+        if beat is None:
+            return "offline", None
+        if now - beat.received > OFFLINE_AFTER_S:
+            return "offline", beat.received + OFFLINE_AFTER_S
+        fps = beat.body.fps
+        quiet = max(STALLED_AFTER_S, 2.0 / fps) if fps > 0 else STALLED_AFTER_S
+        last = beat.body.last_frame_t
+        if last is None:
+            return "stalled", beat.first_received
+        if now - last > quiet:
+            return "stalled", last + quiet
+        return "online", beat.online_since
+
+    def beat(self, camera_id: int, body: CameraHeartbeat) -> CameraHealth:
+        """Record a heartbeat; return the camera's health with it."""
+        now = self._clock()
+        with self._lock:
+            old = self._beats.get(camera_id)
+            was, _ = self._status(old, now)
+            first = now if old is None or was == "offline" else old.first_received
+            beat = _Beat(now, body, first, old.online_since if old is not None else None)
+            if self._status(beat, now)[0] == "online" and was != "online":
+                beat = _Beat(now, body, first, now)
+            self._beats[camera_id] = beat
+        return self._health(beat, now)
+
+    def health(self, camera_id: int) -> CameraHealth:
+        """Return the camera's health now (offline, since null, when it never reported)."""
+        now = self._clock()
+        with self._lock:
+            beat = self._beats.get(camera_id)
+        return self._health(beat, now)
+
+    def forget(self, camera_id: int) -> None:
+        """Drop a deleted camera's heartbeats."""
+        with self._lock:
+            self._beats.pop(camera_id, None)
+
+    def _health(self, beat: _Beat | None, now: float) -> CameraHealth:
+        status_, since = self._status(beat, now)
+        if beat is None:
+            return CameraHealth(status="offline")
+        b = beat.body
+        return CameraHealth(
+            status=status_,  # type: ignore[arg-type]
+            since=since,
+            fps=b.fps,
+            stalls=b.stalls,
+            reconnects=b.reconnects,
+            dropped=b.dropped,
+            dropped_detections=b.dropped_detections,
+            clock_offset_s=b.clock_offset_s,
+            last_frame_t=b.last_frame_t,
+            last_heartbeat=beat.received,
+        )
+
+
+_BOOK_LOCK = threading.Lock()
+
+
+def health_book(request: Request) -> CameraHealthBook:
+    """Return the app's camera health book (made on first use)."""
+    book = getattr(request.app.state, "camera_health", None)
+    if book is None:
+        with _BOOK_LOCK:
+            book = getattr(request.app.state, "camera_health", None)
+            if book is None:
+                book = request.app.state.camera_health = CameraHealthBook()
+    return book
+
+
+def _with_health(camera: Camera, book: CameraHealthBook) -> CameraRead:
+    read = CameraRead.model_validate(camera)
+    read.health = book.health(camera.id)
+    return read
 
 
 @router.get("", response_model=Page[CameraRead], dependencies=[ReadAccess])
 def list_cameras(
     session: SessionDep,
     page: PageDep,
+    request: Request,
     space_id: Annotated[int | None, Query(ge=1, le=MAX_ID)] = None,
     status: Annotated[Literal["uncalibrated", "nominal", "calibrated"] | None, Query()] = None,
+    name: Annotated[str | None, Query(min_length=1, max_length=200)] = None,
 ):
-    """Return a page of cameras, optionally of one space or one status."""
+    """Return a page of cameras with their health, optionally of one space, one status or
+    one name."""
     stmt = select(Camera).order_by(Camera.id)
     if space_id is not None:
         stmt = stmt.where(Camera.space_id == space_id)
     if status is not None:
         stmt = stmt.where(Camera.status == status)
-    return paginate(session, stmt, page)
+    if name is not None:
+        stmt = stmt.where(Camera.name == name)
+    out = paginate(session, stmt, page)
+    book = health_book(request)
+    out["items"] = [_with_health(camera, book) for camera in out["items"]]
+    return out
 
 
 @router.post(
@@ -51,9 +171,20 @@ def create_camera(body: CameraCreate, session: SessionDep, scene: SceneDep):
 
 
 @router.get("/{camera_id}", response_model=CameraRead, dependencies=[ReadAccess])
-def get_camera(camera_id: CameraId, session: SessionDep):
-    """Return one camera."""
-    return get_or_404(session, Camera, camera_id, "camera")
+def get_camera(camera_id: CameraId, session: SessionDep, request: Request):
+    """Return one camera with its health: online, stalled or offline since when, from its
+    camera node's heartbeats."""
+    return _with_health(get_or_404(session, Camera, camera_id, "camera"), health_book(request))
+
+
+@router.post("/{camera_id}/heartbeat", response_model=CameraHealth, dependencies=[WriteAccess])
+def camera_heartbeat(
+    camera_id: CameraId, body: CameraHeartbeat, session: SessionDep, request: Request
+):
+    """Record a camera node's report on the camera (every second); return its health. No
+    report for 5 s makes the camera offline."""
+    get_or_404(session, Camera, camera_id, "camera")
+    return health_book(request).beat(camera_id, body)
 
 
 @router.patch("/{camera_id}", response_model=CameraRead, dependencies=[WriteAccess])
@@ -69,11 +200,14 @@ def update_camera(camera_id: CameraId, body: CameraUpdate, session: SessionDep, 
 
 
 @router.delete("/{camera_id}", status_code=status.HTTP_204_NO_CONTENT, dependencies=[WriteAccess])
-def delete_camera(camera_id: CameraId, session: SessionDep, scene: SceneDep) -> None:
+def delete_camera(
+    camera_id: CameraId, session: SessionDep, scene: SceneDep, request: Request
+) -> None:
     """Delete a camera and its calibration history (its runs stay, unassigned)."""
     session.delete(get_or_404(session, Camera, camera_id, "camera"))
     session.commit()
     scene.camera_removed(camera_id)
+    health_book(request).forget(camera_id)
 
 
 @router.get(

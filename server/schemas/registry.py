@@ -152,6 +152,40 @@ class CameraUpdate(_PoseInput):
     T_world_camera: RigidTransform | None = None
 
 
+class CameraHeartbeat(Schema):
+    """What a camera node reports about a camera every second: its frame rate (frames per
+    second received), stalls and reconnects of the stream since the node started, frames the
+    detector skipped (newer ones came first), detections dropped while the service was
+    unreachable, the node's clock offset to the service (s, added to its clock) and the
+    capture time of the newest frame (Unix seconds, service clock; null before the first)."""
+
+    fps: Annotated[float, Field(ge=0, le=10_000, allow_inf_nan=False)]
+    stalls: Annotated[int, Field(ge=0)] = 0
+    reconnects: Annotated[int, Field(ge=0)] = 0
+    dropped: Annotated[int, Field(ge=0)] = 0
+    dropped_detections: Annotated[int, Field(ge=0)] = 0
+    clock_offset_s: Annotated[float, Field(ge=-1e9, le=1e9, allow_inf_nan=False)] = 0.0
+    last_frame_t: Finite | None = None
+
+
+class CameraHealth(ReadSchema):
+    """A camera's health from its node's heartbeats: online (frames coming), stalled (the
+    node reports but no frame for 2 s or two frame periods, the longer), offline (no heartbeat
+    for 5 s, or none yet); since when (Unix seconds; null when never seen); the latest
+    heartbeat's counters."""
+
+    status: Literal["online", "stalled", "offline"]
+    since: float | None = None
+    fps: float | None = None
+    stalls: int | None = None
+    reconnects: int | None = None
+    dropped: int | None = None
+    dropped_detections: int | None = None
+    clock_offset_s: float | None = None
+    last_frame_t: float | None = None
+    last_heartbeat: float | None = Field(default=None, description="When the service received it.")
+
+
 class CameraRead(ReadSchema):
     id: int
     name: str
@@ -165,6 +199,9 @@ class CameraRead(ReadSchema):
     calibration_run_id: int | None
     created_at: UtcDatetime
     updated_at: UtcDatetime
+    health: CameraHealth | None = Field(
+        None, description="From its camera node's heartbeats (POST /cameras/{id}/heartbeat)."
+    )
 
 
 class CameraCalibrationRead(ReadSchema):

@@ -158,8 +158,11 @@ class Twin:
         rate_hz: float = 5.0,
         seed: int = 0,
         clock: Any = time.time,
+        detect: bool = True,
     ) -> None:
         self.scene = scene
+        # False: the twin only renders; camera nodes read its streams and post the detections.
+        self.detect = detect
         self.space_id: int | None = None
         self.camera_ids: dict[str, int] = {}
         self._factory = factory
@@ -344,47 +347,56 @@ class Twin:
             state = world_state(
                 self.scene, t, self._base.state.pose if self._base is not None else None
             )
-            robot = self.scene.robot
-            marker_height = robot.marker.height if robot is not None and robot.marker else 0.0
-            frames: dict[int, CameraFrame] = {}
-            network = self._network()
-            for spec in self.scene.cameras:
-                camera_id = self.camera_ids.get(spec.name)
-                if camera_id is None:
-                    continue
-                frame = self._renderer.render(spec.name, state, rng=self._rng)
-                cf = CameraFrame(camera_id, spec.name, stamp, frame.image)
-                found = detect_frame(
+            rng = self._rng
+        # Rendered and published camera by camera, outside the lock, so a stream or a frame
+        # request gets each frame as soon as it exists.
+        robot = self.scene.robot
+        marker_height = robot.marker.height if robot is not None and robot.marker else 0.0
+        frames: dict[int, CameraFrame] = {}
+        network = self._network()
+        for spec in self.scene.cameras:
+            camera_id = self.camera_ids.get(spec.name)
+            if camera_id is None:
+                continue
+            frame = self._renderer.render(spec.name, state, rng=rng)
+            cf = CameraFrame(camera_id, spec.name, stamp, frame.image)
+            found = (
+                detect_frame(
                     frame.image,
                     marker=self._marker_cfg,
                     marker_height=marker_height,
                     people=self._detectors.get(spec.name),
                     camera=network.get(camera_id),
                 )
-                detections = []
-                for d in found:
-                    cf.detections.append(d.to_dict())
-                    # The marker's colour is this robot's own: its detection names the robot.
-                    label = robot.name if d.kind == "robot" and robot is not None else None
-                    detections.append(
-                        DetectionIn(
-                            camera_id=camera_id,
-                            t=stamp,
-                            pixel=(float(d.pixel[0]), float(d.pixel[1])),
-                            cov=(
-                                (float(d.cov[0, 0]), float(d.cov[0, 1])),
-                                (float(d.cov[1, 0]), float(d.cov[1, 1])),
-                            ),
-                            kind=d.kind,
-                            height=d.height,
-                            label=label,
-                        )
+                if self.detect
+                else []
+            )
+            detections = []
+            for d in found:
+                cf.detections.append(d.to_dict())
+                # The marker's colour is this robot's own: its detection names the robot.
+                label = robot.name if d.kind == "robot" and robot is not None else None
+                detections.append(
+                    DetectionIn(
+                        camera_id=camera_id,
+                        t=stamp,
+                        pixel=(float(d.pixel[0]), float(d.pixel[1])),
+                        cov=(
+                            (float(d.cov[0, 0]), float(d.cov[0, 1])),
+                            (float(d.cov[1, 0]), float(d.cov[1, 1])),
+                        ),
+                        kind=d.kind,
+                        height=d.height,
+                        label=label,
                     )
-                frames[camera_id] = cf
-                if self._tracking is not None and detections:
-                    with self._factory() as session:
-                        self._tracking.ingest(session, detections, {camera_id: self.space_id})
-            self._frames = frames
+                )
+            frames[camera_id] = cf
+            with self._lock:
+                self._frames[camera_id] = cf
+            if self._tracking is not None and detections:
+                with self._factory() as session:
+                    self._tracking.ingest(session, detections, {camera_id: self.space_id})
+        with self._lock:
             self.steps += 1
         self._score_robot(state)
         self._push_scene(state, frames)

@@ -14,7 +14,7 @@ def test_health_reports_backend_and_schema(client, database_url):
     body = response.json()
     assert body["status"] == "ok"
     assert body["database"] == ("postgresql" if database_url.startswith("postgresql") else "sqlite")
-    assert body["schema_revision"] == "0002"  # the latest migration
+    assert body["schema_revision"] == "0003"  # the latest migration
     assert body["version"]
 
 

@@ -78,7 +78,7 @@ def test_serve_prints_urls_and_the_first_run_token_once(repo_root, tmp_path):
     first = _Server(repo_root, tmp_path)
     try:
         health = first.wait_healthy()
-        assert health["database"] == "sqlite" and health["schema_revision"] == "0002"
+        assert health["database"] == "sqlite" and health["schema_revision"] == "0003"
         assert first.line("Dashboard: ") == f"Dashboard: http://127.0.0.1:{first.port}/"
         assert first.line("3D scene (viser): ") == (
             f"3D scene (viser): http://127.0.0.1:{first.viser_port}/"
@@ -116,9 +116,9 @@ def test_db_upgrade_and_current(tmp_path, monkeypatch, capsys):
     assert main(["db", "current"]) == 1  # nothing applied yet
     assert "current: (none)" in capsys.readouterr().out
     assert main(["db", "upgrade"]) == 0
-    assert "revision 0002" in capsys.readouterr().out
+    assert "revision 0003" in capsys.readouterr().out
     assert main(["db", "current"]) == 0
-    assert "current: 0002" in capsys.readouterr().out
+    assert "current: 0003" in capsys.readouterr().out
     assert main(["db", "downgrade", "base"]) == 1
     out = capsys.readouterr().out
     assert "Backup: " in out and "current: (none)" in out

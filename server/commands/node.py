@@ -1,0 +1,138 @@
+"""`intspace node`: read cameras, detect the robot and people in their frames, post the
+detections to the service (spec 08).
+
+    intspace node --source SRC --camera NAME [--space ID] [--api URL] [--fps N]
+    intspace node --config cameras.yaml [--api URL]
+
+SRC: a USB index, a video file, an RTSP or HTTP(S) MJPEG URL (the service's own
+/api/v1/cameras/{id}/stream.mjpg included). The token comes from INTSPACE_TOKEN only (never a
+flag: command lines are visible to every user of the machine). A camera the registry does not
+know, a bad file or no token: one line on stderr and exit code 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import signal
+import sys
+from pathlib import Path
+
+from core.errors import InvalidInput
+
+EXIT_USAGE = 2
+DEFAULT_API = "http://127.0.0.1:8000/api/v1"
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add the `node` command."""
+    p = subparsers.add_parser(
+        "node",
+        help="read cameras and post their detections to the service",
+        description="Read cameras (USB, video file, RTSP, HTTP MJPEG), detect the robot's "
+        "marker and people in each frame, and post the detections to the service. The token "
+        "is read from INTSPACE_TOKEN.",
+    )
+    p.add_argument("--config", type=Path, metavar="FILE", help="YAML file of cameras")
+    p.add_argument("--source", metavar="SRC", help="one camera's source")
+    p.add_argument("--camera", metavar="NAME", help="its name in the registry")
+    p.add_argument("--space", type=int, metavar="ID", help="the space the camera belongs to")
+    p.add_argument("--api", metavar="URL", help=f"the service (default {DEFAULT_API})")
+    p.add_argument("--fps", type=float, metavar="N", help="detections per second at most")
+    p.add_argument("--fast", action="store_true", help="replay a video file as fast as it decodes")
+    p.add_argument(
+        "--background-frames",
+        type=int,
+        metavar="N",
+        help="frames that teach the background model (default 30)",
+    )
+    p.add_argument("--marker-colour", metavar="R,G,B", help="the robot marker's colour")
+    p.add_argument("--marker-height", type=float, metavar="M", help="its height (m)")
+    p.set_defaults(func=run_node)
+
+
+def _fail(message: str) -> int:
+    print(f"intspace node: error: {' '.join(message.split())}", file=sys.stderr, flush=True)
+    return EXIT_USAGE
+
+
+def _api_url(url: str) -> str:
+    url = url.rstrip("/")
+    return url if url.endswith("/api/v1") else url + "/api/v1"
+
+
+def _config(args: argparse.Namespace):
+    from server.node.config import CameraConfig, NodeConfig, load_config, parse_source
+
+    if args.config is not None:
+        if args.source or args.camera:
+            raise InvalidInput("give --config, or --source and --camera, not both")
+        try:
+            text = args.config.read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError) as exc:
+            raise InvalidInput(f"cannot read {args.config}: {exc}") from exc
+        try:
+            config = load_config(text)
+        except InvalidInput as exc:
+            raise InvalidInput(f"{args.config}: {exc}") from exc
+    else:
+        if not args.source or not args.camera:
+            raise InvalidInput("give --source and --camera (or --config FILE)")
+        camera = CameraConfig(
+            name=args.camera,
+            source=parse_source(args.source),
+            fps=args.fps,
+            realtime=not args.fast,
+        )
+        config = NodeConfig(cameras=[camera])
+    changes: dict = {}
+    if args.space is not None:
+        changes["space"] = args.space
+    if args.background_frames is not None:
+        changes["background_frames"] = max(0, args.background_frames)
+    marker = config.marker.model_copy()
+    if args.marker_colour:
+        try:
+            colour = tuple(int(c) for c in args.marker_colour.split(","))
+        except ValueError as exc:
+            raise InvalidInput("--marker-colour must be R,G,B integers 0..255") from exc
+        if len(colour) != 3 or not all(0 <= c <= 255 for c in colour):
+            raise InvalidInput("--marker-colour must be R,G,B integers 0..255")
+        marker = marker.model_copy(update={"colour": colour})
+    if args.marker_height is not None:
+        if not 0 < args.marker_height <= 5:
+            raise InvalidInput("--marker-height must lie in (0, 5] metres")
+        marker = marker.model_copy(update={"height": args.marker_height})
+    changes["marker"] = marker
+    return config.model_copy(update=changes)
+
+
+def run_node(args: argparse.Namespace) -> int:
+    """Run the node until SIGINT/SIGTERM (or until every video file ended)."""
+    from server.node.client import NodeError
+    from server.node.runner import Node
+
+    logging.basicConfig(level=logging.INFO, format="intspace node: %(message)s", stream=sys.stderr)
+    logging.getLogger("httpx").setLevel(logging.WARNING)
+    token = os.environ.get("INTSPACE_TOKEN", "").strip()
+    if not token:
+        return _fail("set INTSPACE_TOKEN to a token with the write scope")
+    try:
+        config = _config(args)
+    except InvalidInput as exc:
+        return _fail(str(exc))
+    api = _api_url(args.api or config.api or DEFAULT_API)
+    node = Node(config, api, token)
+    try:
+        node.prepare()
+    except NodeError as exc:
+        node.client.close()
+        return _fail(str(exc))
+
+    def on_signal(signum: int, _frame: object) -> None:
+        node.stop_event.set()
+
+    signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGINT, on_signal)
+    return node.run()

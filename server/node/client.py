@@ -1,0 +1,212 @@
+"""A camera node's side of the service's REST API: the camera's registry row, batched
+detections with a bounded buffer, heartbeats, and the clock offset from every answer's Date."""
+
+from __future__ import annotations
+
+import email.utils
+import logging
+import threading
+import time
+from collections import deque
+from typing import Any
+
+import httpx
+
+from server.node.clock import ClockOffset
+
+log = logging.getLogger("intspace.node")
+
+# Detections posted at once, at most (the endpoint takes far more; small batches keep latency).
+_BATCH = 500
+# How long (s) an upload waits after the service failed before it tries again, at most.
+_RETRY_MAX_S = 2.0
+
+
+class NodeError(Exception):
+    """A problem the node cannot run with (unknown camera, refused token): its message is
+    the one line printed before exiting."""
+
+
+class ServiceClient:
+    """The service at `api` (…/api/v1) with a bearer token; thread-safe."""
+
+    def __init__(self, api: str, token: str, *, timeout: float = 5.0) -> None:
+        self.api = api.rstrip("/")
+        self.clock = ClockOffset()
+        self._clock_lock = threading.Lock()
+        self._http = httpx.Client(timeout=timeout, headers={"Authorization": f"Bearer {token}"})
+
+    def close(self) -> None:
+        """Close the connections."""
+        self._http.close()
+
+    def request(self, method: str, path: str, **kwargs: Any) -> httpx.Response:
+        """Send a request to `api + path`; measure the clock offset from its Date header."""
+        sent = time.time()
+        response = self._http.request(method, self.api + path, **kwargs)
+        received = time.time()
+        date = response.headers.get("date")
+        if date:
+            try:
+                service = email.utils.parsedate_to_datetime(date).timestamp()
+            except (TypeError, ValueError):
+                return response
+            # uvicorn refreshes its Date once a second: the service's time lay in [D, D + 2).
+            with self._clock_lock:
+                self.clock.add(sent, received, service, service + 2.0)
+        return response
+
+    @property
+    def offset(self) -> float:
+        """Return the clock offset (s) to add to the local clock to get the service's."""
+        with self._clock_lock:
+            return self.clock.offset
+
+    def camera(self, name: str, space_id: int | None) -> dict[str, Any]:
+        """Return the registry row of the camera called `name` (in space `space_id` when
+        given). Raises NodeError when there is none, several, or the service refuses."""
+        params: dict[str, Any] = {"name": name, "limit": 500}
+        if space_id is not None:
+            params["space_id"] = space_id
+        try:
+            response = self.request("GET", "/cameras", params=params)
+        except httpx.TransportError as exc:
+            raise NodeError(f"cannot reach the service at {self.api}: {exc}") from exc
+        if response.status_code in (401, 403):
+            raise NodeError(
+                f"the service refused the token ({response.status_code}); set INTSPACE_TOKEN "
+                "to a token with the write scope"
+            )
+        if response.status_code != 200:
+            raise NodeError(f"GET /cameras answered {response.status_code}: {response.text}")
+        rows = [row for row in response.json()["items"] if row["name"] == name]
+        where = f" in space {space_id}" if space_id is not None else ""
+        if not rows:
+            raise NodeError(
+                f"the registry has no camera named {name!r}{where}; create it (POST "
+                "/api/v1/cameras) or give the registry's name"
+            )
+        if len(rows) > 1:
+            spaces = sorted({row["space_id"] for row in rows}, key=str)
+            raise NodeError(
+                f"{len(rows)} cameras are named {name!r} (spaces {spaces}); pick one with --space"
+            )
+        return rows[0]
+
+    def heartbeat(self, camera_id: int, body: dict[str, Any]) -> bool:
+        """Report a camera's health; return whether the service took it."""
+        try:
+            response = self.request("POST", f"/cameras/{camera_id}/heartbeat", json=body)
+        except httpx.TransportError:
+            return False
+        return response.status_code == 200
+
+
+class Uploader:
+    """Posts detections in small batches from a thread; keeps at most `capacity` while the
+    service is unreachable, dropping the oldest (counted in `dropped`)."""
+
+    def __init__(self, client: ServiceClient, capacity: int = 20_000) -> None:
+        self._client = client
+        self._queue: deque[dict[str, Any]] = deque()
+        self._capacity = int(capacity)
+        self._cond = threading.Condition()
+        self._stop = False
+        self.dropped = 0
+        self.rejected = 0
+        self.posted = 0
+        # Camera frames the service stored but could not track: they came after the tracker's
+        # latency window (the node or the network too slow for INTSPACE_TRACKER_LATENCY_S).
+        self.late = 0
+        self._down_since: float | None = None
+        self._thread = threading.Thread(target=self._run, name="uploader", daemon=True)
+
+    def start(self) -> None:
+        """Start posting."""
+        self._thread.start()
+
+    def stop(self, flush_s: float = 2.0) -> None:
+        """Post what is queued (for at most `flush_s` s) and stop."""
+        deadline = time.monotonic() + flush_s
+        with self._cond:
+            while self._queue and time.monotonic() < deadline and self._down_since is None:
+                self._cond.wait(0.05)
+            self._stop = True
+            self._cond.notify_all()
+        self._thread.join(flush_s + 6)
+
+    def push(self, observations: list[dict[str, Any]]) -> None:
+        """Queue one frame's detections."""
+        if not observations:
+            return
+        with self._cond:
+            self._queue.extend(observations)
+            over = len(self._queue) - self._capacity
+            if over > 0:
+                for _ in range(over):
+                    self._queue.popleft()
+                self.dropped += over
+            self._cond.notify_all()
+
+    @property
+    def pending(self) -> int:
+        """Return how many detections wait to be posted."""
+        with self._cond:
+            return len(self._queue)
+
+    def _run(self) -> None:
+        wait = 0.1
+        while True:
+            with self._cond:
+                self._cond.wait_for(lambda: self._stop or bool(self._queue))
+                if self._stop:
+                    return
+                batch = [self._queue.popleft() for _ in range(min(_BATCH, len(self._queue)))]
+            ok = self._post(batch)
+            with self._cond:
+                if ok:
+                    wait = 0.1
+                    self._cond.notify_all()
+                    continue
+                # Back in front, in order; the capacity still holds (oldest dropped).
+                self._queue.extendleft(reversed(batch))
+                over = len(self._queue) - self._capacity
+                for _ in range(max(0, over)):
+                    self._queue.popleft()
+                self.dropped += max(0, over)
+                self._cond.wait(wait)
+                wait = min(2 * wait, _RETRY_MAX_S)
+
+    def _post(self, batch: list[dict[str, Any]]) -> bool:
+        """Post a batch; return False when it should be retried (service unreachable)."""
+        try:
+            response = self._client.request("POST", "/observations", json={"observations": batch})
+        except httpx.TransportError as exc:
+            self._down(f"cannot reach the service ({type(exc).__name__}); buffering")
+            return False
+        if response.status_code >= 500 or response.status_code == 429:
+            self._down(f"the service answered {response.status_code}; buffering")
+            return False
+        if self._down_since is not None:
+            log.warning(
+                "service reachable again after %.1f s; %d detection(s) dropped so far",
+                time.time() - self._down_since,
+                self.dropped,
+            )
+            self._down_since = None
+        if response.status_code != 200:
+            # Bad input is not retried: the same batch would be refused again.
+            self.rejected += len(batch)
+            log.error("the service refused %d detection(s): %s", len(batch), response.text[:300])
+            return True
+        self.posted += len(batch)
+        try:
+            self.late += int(response.json().get("late", 0))
+        except (ValueError, AttributeError):
+            pass
+        return True
+
+    def _down(self, message: str) -> None:
+        if self._down_since is None:
+            self._down_since = time.time()
+            log.warning(message)

@@ -1,0 +1,90 @@
+"""A camera node's configuration: a YAML file for many cameras, or the flags for one.
+
+```yaml
+api: http://127.0.0.1:8000/api/v1     # optional; --api wins
+space: 1                              # optional: the space whose cameras these are
+marker: {colour: [220, 20, 30], height: 0.36}
+background_frames: 30                 # frames that teach each camera's background model
+cameras:
+  - name: cam_kitchen                 # the camera's name in the registry
+    source: rtsp://192.168.1.20/stream1   # or 0 (USB), a file, an http(s) MJPEG URL
+    fps: 10                           # detections per second at most (default: every frame)
+    masks: [[[0, 0], [120, 0], [120, 80], [0, 80]]]   # pixel polygons to ignore
+```
+
+The token is never in the file: INTSPACE_TOKEN only.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from core.errors import InvalidInput
+
+# The intspace robot's top marker (a red disc 0.36 m above the floor): what the product's robot
+# carries; a robot with another marker is configured in the file or by flags.
+DEFAULT_MARKER_COLOUR = (220, 20, 30)
+DEFAULT_MARKER_HEIGHT = 0.36
+
+Vertex = Annotated[list[float], Field(min_length=2, max_length=2)]
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class MarkerConfig(_Model):
+    """The robot's top marker: colour (r, g, b) and height above the floor (m)."""
+
+    colour: tuple[int, int, int] = DEFAULT_MARKER_COLOUR
+    height: Annotated[float, Field(gt=0, le=5)] = DEFAULT_MARKER_HEIGHT
+
+
+class CameraConfig(_Model):
+    """One camera: its registry name, its source, the detection rate cap, masks, and how its
+    stream is read (auto: httpx for the service's own MJPEG streams, OpenCV otherwise)."""
+
+    name: Annotated[str, Field(min_length=1, max_length=200)]
+    source: int | str
+    fps: Annotated[float, Field(gt=0, le=240)] | None = None
+    masks: list[Annotated[list[Vertex], Field(min_length=3)]] = Field(default_factory=list)
+    reader: Literal["auto", "mjpeg", "opencv"] = "auto"
+    realtime: bool = Field(True, description="A video file plays at its own rate, else fast.")
+
+
+class NodeConfig(_Model):
+    """Everything a node runs with."""
+
+    api: str | None = None
+    space: Annotated[int, Field(ge=1)] | None = None
+    marker: MarkerConfig = MarkerConfig()
+    background_frames: Annotated[int, Field(ge=0, le=10_000)] = 30
+    cameras: Annotated[list[CameraConfig], Field(min_length=1)]
+
+
+def load_config(text: str) -> NodeConfig:
+    """Return the configuration of a YAML document. Raises InvalidInput naming the field."""
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise InvalidInput(f"not valid YAML: {exc}") from exc
+    if not isinstance(data, dict):
+        raise InvalidInput("the configuration must be a mapping with a 'cameras' list")
+    try:
+        config = NodeConfig.model_validate(data)
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        where = ".".join(str(p) for p in first["loc"])
+        raise InvalidInput(f"{where}: {first['msg']}") from exc
+    names = [c.name for c in config.cameras]
+    if len(set(names)) != len(names):
+        raise InvalidInput("each camera may appear once in 'cameras'")
+    return config
+
+
+def parse_source(value: str) -> int | str:
+    """Return a USB index for a string of digits, the string otherwise."""
+    return int(value) if value.strip().isdigit() else value

@@ -1,0 +1,238 @@
+"""One camera node's threads: per camera a reader (sources) and a detector; one uploader; one
+heartbeat. The detector calls core.localization.detections.detect_frame, as the twin does."""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Any
+from urllib.parse import urlsplit
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from core.errors import IntspaceError
+from core.localization import NetworkCamera
+from core.localization.detect import MarkerDetectorConfig, PersonDetector
+from core.localization.detections import FrameDetection, detect_frame
+from server.node.client import NodeError, ServiceClient, Uploader
+from server.node.config import CameraConfig, NodeConfig
+from server.node.masks import apply_mask, polygon_mask
+from server.node.sources import MjpegHttpSource, OpenCvSource, Source
+
+log = logging.getLogger("intspace.node")
+
+HEARTBEAT_S = 1.0
+
+
+def _origin(url: str) -> tuple[str, str, int | None]:
+    parts = urlsplit(url)
+    port = parts.port or {"http": 80, "https": 443}.get(parts.scheme)
+    return parts.scheme, (parts.hostname or "").lower(), port
+
+
+def make_source(camera: CameraConfig, api: str, token: str) -> Source:
+    """Return the source of `camera`: httpx MJPEG for the service's own streams (with the
+    token: it is sent to the service's own address only) or when asked, OpenCV otherwise."""
+    src = camera.source
+    is_http = isinstance(src, str) and src.lower().startswith(("http://", "https://"))
+    if is_http and camera.reader != "opencv":
+        assert isinstance(src, str)
+        ours = _origin(src) == _origin(api)
+        if ours or camera.reader == "mjpeg":
+            headers = {"Authorization": f"Bearer {token}"} if ours else {}
+            return MjpegHttpSource(camera.name, src, headers)
+    return OpenCvSource(camera.name, src, realtime=camera.realtime)
+
+
+def observation(camera_id: int, t: float, d: FrameDetection) -> dict[str, Any] | None:
+    """Return one detection as POST /observations takes it; None when its covariance is not
+    finite symmetric positive definite (the service would refuse the whole batch)."""
+    cov = np.asarray(d.cov, dtype=np.float64)
+    cov = 0.5 * (cov + cov.T)
+    pixel = np.asarray(d.pixel, dtype=np.float64)
+    finite = np.all(np.isfinite(cov)) and np.all(np.isfinite(pixel))
+    if not finite or cov[0, 0] <= 0 or np.linalg.det(cov) <= 0:
+        return None
+    return {
+        "camera_id": camera_id,
+        "t": float(t),
+        "pixel": [float(pixel[0]), float(pixel[1])],
+        "cov": cov.tolist(),
+        "kind": d.kind,
+        "height": float(d.height),
+    }
+
+
+@dataclass
+class CameraRun:
+    """A camera being read and detected in."""
+
+    config: CameraConfig
+    camera_id: int
+    size: tuple[int, int]
+    network: NetworkCamera
+    source: Source
+    mask: NDArray[np.bool_] | None
+    people: PersonDetector = field(default_factory=PersonDetector)
+    detected: int = 0
+    learned: int = 0
+    problem: str | None = None
+
+
+class Node:
+    """The cameras of a configuration, read, detected in and reported until stopped."""
+
+    def __init__(self, config: NodeConfig, api: str, token: str) -> None:
+        self.config = config
+        self.api = api
+        self.client = ServiceClient(api, token)
+        self.uploader = Uploader(self.client)
+        self._token = token
+        self._marker = MarkerDetectorConfig(colour=config.marker.colour)
+        self.cameras: list[CameraRun] = []
+        self.stop_event = threading.Event()
+        self._threads: list[threading.Thread] = []
+
+    def prepare(self) -> None:
+        """Fetch each camera's registry row and calibration. Raises NodeError for an unknown
+        or uncalibrated camera, or a bad mask."""
+        for cam in self.config.cameras:
+            row = self.client.camera(cam.name, self.config.space)
+            if row.get("K") is None or row.get("T_world_camera") is None:
+                raise NodeError(
+                    f"camera {cam.name!r} (id {row['id']}) has no intrinsics or pose in the "
+                    "registry; calibrate it before running its node"
+                )
+            size = (int(row["width"]), int(row["height"]))
+            try:
+                network = NetworkCamera.from_pose(
+                    row["K"], row.get("dist"), row["T_world_camera"], size, cam.name
+                )
+                mask = polygon_mask(size, cam.masks)
+            except IntspaceError as exc:
+                raise NodeError(f"camera {cam.name!r}: {exc}") from exc
+            source = make_source(cam, self.api, self._token)
+            self.cameras.append(CameraRun(cam, int(row["id"]), size, network, source, mask))
+
+    def run(self) -> int:
+        """Run until `stop_event` is set or every source ended; return the exit code."""
+        self.uploader.start()
+        for run in self.cameras:
+            run.source.start()
+            thread = threading.Thread(
+                target=self._detect_loop, args=(run,), name=f"detect-{run.config.name}"
+            )
+            thread.start()
+            self._threads.append(thread)
+            log.info(
+                "camera %s (id %d): reading %s",
+                run.config.name,
+                run.camera_id,
+                run.config.source,
+            )
+        beat = threading.Thread(target=self._heartbeat_loop, name="heartbeat", daemon=True)
+        beat.start()
+        try:
+            while not self.stop_event.is_set():
+                if all(run.source.finished.is_set() for run in self.cameras):
+                    break
+                self.stop_event.wait(0.2)
+        finally:
+            if not self.stop_event.is_set():
+                # Every source ended (video files): the detectors finish their last frames.
+                for thread in self._threads:
+                    thread.join(30)
+            self.stop_event.set()
+            for run in self.cameras:
+                run.source.stop()
+            for thread in self._threads:
+                thread.join(5)
+            self.uploader.stop()
+            self._heartbeat()
+            log.info(
+                "posted %d detection(s); %d camera frame(s) came too late to be tracked",
+                self.uploader.posted,
+                self.uploader.late,
+            )
+            if self.uploader.dropped:
+                log.warning(
+                    "%d detection(s) dropped while the service was unreachable",
+                    self.uploader.dropped,
+                )
+            self.client.close()
+        return 0
+
+    def _detect_loop(self, run: CameraRun) -> None:
+        period = 1.0 / run.config.fps if run.config.fps else 0.0
+        next_time = time.monotonic()
+        height = self.config.marker.height
+        while not self.stop_event.is_set():
+            frame = run.source.frames.take(timeout=0.5)
+            if frame is None:
+                if run.source.frames.closed:
+                    return
+                continue
+            image: Any = frame.image
+            if image is None and frame.jpeg is not None:
+                image = cv2.imdecode(np.frombuffer(frame.jpeg, np.uint8), cv2.IMREAD_COLOR)
+            if image is None:
+                self._problem(run, "a frame did not decode as an image")
+                continue
+            if (image.shape[1], image.shape[0]) != run.size:
+                self._problem(
+                    run,
+                    f"frames are {image.shape[1]}x{image.shape[0]} px but the registry's "
+                    f"calibration is for {run.size[0]}x{run.size[1]}: skipping them",
+                )
+                continue
+            image = apply_mask(image, run.mask)
+            t = frame.t if frame.t is not None else frame.received + self.client.offset
+            learning = run.learned < self.config.background_frames
+            if learning:
+                run.people.learn(image)
+                run.learned += 1
+            found = detect_frame(
+                image,
+                marker=self._marker,
+                marker_height=height,
+                people=None if learning else run.people,
+                camera=run.network,
+            )
+            obs = [observation(run.camera_id, t, d) for d in found]
+            self.uploader.push([o for o in obs if o is not None])
+            run.detected += 1
+            if period:
+                next_time = max(next_time + period, time.monotonic())
+                self.stop_event.wait(max(0.0, next_time - time.monotonic()))
+
+    def _problem(self, run: CameraRun, message: str) -> None:
+        if message != run.problem:
+            log.warning("camera %s: %s", run.config.name, message)
+        run.problem = message
+
+    def _heartbeat_loop(self) -> None:
+        while not self.stop_event.wait(HEARTBEAT_S):
+            self._heartbeat()
+
+    def _heartbeat(self) -> None:
+        now = time.time()
+        offset = self.client.offset
+        for run in self.cameras:
+            stats = run.source.stats
+            last = stats.last_t
+            if last is None and stats.last_received is not None:
+                last = stats.last_received + offset
+            body = {
+                "fps": round(stats.fps(now), 3),
+                "stalls": stats.stalls,
+                "reconnects": stats.reconnects,
+                "dropped": run.source.frames.dropped,
+                "dropped_detections": self.uploader.dropped,
+                "clock_offset_s": offset,
+                "last_frame_t": last,
+            }
+            self.client.heartbeat(run.camera_id, body)
