@@ -22,9 +22,9 @@ next camera's, milliseconds later, along its own: a body seen by one camera is t
 seen by several is fused, and no detections are grouped across cameras.
 
 Where two confirmed tracks could both explain a detection almost equally well (their costs
-within `ambiguity`), the detection keeps the track alive but does not move it: crossing
-bodies coast through the crossing on their own velocities instead of being pulled onto each
-other's paths, which is what swaps identities.
+within `ambiguity`), the detection keeps the track alive but does not move it, for at most
+`ambiguity_coast` seconds: crossing bodies coast through the crossing on their own velocities
+instead of being pulled onto each other's paths, which is what swaps identities.
 
 Association, frame by frame (one camera, one time): the cost of detection j for track i is
 d2 + ln det S, with d2 = nu^T S^-1 nu the squared Mahalanobis distance of the pixel innovation
@@ -126,7 +126,8 @@ class TrackerConfig:
     clutter_density: false detections per pixel per frame. ambiguity: a confirmed track's
     detection that another track explains within this many log-likelihood units counts as a
     sighting but does not update the state (crossing bodies coast through the crossing on
-    their velocities; 0 turns it off). coast_after, end_after (s): time without an update
+    their velocities; 0 turns it off), for at most ambiguity_coast seconds since the track's
+    last update. coast_after, end_after (s): time without an update
     before a confirmed track coasts and ends; max_position_std (m): a coasting track whose
     position standard deviation (the larger axis) exceeds it ends.
     """
@@ -144,9 +145,10 @@ class TrackerConfig:
     confirm_window: float = 1.0
     tentative_timeout: float = 0.4
     ambiguity: float = 3.0
+    ambiguity_coast: float = 0.3
     coast_after: float = 0.5
     end_after: float = 5.0
-    max_position_std: float = 1.0
+    max_position_std: float = 2.0
 
     def __post_init__(self) -> None:
         for name in (
@@ -160,6 +162,7 @@ class TrackerConfig:
             "end_after",
             "max_position_std",
             "clutter_density",
+            "ambiguity_coast",
         ):
             _positive(name, getattr(self, name))
         if not isinstance(self.min_separation, int | float) or not self.min_separation >= 0:
@@ -394,6 +397,7 @@ class Tracker:
         self._last: list[float] = []
         self._score: list[float] = []
         self._height: list[float] = []
+        self._moved: list[float] = []  # time of the last update that moved the state
 
     # -- cameras and state ---------------------------------------------------------------------
 
@@ -483,6 +487,7 @@ class Tracker:
             self._t += dt
         self._first = [v + dt for v in self._first]
         self._last = [v + dt for v in self._last]
+        self._moved = [v + dt for v in self._moved]
 
     # -- one camera frame ----------------------------------------------------------------------
 
@@ -525,10 +530,15 @@ class Tracker:
         if n:
             rows, cols, loglik, ambiguous = self._associate(cam, px, R, h, kind, lab)
             if rows.size:
-                sure = ~ambiguous
+                # An ambiguous detection is skipped only while its track is fresh: past
+                # `ambiguity_coast` the track's own prediction is no better than the choice.
+                moved = np.array([self._moved[i] for i in rows.tolist()])
+                sure = ~ambiguous | (t - moved > self.config.ambiguity_coast)
                 if sure.any():
                     self._ekf_update(cam, rows[sure], px[cols[sure]], R[cols[sure]], h[cols[sure]])
                 hit[rows] = True
+                for i in rows[sure].tolist():
+                    self._moved[i] = t
                 gain = np.log(self.config.p_detect / self.config.clutter_density) + loglik
                 for i, j, g in zip(rows.tolist(), cols.tolist(), gain.tolist(), strict=True):
                     if self._states[i] is TrackState.TENTATIVE:
@@ -778,6 +788,7 @@ class Tracker:
         self._last.append(t)
         self._score.append(0.0)
         self._height.append(height)
+        self._moved.append(t)
         return tid
 
     def _manage(self) -> tuple[tuple[TrackSnapshot, ...], tuple[int, ...]]:
@@ -823,6 +834,7 @@ class Tracker:
                 "_last",
                 "_score",
                 "_height",
+                "_moved",
             ):
                 old = getattr(self, name)
                 setattr(self, name, [old[i] for i in idx.tolist()])
