@@ -48,5 +48,3 @@ class NetworkRunCreate(Schema):
 
     kind: Literal["network"]
     options: NetworkOptions = Field(default_factory=NetworkOptions)
-
-
