@@ -65,8 +65,8 @@ class LiveTargets:
         *,
         flush_hz: float = 2.0,
         track_hz: float = 20.0,
-        track_retention_s: float = 7 * 86400.0,
-        detection_retention_s: float = 86400.0,
+        track_retention_s: float = 86400.0,
+        detection_retention_s: float = 3600.0,
         space_id: int | None = None,
     ) -> None:
         self._factory = factory
