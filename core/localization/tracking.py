@@ -55,7 +55,8 @@ Life cycle, by elapsed time (never by frame count, since cameras report at their
 * a confirmed track becomes COASTING after `coast_after` seconds without an update (predicted
   only; an update makes it confirmed again), and ENDED after `end_after` seconds without one,
   or earlier when its position standard deviation exceeds `max_position_std` (it could be
-  anywhere): ended tracks leave the tracker and are reported once.
+  anywhere); a labelled track, whose body its label names, waits `labelled_end_after`
+  seconds. Ended tracks leave the tracker and are reported once.
 
 Time is Unix seconds (or any one clock): frames must come in time order; `ReorderBuffer` puts
 frames of several cameras that arrive out of order back in order within a latency window.
@@ -149,6 +150,7 @@ class TrackerConfig:
     coast_after: float = 0.5
     end_after: float = 5.0
     max_position_std: float = 2.0
+    labelled_end_after: float = 60.0
 
     def __post_init__(self) -> None:
         for name in (
@@ -163,6 +165,7 @@ class TrackerConfig:
             "max_position_std",
             "clutter_density",
             "ambiguity_coast",
+            "labelled_end_after",
         ):
             _positive(name, getattr(self, name))
         if not isinstance(self.min_separation, int | float) or not self.min_separation >= 0:
@@ -534,8 +537,16 @@ class Tracker:
                 # `ambiguity_coast` the track's own prediction is no better than the choice.
                 moved = np.array([self._moved[i] for i in rows.tolist()])
                 sure = ~ambiguous | (t - moved > self.config.ambiguity_coast)
-                if sure.any():
-                    self._ekf_update(cam, rows[sure], px[cols[sure]], R[cols[sure]], h[cols[sure]])
+                # A track too vague to linearise about (a labelled body back after a long
+                # absence) starts again at its detection, keeping its id.
+                lost = self._vague(rows)
+                if (sure & lost).any():
+                    self._restart(
+                        cam, rows[sure & lost], px[cols[sure & lost]], R, h, cols[sure & lost]
+                    )
+                upd = sure & ~lost
+                if upd.any():
+                    self._ekf_update(cam, rows[upd], px[cols[upd]], R[cols[upd]], h[cols[upd]])
                 hit[rows] = True
                 for i in rows[sure].tolist():
                     self._moved[i] = t
@@ -663,6 +674,8 @@ class Tracker:
         trk_labelled = np.array([v is not None for v in self._labels], dtype=bool)
         # A label says which target it is: only that track, and no gate.
         same_label = (tl[:, None] == dl[None, :]) & det_labelled[None, :]
+        # An unlabelled track too vague to say where its body is takes nothing: it is ending.
+        ok &= ~(self._vague(np.arange(T)) & ~trk_labelled)[:, None]
         gated = ok & (d2 <= self.config.gate) & ~det_labelled[None, :] & ~trk_labelled[:, None]
         rows_out: list[NDArray[np.intp]] = []
         cols_out: list[NDArray[np.intp]] = []
@@ -686,6 +699,33 @@ class Tracker:
         rows, cols = np.concatenate(rows_out), np.concatenate(cols_out)
         loglik = -0.5 * (d2[rows, cols] + logdet[rows, cols]) - math.log(2.0 * math.pi)
         return rows, cols, loglik, np.concatenate(ambiguous_out)
+
+    def _vague(self, rows: NDArray[np.intp]) -> NDArray[np.bool_]:
+        """Return whether each track's position standard deviation (larger axis) exceeds
+        `max_position_std`."""
+        P = self._P[rows, :2, :2]
+        half = 0.5 * (P[:, 0, 0] - P[:, 1, 1])
+        worst = 0.5 * (P[:, 0, 0] + P[:, 1, 1]) + np.hypot(half, P[:, 0, 1])
+        return worst > self.config.max_position_std**2
+
+    def _restart(
+        self,
+        cam: NetworkCamera,
+        rows: NDArray[np.intp],
+        px: Array,
+        R: Array,
+        h: Array,
+        cols: NDArray[np.intp],
+    ) -> None:
+        """Put tracks `rows` at their detections' back-projections, speed unknown."""
+        for i, z, j in zip(rows.tolist(), px, cols.tolist(), strict=True):
+            est = locate_monocular(cam, z[None], float(h[j]), pixel_cov=R[j][None])
+            if not est.valid[0]:
+                continue
+            self._x[i] = [est.xy[0, 0], est.xy[0, 1], 0.0, 0.0]
+            self._P[i] = 0.0
+            self._P[i, :2, :2] = est.cov[0]
+            self._P[i, 2, 2] = self._P[i, 3, 3] = self.config.initial_speed_std**2
 
     def _score_misses(self, cam: NetworkCamera, hit: NDArray[np.bool_]) -> None:
         """Add ln(1 - p_D) to the score of each tentative track that this camera has in view
@@ -816,7 +856,13 @@ class Tracker:
             if self._states[i] is TrackState.COASTING:
                 P = self._P[i, :2, :2]
                 worst = 0.5 * (P[0, 0] + P[1, 1]) + math.hypot(0.5 * (P[0, 0] - P[1, 1]), P[0, 1])
-                if silent > cfg.end_after or worst > cfg.max_position_std**2:
+                if self._labels[i] is not None:
+                    # A labelled body is known by its label, not found by its position: its
+                    # track waits for the label to come back however vague it has become.
+                    over = silent > cfg.labelled_end_after
+                else:
+                    over = silent > cfg.end_after or worst > cfg.max_position_std**2
+                if over:
                     self._states[i] = TrackState.ENDED
                     ended.append(self._snapshot(i, self._x, self._P, t))
                     keep[i] = False
