@@ -30,6 +30,7 @@ format: $(STAMP)
 	$(VENV)/bin/ruff check --fix .
 
 bench: $(STAMP)
+	$(PY) -m pip install --quiet -e ".[dev,bench]"
 	@for b in bench/bench_*.py; do \
 		echo "== $$b"; $(PY) -m bench.$$(basename $$b .py) || exit 1; \
 	done
