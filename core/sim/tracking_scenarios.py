@@ -118,6 +118,50 @@ class TrackLog:
             self.ended_at[snap.id] = t
 
 
+def frame_alignment(calibrated: list[NetworkCamera], truth: list[NetworkCamera]) -> Array:
+    """Return the 3x3 planar rigid transform (rotation about the vertical, then translation)
+    taking the calibrated home frame to the twin's, fitted by least squares to the cameras'
+    centres (Kabsch in the plane). The calibration fixes its frame by the robot's start pose
+    and its first straight leg, so that frame carries a small rigid error of its own (the
+    calibration's gauge, inside its Cramer-Rao bound); scoring with and without this transform
+    separates the tracker's error from the frame's. For scoring only: it reads the truth."""
+    a = np.array([c.center[:2] for c in calibrated])
+    b = np.array([c.center[:2] for c in truth])
+    ca, cb = a.mean(axis=0), b.mean(axis=0)
+    u, _, vt = np.linalg.svd((a - ca).T @ (b - cb))
+    r = (u @ vt).T
+    if np.linalg.det(r) < 0:
+        vt[-1] *= -1
+        r = (u @ vt).T
+    T = np.eye(3)
+    T[:2, :2] = r
+    T[:2, 2] = cb - r @ ca
+    return T
+
+
+def frame_error(calibrated: list[NetworkCamera], T: Array) -> tuple[float, float]:
+    """Return the calibrated frame's error: the largest displacement (m) T makes at a
+    calibrated camera's centre, and its rotation (deg)."""
+    a = np.array([c.center[:2] for c in calibrated])
+    moved = a @ T[:2, :2].T + T[:2, 2]
+    shift = float(np.max(np.linalg.norm(moved - a, axis=1)))
+    return shift, float(np.degrees(abs(np.arctan2(T[1, 0], T[0, 0]))))
+
+
+def transformed(log: TrackLog, T: Array) -> TrackLog:
+    """Return `log` with its points (t, x, y[, vx, vy]) moved by the planar transform T."""
+    R, t = T[:2, :2], T[:2, 2]
+    points: dict[int, list[tuple[float, ...]]] = {}
+    for k, pts in log.points.items():
+        arr = np.asarray(pts, dtype=np.float64).reshape(len(pts), -1)
+        out = arr.copy()
+        out[:, 1:3] = arr[:, 1:3] @ R.T + t
+        if arr.shape[1] >= 5:
+            out[:, 3:5] = arr[:, 3:5] @ R.T
+        points[k] = [tuple(row) for row in out.tolist()]
+    return TrackLog(points, dict(log.confirmed_at), dict(log.ended_at))
+
+
 @dataclass(frozen=True)
 class TrackingScore:
     """The MOT metrics of a run: MOTA, IDF1, identity switches, false positives, misses,
@@ -310,7 +354,11 @@ def async_camera_frames(
 @dataclass(frozen=True)
 class TrackingResult:
     """Metrics of a tracking scenario: simulated minutes, bodies in the home (`targets`), the
-    MOT metrics, and the RMSE of matched people's positions (m)."""
+    calibrated cameras the tracker used (`camera_count`), the MOT metrics, and the RMSE of
+    matched people's positions (m) against the twin (`person_rmse_m`) and in the calibrated
+    home frame (`person_rmse_in_frame_m`: after the frame's own rigid error, `frame_error_m`
+    (largest displacement at a camera) and `frame_error_deg`, is taken out; see
+    `frame_alignment`)."""
 
     scenario: str
     seed: int
@@ -326,6 +374,9 @@ class TrackingResult:
     misses: int
     max_live_targets: int
     person_rmse_m: float
+    person_rmse_in_frame_m: float
+    frame_error_m: float
+    frame_error_deg: float
     conditions: dict[str, float]
 
     def to_dict(self) -> dict[str, Any]:
@@ -354,28 +405,35 @@ def tracking_async(
     """Run `tracking-async` (module docstring) and return its metrics."""
     scene = tracking_scene(scene)
     rng = np.random.default_rng(seed)
-    cameras = [_network_camera(c) for c in scene.cameras]
+    truth = true_cameras(scene)
+    calibrated = calibrated_cameras(scene, seed)
     duration = 60.0 * minutes
-    frames = async_camera_frames(scene, cameras, duration, rng)
-    tracker = Tracker(cameras, config)
+    frames = async_camera_frames(scene, truth, duration, rng)
+    frames = [f for f in frames if f.camera in calibrated.index]
+    tracker = Tracker(calibrated.cameras, config)
     log = TrackLog()
     sigma2 = np.eye(2) * ASYNC_NOISE_PX**2
     for f in frames:
-        result = tracker.update(
-            f.camera, f.t, f.pixels, sigma2, heights=ASYNC_HEIGHT_M, kinds="person"
-        )
+        k = calibrated.index.index(f.camera)
+        result = tracker.update(k, f.t, f.pixels, sigma2, heights=ASYNC_HEIGHT_M, kinds="person")
         log.add(result)
     truth_t, truth_xy = truth_instants(scene, duration)
-    # A body no camera could see at an instant is not expected to be tracked there.
-    visible = _seen_by_any(cameras, truth_xy, ASYNC_HEIGHT_M)
+    # A body no calibrated camera could see at an instant is not expected to be tracked there.
+    visible = _seen_by_any([truth[i] for i in calibrated.index], truth_xy, ASYNC_HEIGHT_M)
     truth_xy = np.where(visible[..., None], truth_xy, np.nan)
     score = score_tracks(truth_t, truth_xy, log, truth_at=lambda t: _walkers_at(scene, t))
+    seen_truth = [truth[i] for i in calibrated.index]
+    T = frame_alignment(calibrated.cameras, seen_truth)
+    in_frame = score_tracks(
+        truth_t, truth_xy, transformed(log, T), truth_at=lambda t: _walkers_at(scene, t)
+    )
+    shift, turn = frame_error(calibrated.cameras, T)
     return TrackingResult(
         scenario="tracking-async",
         seed=seed,
         minutes=minutes,
         targets=len(scene.people),
-        camera_count=len(cameras),
+        camera_count=len(calibrated.cameras),
         frames=len(frames),
         detections=int(sum(len(f.pixels) for f in frames)),
         idf1=score.idf1,
@@ -385,6 +443,9 @@ def tracking_async(
         misses=score.misses,
         max_live_targets=score.max_live_targets,
         person_rmse_m=score.class_rmse_m,
+        person_rmse_in_frame_m=in_frame.class_rmse_m,
+        frame_error_m=shift,
+        frame_error_deg=turn,
         conditions={
             "rate_hz": ASYNC_RATE_HZ,
             "noise_px": ASYNC_NOISE_PX,
@@ -418,7 +479,8 @@ def tracking(
         raise InvalidInput("the tracking scenario needs a robot with a top marker")
     rng = np.random.default_rng(seed)
     renderer = renderer_for(scene)
-    cameras = [_network_camera(c) for c in scene.cameras]
+    calibrated = calibrated_cameras(scene, seed)
+    cameras = calibrated.cameras
     duration = 60.0 * minutes
     drive = simulate_patrol(scene.robot, duration + 1.0, dt=0.05, rng=seed)
     marker = MarkerDetectorConfig(colour=scene.robot.marker.colour)
@@ -428,13 +490,13 @@ def tracking(
     log = TrackLog()
     period = 1.0 / rate_hz
     schedule = []
-    for k in range(len(scene.cameras)):
+    for k in range(len(cameras)):
         phase = rng.uniform(0.0, period)
         schedule += [(float(t), k) for t in np.arange(phase, duration, period)]
     schedule.sort()
     frames = detections = 0
     for t, k in schedule:
-        spec = scene.cameras[k]
+        spec = scene.cameras[calibrated.index[k]]
         i = min(round(t / 0.05), len(drive.pose) - 1)
         pose = Pose2D(*drive.pose[i])
         state = world_state(scene, t, pose)
@@ -465,7 +527,8 @@ def tracking(
     # A body no camera can see (out of every view, or behind a wall) is not expected: its
     # middle (a walker's at half height, the robot's marker) seen by no camera.
     heights = np.array([w.height / 2 for w in scene.people] + [scene.robot.marker.height])
-    seen_by = _cameras_seeing(cameras, truth_xy, heights, occluders)
+    truth = true_cameras(scene)
+    seen_by = _cameras_seeing([truth[i] for i in calibrated.index], truth_xy, heights, occluders)
     truth_xy = np.where(seen_by[..., None] > 0, truth_xy, np.nan)
 
     def truth_at(times: Array) -> Array:
@@ -477,15 +540,16 @@ def tracking(
     # Cameras at 5 Hz update a body seen by one camera every 0.2 s: each track answers with
     # its state moved on to the instant, while it is fresh (not yet coasting).
     coast = (config or TrackerConfig()).coast_after
-    score = score_tracks(
-        truth_t,
-        truth_xy,
-        log,
-        classes=np.arange(walkers.shape[1]),
-        truth_at=truth_at,
-        predict_within=coast,
-        rmse_where=seen_by >= 2,
-    )
+    options: dict[str, Any] = {
+        "classes": np.arange(walkers.shape[1]),
+        "truth_at": truth_at,
+        "predict_within": coast,
+        "rmse_where": seen_by >= 2,
+    }
+    score = score_tracks(truth_t, truth_xy, log, **options)
+    T = frame_alignment(cameras, [truth[i] for i in calibrated.index])
+    in_frame = score_tracks(truth_t, truth_xy, transformed(log, T), **options)
+    shift, turn = frame_error(cameras, T)
     return TrackingResult(
         scenario="tracking",
         seed=seed,
@@ -501,6 +565,9 @@ def tracking(
         misses=score.misses,
         max_live_targets=score.max_live_targets,
         person_rmse_m=score.class_rmse_m,
+        person_rmse_in_frame_m=in_frame.class_rmse_m,
+        frame_error_m=shift,
+        frame_error_deg=turn,
         conditions={"rate_hz": rate_hz, "noise": 1.0},
     )
 
@@ -514,10 +581,57 @@ def _background(renderer: Renderer, scene: Scene, camera: str) -> PersonDetector
     return detector
 
 
-def _network_camera(spec: Any) -> NetworkCamera:
-    # The cameras are the twin's true ones: this scenario measures the tracker, not calibration.
-    m = camera_model(spec)
-    return NetworkCamera.from_pose(m.K, m.dist, m.T_world_camera, (m.width, m.height), m.name)
+def true_cameras(scene: Scene) -> list[NetworkCamera]:
+    """Return the twin's true cameras, for simulating what they see and for scoring only."""
+    out = []
+    for spec in scene.cameras:
+        m = camera_model(spec)
+        out.append(
+            NetworkCamera.from_pose(m.K, m.dist, m.T_world_camera, (m.width, m.height), m.name)
+        )
+    return out
+
+
+@dataclass(frozen=True)
+class CalibratedCameras:
+    """The cameras as the home knows them after its network calibration: `cameras` (the
+    calibrated ones), `index` (each one's index in the scene's cameras) and `rejected` (names
+    of the cameras the calibration could not place, which the tracker never hears from)."""
+
+    cameras: list[NetworkCamera]
+    index: list[int]
+    rejected: tuple[str, ...]
+
+
+_CALIBRATION_CACHE: dict[tuple[str, int], CalibratedCameras] = {}
+
+
+def calibrated_cameras(scene: Scene, seed: int) -> CalibratedCameras:
+    """Return the scene's cameras as its marker network calibration estimates them: each
+    camera's own chessboard calibration, then the robot's drive with its odometry
+    (core.sim.network_drive.drive_marker_calibration, rendered images). Nothing of the twin's
+    true cameras reaches the tracker. Cached per (scene, seed): the drive takes seconds."""
+    key = (scene.model_dump_json(), seed)
+    hit = _CALIBRATION_CACHE.get(key)
+    if hit is not None:
+        return hit
+    # Imported here: the drive pulls the calibration stack, which the points-only helpers of
+    # this module do not need.
+    from core.sim.network_drive import drive_marker_calibration
+
+    net = drive_marker_calibration(scene, seed).calibration
+    names = [c.name for c in scene.cameras]
+    # A camera's resolution is what its owner knows of it without any calibration.
+    sizes = {c.name: (camera_model(c).width, camera_model(c).height) for c in scene.cameras}
+    cams = [
+        NetworkCamera.from_pose(c.K, c.dist, c.T_world_camera, sizes[c.name], c.name)
+        for c in net.cameras
+    ]
+    result = CalibratedCameras(
+        cams, [names.index(c.name) for c in net.cameras], tuple(r.name for r in net.rejected)
+    )
+    _CALIBRATION_CACHE[key] = result
+    return result
 
 
 def _seen_by_any(

@@ -1,0 +1,52 @@
+"""The twin's installed calibration: what the service starts from is the network calibration's
+own output (made again here and compared), and it is scored against the twin."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from core.sim import default_scene
+from core.sim.installation import (
+    calibrate_installation,
+    installed_calibration,
+    scene_fingerprint,
+)
+from core.sim.render import camera_model
+
+
+def test_shipped_calibration_is_the_drive_made_again() -> None:
+    scene = default_scene()
+    shipped = installed_calibration(scene)
+    assert shipped.source == "shipped"
+    again = calibrate_installation(scene, shipped.seed)
+    assert [c.name for c in again.cameras] == [c.name for c in shipped.cameras]
+    for a, b in zip(again.cameras, shipped.cameras, strict=True):
+        # The drive is deterministic for its seed; the file keeps floats to full precision, so
+        # only the solvers' last bits (BLAS threading) may differ.
+        np.testing.assert_allclose(a.K, b.K, rtol=1e-7)
+        np.testing.assert_allclose(a.T_world_camera, b.T_world_camera, atol=1e-7)
+        np.testing.assert_allclose(a.dist, b.dist, atol=1e-7)
+
+
+def test_installed_cameras_against_the_twin() -> None:
+    scene = default_scene()
+    cal = installed_calibration(scene)
+    truth = {c.name: camera_model(c) for c in scene.cameras}
+    assert not cal.rejected
+    for cam in cal.cameras:
+        true = truth[cam.name]
+        # Spec 02's focal goal (1 %) holds; positions carry the home frame's own error (its
+        # heading rests on the robot's first straight leg): within 3 sigma of the calibration's
+        # reported uncertainty.
+        assert abs(cam.K[0, 0] / true.K[0, 0] - 1.0) < 0.01, cam.name
+        err = np.linalg.norm(cam.T_world_camera[:3, 3] - true.T_world_camera[:3, 3])
+        assert err < 0.15, (cam.name, err)
+        assert not np.allclose(cam.K, true.K), cam.name  # an estimate, not the truth
+
+
+def test_another_home_gets_its_own_drive() -> None:
+    scene = default_scene()
+    moved = scene.model_copy(update={"name": "another home"})
+    assert scene_fingerprint(moved) != scene_fingerprint(scene)
+    walkers_only = scene.model_copy(update={"people": ()})
+    assert scene_fingerprint(walkers_only) == scene_fingerprint(scene)
