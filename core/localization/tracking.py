@@ -130,7 +130,13 @@ class TrackerConfig:
     their velocities; 0 turns it off), for at most ambiguity_coast seconds since the track's
     last update. coast_after, end_after (s): time without an update
     before a confirmed track coasts and ends; max_position_std (m): a coasting track whose
-    position standard deviation (the larger axis) exceeds it ends.
+    position standard deviation (the larger axis) exceeds it ends. camera_error_std (m): the
+    error on the floor each detection inherits from its camera's calibration, added to its
+    pixel covariance through the camera's floor Jacobian. A calibrated camera places points a
+    centimetre or two from where another calibrated camera places them (the network
+    calibration's bound within its frame, 1-2 cm and 0.1-0.4 deg per camera); without this
+    term two cameras a few milliseconds apart, each sure of its pixel to 0.05 px, would make
+    the filter explain their disagreement by a speed of metres per second.
     """
 
     q: float = 2.0
@@ -151,6 +157,7 @@ class TrackerConfig:
     end_after: float = 5.0
     max_position_std: float = 2.0
     labelled_end_after: float = 60.0
+    camera_error_std: float = 0.02
 
     def __post_init__(self) -> None:
         for name in (
@@ -168,10 +175,10 @@ class TrackerConfig:
             "labelled_end_after",
         ):
             _positive(name, getattr(self, name))
-        if not isinstance(self.min_separation, int | float) or not self.min_separation >= 0:
-            raise InvalidInput(
-                f"TrackerConfig.min_separation must be >= 0 metres, got {self.min_separation!r}"
-            )
+        for name in ("min_separation", "camera_error_std"):
+            value = getattr(self, name)
+            if not isinstance(value, int | float) or not (math.isfinite(value) and value >= 0):
+                raise InvalidInput(f"TrackerConfig.{name} must be >= 0 metres, got {value!r}")
         if not 0.0 < self.p_detect < 1.0:
             raise InvalidInput(f"TrackerConfig.p_detect must lie in (0, 1), got {self.p_detect!r}")
         if not (math.isfinite(self.confirm_score) and math.isfinite(self.drop_score)) or not (
@@ -522,6 +529,7 @@ class Tracker:
         t = _as_time(t)
         cam = self.cameras[camera]
         px, R, h, kind, lab = self._parse(pixels, pixel_cov, heights, kinds, labels, pixel_sigma)
+        R = self._with_camera_error(cam, px, R, h)
         self._x, self._P = self._predicted(t)
         self._t = t
         n = px.shape[0]
@@ -619,6 +627,32 @@ class Tracker:
         if len(named) != len(set(named)):
             raise InvalidInput("a camera frame holds the same label twice")
         return px, R, h, kind, lab
+
+    def _with_camera_error(self, cam: NetworkCamera, px: Array, R: Array, h: Array) -> Array:
+        """Return the pixel covariances R (D, 2, 2) plus the camera's calibration error
+        (camera_error_std on the floor, through d pixel / d(x, y) where the pixel meets its
+        height's plane)."""
+        sigma = self.config.camera_error_std
+        if sigma <= 0 or px.shape[0] == 0:
+            return R
+        out = R.copy()
+        for value in np.unique(h):
+            sel = np.flatnonzero(h == value)
+            try:
+                xy = locate_monocular(cam, px[sel], float(value), pixel_cov=R[sel]).xy
+            except InvalidInput:
+                continue  # a ray that misses the plane: the association refuses it anyway
+            # A pixel whose ray misses the plane has no floor point: nothing to add there.
+            ok = np.all(np.isfinite(xy), axis=1)
+            if not ok.any():
+                continue
+            proj = project_plane(cam, xy[ok], float(value), jacobian=True)
+            assert proj.jacobian is not None
+            J = proj.jacobian
+            add = sigma**2 * (J @ transposed(J))
+            good = np.all(np.isfinite(add), axis=(1, 2))
+            out[sel[ok][good]] += add[good]
+        return out
 
     def _project(self, cam: NetworkCamera, h: Array) -> tuple[Array, Array, NDArray[np.bool_]]:
         """Return every track projected at each detection's height: pixels (T, D, 2), the

@@ -32,7 +32,7 @@ from numpy.typing import NDArray
 from core.errors import InvalidInput
 from core.localization import NetworkCamera, Occluders, line_of_sight
 from core.localization.detect import MarkerDetectorConfig, PersonDetector
-from core.localization.detections import detect_frame
+from core.localization.detections import FrameDetection, detect_frame
 from core.localization.tracking import FrameResult, Tracker, TrackerConfig, TrackState
 from core.sim.motion import Pose2D, WorldState, simulate_patrol, walker_positions, world_state
 from core.sim.occluders import scene_occluders
@@ -464,6 +464,59 @@ RENDER_RATE_HZ = 5.0
 TRACKING_MINUTES = 30.0
 
 
+@dataclass(frozen=True)
+class RenderedFrame:
+    """One camera frame of the `tracking` scenario: its capture time (s), the index of its
+    camera among the calibrated ones, and what detect_frame found in its image."""
+
+    t: float
+    camera: int
+    found: tuple[FrameDetection, ...]
+
+
+def rendered_frames(
+    scene: Scene,
+    seed: int,
+    calibrated: CalibratedCameras,
+    *,
+    minutes: float = TRACKING_MINUTES,
+    rate_hz: float = RENDER_RATE_HZ,
+) -> tuple[list[RenderedFrame], Array]:
+    """Return the `tracking` scenario's frames in capture order (every calibrated camera at
+    `rate_hz` with its own phase, each image rendered with the robot patrolling and the
+    walkers, and its detections) and the robot's drive (poses (N, 3) every 0.05 s)."""
+    if scene.robot is None or scene.robot.marker is None:
+        raise InvalidInput("the tracking scenario needs a robot with a top marker")
+    rng = np.random.default_rng(seed)
+    renderer = renderer_for(scene)
+    cameras = calibrated.cameras
+    duration = 60.0 * minutes
+    drive = simulate_patrol(scene.robot, duration + 1.0, dt=0.05, rng=seed)
+    marker = MarkerDetectorConfig(colour=scene.robot.marker.colour)
+    people = {c.name: _background(renderer, scene, c.name) for c in scene.cameras}
+    period = 1.0 / rate_hz
+    schedule = []
+    for k in range(len(cameras)):
+        phase = rng.uniform(0.0, period)
+        schedule += [(float(t), k) for t in np.arange(phase, duration, period)]
+    schedule.sort()
+    frames = []
+    for t, k in schedule:
+        spec = scene.cameras[calibrated.index[k]]
+        i = min(round(t / 0.05), len(drive.pose) - 1)
+        state = world_state(scene, t, Pose2D(*drive.pose[i]))
+        image = renderer.render(spec.name, state, rng=rng).image
+        found = detect_frame(
+            image,
+            marker=marker,
+            marker_height=scene.robot.marker.height,
+            people=people[spec.name],
+            camera=cameras[k],
+        )
+        frames.append(RenderedFrame(t, k, tuple(found)))
+    return frames, np.asarray(drive.pose)
+
+
 def tracking(
     scene: Scene | None = None,
     seed: int = 0,
@@ -477,40 +530,41 @@ def tracking(
     scene = tracking_scene(scene)
     if scene.robot is None or scene.robot.marker is None:
         raise InvalidInput("the tracking scenario needs a robot with a top marker")
-    rng = np.random.default_rng(seed)
-    renderer = renderer_for(scene)
     calibrated = calibrated_cameras(scene, seed)
+    frames, drive = rendered_frames(scene, seed, calibrated, minutes=minutes, rate_hz=rate_hz)
+    return track_rendered(
+        scene, seed, frames, drive, calibrated, minutes=minutes, rate_hz=rate_hz, config=config
+    )
+
+
+def track_rendered(
+    scene: Scene,
+    seed: int,
+    frames: list[RenderedFrame],
+    drive: Array,
+    calibrated: CalibratedCameras,
+    *,
+    minutes: float,
+    rate_hz: float = RENDER_RATE_HZ,
+    config: TrackerConfig | None = None,
+    log: TrackLog | None = None,
+) -> TrackingResult:
+    """Return the `tracking` metrics of `frames` (rendered_frames) run through the one tracker
+    (which knows the calibrated cameras and the floor plan); `log`, when given, receives the
+    tracks."""
+    if scene.robot is None or scene.robot.marker is None:
+        raise InvalidInput("the tracking scenario needs a robot with a top marker")
     cameras = calibrated.cameras
     duration = 60.0 * minutes
-    drive = simulate_patrol(scene.robot, duration + 1.0, dt=0.05, rng=seed)
-    marker = MarkerDetectorConfig(colour=scene.robot.marker.colour)
-    people = {c.name: _background(renderer, scene, c.name) for c in scene.cameras}
     occluders = scene_occluders(scene)
     tracker = Tracker(cameras, config, occluders=occluders)
-    log = TrackLog()
-    period = 1.0 / rate_hz
-    schedule = []
-    for k in range(len(cameras)):
-        phase = rng.uniform(0.0, period)
-        schedule += [(float(t), k) for t in np.arange(phase, duration, period)]
-    schedule.sort()
-    frames = detections = 0
-    for t, k in schedule:
-        spec = scene.cameras[calibrated.index[k]]
-        i = min(round(t / 0.05), len(drive.pose) - 1)
-        pose = Pose2D(*drive.pose[i])
-        state = world_state(scene, t, pose)
-        image = renderer.render(spec.name, state, rng=rng).image
-        found = detect_frame(
-            image,
-            marker=marker,
-            marker_height=scene.robot.marker.height,
-            people=people[spec.name],
-            camera=cameras[k],
-        )
+    log = log if log is not None else TrackLog()
+    detections = 0
+    for f in frames:
+        found = f.found
         result = tracker.update(
-            k,
-            t,
+            f.camera,
+            f.t,
             np.array([d.pixel for d in found]).reshape(-1, 2),
             np.array([d.cov for d in found]).reshape(-1, 2, 2),
             heights=[d.height for d in found],
@@ -518,11 +572,10 @@ def tracking(
             labels=[scene.robot.name if d.kind == "robot" else None for d in found],
         )
         log.add(result)
-        frames += 1
         detections += len(found)
     truth_t, walkers = truth_instants(scene, duration)
-    idx = np.minimum(np.round(truth_t / 0.05).astype(int), len(drive.pose) - 1)
-    robot_xy = drive.pose[idx, :2]
+    idx = np.minimum(np.round(truth_t / 0.05).astype(int), len(drive) - 1)
+    robot_xy = drive[idx, :2]
     truth_xy = np.concatenate([walkers, robot_xy[:, None]], axis=1)
     # A body no camera can see (out of every view, or behind a wall) is not expected: its
     # middle (a walker's at half height, the robot's marker) seen by no camera.
@@ -533,8 +586,8 @@ def tracking(
 
     def truth_at(times: Array) -> Array:
         # The drive's poses every 0.05 s, linearly between: the robot's centre at any time.
-        tt = np.arange(len(drive.pose)) * 0.05
-        robot = np.column_stack([np.interp(times, tt, drive.pose[:, c]) for c in (0, 1)])
+        tt = np.arange(len(drive)) * 0.05
+        robot = np.column_stack([np.interp(times, tt, drive[:, c]) for c in (0, 1)])
         return np.concatenate([_walkers_at(scene, times), robot[:, None]], axis=1)
 
     # Cameras at 5 Hz update a body seen by one camera every 0.2 s: each track answers with
@@ -556,7 +609,7 @@ def tracking(
         minutes=minutes,
         targets=truth_xy.shape[1],
         camera_count=len(cameras),
-        frames=frames,
+        frames=len(frames),
         detections=detections,
         idf1=score.idf1,
         mota=score.mota,

@@ -61,7 +61,8 @@ def test_unsynchronised_cameras_give_a_consistent_filter():
     rng = np.random.default_rng(11)
     cams = make_cameras(4)
     q, sigma = 0.2, 0.7
-    cfg = TrackerConfig(q=q, initial_speed_std=0.5, gate=1e4, confirm_hits=1)
+    # The cameras here are exact: no calibration error to allow for.
+    cfg = TrackerConfig(q=q, initial_speed_std=0.5, gate=1e4, confirm_hits=1, camera_error_std=0.0)
     n_runs, duration, skip = 8, 6.0, 2.0
     nees, errors, reported = [], [], []
     for _ in range(n_runs):
@@ -250,3 +251,48 @@ def test_reorder_buffer_releases_in_time_order_and_counts_late_frames():
     for t in (1.0, 2.0, 3.0):
         small.push(t, t)
     assert small.pop_ready(0.0) == [(1.0, 1.0)] and len(small) == 2
+
+
+def _disagreeing_cameras_track(config: TrackerConfig) -> tuple[np.ndarray, float, list[int]]:
+    """A still robot seen by two cameras whose calibrations disagree by 3 cm on the floor
+    (the second one's pose shifted), frames 5 ms apart, each pixel sure to 0.05 px: return the
+    track's last state, its largest speed and how many of each camera's detections updated a
+    track."""
+    cams = make_cameras(2)
+    T = cams[1].T_world_camera.copy()
+    T[:3, 3] += [0.03, 0.0, 0.0]  # what camera 1 believes: 3 cm off
+    believed = [
+        cams[0],
+        type(cams[1]).from_pose(cams[1].K, cams[1].dist, T, cams[1].image_size, "cam1"),
+    ]
+    tracker = Tracker(believed, config)
+    point = np.array([[2.0, 2.0, HEIGHT]])
+    speed = 0.0
+    used = [0, 0]
+    first = None
+    for k in range(400):
+        cam = k % 2
+        t = 0.1 * (k // 2) + 0.005 * cam
+        px = cams[cam].project(point)  # the true camera makes the pixel
+        r = tracker.update(cam, t, px, np.eye(2) * 0.05**2, heights=HEIGHT, kinds="robot")
+        ids = [u.id for u in r.updated]
+        first = first if first is not None else (ids[0] if ids else None)
+        used[cam] += int(first in ids)
+        for s in tracker.tracks():
+            if s.id == first and k > 20:
+                speed = max(speed, float(np.hypot(*s.x[2:])))
+    track = next(s for s in tracker.tracks() if s.id == first)
+    return track.x, speed, used
+
+
+def test_cameras_that_disagree_by_their_calibration_error_share_one_track():
+    x, speed, used = _disagreeing_cameras_track(TrackerConfig())
+    # The calibration term (2 cm on the floor) makes the two views' 3 cm disagreement an
+    # expected one: both cameras update the one track, the still robot stays still and
+    # between the two.
+    assert min(used) >= 190, used
+    assert speed < 0.2, speed
+    assert np.linalg.norm(x[:2] - [2.0 + 0.015, 2.0]) < 0.01, x
+    # Without it the two views cannot be the same body: one camera's detections are refused.
+    _, _, alone = _disagreeing_cameras_track(TrackerConfig(camera_error_std=0.0))
+    assert min(alone) < 10, alone
