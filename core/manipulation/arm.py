@@ -1,0 +1,602 @@
+"""A serial arm in Denavit-Hartenberg form: forward kinematics, the geometric Jacobian, the
+closed-form inverse kinematics of a wrist-partitioned (Puma-type) arm, and a numerical
+Levenberg-Marquardt inverse kinematics with joint limits.
+
+Convention: standard (distal) DH parameters, link i's transform
+A_i = Rz(theta_i) Tz(d_i) Tx(a_i) Rx(alpha_i), theta_i = q_i + offset_i (Spong, Hutchinson &
+Vidyasagar, "Robot Modeling and Control", 2006, eq. 3.10; Corke, "Robotics, Vision and Control",
+2nd ed., sec. 7.1.1). Joint i turns about z_{i-1}. The end effector is the flange (frame 6)
+followed by a fixed tool transform T_flange_ee. Poses are 4x4, metres and radians; batch
+dimensions come first everywhere.
+
+The default arm (`default_arm()`) is the Puma 560's geometry (Corke's standard-DH model, the
+same numbers as roboticstoolbox's `models.DH.Puma560` with its shoulder height d1 moved into the
+robot's mount), with that model's joint limits and a 0.12 m gripper as its tool. Its last three
+axes intersect at the wrist centre (a spherical wrist), so its inverse kinematics splits into
+the wrist centre's position (joints 1-3) and the wrist's orientation (joints 4-6): eight
+branches at most, each shifted by 2 pi where the limits allow (Paul & Zhang, "Computationally
+efficient kinematics for manipulators with spherical wrists", IJRR 5(2), 1986).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from itertools import product
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from core.errors import InvalidInput
+from core.geometry.rotations import matrix_to_rotvec
+
+Array = NDArray[np.float64]
+
+# The Puma's DH structure for which `ik_analytic` has a closed form.
+_PUMA_ALPHA = np.array([np.pi / 2, 0.0, -np.pi / 2, np.pi / 2, -np.pi / 2, 0.0])
+
+
+def as_pose(T: ArrayLike, name: str = "T") -> Array:
+    """Return T as a finite (..., 4, 4) float array with a rotation block; raise InvalidInput."""
+    try:
+        a = np.asarray(T, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise InvalidInput(f"{name} must be a numeric 4x4 pose: {exc}") from None
+    if a.ndim < 2 or a.shape[-2:] != (4, 4):
+        raise InvalidInput(f"{name} must have shape (..., 4, 4), got {a.shape}")
+    if not np.all(np.isfinite(a)):
+        raise InvalidInput(f"{name} contains NaN or infinite values")
+    R = a[..., :3, :3]
+    ortho = np.abs(np.swapaxes(R, -1, -2) @ R - np.eye(3)).max(initial=0.0)
+    if (
+        ortho > 1e-6
+        or np.any(np.linalg.det(R) < 0)
+        or np.any(np.abs(a[..., 3, :] - [0, 0, 0, 1]) > 0)
+    ):
+        raise InvalidInput(
+            f"{name} must be a rigid transform: an orthonormal rotation block with det +1 and a "
+            "last row (0, 0, 0, 1)"
+        )
+    return a
+
+
+def invert_pose(T: ArrayLike) -> Array:
+    """Return the inverses (..., 4, 4) of rigid transforms T (..., 4, 4): [R^T, -R^T t]."""
+    a = np.asarray(T, dtype=np.float64)
+    out = np.zeros_like(a)
+    Rt = np.swapaxes(a[..., :3, :3], -1, -2)
+    out[..., :3, :3] = Rt
+    out[..., :3, 3] = -(Rt @ a[..., :3, 3:4])[..., 0]
+    out[..., 3, 3] = 1.0
+    return out
+
+
+def pose_error(T: ArrayLike, T_target: ArrayLike) -> tuple[Array, Array]:
+    """Return (position error (...,) metres, rotation error (...,) radians) between poses: the
+    distance between their origins and the angle of R^T R_target."""
+    a = np.asarray(T, dtype=np.float64)
+    b = np.asarray(T_target, dtype=np.float64)
+    dp = np.linalg.norm(a[..., :3, 3] - b[..., :3, 3], axis=-1)
+    rel = np.swapaxes(a[..., :3, :3], -1, -2) @ b[..., :3, :3]
+    dr = np.linalg.norm(matrix_to_rotvec(rel), axis=-1)
+    return dp, dr
+
+
+@dataclass(frozen=True)
+class IKResult:
+    """A numerical inverse kinematics solution.
+
+    q: (n,) joint values (radians, metres for prismatic base joints); success: both true errors
+    within the tolerance; position_error (m) and rotation_error (rad): the errors of fk(q)
+    against the target, computed afresh from forward kinematics (not the solver's residual);
+    iterations: LM iterations over all starts; restarts: random starts used after the first.
+    """
+
+    q: Array
+    success: bool
+    position_error: float
+    rotation_error: float
+    iterations: int
+    restarts: int
+
+
+@dataclass(frozen=True, eq=False)
+class DHArm:
+    """A 6-joint revolute arm in standard DH form.
+
+    a, d: (6,) metres; alpha, offset: (6,) radians; limits: (6, 2) radians (lower, upper);
+    tool: (4, 4) T_flange_ee; home: (6,) a configuration inside the limits away from
+    singularities, the first start of the numerical IK when no q0 is given.
+    """
+
+    name: str
+    a: Array
+    d: Array
+    alpha: Array
+    offset: Array
+    limits: Array
+    tool: Array = field(default_factory=lambda: np.eye(4))
+    home: Array = field(default_factory=lambda: np.zeros(6))
+
+    def __post_init__(self) -> None:
+        for key in ("a", "d", "alpha", "offset", "home"):
+            v = np.asarray(getattr(self, key), dtype=np.float64)
+            if v.shape != (6,) or not np.all(np.isfinite(v)):
+                raise InvalidInput(f"DHArm.{key} must be 6 finite values, got shape {v.shape}")
+            object.__setattr__(self, key, v)
+        lim = np.asarray(self.limits, dtype=np.float64)
+        if lim.shape != (6, 2) or not np.all(lim[:, 0] < lim[:, 1]):
+            raise InvalidInput("DHArm.limits must be (6, 2) with lower < upper for every joint")
+        object.__setattr__(self, "limits", lim)
+        object.__setattr__(self, "tool", as_pose(self.tool, "DHArm.tool"))
+        object.__setattr__(self, "_tool_inv", invert_pose(self.tool))
+        # A_i = K0 + cos(theta_i) KC + sin(theta_i) KS (module docstring's A_i, expanded).
+        ca, sa = np.cos(self.alpha), np.sin(self.alpha)
+        k0, kc, ks = np.zeros((6, 4, 4)), np.zeros((6, 4, 4)), np.zeros((6, 4, 4))
+        k0[:, 2, 1], k0[:, 2, 2], k0[:, 2, 3], k0[:, 3, 3] = sa, ca, self.d, 1.0
+        kc[:, 0, 0], kc[:, 0, 3], kc[:, 1, 1], kc[:, 1, 2] = 1.0, self.a, ca, -sa
+        ks[:, 0, 1], ks[:, 0, 2], ks[:, 1, 0], ks[:, 1, 3] = -ca, sa, 1.0, self.a
+        object.__setattr__(self, "_dh_tensors", (k0, kc, ks))
+        # Plain floats for the scalar kinematics of the numerical IK.
+        object.__setattr__(self, "_off", [float(v) for v in self.offset])
+        object.__setattr__(self, "_cal", [float(v) for v in ca])
+        object.__setattr__(self, "_sal", [float(v) for v in sa])
+        object.__setattr__(self, "_al", [float(v) for v in self.a])
+        object.__setattr__(self, "_dl", [float(v) for v in self.d])
+        object.__setattr__(self, "_tool_t", [float(v) for v in self.tool[:3, 3]])
+
+    # ----------------------------------------------------------------------------------------
+    # Forward kinematics and Jacobian
+
+    def _check_q(self, q: ArrayLike) -> Array:
+        a = np.asarray(q, dtype=np.float64)
+        if a.shape[-1:] != (6,) or not np.all(np.isfinite(a)):
+            raise InvalidInput(f"q must be finite joint values of shape (..., 6), got {a.shape}")
+        return a
+
+    def link_transforms(self, q: ArrayLike) -> Array:
+        """Return the six DH link transforms A_i (..., 6, 4, 4) at joint values q (..., 6)."""
+        th = self._check_q(q) + self.offset
+        # A = K0 + cos(theta) KC + sin(theta) KS: three constant (6, 4, 4) tensors, so a batch
+        # costs five numpy calls whatever its size.
+        k0, kc, ks = self._dh_tensors  # type: ignore[attr-defined]
+        out: Array = k0 + np.cos(th)[..., None, None] * kc + np.sin(th)[..., None, None] * ks
+        return out
+
+    def frames(self, q: ArrayLike) -> Array:
+        """Return T_0_i for i = 0..6 and the end effector, shape (..., 8, 4, 4): frame 0 is the
+        arm's base (identity), frame 6 the flange, the last the end effector (flange @ tool)."""
+        A = self.link_transforms(q)
+        out = np.empty((*A.shape[:-3], 8, 4, 4))
+        out[..., 0, :, :] = np.eye(4)
+        cur = A[..., 0, :, :]
+        out[..., 1, :, :] = cur
+        for i in range(1, 6):
+            cur = np.matmul(cur, A[..., i, :, :])
+            out[..., i + 1, :, :] = cur
+        out[..., 7, :, :] = np.matmul(cur, self.tool)
+        return out
+
+    def fk(self, q: ArrayLike) -> Array:
+        """Return the end effector's pose T_base_ee (..., 4, 4) in the arm's base frame at joint
+        values q (..., 6): A_1 ... A_6 @ tool."""
+        return self.frames(q)[..., 7, :, :]
+
+    def jacobian(self, q: ArrayLike) -> Array:
+        """Return the geometric Jacobian (..., 6, 6) of the end effector in the arm's base
+        frame, rows (v, omega): column i = (z_{i-1} x (p_ee - o_{i-1}), z_{i-1})
+        (Spong et al. 2006, eq. 4.63-4.64)."""
+        return _geometric_jacobian(self.frames(q))
+
+    def within_limits(self, q: ArrayLike, tol: float = 0.0) -> NDArray[np.bool_]:
+        """Return whether joint values q (..., 6) lie inside the limits (widened by tol)."""
+        qa = np.asarray(q, dtype=np.float64)
+        lo, hi = self.limits[:, 0] - tol, self.limits[:, 1] + tol
+        return np.all((qa >= lo) & (qa <= hi), axis=-1)
+
+    def manipulability(self, q: ArrayLike) -> Array:
+        """Return Yoshikawa's manipulability sqrt(det(J J^T)) (...,) at q (..., 6)."""
+        J = self.jacobian(q)
+        return np.sqrt(np.abs(np.linalg.det(J @ np.swapaxes(J, -1, -2))))
+
+    # ----------------------------------------------------------------------------------------
+    # Closed-form inverse kinematics (Puma-type spherical wrist)
+
+    @property
+    def has_closed_form(self) -> bool:
+        """True when the geometry is the Puma type `ik_analytic` solves: alpha = (pi/2, 0,
+        -pi/2, pi/2, -pi/2, 0), a1 = a4 = a5 = a6 = 0, d2 = d5 = d6 = 0, zero offsets."""
+        return bool(
+            np.allclose(self.alpha, _PUMA_ALPHA, atol=1e-12)
+            and np.all(self.a[[0, 3, 4, 5]] == 0)
+            and np.all(self.d[[1, 4, 5]] == 0)
+            and np.all(self.offset == 0)
+            and self.a[1] > 0
+        )
+
+    def ik_analytic(self, T: ArrayLike, *, include_singular: bool = True) -> list[Array]:
+        """Return every joint vector (list of (6,)) within the limits whose fk equals T.
+
+        T: (4, 4) T_base_ee. Wrist centre p_w = origin of T @ tool^-1 (the flange; d6 = 0).
+        Shoulder: -s1 px + c1 py = -d3 gives two q1; elbow: the planar two-link equation
+        a3 c3 - d4 s3 = (x^2 + y^2 - a2^2 - a3^2 - d4^2) / (2 a2) two q3, then q2 by atan2;
+        wrist: R_3^6 = R_0^3^T R = Rz(q4) Ry(-q5) Rz(q6), a ZYZ Euler triple with two branches
+        (q5 and -q5). Each of the up to eight branches, wrapped to (-pi, pi], is repeated with
+        every 2 pi shift that stays within the limits. At the wrist singularity (q5 = 0) only
+        q4 + q6 is determined; the branch with q4 = 0 (or the nearest limit) is returned, and
+        with `include_singular=False` none. Unreachable targets give an empty list.
+        Raises InvalidInput when the arm is not of the Puma type (`has_closed_form`).
+        """
+        if not self.has_closed_form:
+            raise InvalidInput(
+                f"arm {self.name!r} has no closed-form inverse kinematics (not a Puma-type "
+                "spherical-wrist geometry); use ik() instead"
+            )
+        Tm = as_pose(T, "T")
+        if Tm.shape != (4, 4):
+            raise InvalidInput(f"T must be one (4, 4) pose, got {Tm.shape}")
+        Tf = Tm @ self._tool_inv  # type: ignore[attr-defined]
+        R06 = Tf[:3, :3]
+        px, py, pz = Tf[:3, 3]
+        d1, a2, a3 = self.d[0], self.a[1], self.a[2]
+        d3, d4 = self.d[2], self.d[3]
+        pz = pz - d1
+        sols: list[Array] = []
+        r2 = px * px + py * py
+        if r2 < d3 * d3:
+            return sols
+        rho = math.sqrt(r2 - d3 * d3)
+        phi = math.atan2(py, px)
+        for s_arm in (1.0, -1.0):
+            # r sin(phi - q1) = -d3 with r cos(phi - q1) = s_arm rho.
+            q1 = phi - math.atan2(-d3, s_arm * rho)
+            c1, s1 = math.cos(q1), math.sin(q1)
+            x2 = c1 * px + s1 * py
+            y2 = pz
+            kk = (x2 * x2 + y2 * y2 - a2 * a2 - a3 * a3 - d4 * d4) / (2.0 * a2)
+            rr = math.hypot(a3, d4)
+            cval = kk / rr
+            if abs(cval) > 1.0 + 1e-12:
+                continue
+            cval = max(-1.0, min(1.0, cval))
+            psi = math.atan2(d4, a3)
+            for s_elbow in (1.0, -1.0):
+                q3 = s_elbow * math.acos(cval) - psi
+                c3, s3 = math.cos(q3), math.sin(q3)
+                u = a2 + a3 * c3 - d4 * s3
+                v = a3 * s3 + d4 * c3
+                q2 = math.atan2(y2, x2) - math.atan2(v, u)
+                R03 = self.fk_partial(np.array([q1, q2, q3]))[:3, :3]
+                M = R03.T @ R06
+                s5a = math.hypot(M[0, 2], M[1, 2])
+                singular = s5a < 1e-10
+                if singular and not include_singular:
+                    continue
+                for s_wrist in (1.0, -1.0) if not singular else (1.0,):
+                    if singular:
+                        q5 = 0.0 if M[2, 2] > 0 else math.pi
+                        q4 = float(np.clip(0.0, self.limits[3, 0], self.limits[3, 1]))
+                        # Rz(q6) = Ry(q5) Rz(q4)^T M.
+                        N = _rot_y(q5) @ _rot_z(q4).T @ M
+                        q6 = math.atan2(N[1, 0], N[0, 0])
+                    else:
+                        s5 = s_wrist * s5a
+                        q5 = -math.atan2(s5, M[2, 2])
+                        # M02 = -c4 s5', M12 = -s4 s5', M20 = s5' c6, M21 = -s5' s6,
+                        # s5' = sin q5.
+                        sq5 = math.sin(q5)
+                        q4 = math.atan2(-M[1, 2] / sq5, -M[0, 2] / sq5)
+                        q6 = math.atan2(-M[2, 1] / sq5, M[2, 0] / sq5)
+                    base = np.array([q1, q2, q3, q4, q5, q6])
+                    sols.extend(self._shifted(_wrap(base)))
+        return _unique(sols)
+
+    def fk_partial(self, q123: Array) -> Array:
+        """Return T_0_3 (4, 4) for the first three joint values."""
+        q = np.zeros(6)
+        q[:3] = q123
+        A = self.link_transforms(q)
+        return A[0] @ A[1] @ A[2]
+
+    def _shifted(self, q: Array) -> list[Array]:
+        """Return q with every combination of 2 pi shifts per joint that lies within limits."""
+        options = []
+        for i in range(6):
+            lo, hi = self.limits[i]
+            k_lo = math.ceil((lo - q[i]) / (2 * math.pi) - 1e-12)
+            k_hi = math.floor((hi - q[i]) / (2 * math.pi) + 1e-12)
+            vals = [q[i] + 2 * math.pi * k for k in range(k_lo, k_hi + 1)]
+            vals = [min(max(v, lo), hi) for v in vals]
+            if not vals:
+                return []
+            options.append(vals)
+        return [np.array(c) for c in product(*options)]
+
+    # ----------------------------------------------------------------------------------------
+    # Numerical inverse kinematics
+
+    def ik(
+        self,
+        T: ArrayLike,
+        q0: ArrayLike | None = None,
+        *,
+        tol: float = 1e-10,
+        max_iterations: int = 1000,
+        starts: int = 8,
+        per_start: int = 20,
+        rng: np.random.Generator | int | None = 0,
+    ) -> IKResult:
+        """Return joint values reaching T (4, 4) by Levenberg-Marquardt on the pose error.
+
+        Minimises 0.5 ||e(q)||^2, e = (p* - p(q), log(R* R(q)^T)) (metres, radians), with
+        steps (J^T J + mu I) dq = J^T e, mu adapted per start (divided by 3 on success,
+        multiplied by 4 on failure; Madsen, Nielsen & Tingleff 2004, sec. 3.2); a joint pushed
+        past a limit is shifted by 2 pi when that brings it inside, else clipped. Starts, one
+        after the other, each for at most `per_start` iterations: q0 (when given), then the
+        configurations of a fixed seed bank whose poses are nearest T (`starts` in all), then
+        random configurations within the limits from `rng`. A start that stalls (a local
+        minimum, a limit) gives way to the next. Stops when a start reaches position and
+        rotation errors <= tol (success) or after `max_iterations` in all, returning the
+        best start. The errors reported are recomputed from fk, not the solver's residual.
+        """
+        Tm = as_pose(T, "T")
+        if Tm.shape != (4, 4):
+            raise InvalidInput(f"T must be one (4, 4) pose, got {Tm.shape}")
+        gen: np.random.Generator | None = None
+        lo, hi = self.limits[:, 0], self.limits[:, 1]
+        k = max(int(starts), 1)
+        if q0 is None:
+            seeds = self._nearest_seeds(Tm, k)
+        else:
+            seeds = [np.clip(self._check_q(q0), lo, hi), *self._nearest_seeds(Tm, k - 1)]
+        first = seeds[0]
+        iters = 0
+        restarts = 0
+        best_q, best_cost = first, np.inf
+        ones = np.ones(6)
+        while iters < max_iterations:
+            if seeds:
+                q_start = seeds.pop(0)
+            else:
+                # Created only when needed: most solves never draw a random start.
+                gen = np.random.default_rng(rng) if gen is None else gen
+                q_start = gen.uniform(lo, hi)
+                restarts += 1
+            budget = min(per_start, max_iterations - iters)
+            q, cost, used, ok = _lm(self._kinematics_one, Tm, q_start, lo, hi, ones, tol, budget)
+            iters += used
+            if cost < best_cost:
+                best_q, best_cost = q, cost
+            if ok:
+                break
+        # The true errors, from forward kinematics at the answer (the scalar path, which the
+        # tests check against the batched fk to 1e-14).
+        p, R, _ = self._kinematics_one(best_q)
+        dp = float(np.linalg.norm(p - Tm[:3, 3]))
+        dr = float(np.linalg.norm(_rotvec_one(R.T @ Tm[:3, :3])))
+        return IKResult(
+            q=best_q,
+            success=bool(dp <= tol and dr <= tol),
+            position_error=float(dp),
+            rotation_error=float(dr),
+            iterations=iters,
+            restarts=restarts,
+        )
+
+    def _nearest_seeds(self, T: Array, k: int) -> list[Array]:
+        """Return the k configurations of a fixed bank (512 configurations drawn uniformly
+        within the limits, seed 0) whose end-effector poses are nearest T (squared position
+        distance plus 0.09 m^2 per unit of squared rotation-matrix difference): LM starts that
+        usually lie in the target's basin, so restarts are rare."""
+        if k <= 0:
+            return []
+        bank = getattr(self, "_seed_bank", None)
+        if bank is None:
+            qs = np.random.default_rng(0).uniform(self.limits[:, 0], self.limits[:, 1], (512, 6))
+            Ts = self.fk(qs)
+            feats = np.concatenate([Ts[:, :3, 3], 0.3 * Ts[:, :3, :3].reshape(-1, 9)], axis=1)
+            bank = (qs, feats)
+            object.__setattr__(self, "_seed_bank", bank)
+        qs, feats = bank
+        f = np.concatenate([T[:3, 3], 0.3 * T[:3, :3].ravel()])
+        dist = np.einsum("ij,ij->i", feats - f, feats - f)
+        k = min(k, len(qs))
+        idx = np.argpartition(dist, k - 1)[:k]
+        idx = idx[np.argsort(dist[idx])]
+        return [qs[i].copy() for i in idx]
+
+    def _kinematics_one(self, q: Array) -> tuple[Array, Array, Array]:
+        """Return (position (3,), rotation (3, 3), Jacobian (6, 6)) of one configuration, by
+        scalar arithmetic: for one small chain, Python floats beat numpy's per-call cost."""
+        x = y = z = 0.0
+        r = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]  # row-major R
+        axes = []
+        origins = []
+        for i in range(6):
+            axes.append((r[2], r[5], r[8]))
+            origins.append((x, y, z))
+            th = q[i] + self._off[i]  # type: ignore[attr-defined]
+            c, s = math.cos(th), math.sin(th)
+            ca, sa = self._cal[i], self._sal[i]  # type: ignore[attr-defined]
+            a, d = self._al[i], self._dl[i]  # type: ignore[attr-defined]
+            # Columns of R Rz(theta): c0 = c r0 + s r1, c1 = -s r0 + c r1, c2 = r2.
+            c00, c01, c02 = c * r[0] + s * r[1], c * r[3] + s * r[4], c * r[6] + s * r[7]
+            c10, c11, c12 = -s * r[0] + c * r[1], -s * r[3] + c * r[4], -s * r[6] + c * r[7]
+            r2 = (r[2], r[5], r[8])
+            x += a * c00 + d * r2[0]
+            y += a * c01 + d * r2[1]
+            z += a * c02 + d * r2[2]
+            # Then Rx(alpha): c1' = ca c1 + sa c2, c2' = -sa c1 + ca c2.
+            n1 = (ca * c10 + sa * r2[0], ca * c11 + sa * r2[1], ca * c12 + sa * r2[2])
+            n2 = (-sa * c10 + ca * r2[0], -sa * c11 + ca * r2[1], -sa * c12 + ca * r2[2])
+            r = [c00, n1[0], n2[0], c01, n1[1], n2[1], c02, n1[2], n2[2]]
+        tx, ty, tz = self._tool_t  # type: ignore[attr-defined]
+        x += r[0] * tx + r[1] * ty + r[2] * tz
+        y += r[3] * tx + r[4] * ty + r[5] * tz
+        z += r[6] * tx + r[7] * ty + r[8] * tz
+        R = np.array(r).reshape(3, 3) @ self.tool[:3, :3]
+        jac = []
+        for (ax, ay, az), (ox, oy, oz) in zip(axes, origins, strict=True):
+            dx, dy, dz = x - ox, y - oy, z - oz
+            jac.append((ay * dz - az * dy, az * dx - ax * dz, ax * dy - ay * dx, ax, ay, az))
+        return np.array([x, y, z]), R, np.array(jac).T
+
+
+def _into_limits(q: Array, lo: Array, hi: Array, periodic: NDArray[np.bool_]) -> Array:
+    """Return q with each out-of-limit periodic joint shifted by the multiple of 2 pi that
+    brings it inside [lo, hi] (the same orientation of that link), and what is still outside
+    clipped to the nearest limit."""
+    out = (q < lo) | (q > hi)
+    if not out.any():
+        return q
+    r = q.copy()
+    two_pi = 2.0 * math.pi
+    k = np.where(q < lo, np.ceil((lo - q) / two_pi), np.floor((hi - q) / two_pi))
+    shifted = q + two_pi * k
+    ok = out & periodic & (shifted >= lo) & (shifted <= hi)
+    r[ok] = shifted[ok]
+    return np.clip(r, lo, hi)
+
+
+def _rotvec_one(M: Array) -> Array:
+    """Return the rotation vector (3,) of one rotation matrix (matrix_to_rotvec's formula,
+    its near-pi branch delegated)."""
+    cos_t = (M[0, 0] + M[1, 1] + M[2, 2] - 1.0) * 0.5
+    if cos_t < -0.99:
+        out: Array = matrix_to_rotvec(M)
+        return out
+    theta = math.acos(min(1.0, cos_t))
+    w = np.array([M[2, 1] - M[1, 2], M[0, 2] - M[2, 0], M[1, 0] - M[0, 1]])
+    if theta < 1e-6:
+        return w * (0.5 + theta * theta / 12.0)
+    return w * (theta / (2.0 * math.sin(theta)))
+
+
+def _lm(
+    kinematics: Callable[[Array], tuple[Array, Array, Array]],
+    Tt: Array,
+    q0: Array,
+    lo: Array,
+    hi: Array,
+    D: Array,
+    tol: float,
+    max_iterations: int,
+    periodic: NDArray[np.bool_] | None = None,
+) -> tuple[Array, float, int, bool]:
+    """Run Levenberg-Marquardt from q0 on the pose error; return (q, cost, iterations, reached).
+
+    kinematics(q) -> (p (3,), R (3, 3), J (6, n)). Steps (J^T J + mu D) dq = J^T e, brought
+    into [lo, hi] by `_into_limits` (periodic joints: all revolute by default); mu / 3 after a
+    step that lowers the cost, mu * 4 after one that does not.
+    Gives up (reached False) when mu exceeds 1e4 or 12 steps in a row gain less than 0.1 %:
+    a local minimum or a limit, where a new start does better than more iterations.
+    """
+    pt, Rt = Tt[:3, 3], Tt[:3, :3]
+    wraps = np.ones(q0.shape[0], dtype=bool) if periodic is None else periodic
+    q = q0.copy()
+    p, R, J = kinematics(q)
+    e = np.concatenate([pt - p, _rotvec_one(Rt @ R.T)])
+    E = float(e @ e)
+    mu = 1e-3
+    stall = 0
+    tol2 = tol * tol
+    it = 0
+    n = q.shape[0]
+    diag = (np.arange(n), np.arange(n))
+    lo_l, hi_l = lo.tolist(), hi.tolist()
+    while it < max_iterations:
+        if float(e[:3] @ e[:3]) <= tol2 and float(e[3:] @ e[3:]) <= tol2:
+            return q, E, it, True
+        it += 1
+        Jt = J.T
+        A = Jt @ J
+        A[diag] += mu * D
+        qn = q + np.linalg.solve(A, Jt @ e)
+        # The limit check in Python floats: for a few joints it costs less than numpy's.
+        if any(v < a or v > b for v, a, b in zip(qn.tolist(), lo_l, hi_l, strict=True)):
+            qn = _into_limits(qn, lo, hi, wraps)
+        pn, Rn, Jn = kinematics(qn)
+        en = np.concatenate([pt - pn, _rotvec_one(Rt @ Rn.T)])
+        En = float(en @ en)
+        if En < E:
+            stall = 0 if En < 0.999 * E else stall + 1
+            q, J, e, E = qn, Jn, en, En
+            mu = max(mu / 3.0, 1e-15)
+        else:
+            stall += 1
+            mu *= 4.0
+        if mu > 1e4 or stall > 12:
+            break
+    reached = float(e[:3] @ e[:3]) <= tol2 and float(e[3:] @ e[3:]) <= tol2
+    return q, E, it, reached
+
+
+def _geometric_jacobian(F: Array) -> Array:
+    """Return the geometric Jacobian (..., 6, 6) from frames (..., 8, 4, 4) of `DHArm.frames`."""
+    z = F[..., :6, :3, 2]  # axes z_0 .. z_5
+    d = F[..., 7, None, :3, 3] - F[..., :6, :3, 3]
+    J = np.empty((*F.shape[:-3], 6, 6))
+    # z x d, written out: np.cross costs several times more on small batches.
+    J[..., 0, :] = z[..., 1] * d[..., 2] - z[..., 2] * d[..., 1]
+    J[..., 1, :] = z[..., 2] * d[..., 0] - z[..., 0] * d[..., 2]
+    J[..., 2, :] = z[..., 0] * d[..., 1] - z[..., 1] * d[..., 0]
+    J[..., 3:, :] = np.swapaxes(z, -1, -2)
+    return J
+
+
+def _rot_z(t: float) -> Array:
+    c, s = math.cos(t), math.sin(t)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def _rot_y(t: float) -> Array:
+    c, s = math.cos(t), math.sin(t)
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
+def _wrap(q: Array) -> Array:
+    """Return angles wrapped to (-pi, pi]."""
+    w: Array = -((-q + np.pi) % (2 * np.pi) - np.pi)
+    return w
+
+
+def _unique(sols: list[Array], tol: float = 1e-9) -> list[Array]:
+    out: list[Array] = []
+    for s in sols:
+        if not any(np.max(np.abs(s - o)) < tol for o in out):
+            out.append(s)
+    return out
+
+
+def puma_like_arm() -> DHArm:
+    """Return the Puma-560-geometry arm of the twin's mobile manipulator.
+
+    Standard DH (Corke, RVC 2nd ed., tab. 7.1): a = (0, 0.4318, 0.0203, 0, 0, 0) m,
+    d = (0, 0, 0.15005, 0.4318, 0, 0) m, alpha = (90, 0, -90, 90, -90, 0) deg; the shoulder
+    height is the mount's, not d1. Limits (deg): (+-160, -45..225, -225..45, -110..170, +-100,
+    +-266), those of roboticstoolbox's Puma560. Tool: a parallel gripper whose fingertip centre
+    (the end effector) is 0.12 m along the flange's z axis. Home: (0, 45, -160, 0, 45, 0) deg,
+    elbow up with the gripper pointing forward and down.
+    """
+    deg = np.pi / 180.0
+    tool = np.eye(4)
+    tool[2, 3] = 0.12
+    return DHArm(
+        name="puma-like",
+        a=np.array([0.0, 0.4318, 0.0203, 0.0, 0.0, 0.0]),
+        d=np.array([0.0, 0.0, 0.15005, 0.4318, 0.0, 0.0]),
+        alpha=_PUMA_ALPHA.copy(),
+        offset=np.zeros(6),
+        limits=np.array(
+            [[-160, 160], [-45, 225], [-225, 45], [-110, 170], [-100, 100], [-266, 266]]
+        )
+        * deg,
+        tool=tool,
+        home=np.array([0.0, 45.0, -160.0, 0.0, 45.0, 0.0]) * deg,
+    )
+
+
+def default_arm() -> DHArm:
+    """Return the twin's arm (`puma_like_arm()`)."""
+    return puma_like_arm()
