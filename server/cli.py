@@ -14,6 +14,7 @@ _COMMAND_MODULES = (
     "server.commands.db",
     "server.commands.sim",
     "server.commands.node",
+    "server.commands.landmark",
 )
 
 

@@ -1,0 +1,35 @@
+"""QR-code landmarks: payload, printable artwork, detection, location, reading and the maps.
+
+* `core.landmarks.payload`: the versioned text schema (`encode_payload`, `decode_payload`).
+* `core.landmarks.artwork`: SVG, PDF and PNG at true size (`make_artwork`, `to_svg`, ...).
+* `core.landmarks.detect`: `detect_landmarks(image, K, dist)`.
+* `core.landmarks.conics`: ellipse fits and the circle geometry the rings use.
+* `core.landmarks.maps`: the semantic map (objects) and the navigation map (places, routes).
+"""
+
+from core.landmarks.detect import LandmarkDetection, detect_landmarks
+from core.landmarks.maps import NavigationMap, NoRoute, Route, SemanticMap, detection_in_world
+from core.landmarks.payload import (
+    ObjectMark,
+    PayloadError,
+    Record,
+    Signpost,
+    decode_payload,
+    encode_payload,
+)
+
+__all__ = [
+    "LandmarkDetection",
+    "NavigationMap",
+    "NoRoute",
+    "ObjectMark",
+    "PayloadError",
+    "Record",
+    "Route",
+    "SemanticMap",
+    "Signpost",
+    "decode_payload",
+    "detect_landmarks",
+    "detection_in_world",
+    "encode_payload",
+]

@@ -1,0 +1,217 @@
+"""Image conics of circles: ellipse fitting, the projected centre of concentric circles from a
+pair of conics, and the supporting plane's normal and distance from a circle of known radius.
+
+Conics are symmetric 3x3 matrices C with x^T C x = 0 for homogeneous points x on the curve.
+In normalised camera coordinates (x = K^-1 u) the conic Q = K^T C K is the cone of rays
+through the circle.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from core._validate import as_points
+from core.errors import DegenerateConfiguration
+
+Array = NDArray[np.float64]
+
+
+def conic_matrix(c: ArrayLike) -> Array:
+    """Return the symmetric conic matrices (..., 3, 3) of coefficients (..., 6) of
+    a x^2 + b x y + c y^2 + d x + e y + f = 0."""
+    p = np.asarray(c, dtype=np.float64)
+    a, b, cc, d, e, f = (p[..., i] for i in range(6))
+    return np.stack(
+        [
+            np.stack([a, b / 2, d / 2], -1),
+            np.stack([b / 2, cc, e / 2], -1),
+            np.stack([d / 2, e / 2, f], -1),
+        ],
+        -2,
+    )
+
+
+@dataclass(frozen=True)
+class ConicFit:
+    """An ellipse fitted to edge points.
+
+    C: (3, 3) conic in the points' pixel frame, scaled to unit Frobenius norm (sign: C[2, 2] < 0
+    inside positive, i.e. x^T C x < 0 at the centre); cov: (6, 6) covariance of the six
+    coefficients (a, b, c, d, e, f) of C's normalised form (in the tangent space of the unit
+    sphere); rms: root mean square Sampson distance of the points (pixels, the first-order
+    geometric distance); n: points used.
+    """
+
+    C: Array
+    rms: float
+    n: int
+    cov: Array = field(repr=False)
+
+    @property
+    def centre(self) -> Array:
+        """Return the ellipse's centre (2,) pixels: the pole of the line at infinity."""
+        c = np.asarray(np.linalg.solve(self.C[:2, :2], -self.C[:2, 2]), dtype=np.float64)
+        return c
+
+
+def fit_ellipse(points: ArrayLike, *, iterations: int = 10) -> ConicFit:
+    """Return the ellipse through N >= 6 edge points (N, 2), pixels.
+
+    Algebraic start: Fitzgibbon, Pilu & Fisher 1999 (the ellipse-specific direct least squares,
+    b^2 - 4ac < 0 enforced) in the numerically stable form of Halir & Flusser 1998, on points
+    centred and scaled to unit RMS radius. Then Gauss-Newton on the Sampson distance
+    r_i = x_i^T C x_i / ||2 (C x_i)_{1,2}|| (the first-order geometric distance, H&Z sec. 4.2.6)
+    over the conic on the unit sphere. The covariance is sigma^2 (J^T J)^+ with sigma^2 the
+    residual variance. Raises DegenerateConfiguration when the points are not on an ellipse.
+    """
+    p = as_points(points, 2, "points", min_count=6)
+    mu = p.mean(0)
+    s = float(np.sqrt(np.mean(np.sum((p - mu) ** 2, 1))))
+    if s <= 0:
+        raise DegenerateConfiguration("the edge points coincide; no ellipse")
+    q = (p - mu) / s
+    x, y = q[:, 0], q[:, 1]
+    D1 = np.stack([x * x, x * y, y * y], 1)
+    D2 = np.stack([x, y, np.ones_like(x)], 1)
+    S1, S2, S3 = D1.T @ D1, D1.T @ D2, D2.T @ D2
+    try:
+        T = -np.linalg.solve(S3, S2.T)
+    except np.linalg.LinAlgError:
+        raise DegenerateConfiguration("the edge points are collinear; no ellipse") from None
+    M = S1 + S2 @ T
+    M = np.array([M[2] / 2, -M[1], M[0] / 2])
+    _, v = np.linalg.eig(M)
+    v = np.real(v)
+    cond = 4 * v[0] * v[2] - v[1] ** 2
+    ok = np.flatnonzero(cond > 0)
+    if ok.size == 0:
+        raise DegenerateConfiguration("the edge points do not lie on an ellipse")
+    a1 = v[:, ok[0]]
+    c = np.concatenate([a1, T @ a1])
+    c /= np.linalg.norm(c)
+    M2 = np.array([x * x, x * y, y * y, x, y, np.ones_like(x)]).T
+    gxv = np.stack([2 * x, y, 0 * x, np.ones_like(x), 0 * x, 0 * x], 1)
+    gyv = np.stack([0 * x, x, 2 * y, 0 * x, np.ones_like(x), 0 * x], 1)
+    J = np.zeros((len(x), 6))
+    r = np.zeros(len(x))
+    for _ in range(iterations):
+        f = M2 @ c
+        gx, gy = gxv @ c, gyv @ c
+        g = np.sqrt(gx * gx + gy * gy)
+        r = f / g
+        J = M2 / g[:, None] - (f / g**3)[:, None] * (gx[:, None] * gxv + gy[:, None] * gyv)
+        # Normal equations in the tangent space of the unit sphere (c c^T fills the null
+        # direction of the scale, so the 6x6 system is regular and the step is tangent).
+        A = J.T @ J
+        step = np.linalg.solve(A + np.trace(A) * np.outer(c, c), -(J.T @ r))
+        c = c + step
+        c /= np.linalg.norm(c)
+        if np.linalg.norm(step) < 1e-9:
+            break
+    f = M2 @ c
+    gx, gy = gxv @ c, gyv @ c
+    g = np.sqrt(gx * gx + gy * gy)
+    r = f / g
+    n = len(x)
+    sigma2 = float(r @ r) / max(n - 5, 1)
+    P = np.eye(6) - np.outer(c, c)
+    cov_n = sigma2 * np.linalg.pinv((J @ P).T @ (J @ P))
+    # Back to pixels: C_pix = A^T C_n A with A = [[1/s, 0, -mu/s], [0, 1/s, ...], [0, 0, 1]].
+    A = np.array([[1 / s, 0, -mu[0] / s], [0, 1 / s, -mu[1] / s], [0, 0, 1]])
+    Cn = conic_matrix(c)
+    Cp = A.T @ Cn @ A
+    # The linear map of coefficients c_n -> c_pix, for the covariance (before normalisation).
+    E = A.T @ conic_matrix(np.eye(6)) @ A  # the six basis conics, mapped
+    L = np.stack(
+        [E[:, 0, 0], 2 * E[:, 0, 1], E[:, 1, 1], 2 * E[:, 0, 2], 2 * E[:, 1, 2], E[:, 2, 2]], 0
+    )
+    norm = float(np.linalg.norm(Cp))
+    Cp = Cp / norm
+    L = L / norm
+    centre_val = _conic_at_centre(Cp)
+    if centre_val > 0:
+        Cp, L = -Cp, -L
+    if np.linalg.det(Cp[:2, :2]) <= 0:
+        raise DegenerateConfiguration("the fitted conic is not an ellipse")
+    return ConicFit(C=Cp, rms=float(np.sqrt(np.mean(r * r))) * s, n=n, cov=L @ cov_n @ L.T)
+
+
+def _conic_at_centre(C: Array) -> float:
+    c = np.linalg.solve(C[:2, :2], -C[:2, 2])
+    x = np.array([c[0], c[1], 1.0])
+    return float(x @ C @ x)
+
+
+def concentric_centre(Q1: ArrayLike, Q2: ArrayLike) -> Array:
+    """Return the image (homogeneous (3,), last coordinate 1) of the common centre of two
+    concentric circles from their image conics Q1, Q2 (3, 3).
+
+    The pencil Q1 - lambda Q2 of two concentric circles has a double eigenvalue (its
+    eigenvectors span the line at infinity of the plane) and a simple one whose eigenvector is
+    the centre (in the plane, Q2^-1 Q1 = diag(1, 1, r1^2 / r2^2) up to scale; a homography H
+    conjugates it, Q2'^-1 Q1' = H (Q2^-1 Q1) H^-1). So the centre is the eigenvector of
+    Q2^-1 Q1 whose eigenvalue is farthest from the other two. Unlike the ellipse centres, it
+    is the true projection of the circles' centre (no perspective bias).
+    """
+    A = np.linalg.solve(np.asarray(Q2, dtype=np.float64), np.asarray(Q1, dtype=np.float64))
+    w, v = np.linalg.eig(A)
+    gap = np.array([min(abs(w[i] - w[j]) for j in range(3) if j != i) for i in range(3)])
+    k = int(np.argmax(gap))
+    c = np.real(v[:, k])
+    if abs(c[2]) < 1e-12:
+        raise DegenerateConfiguration("the circles' centre is at infinity: the plane is edge-on")
+    return c / c[2]
+
+
+def circle_normals(Q: ArrayLike) -> tuple[Array, Array]:
+    """Return the two unit normals (3,) of the planes that cut the cone Q (3, 3) (normalised
+    camera coordinates) in a circle, each oriented toward the camera (n . ray < 0).
+
+    With Q = V diag(l1, l2, l3) V^T, l1 >= l2 > 0 > l3 (sign of Q chosen so), subtracting l2
+    times the identity factors the form into two planes, so the circular sections have normals
+    V (+-sqrt(l1 - l2), 0, sqrt(l2 - l3)) (the classic two-fold ambiguity of a single circle;
+    Safaee-Rad et al. 1992, Shiu & Ahmad 1989).
+    """
+    Qm = np.asarray(Q, dtype=np.float64)
+    w, V = np.linalg.eigh(Qm)
+    if np.sum(w > 0) == 1:
+        w, V = np.linalg.eigh(-Qm)
+    if not (w[2] >= w[1] > 0 > w[0]):
+        raise DegenerateConfiguration(
+            "the conic is not the image of a circle in front of the camera"
+        )
+    l1, l2, l3 = w[2], w[1], w[0]
+    e1, e3 = V[:, 2], V[:, 0]
+    a = np.sqrt(max(l1 - l2, 0.0))
+    b = np.sqrt(l2 - l3)
+    out = []
+    axis = e3 if e3[2] > 0 else -e3  # the cone's axis, pointing forward
+    for sgn in (1.0, -1.0):
+        n = sgn * a * e1 + b * e3
+        n /= np.linalg.norm(n)
+        if n @ axis > 0:
+            n = -n
+        out.append(n)
+    return out[0], out[1]
+
+
+def circle_distance(Q: ArrayLike, n: ArrayLike, m: ArrayLike, radius: float) -> float:
+    """Return the depth factor t (the circle's centre is t m) of a circle of `radius` with
+    plane normal n (3,) whose centre's ray is m (3,, with m[2] = 1), from its cone Q.
+
+    With u, v an orthonormal basis of the plane and H = [u v t m] mapping the plane's (x, y, 1)
+    to rays, H^T Q H is proportional to diag(1, 1, -radius^2), so
+    t = radius sqrt(-(u^T Q u + v^T Q v) / 2 / (m^T Q m)).
+    """
+    Qm = np.asarray(Q, dtype=np.float64)
+    nn = np.asarray(n, dtype=np.float64)
+    mm = np.asarray(m, dtype=np.float64)
+    # u^T Q u + v^T Q v = trace(Q) - n^T Q n for any orthonormal basis (u, v, n).
+    a = (float(np.trace(Qm)) - float(nn @ Qm @ nn)) / 2
+    mq = float(mm @ Qm @ mm)
+    if a * mq >= 0:
+        raise DegenerateConfiguration("the circle's centre ray is not inside its image conic")
+    return float(radius * np.sqrt(-a / mq))

@@ -1,0 +1,1011 @@
+"""Find, locate and read landmarks in a colour image (spec 04 section 4).
+
+* Object marks (blue square frame): the blue score b - max(g, r) is thresholded; a blue
+  component with a hole whose outline and hole are quadrilaterals is a frame. Sub-pixel edge
+  points are the iso-contour of the blue score at half the frame's contrast (marching squares,
+  which is where a symmetric blur leaves a straight step edge), undistorted, assigned to the
+  frame's eight edges (corners excluded, where blur rounds them), each fitted by a total
+  least-squares line; the eight corners are the lines' intersections. The pose is the
+  world-plane homography of the eight corners to the known squares, refined by LM
+  (core.calibration.pose.estimate_plane_pose). Its covariance propagates the line fits'
+  residual noise to the corners (first order) and through the least-squares pose (sandwich
+  formula, since the corners are correlated).
+* Signposts (red rings): the iso-contours of the red score give up to four concentric circles'
+  edges, each fitted by an ellipse (core.landmarks.conics: algebraic, then Sampson refinement).
+  The centre's image is the eigenvector of the pencil of two conics (not an ellipse centre, which
+  perspective biases); the plane normal has two candidates from the outer conic; the distance
+  follows from the known radii. The two-fold ambiguity is resolved by the QR symbol (the
+  candidate under which the decoded symbol is square), else by a vertical-wall prior (`up`),
+  else by the pencil centre's agreement with each candidate's predicted centre.
+* The QR symbol is read on the rectified patch (the mark plane resampled fronto-parallel,
+  through the lens model) with zxing-cpp, falling back to cv2.QRCodeDetector; the grey image
+  is the per-pixel maximum of the channels, so the blue frame and the red rings read as white.
+  Its corners fix the rotation about the normal (x along the symbol's rows); without a decode,
+  the three finder patterns' corners are found by comparing the four corner blocks.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import cv2
+import numpy as np
+import zxingcpp
+from numpy.typing import ArrayLike, NDArray
+
+from core._validate import as_matrix
+from core.calibration.pose import pose_from_homography
+from core.errors import ConvergenceError, DegenerateConfiguration, InvalidInput
+from core.geometry.camera import (
+    as_distortion,
+    left_jacobian_so3,
+    project_points,
+    undistort_points,
+)
+from core.geometry.rotations import matrix_to_rotvec, rotvec_to_matrix
+from core.homography.estimate import dlt_homography
+from core.landmarks.artwork import FRAME_BAND, RING_RADII, pattern_layout
+from core.landmarks.conics import (
+    ConicFit,
+    circle_distance,
+    circle_normals,
+    concentric_centre,
+    fit_ellipse,
+)
+from core.landmarks.payload import PayloadError, Record, decode_payload
+
+Array = NDArray[np.float64]
+Image = NDArray[Any]
+
+# A pixel belongs to a pattern when its colour score (the channel minus the larger other one)
+# exceeds this many grey levels: pure blue or red under gain 0.5 scores ~127, grey 0 +- noise.
+SCORE_THRESHOLD = 50
+MIN_AREA_PX = 30.0
+# The frame's corners (line intersections, ~0.05 px noise) must fit a square in perspective to
+# this RMS; more means wrong correspondences or a frame seen edge-on.
+MAX_CORNER_RMS_PX = 0.6
+# Obliquity (deg) beyond which a symbol is not expected to read, and the smallest module
+# (pixels) a rectified read can use.
+MAX_READ_OBLIQUITY = 75.0
+MIN_READ_MODULE_PX = 1.2
+# A nominal symbol (version 4, 33 modules) for the "too small" diagnosis before decoding.
+_NOMINAL_MODULES = 33
+_PATCH_MIN, _PATCH_MAX = 120, 256
+_UNKNOWN_ANGLE_VAR = np.pi**2 / 3  # rotation about the normal uniform on (-pi, pi]
+
+
+@dataclass(frozen=True)
+class LandmarkDetection:
+    """One landmark found in an image.
+
+    kind: "object" (blue frame) or "signpost" (red rings); outline (N, 2) distorted pixels: the
+    frame's four outer corners, or 36 points of the outer ring's edge; T_cam_mark (4, 4): the
+    mark frame (origin at the pattern's centre, z out of the face, x along the symbol's rows)
+    in camera coordinates, metres; cov (6, 6): covariance of (rotation vector, translation) of
+    T_cam_mark (radians, metres); record: the decoded payload or None; reason: why it was not
+    decoded ("too small", "too oblique", "blurred", "damaged", "foreign payload"), None when
+    decoded; text: the symbol's raw text when one was read; orientation_known: whether the
+    rotation about the normal was fixed by the symbol (else its variance is that of a uniform
+    angle); rms: edge fit RMS, pixels; alternative: the other pose of the rings' two-fold
+    ambiguity (None for frames).
+    """
+
+    kind: str
+    outline: Array
+    T_cam_mark: Array
+    cov: Array = field(repr=False)
+    record: Record | None
+    reason: str | None
+    text: str | None = None
+    orientation_known: bool = False
+    rms: float = 0.0
+    alternative: Array | None = field(default=None, repr=False)
+
+    @property
+    def position(self) -> Array:
+        """Return the pattern centre (3,) in camera coordinates, metres."""
+        return self.T_cam_mark[:3, 3]
+
+    @property
+    def normal(self) -> Array:
+        """Return the unit normal (3,) out of the printed face, camera coordinates."""
+        return self.T_cam_mark[:3, 2]
+
+
+def detect_landmarks(
+    image: ArrayLike,
+    K: ArrayLike,
+    dist: ArrayLike | None = None,
+    *,
+    frame_size: float = 0.10,
+    ring_size: float = 0.20,
+    up: ArrayLike | None = None,
+    decode: bool = True,
+) -> list[LandmarkDetection]:
+    """Return every object mark and signpost found in a BGR image, located and (if possible) read.
+
+    image: (H, W, 3) uint8 BGR; K (3, 3), dist (OpenCV k1, k2, p1, p2[, k3]) the camera's
+    calibrated intrinsics; frame_size: outer side of the blue frames, ring_size: outer diameter
+    of the outer red rings, metres; up: the world's up direction in camera coordinates, when
+    known (enables the vertical-wall prior for the rings' ambiguity); decode: read the symbols.
+    Raises InvalidInput for a malformed image or camera.
+    """
+    img = np.asarray(image)
+    if img.ndim != 3 or img.shape[2] != 3 or img.dtype != np.uint8:
+        raise InvalidInput(
+            f"image must be a BGR uint8 array of shape (H, W, 3), got {img.dtype} {img.shape}"
+        )
+    Km = as_matrix(K, (3, 3), "K")
+    if Km[0, 0] <= 0 or Km[1, 1] <= 0 or np.any(Km[2] != [0, 0, 1]) or Km[1, 0] != 0:
+        raise InvalidInput(
+            "K must be upper triangular with positive focal lengths, K[2] = (0, 0, 1)"
+        )
+    d = as_distortion(dist)
+    for name, v in (("frame_size", frame_size), ("ring_size", ring_size)):
+        if not (np.isfinite(v) and 0.005 <= v <= 5.0):
+            raise InvalidInput(f"{name} must be 0.005-5 metres, got {v!r}")
+    upv = None
+    if up is not None:
+        upv = as_matrix(up, (3,), "up")
+        if np.linalg.norm(upv) < 1e-9:
+            raise InvalidInput("up must be a non-zero direction")
+        upv = upv / np.linalg.norm(upv)
+    ctx = _Context(img, Km, d, upv, decode)
+    b, g, r = cv2.split(img)
+    blue = cv2.subtract(b, cv2.max(g, r))
+    red = cv2.subtract(r, cv2.max(g, b))
+    out: list[LandmarkDetection] = []
+    # A candidate whose geometry fails (degenerate fit, distortion not invertible there) is not
+    # a landmark this detector can locate; it is left out, never returned half-made.
+    skip = (DegenerateConfiguration, ConvergenceError, np.linalg.LinAlgError)
+    for outer, hole in _holed_components(blue):
+        try:
+            det = _frame(ctx, blue, outer, hole, frame_size)
+        except skip:
+            det = None
+        if det is not None:
+            out.append(det)
+    for outer, _hole in _holed_components(red):
+        try:
+            det = _rings(ctx, red, outer, ring_size)
+        except skip:
+            det = None
+        if det is not None:
+            out.append(det)
+    return out
+
+
+@dataclass(frozen=True)
+class _Context:
+    image: Image
+    K: Array
+    dist: Array
+    up: Array | None
+    decode: bool
+
+    def undistort(self, px: Array) -> Array:
+        if not np.any(self.dist):
+            return px
+        return undistort_points(px, self.K, self.dist, to_pixels=True)
+
+    def distort(self, ideal: Array) -> Array:
+        if not np.any(self.dist):
+            return ideal
+        n = np.linalg.solve(self.K, np.column_stack([ideal, np.ones(len(ideal))]).T).T
+        return project_points(n, np.zeros(3), np.zeros(3), self.K, self.dist).points
+
+
+def _holed_components(score: Image) -> list[tuple[Image, Image]]:
+    """Return (outer contour, largest hole contour) of every thresholded component with a hole."""
+    mask = (score > SCORE_THRESHOLD).astype(np.uint8)
+    contours, hier = cv2.findContours(mask, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_NONE)
+    if hier is None:
+        return []
+    h = hier[0]
+    out = []
+    for i, c in enumerate(contours):
+        if h[i, 3] != -1 or h[i, 2] == -1 or cv2.contourArea(c) < MIN_AREA_PX:
+            continue
+        child, best, best_area = h[i, 2], None, 0.0
+        while child != -1:
+            a = cv2.contourArea(contours[child])
+            if a > best_area:
+                best, best_area = contours[child], a
+            child = h[child, 0]
+        if best is not None and best_area >= 4.0:
+            out.append((c, best))
+    # A component inside another one's hole is part of it (a signpost's inner ring).
+    keep = []
+    for i, (c, _) in enumerate(out):
+        p = tuple(float(v) for v in c[0, 0])
+        if not any(
+            j != i and cv2.pointPolygonTest(hole, p, False) > 0 for j, (_, hole) in enumerate(out)
+        ):
+            keep.append(out[i])
+    return keep
+
+
+def _roi(contour: Image, shape: tuple[int, ...], pad: int = 4) -> tuple[int, int, int, int]:
+    x, y, w, h = cv2.boundingRect(contour)
+    x0, y0 = max(x - pad, 0), max(y - pad, 0)
+    x1, y1 = min(x + w + pad, shape[1]), min(y + h + pad, shape[0])
+    return x0, y0, x1, y1
+
+
+def _iso_points(score: Image, roi: tuple[int, int, int, int], inside: Image) -> list[Array]:
+    """Return the sub-pixel points (lists of (N, 2) x, y pixels, one list per boundary) where
+    the score crosses half the pattern's contrast (its plateau over `inside`, a mask of the
+    ROI, and the white page's ~0).
+
+    Each crossing between horizontally or vertically adjacent pixels is placed by linear
+    interpolation (the edges marching squares would draw), and labelled by the region below
+    the level it borders (8-connected: the outside, a frame's hole, the gap between two rings,
+    their centre) and by its side (the pattern's pixel nearer the pattern's centre than the
+    white one, or farther): one boundary per label, e.g. a frame's outer and inner edges, or
+    the four ring edges (the gap between the rings borders two of them, one on each side).
+    A thin band broken by the threshold into pieces still gives one boundary per edge."""
+    x0, y0, x1, y1 = roi
+    patch = score[y0:y1, x0:x1].astype(np.float32)
+    vals = patch[inside > 0]
+    if vals.size == 0:
+        return []
+    # Half-way between the pattern's plateau (a high percentile: blur lowers thin bands'
+    # pixels, and a low level would widen the bands) and the white page around it (~0).
+    level = np.float32(0.5 * float(np.percentile(vals, 90)))
+    above = (patch > level).astype(np.uint8)
+    _, lb = cv2.connectedComponents(1 - above, connectivity=8)
+    iy, ix = np.nonzero(inside)
+    cx, cy = float(ix.mean()), float(iy.mean())
+    gxi = cv2.Sobel(patch, cv2.CV_32F, 1, 0, ksize=3)
+    gyi = cv2.Sobel(patch, cv2.CV_32F, 0, 1, ksize=3)
+    xs, ys, keys = [], [], []
+    for axis in (1, 0):
+        a = patch[:, :-1] if axis == 1 else patch[:-1, :]
+        b = patch[:, 1:] if axis == 1 else patch[1:, :]
+        ia = above[:, :-1] if axis == 1 else above[:-1, :]
+        ib = above[:, 1:] if axis == 1 else above[1:, :]
+        yy, xx = np.nonzero(ia != ib)
+        if len(yy) == 0:
+            continue
+        va, vb = a[yy, xx], b[yy, xx]
+        f = (level - va) / (vb - va)
+        yb, xb = (yy, xx + 1) if axis == 1 else (yy + 1, xx)
+        lab_b = np.where(ia[yy, xx] == 1, lb[yb, xb], lb[yy, xx])
+        px = xx + (f if axis == 1 else 0.0)
+        py = yy + (f if axis == 0 else 0.0)
+        # The score's gradient (toward the pattern) against the direction from the centre: an
+        # outer edge has the pattern on its inner side.
+        gx = gxi[yy, xx] + gxi[yb, xb]
+        gy = gyi[yy, xx] + gyi[yb, xb]
+        outer_edge = gx * (px - cx) + gy * (py - cy) < 0
+        xs.append(px)
+        ys.append(py)
+        keys.append(lab_b.astype(np.int64) * 2 + outer_edge)
+    if not keys:
+        return []
+    x = np.concatenate(xs) + x0
+    y = np.concatenate(ys) + y0
+    key = np.concatenate(keys)
+    order = np.argsort(key, kind="stable")
+    key, x, y = key[order], x[order], y[order]
+    cuts = np.flatnonzero(np.diff(key)) + 1
+    return [
+        np.column_stack([gx, gy]).astype(np.float64)
+        for gx, gy in zip(np.split(x, cuts), np.split(y, cuts), strict=True)
+        if len(gx) >= 8
+    ]
+
+
+def _hull_area(p: Array) -> float:
+    return float(cv2.contourArea(cv2.convexHull(p.astype(np.float32))))
+
+
+def _quad(contour: Image) -> Array | None:
+    hull = cv2.convexHull(contour)
+    peri = cv2.arcLength(hull, True)
+    for eps in (0.02, 0.04, 0.06, 0.08):
+        q = cv2.approxPolyDP(hull, eps * peri, True)
+        if len(q) == 4:
+            return q[:, 0, :].astype(np.float64)
+    return None
+
+
+def _signed_area(p: Array) -> float:
+    x, y = p[:, 0], p[:, 1]
+    return 0.5 * float(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y))
+
+
+@dataclass(frozen=True)
+class _Line:
+    normal: Array  # (2,) unit
+    rho: float  # normal . x = rho
+    centroid: Array
+    var_phi: float
+    var_rho: float  # of rho at the centroid
+    sigma: float
+
+
+def _fit_line(p: Array) -> _Line | None:
+    """Total least-squares line with one 3-sigma outlier pass; None with fewer than 4 points."""
+    for _ in range(2):
+        if len(p) < 4:
+            return None
+        c = p.mean(0)
+        d = p - c
+        # The normal: the eigenvector of the scatter matrix's smaller eigenvalue.
+        _, V = np.linalg.eigh(d.T @ d)
+        n, along_dir = V[:, 0], V[:, 1]
+        r = d @ n
+        s = float(np.sqrt(np.sum(r * r) / max(len(p) - 2, 1)))
+        keep = np.abs(r) <= 3 * max(s, 0.05)
+        if keep.all():
+            break
+        p = p[keep]
+    along = (p - c) @ along_dir
+    s = max(s, 0.02)  # marching squares quantises; never claim better than 0.02 px
+    return _Line(n, float(n @ c), c, s * s / max(float(along @ along), 1e-9), s * s / len(p), s)
+
+
+def _intersect(a: _Line, b: _Line) -> Array:
+    A = np.array([a.normal, b.normal])
+    return np.linalg.solve(A, [a.rho, b.rho])
+
+
+def _corner_jacobian(a: _Line, b: _Line) -> Array:
+    """Return d corner / d (phi_a, rho_a, phi_b, rho_b) (2, 4), rho measured at each line's
+    centroid (so phi and rho are uncorrelated): with A x = rho (rows the normals),
+    dx/drho_i = A^-1 e_i and dx/dphi_i = A^-1 e_i (n_i^perp . (c_i - x))."""
+    A = np.array([a.normal, b.normal])
+    Ai = np.linalg.inv(A)
+    x = Ai @ [a.rho, b.rho]
+    J = np.zeros((2, 4))
+    for k, line in enumerate((a, b)):
+        perp = np.array([-line.normal[1], line.normal[0]])
+        J[:, 2 * k] = Ai[:, k] * float(perp @ (line.centroid - x))
+        J[:, 2 * k + 1] = Ai[:, k]
+    return J
+
+
+def _frame(
+    ctx: _Context, score: Image, outer: Image, hole: Image, size: float
+) -> LandmarkDetection | None:
+    if _quad(outer) is None or _quad(hole) is None:
+        return None
+    roi = _roi(outer, score.shape)
+    x0, y0, x1, y1 = roi
+    mask = np.zeros((y1 - y0, x1 - x0), np.uint8)
+    cv2.drawContours(mask, [outer - [x0, y0]], -1, 1, -1)
+    cv2.drawContours(mask, [hole - [x0, y0]], -1, 0, -1)
+    closed = _iso_points(score, roi, mask)
+    if not closed:
+        return None
+    areas = np.array([_hull_area(c) for c in closed])
+    order = np.argsort(-areas)
+    curves = [closed[order[0]]]
+    # The frame's hole: the next boundary, inside, of (1 - 2 band)^2 = 0.58 of its area (an
+    # affine view keeps area ratios).
+    for k in order[1:]:
+        ratio = areas[k] / areas[order[0]]
+        hull = cv2.convexHull(curves[0].astype(np.float32))
+        inside = cv2.pointPolygonTest(hull, tuple(map(float, closed[k].mean(0))), False)
+        if 0.45 < ratio < 0.7 and inside > 0:
+            curves.append(closed[k])
+            break
+    quads: list[Array] = []
+    for c in curves:
+        q = _quad(c.astype(np.float32)[:, None, :])
+        if q is None:
+            return None
+        if _signed_area(q) > 0:
+            q = q[::-1].copy()
+        if quads:
+            # Inner corner k: the cyclic order (both quadrilaterals run the same way) that best
+            # matches the outer corners shrunk about their centre by the frame's ratio (exact
+            # under an affine view; nearest corners fail on a frame seen very obliquely).
+            outer_q = quads[0]
+            c0 = outer_q.mean(0)
+            target = c0 + (1 - 2 * FRAME_BAND) * (outer_q - c0)
+            shift = int(np.argmin([np.sum((np.roll(q, -s, 0) - target) ** 2) for s in range(4)]))
+            q = np.roll(q, -shift, 0)
+        quads.append(q)
+    # Each curve's points go to its own quadrilateral's nearest side, away from the corners.
+    lines = []
+    for c, q in zip(curves, quads, strict=True):
+        best = np.full(len(c), -1)
+        best_d = np.full(len(c), np.inf)
+        for e in range(4):
+            a, b = q[e], q[(e + 1) % 4]
+            L = float(np.linalg.norm(b - a))
+            if L < 3:
+                return None
+            u = (b - a) / L
+            s = (c - a) @ u
+            dn = np.abs((c - a) @ np.array([-u[1], u[0]]))
+            margin = max(1.5, 0.12 * L)
+            ok = (s > margin) & (s < L - margin) & (dn < 3.0) & (dn < best_d)
+            best[ok] = e
+            best_d[ok] = dn[ok]
+        ideal = ctx.undistort(c)
+        for e in range(4):
+            ln = _fit_line(ideal[best == e])
+            if ln is None:
+                return None
+            lines.append(ln)
+    try:
+        corners = np.array(
+            [
+                _intersect(lines[(k - 1) % 4 + o], lines[k + o])
+                for o in range(0, len(lines), 4)
+                for k in range(4)
+            ]
+        )
+    except np.linalg.LinAlgError:
+        return None
+    lay = pattern_layout("object", size)
+    square = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]], float)
+    obj = np.concatenate([square * lay.frame_outer, square * lay.frame_inner])[: len(corners)]
+    try:
+        R, t, rms = _plane_pose(obj, corners, ctx.K)
+        if rms > MAX_CORNER_RMS_PX and len(corners) == 8:
+            # The hole's edges disagree with the outline (a frame seen nearly edge-on, its band
+            # unresolved): the outline alone.
+            corners, obj, lines = corners[:4], obj[:4], lines[:4]
+            R, t, rms = _plane_pose(obj, corners, ctx.K)
+    except (DegenerateConfiguration, np.linalg.LinAlgError):
+        return None
+    if rms > MAX_CORNER_RMS_PX:  # not a square frame seen in perspective
+        return None
+    cov = _frame_covariance(lines, obj, R, t, ctx.K)
+    # To the left rotation perturbation (d theta = J_l(rvec) d rvec), which a turn of the mark
+    # frame about its normal leaves unchanged.
+    M = np.eye(6)
+    M[:3, :3] = left_jacobian_so3(matrix_to_rotvec(R))
+    cov = M @ cov @ M.T
+    outline = ctx.distort(corners[:4])
+    return _finish(
+        ctx, "object", R, t, cov, outline, size, float(np.mean([ln.sigma for ln in lines]))
+    )
+
+
+def _plane_pose(
+    obj: Array, ideal: Array, K: Array, iterations: int = 6
+) -> tuple[Array, Array, float]:
+    """Return (R, t, rms px) of a plane from its points' ideal pixels: the normalised DLT
+    homography and its closed-form pose (core.calibration.pose.pose_from_homography), then
+    Gauss-Newton on the reprojection error over (rvec, t) (the estimate_plane_pose criterion,
+    without its general-purpose machinery: eight points, a few iterations)."""
+    H = dlt_homography(obj, ideal)
+    pose = pose_from_homography(H, K, obj)
+    x = np.concatenate([matrix_to_rotvec(pose.R), pose.t])
+    X3 = np.column_stack([obj, np.zeros(len(obj))])
+    res = np.zeros(2 * len(obj))
+    for _ in range(iterations):
+        pr = project_points(X3, x[:3], x[3:], K, None, jacobians=True)
+        assert pr.d_pose is not None
+        res = (pr.points - ideal).ravel()
+        J = pr.d_pose.reshape(-1, 6)
+        step = np.linalg.solve(J.T @ J, -J.T @ res)
+        x = x + step
+        if np.max(np.abs(step)) < 1e-10 * max(1.0, float(np.linalg.norm(x[3:]))):
+            break
+    pr = project_points(X3, x[:3], x[3:], K, None)
+    if np.any(pr.depth <= 0):
+        raise DegenerateConfiguration("the frame's pose puts it behind the camera")
+    res = (pr.points - ideal).ravel()
+    return rotvec_to_matrix(x[:3]), x[3:], float(np.sqrt(np.mean(res * res) * 2))
+
+
+def _frame_covariance(lines: list[_Line], obj: Array, R: Array, t: Array, K: Array) -> Array:
+    """Return the (6, 6) covariance of (rvec, t) of the least-squares pose of the 8 corners,
+    from the lines' parameter variances: Sigma_c = J_L Sigma_L J_L^T for the corners (each
+    corner depends on two lines), then the sandwich (A^T A)^-1 A^T Sigma_c A (A^T A)^-1 with A
+    the pose Jacobian of the corners' projections."""
+    m = 2 * len(lines)
+    JL = np.zeros((m, m))
+    var = np.zeros(m)
+    for e, ln in enumerate(lines):
+        var[2 * e], var[2 * e + 1] = ln.var_phi, ln.var_rho
+    for o in range(0, len(lines), 4):
+        for k in range(4):
+            a, b = (k - 1) % 4 + o, k + o
+            J = _corner_jacobian(lines[a], lines[b])
+            row = 2 * (k + o)
+            JL[row : row + 2, 2 * a : 2 * a + 2] = J[:, :2]
+            JL[row : row + 2, 2 * b : 2 * b + 2] = J[:, 2:]
+    Sc = JL @ np.diag(var) @ JL.T
+    X3 = np.column_stack([obj, np.zeros(len(obj))])
+    pr = project_points(X3, matrix_to_rotvec(R), t, K, None, jacobians=True)
+    assert pr.d_pose is not None
+    A = pr.d_pose.reshape(-1, 6)
+    G = np.linalg.solve(A.T @ A, A.T)
+    return G @ Sc @ G.T
+
+
+# --------------------------------------------------------------------------------------------
+# Rings
+
+
+@dataclass(frozen=True)
+class _RingFit:
+    fits: tuple[ConicFit, ...]
+    radii: tuple[float, ...]
+
+
+def _rings(ctx: _Context, score: Image, outer: Image, size: float) -> LandmarkDetection | None:
+    if len(outer) < 8:
+        return None
+    _, (ea, eb), _ = cv2.fitEllipse(outer)
+    if ea <= 0 or eb <= 0 or cv2.contourArea(outer) < 0.85 * np.pi * ea * eb / 4:
+        return None
+    roi = _roi(outer, score.shape)
+    x0, y0, x1, y1 = roi
+    mask = np.zeros((y1 - y0, x1 - x0), np.uint8)
+    cv2.drawContours(mask, [outer - [x0, y0]], -1, 1, -1)
+    mask &= (score[y0:y1, x0:x1] > SCORE_THRESHOLD).astype(np.uint8)
+    iso = [c for c in _iso_points(score, roi, mask) if len(c) >= 12]
+    if not iso:
+        return None
+    sizes = np.array([np.sqrt(_hull_area(c)) for c in iso])
+    order = np.argsort(-sizes)
+    ref = sizes[order[0]]
+    lay = pattern_layout("signpost", size)
+    fits: list[ConicFit] = []
+    radii: list[float] = []
+    centre0 = None
+    for k in order:
+        ratio = sizes[k] / ref
+        j = int(np.argmin([abs(ratio - r / RING_RADII[0]) for r in RING_RADII]))
+        if abs(ratio - RING_RADII[j] / RING_RADII[0]) > 0.045 or lay.ring_radii[j] in radii:
+            continue
+        try:
+            fit = fit_ellipse(ctx.undistort(iso[k]))
+        except DegenerateConfiguration:
+            continue
+        if centre0 is None:
+            if j != 0:
+                return None
+            centre0 = fit.centre
+        elif np.linalg.norm(fit.centre - centre0) > 0.2 * ref:
+            continue
+        fits.append(fit)
+        radii.append(lay.ring_radii[j])
+    if len(fits) < 2:
+        return None
+    rf = _RingFit(tuple(fits), tuple(radii))
+    try:
+        cands = _ring_candidates(rf, ctx.K)
+    except (DegenerateConfiguration, np.linalg.LinAlgError):
+        return None
+    a = np.linspace(0, 2 * np.pi, 36, endpoint=False)
+    C0 = fits[0].C
+    outline = _conic_points(C0, a)
+    outline = ctx.distort(outline)
+    return _finish_rings(ctx, rf, cands, outline, size)
+
+
+def _conic_points(C: Array, angles: Array) -> Array:
+    """Return points (N, 2) of the ellipse C at parametric angles."""
+    A = C[:2, :2]
+    c = np.linalg.solve(A, -C[:2, 2])
+    k = -float(np.array([*c, 1.0]) @ C @ np.array([*c, 1.0]))
+    w, V = np.linalg.eigh(A / k)
+    ax = 1.0 / np.sqrt(w)
+    return c + (np.stack([np.cos(angles) * ax[0], np.sin(angles) * ax[1]], 1) @ V.T)
+
+
+def _ring_pose(
+    Qs: list[Array], radii: tuple[float, ...]
+) -> tuple[Array, tuple[Array, Array], Array]:
+    """Return (centre ray m (3,), the two candidate normals, their depth factors (2,)) from the
+    normalised conics: centre from the pencil of the largest and smallest circles, normals and
+    depth from the outer conic and its known radius."""
+    m = concentric_centre(Qs[0], Qs[-1])
+    na, nb = circle_normals(Qs[0])
+    depths = []
+    for n in (na, nb):
+        # The outer edge alone gives the distance: it has the white page outside and the widest
+        # band inside, while blur merges the inner edges with their neighbours (gaps of 0.05 of
+        # the size) once the rings are small in the image, shrinking their contours.
+        depths.append(circle_distance(Qs[0], n, m, radii[0]))
+    return m, (na, nb), np.array(depths)
+
+
+@dataclass(frozen=True)
+class _Candidates:
+    m: Array
+    normals: tuple[Array, Array]
+    depths: Array
+    cov: tuple[Array, Array]  # (6, 6) of (rotation about camera axes, translation), per candidate
+
+
+def _ring_candidates(rf: _RingFit, K: Array) -> _Candidates:
+    Qs = [K.T @ f.C @ K for f in rf.fits]
+    m, normals, depths = _ring_pose(Qs, rf.radii)
+    # First-order propagation of every conic's covariance (sigma points along its principal
+    # axes), ignoring the rotation about the normal (added later from the symbol).
+    covs = [np.zeros((6, 6)), np.zeros((6, 6))]
+    # The outer and the innermost conics fix the centre and the normals; the others only add
+    # to the averaged distance, whose spread the outer one's dominates.
+    for k in (0, len(rf.fits) - 1):
+        f = rf.fits[k]
+        w, U = np.linalg.eigh(f.cov)
+        base = _coeffs6(f.C)
+        for s2, u in zip(w, U.T, strict=True):
+            # The conic's scale direction has no variance (numerically ~0): skipped.
+            if s2 <= 1e-9 * w[-1]:
+                continue
+            Qp = list(Qs)
+            Qp[k] = K.T @ _conic6(base + np.sqrt(s2) * u) @ K
+            try:
+                mp, nps, dps = _ring_pose(Qp, rf.radii)
+            except (DegenerateConfiguration, np.linalg.LinAlgError):
+                continue
+            for j in range(2):
+                # Match the perturbed candidate to candidate j by its normal; one-sided
+                # difference of (rotation of the normal, centre).
+                i = 0 if nps[0] @ normals[j] >= nps[1] @ normals[j] else 1
+                dv = np.concatenate([np.cross(normals[j], nps[i]), dps[i] * mp - depths[j] * m])
+                covs[j] += np.outer(dv, dv)
+    return _Candidates(m, normals, depths, (covs[0], covs[1]))
+
+
+def _coeffs6(C: Array) -> Array:
+    return np.array([C[0, 0], 2 * C[0, 1], C[1, 1], 2 * C[0, 2], 2 * C[1, 2], C[2, 2]])
+
+
+def _conic6(c: Array) -> Array:
+    a, b, cc, d, e, f = c
+    return np.array([[a, b / 2, d / 2], [b / 2, cc, e / 2], [d / 2, e / 2, f]])
+
+
+def _rotation(n: Array, psi: float) -> Array:
+    """Return R = [x y z] with z = n and x the camera's x axis projected on the plane, turned by
+    psi about z."""
+    ex = np.array([1.0, 0.0, 0.0])
+    if abs(n @ ex) > 0.95:
+        ex = np.array([0.0, 1.0, 0.0])
+    x0 = ex - (ex @ n) * n
+    x0 /= np.linalg.norm(x0)
+    y0 = np.cross(n, x0)
+    x = np.cos(psi) * x0 + np.sin(psi) * y0
+    return np.column_stack([x, np.cross(n, x), n])
+
+
+def _finish_rings(
+    ctx: _Context, rf: _RingFit, cands: _Candidates, outline: Array, size: float
+) -> LandmarkDetection | None:
+    lay = pattern_layout("signpost", size)
+    poses = [
+        (_rotation(n, 0.0), d * cands.m) for n, d in zip(cands.normals, cands.depths, strict=True)
+    ]
+    half = lay.ring_radii[-1]
+    # One read is enough to place the symbol's corners (below); the second candidate's patch is
+    # read only when the first does not decode.
+    reads: list[_Read | None] = [None, None]
+    if ctx.decode:
+        for k, (R, t) in enumerate(poses):
+            reads[k] = _read_symbol(ctx, R, t, half, lay.qr_side)
+            if reads[k] is not None:
+                break
+    choice = None
+    # 1. The symbol: its corners, read under either candidate, are rays from the camera; laid on
+    # each candidate's plane they form a square only on the right one (the wrong plane shears
+    # it). The candidate whose rectification decoded is not evidence by itself: near the
+    # decoding limit the sheared patch sometimes reads where the right one does not.
+    read_any = next((r for r in reads if r is not None and r.corners is not None), None)
+    if read_any is not None and read_any.corners is not None:
+        R0, t0 = poses[reads.index(read_any)]
+        rays = read_any.corners @ R0[:, :2].T + t0
+        fits = []
+        for n, (R, t) in zip(cands.normals, poses, strict=True):
+            P3 = rays * ((n @ t) / (rays @ n))[:, None]
+            fits.append(_square_fit(((P3 - t) @ R)[:, :2]))
+        sq = [f[1] if f is not None else np.inf for f in fits]
+        if np.isfinite(min(sq)):
+            choice = int(np.argmin(sq))
+            fit = fits[choice]
+            assert fit is not None
+            reads[choice] = _Read(
+                read_any.text, None, fit[0], read_any.var_psi, fit[1], read_any.module_px
+            )
+    # 2. The vertical-wall prior: the normal perpendicular to up.
+    if choice is None and ctx.up is not None:
+        dots = [abs(float(n @ ctx.up)) for n in cands.normals]
+        if abs(dots[0] - dots[1]) > 0.05:
+            choice = int(np.argmin(dots))
+    # 3. The pencil centre against each candidate's predicted centre (the pole of its
+    # vanishing line with respect to the outer conic).
+    if choice is None:
+        Q0 = ctx.K.T @ rf.fits[0].C @ ctx.K
+        errs = []
+        for n in cands.normals:
+            pole = np.linalg.solve(Q0, n)
+            pole = pole / pole[2]
+            errs.append(float(np.linalg.norm(pole[:2] - cands.m[:2] / cands.m[2])))
+        choice = int(np.argmin(errs))
+    R, t = poses[choice]
+    read = reads[choice]
+    psi_known = False
+    var_psi = _UNKNOWN_ANGLE_VAR
+    if read is not None and read.psi is not None:
+        R = R @ _rz(read.psi)
+        psi_known = True
+        var_psi = read.var_psi
+    elif ctx.decode and read is None:
+        psi = _symbol_angle(ctx, R, t, lay.qr_side, free=True)
+        if psi is not None:
+            R = R @ _rz(psi)
+            psi_known = True
+            var_psi = (1.0 / _NOMINAL_MODULES) ** 2
+    cov_theta = cands.cov[choice].copy()
+    n = cands.normals[choice]
+    cov_theta[:3, :3] += var_psi * np.outer(n, n)
+    cov = _rvec_cov(R, cov_theta)
+    other = 1 - choice
+    T_alt = np.eye(4)
+    T_alt[:3, :3] = _rotation(cands.normals[other], 0.0)
+    T_alt[:3, 3] = cands.depths[other] * cands.m
+    rms = float(np.mean([f.rms for f in rf.fits]))
+    return _result(ctx, "signpost", R, t, cov, outline, lay.qr_side, read, psi_known, rms, T_alt)
+
+
+def _rvec_cov(R: Array, cov_theta: Array) -> Array:
+    """Convert a covariance of (left rotation perturbation, t) to one of (rvec, t)."""
+    Jinv = np.linalg.inv(left_jacobian_so3(matrix_to_rotvec(R)))
+    M = np.eye(6)
+    M[:3, :3] = Jinv
+    return M @ cov_theta @ M.T
+
+
+def _rz(psi: float) -> Array:
+    c, s = np.cos(psi), np.sin(psi)
+    return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+
+
+# --------------------------------------------------------------------------------------------
+# The symbol
+
+
+@dataclass(frozen=True)
+class _Read:
+    text: str | None
+    corners: Array | None  # (4, 2) mark-plane metres: TL, TR, BR, BL of the symbol
+    psi: float | None
+    var_psi: float
+    squareness: float
+    module_px: float
+
+
+def _rectify(ctx: _Context, R: Array, t: Array, half: float, px: int) -> Image:
+    """Return the mark plane's square [-half, half]^2 resampled fronto-parallel to px x px,
+    rows running down the mark's y axis, through the lens model."""
+    step = 8
+    g = np.arange(0, px + step, step, dtype=np.float64)
+    gj, gi = np.meshgrid(g, g)
+    X = -half + (gj + 0.5) * 2 * half / px
+    Y = half - (gi + 0.5) * 2 * half / px
+    P = np.stack([X, Y, np.zeros_like(X)], -1).reshape(-1, 3)
+    uv = project_points(P, matrix_to_rotvec(R), t, ctx.K, ctx.dist).points.reshape(*X.shape, 2)
+    big = (len(g) - 1) * step + 1
+    mx = cv2.resize(uv[..., 0].astype(np.float32), (big, big), interpolation=cv2.INTER_LINEAR)
+    my = cv2.resize(uv[..., 1].astype(np.float32), (big, big), interpolation=cv2.INTER_LINEAR)
+    return cv2.remap(
+        ctx.image, mx[:px, :px], my[:px, :px], cv2.INTER_LINEAR, borderValue=(255, 255, 255)
+    )
+
+
+def _module_px(ctx: _Context, R: Array, t: Array, side: float) -> float:
+    """Return the image extent (pixels) of `side` metres at the mark centre, along its most
+    foreshortened direction."""
+    z = t[2]
+    J = ctx.K[:2, :2] @ (R[:2, :2] * z - np.outer(t[:2], R[2, :2])) / z**2
+    return float(side * np.linalg.svd(J, compute_uv=False)[-1])
+
+
+def _read_symbol(ctx: _Context, R: Array, t: Array, half: float, qr_side: float) -> _Read | None:
+    """Return the symbol read on the rectified patch of the square [-half, half]^2 (None when no
+    symbol could be read): its text, corners in the mark plane, the rotation psi about the
+    normal that puts x along its rows, and how square it is under this pose (RMS distance of
+    its corners to the best-fitting square of side qr_side, in units of qr_side)."""
+    qpx = _module_px(ctx, R, t, qr_side)
+    if qpx / _NOMINAL_MODULES < MIN_READ_MODULE_PX * 0.5:
+        return None
+    # 2.5 patch pixels per image pixel: modules of >= 1.2 px get >= 3 px, what zxing-cpp needs.
+    px = int(np.clip(2.5 * qpx * 2 * half / qr_side, _PATCH_MIN, _PATCH_MAX))
+    patch = _rectify(ctx, R, t, half, px)
+    grey = cv2.max(cv2.max(patch[..., 0], patch[..., 1]), patch[..., 2])
+    # OpenCV's detector is the fallback where zxing-cpp fails; it is slow (tens of ms) and
+    # reads nothing zxing-cpp cannot below 1.5 px modules, so it is not tried there.
+    text, pts = _decode(grey, fallback=qpx / _NOMINAL_MODULES >= 1.5)
+    if text is None or pts is None:
+        return None
+    # Patch pixels -> mark plane metres.
+    X = -half + (pts[:, 0] + 0.5) * 2 * half / px
+    Y = half - (pts[:, 1] + 0.5) * 2 * half / px
+    P = np.column_stack([X, Y])
+    fit = _square_fit(P)
+    if fit is None:
+        return None
+    return _Read(text, P, fit[0], (1.0 / 33) ** 2, fit[1], qpx)
+
+
+def _square_fit(P: Array) -> tuple[float, float] | None:
+    """Return (psi, squareness) of a symbol's corners P (4, 2) (TL, TR, BR, BL) in a mark plane:
+    psi the direction of its rows, squareness the RMS residual of the best similarity of a
+    square to them, in units of its half side (scale free: the decoder's corners may sit on the
+    finder patterns rather than the symbol's edge). None when the corners are not in order."""
+    dx = (P[1] - P[0]) + (P[2] - P[3])
+    psi = float(np.arctan2(dx[1], dx[0]))
+    model = np.array([[-1, 1], [1, 1], [1, -1], [-1, -1]], float) @ _rz(psi)[:2, :2].T
+    c = P - P.mean(0)
+    scale = float(np.sum(c * model) / np.sum(model * model))
+    if scale <= 0:
+        return None
+    res = c - scale * model
+    return psi, float(np.sqrt(np.mean(np.sum(res * res, 1)))) / scale
+
+
+_CV_QR = cv2.QRCodeDetector()
+
+
+def _decode(grey: Image, fallback: bool = True) -> tuple[str | None, Array | None]:
+    """Return (text, corners (4, 2) TL, TR, BR, BL pixels) of a QR symbol in a grey patch."""
+    for r in zxingcpp.read_barcodes(
+        grey, formats=zxingcpp.BarcodeFormats(zxingcpp.BarcodeFormat.QRCode)
+    ):
+        p = r.position
+        pts = np.array(
+            [
+                [p.top_left.x, p.top_left.y],
+                [p.top_right.x, p.top_right.y],
+                [p.bottom_right.x, p.bottom_right.y],
+                [p.bottom_left.x, p.bottom_left.y],
+            ],
+            float,
+        )
+        return r.text, pts
+    if not fallback:
+        return None, None
+    try:
+        text, pts, _ = _CV_QR.detectAndDecode(grey)
+    except cv2.error:
+        return None, None
+    if text and pts is not None:
+        return text, np.asarray(pts, float).reshape(4, 2)
+    return None, None
+
+
+def _symbol_angle(ctx: _Context, R: Array, t: Array, qr_side: float, *, free: bool) -> float | None:
+    """Return the rotation psi about the normal that puts x along the symbol's rows, from the
+    three finder patterns (no decoding): the symbol's axes from the dark modules' minimum-area
+    rectangle (`free`, for the rings) or from the pose's own axes (frames), then the corner
+    block least like the other three is the one without a finder (bottom-right). None when the
+    modules are too small or the blocks do not single one out."""
+    qpx = _module_px(ctx, R, t, qr_side)
+    if qpx / _NOMINAL_MODULES < 0.8:
+        return None
+    psi0 = 0.0
+    if free:
+        half = qr_side * 0.62
+        px = 96
+        grey = cv2.cvtColor(_rectify(ctx, R, t, half, px), cv2.COLOR_BGR2GRAY)
+        _, dark = cv2.threshold(grey, 0, 255, cv2.THRESH_BINARY_INV | cv2.THRESH_OTSU)
+        yy, xx = np.mgrid[0:px, 0:px]
+        r = np.hypot(xx - px / 2 + 0.5, yy - px / 2 + 0.5) * 2 * half / px
+        dark[r > 0.71 * qr_side * 1.02] = 0
+        pts = np.column_stack(np.nonzero(dark)[::-1]).astype(np.float32)
+        if len(pts) < 20:
+            return None
+        (_, _), (w, h), ang = cv2.minAreaRect(pts)
+        if min(w, h) <= 0 or max(w, h) / min(w, h) > 1.3:
+            return None
+        # Patch angles run clockwise (y down); the mark plane's counter-clockwise.
+        psi0 = -np.radians(ang)
+    Rs = R @ _rz(psi0)
+    px = 96
+    grey = cv2.cvtColor(_rectify(ctx, Rs, t, qr_side / 2, px), cv2.COLOR_BGR2GRAY).astype(
+        np.float64
+    )
+    b = px // 4
+    blocks = [
+        grey[:b, :b],
+        np.rot90(grey[:b, -b:], 1),
+        np.rot90(grey[-b:, -b:], 2),
+        np.rot90(grey[-b:, :b], 3),
+    ]
+    z = [(x - x.mean()) / (x.std() + 1e-9) for x in blocks]
+    C = np.array([[float(np.mean(a * c)) for c in z] for a in z])
+    score = (C.sum(1) - 1) / 3
+    k = int(np.argmin(score))
+    others = np.delete(score, k)
+    if others.min() - score[k] < 0.15:
+        return None
+    # Block k (0 TL, 1 TR, 2 BR, 3 BL in the patch) is the symbol's bottom-right corner.
+    return float(psi0 + (2 - k) * np.pi / 2)
+
+
+def _finish(
+    ctx: _Context,
+    kind: str,
+    R: Array,
+    t: Array,
+    cov: Array,
+    outline: Array,
+    size: float,
+    rms: float,
+) -> LandmarkDetection:
+    """Fix the frame's rotation about its normal from the symbol and read it; cov is of
+    (left rotation perturbation, t)."""
+    lay = pattern_layout("object", size)
+    read = _read_symbol(ctx, R, t, lay.frame_inner, lay.qr_side) if ctx.decode else None
+    known = False
+    if read is not None and read.psi is not None:
+        k = int(np.round(read.psi / (np.pi / 2)))
+        R = R @ _rz(k * np.pi / 2)
+        known = True
+    elif ctx.decode:
+        psi = _symbol_angle(ctx, R, t, lay.qr_side, free=False)
+        if psi is not None:
+            R = R @ _rz(psi)
+            known = True
+    # cov is of the left rotation perturbation, invariant under the turn about z.
+    return _result(ctx, kind, R, t, _rvec_cov(R, cov), outline, lay.qr_side, read, known, rms, None)
+
+
+def _result(
+    ctx: _Context,
+    kind: str,
+    R: Array,
+    t: Array,
+    cov: Array,
+    outline: Array,
+    qr_side: float,
+    read: _Read | None,
+    known: bool,
+    rms: float,
+    alternative: Array | None,
+) -> LandmarkDetection:
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = t
+    record: Record | None = None
+    reason: str | None = None
+    text = read.text if read is not None else None
+    if text is not None:
+        try:
+            record = decode_payload(text)
+        except PayloadError as exc:
+            reason = "foreign payload" if exc.reason in ("foreign", "version") else "damaged"
+        if record is not None and record.kind != kind:
+            # A valid payload in the other kind's pattern: not a landmark this map can use.
+            record, reason = None, "foreign payload"
+    else:
+        reason = _why_unread(ctx, R, t, qr_side) if ctx.decode else "not attempted"
+    return LandmarkDetection(
+        kind=kind,
+        outline=outline,
+        T_cam_mark=T,
+        cov=cov,
+        record=record,
+        reason=reason,
+        text=text,
+        orientation_known=known,
+        rms=rms,
+        alternative=alternative,
+    )
+
+
+def _why_unread(ctx: _Context, R: Array, t: Array, qr_side: float) -> str:
+    ray = t / np.linalg.norm(t)
+    obliquity = np.degrees(np.arccos(np.clip(-ray @ R[:, 2], -1, 1)))
+    if _module_px(ctx, R, t, qr_side) / _NOMINAL_MODULES < MIN_READ_MODULE_PX:
+        return "too small"
+    if obliquity > MAX_READ_OBLIQUITY:
+        return "too oblique"
+    patch = cv2.cvtColor(_rectify(ctx, R, t, qr_side / 2, 64), cv2.COLOR_BGR2GRAY)
+    lap = cv2.Laplacian(patch, cv2.CV_64F)
+    contrast = float(np.percentile(patch, 95) - np.percentile(patch, 5)) + 1e-9
+    if float(np.sqrt(np.mean(lap * lap))) / contrast < 0.08:
+        return "blurred"
+    return "damaged"
