@@ -35,8 +35,8 @@ def distort_to_pixels(
     """Return the pixels (B, 2) of ideal normalised coordinates m (B, 2) and B = d pixel / d m.
 
     The model of core.geometry.camera (`distortion_model`, `distortion_jacobian`: OpenCV's
-    radial-tangential distortion), then K; only this 2 x 2 Jacobian, which costs about a tenth
-    of project_points' full set (pose, intrinsics, distortion) on a batch.
+    distortion of 5, 8, 12 or 14 coefficients), then K; only this 2 x 2 Jacobian, which costs
+    about a tenth of project_points' full set (pose, intrinsics, distortion) on a batch.
     """
     K = camera.K
     fx, s, cx, fy, cy = K[0, 0], K[0, 1], K[0, 2], K[1, 1], K[1, 2]
@@ -48,11 +48,11 @@ def distort_to_pixels(
     pixels[:, 1] = fy * yd + cy
     if not jacobian:
         return pixels, None
-    a11, a12, a22 = distortion_jacobian(x, y, rad, r2, camera.dist)
+    a11, a12, a21, a22 = distortion_jacobian(x, y, rad, r2, camera.dist)
     B = np.empty((m.shape[0], 2, 2))
-    B[:, 0, 0] = fx * a11 + s * a12
+    B[:, 0, 0] = fx * a11 + s * a21
     B[:, 0, 1] = fx * a12 + s * a22
-    B[:, 1, 0] = fy * a12
+    B[:, 1, 0] = fy * a21
     B[:, 1, 1] = fy * a22
     return pixels, B
 

@@ -1,7 +1,8 @@
 """The description of one calibrated camera of the network, as the floor estimators need it.
 
 A `NetworkCamera` holds what calibration (spec 02, section 1) produces for one ceiling camera:
-the intrinsic matrix K, OpenCV's five distortion coefficients, the pose and the image size.
+the intrinsic matrix K, OpenCV's distortion coefficients (5, 8, 12 or 14), the pose and the
+image size.
 The pose is stored world-to-camera, Xc = R X + t (R = R_camera_world, t = t_camera_world), the
 form the projection uses; `from_pose` and `T_world_camera` convert from and to the camera's pose
 in the world frame, T_world_camera = [[R^T, -R^T t], [0, 1]].
@@ -19,7 +20,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from core._validate import as_matrix, as_points
 from core.errors import ConvergenceError, InvalidInput
-from core.geometry.camera import project_points, undistort_points
+from core.geometry.camera import as_distortion_model, project_points, undistort_points
 from core.geometry.rotations import matrix_to_rotvec
 
 Array = NDArray[np.float64]
@@ -35,7 +36,8 @@ class NetworkCamera:
     """A calibrated camera: intrinsics, distortion, world-to-camera pose and image size.
 
     K: (3, 3) upper triangular, K[2, 2] = 1, fx, fy > 0 (pixels). dist: (5,) OpenCV
-    (k1, k2, p1, p2, k3); fewer coefficients are padded with zeros. R: (3, 3) = R_camera_world.
+    (k1, k2, p1, p2, k3), fewer coefficients padded with zeros; or (14,) for OpenCV's 8, 12 or 14
+    (core.geometry.camera.as_distortion_model). R: (3, 3) = R_camera_world.
     t: (3,) = t_camera_world (metres), so Xc = R X + t. image_size: (width, height) in pixels, or
     None when unknown (then `in_view` only tests that a point is in front of the camera).
     Derived on construction: `rvec` (3,), the rotation vector of R (for core.geometry.camera),
@@ -61,13 +63,7 @@ class NetworkCamera:
                 "K must be upper triangular with positive focal lengths [[fx, s, cx], "
                 f"[0, fy, cy], [0, 0, 1]], got {K.tolist()}"
             )
-        d = np.asarray(self.dist if self.dist is not None else np.zeros(5), dtype=np.float64)
-        d = d.ravel()
-        if d.size > 5 or not np.all(np.isfinite(d)):
-            raise InvalidInput(
-                f"dist must hold at most 5 finite coefficients (k1, k2, p1, p2, k3), got {d}"
-            )
-        d = np.concatenate([d, np.zeros(5 - d.size)])
+        d = as_distortion_model(self.dist)
         R = as_matrix(self.R, (3, 3), "R (R_camera_world)")
         if np.max(np.abs(R.T @ R - np.eye(3))) > _ROTATION_TOL or np.linalg.det(R) <= 0:
             raise InvalidInput(
