@@ -18,7 +18,7 @@ from fastapi import (
     status,
 )
 from pydantic import Field
-from sqlalchemy import select
+from sqlalchemy import or_, select, update
 
 from server.api._crud import check_references, get_or_404, paginate
 from server.api.deps import (
@@ -31,6 +31,7 @@ from server.api.deps import (
     get_executor,
 )
 from server.api.errors import PROBLEM_RESPONSES, FieldProblem
+from server.api.limits import check_image_size
 from server.db.base import utcnow
 from server.db.models import (
     RUN_SUCCEEDED,
@@ -44,6 +45,7 @@ from server.schemas.calibration import (
     DistortionModel,
     IntrinsicsRunCreate,
     RunStatus,
+    implausible_square,
 )
 from server.schemas.common import MAX_ID, Page
 from server.schemas.registry import CameraRead
@@ -99,6 +101,7 @@ def create_calibration_run(
         )
         return _queue(session, executor, run)
     check_references(session, {"camera_id": (Camera, body.camera_id)})
+    _check_image_size(session, body.camera_id, tuple(body.image_size), "image_size", "body")
     run = CalibrationRun(
         kind=body.kind,
         source="correspondences",
@@ -107,6 +110,23 @@ def create_calibration_run(
         options=body.options.model_dump(),
     )
     return _queue(session, executor, run)
+
+
+def _check_image_size(
+    session, camera_id: int, size: tuple[int, ...], field: str, location: str
+) -> None:
+    """Refuse (409) a run whose images are not the size of its camera's: its result could
+    never be applied to that camera."""
+    camera = session.get(Camera, camera_id)
+    if camera is not None and (camera.width, camera.height) != size:
+        raise FieldProblem(
+            409,
+            field,
+            f"the images are {size[0]}x{size[1]} but camera {camera_id} is "
+            f"{camera.width}x{camera.height}; calibrate with images of the camera's size or "
+            "fix the camera's width and height first",
+            location,
+        )
 
 
 @router.post(
@@ -124,7 +144,9 @@ def upload_calibration_run(
     chessboard: Annotated[
         str, Form(max_length=20, description="Inner corners, columns x rows, e.g. 9x6.")
     ] = "9x6",
-    square: Annotated[float, Form(gt=0, le=10, allow_inf_nan=False, description="metres")] = 0.025,
+    square: Annotated[
+        float, Form(gt=0, allow_inf_nan=False, description="Side of a square, metres (<= 1).")
+    ] = 0.025,
     distortion: Annotated[DistortionModel, Form()] = "k1k2p1p2",
     skew: Annotated[bool, Form()] = False,
 ):
@@ -136,6 +158,8 @@ def upload_calibration_run(
             422, "chessboard", "give the inner corners as COLSxROWS, e.g. 9x6", "form"
         )
     cols, rows = int(match[1]), int(match[2])
+    if (why := implausible_square(square)) is not None:
+        raise FieldProblem(422, "square", why, "form")
     check_references(session, {"camera_id": (Camera, camera_id)})
     if len(files) > settings.max_upload_files:
         raise FieldProblem(
@@ -154,6 +178,7 @@ def upload_calibration_run(
                 f"{name!r} exceeds {settings.max_upload_file_bytes} bytes",
                 "form",
             )
+        check_image_size(data, settings.max_image_pixels, f"files.{position}", name)
         image = decode_image(data, settings.max_image_pixels)
         if image is None:
             raise FieldProblem(
@@ -181,6 +206,7 @@ def upload_calibration_run(
         )
     if size is None:
         raise FieldProblem(422, "files", "upload at least one image", "form")
+    _check_image_size(session, camera_id, size, "files", "form")
 
     run = CalibrationRun(
         kind="intrinsics",
@@ -222,7 +248,8 @@ def get_calibration_run(run_id: RunId, session: SessionDep):
 )
 def apply_calibration_run(run_id: RunId, session: SessionDep, scene: SceneDep):
     """Set the camera's intrinsics from a successful run and record it in the camera's
-    calibration history; return the updated camera. A network run sets intrinsics and pose of
+    calibration history; return the updated camera. Applying the run the camera already has
+    changes nothing and adds no history entry. A network run sets intrinsics and pose of
     every camera it calibrated and returns the list of them."""
     run = get_or_404(session, CalibrationRun, run_id, "calibration run")
     if run.status != RUN_SUCCEEDED or run.result is None:
@@ -244,39 +271,52 @@ def apply_calibration_run(run_id: RunId, session: SessionDep, scene: SceneDep):
             detail=f"run {run_id} calibrated {width}x{height} images but camera {camera.id} is "
             f"{camera.width}x{camera.height}; fix the camera's size or calibrate again",
         )
-    camera.K = run.result["K"]
-    camera.dist = run.result["dist"]
-    camera.status = "calibrated"
-    camera.calibration_run_id = run.id
-    camera.updated_at = utcnow()
-    session.add(
-        CameraCalibration(
-            camera_id=camera.id,
-            calibration_run_id=run.id,
-            K=run.result["K"],
-            dist=run.result["dist"],
-            rms=run.result.get("rms"),
-            image_width=width,
-            image_height=height,
+    values = {"K": run.result["K"], "dist": run.result["dist"]}
+    if _set_calibration(session, camera.id, run.id, values):
+        session.add(
+            CameraCalibration(
+                camera_id=camera.id,
+                calibration_run_id=run.id,
+                K=run.result["K"],
+                dist=run.result["dist"],
+                rms=run.result.get("rms"),
+                image_width=width,
+                image_height=height,
+            )
         )
-    )
-    session.commit()
-    scene.camera_changed(camera)
+        session.commit()
+        session.refresh(camera)
+        scene.camera_changed(camera)
     return camera
 
 
+def _set_calibration(session, camera_id: int, run_id: int, values: dict) -> bool:
+    """Set a camera's calibration from run `run_id` unless it is already that run's; return
+    whether it changed. One conditional UPDATE, so two concurrent applies of one run change
+    the camera (and add to its history) once: applying is idempotent."""
+    result = session.execute(
+        update(Camera)
+        .where(
+            Camera.id == camera_id,
+            or_(Camera.calibration_run_id.is_(None), Camera.calibration_run_id != run_id),
+        )
+        .values(status="calibrated", calibration_run_id=run_id, updated_at=utcnow(), **values)
+        .execution_options(synchronize_session=False)
+    )
+    return result.rowcount == 1
+
+
 def _apply_network(run: CalibrationRun, session, scene) -> list[Camera]:
-    updated = []
+    cameras, changed = [], []
     for result in run.result["cameras"] if run.result else []:
         camera = session.get(Camera, result.get("camera_id") or 0)
         if camera is None:
             continue  # deleted since the run
-        camera.K = result["K"]
-        camera.dist = result["dist"]
-        camera.T_world_camera = result["T_world_camera"]
-        camera.status = "calibrated"
-        camera.calibration_run_id = run.id
-        camera.updated_at = utcnow()
+        cameras.append(camera)
+        values = {k: result[k] for k in ("K", "dist", "T_world_camera")}
+        if not _set_calibration(session, camera.id, run.id, values):
+            continue  # applied already
+        changed.append(camera)
         width, height = result["image_size"]
         session.add(
             CameraCalibration(
@@ -289,12 +329,13 @@ def _apply_network(run: CalibrationRun, session, scene) -> list[Camera]:
                 image_height=height,
             )
         )
-        updated.append(camera)
-    if not updated:
+    if not cameras:
         raise HTTPException(
             status.HTTP_409_CONFLICT, detail=f"the cameras of run {run.id} were all deleted"
         )
     session.commit()
-    for camera in updated:
+    for camera in cameras:
+        session.refresh(camera)
+    for camera in changed:
         scene.camera_changed(camera)
-    return updated
+    return cameras

@@ -32,6 +32,7 @@ from core.calibration.detect import (
 )
 from core.calibration.io import CalibrationRecord, to_opencv_yaml, to_ros_yaml
 from core.errors import IntspaceError, PatternNotFound
+from server.schemas.calibration import implausible_square
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".gif")
 EXIT_USAGE = 2
@@ -124,6 +125,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
+    if (why := implausible_square(args.square)) is not None:
+        raise CommandError(f"--square {args.square:g}: {why}")
     if args.distortion not in DISTORTION_MODELS:
         raise CommandError(
             f"unknown distortion model {args.distortion!r}; use one of "

@@ -58,6 +58,9 @@ def _list(args: argparse.Namespace) -> int:
 def _run(args: argparse.Namespace) -> int:
     if args.scenario not in SCENARIOS:
         return _fail(f"unknown scenario {args.scenario!r}; known: {', '.join(SCENARIOS)}")
+    if args.seed < 0:
+        # numpy's generators take non-negative seeds only.
+        return _fail(f"--seed must be a non-negative integer; got {args.seed}")
     scene = None
     if args.scene is not None:
         try:

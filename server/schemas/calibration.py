@@ -17,6 +17,23 @@ Point3 = Annotated[list[Finite], Field(min_length=3, max_length=3)]
 MAX_VIEWS = 200
 MAX_POINTS_PER_VIEW = 10_000
 
+# A calibration board's square (or circle spacing) above this is a unit slip, not a board.
+MAX_SQUARE_M = 1.0
+
+
+def implausible_square(square_m: float) -> str | None:
+    """Return why a board square of `square_m` metres is implausible, with the value meant
+    (millimetres or centimetres typed as metres), or None when it is plausible."""
+    if square_m <= MAX_SQUARE_M:
+        return None
+    meant = f"{square_m / 1000:g} ({square_m:g} mm)"
+    if square_m < 100:
+        meant += f" or {square_m / 100:g} ({square_m:g} cm)"
+    return (
+        f"a {square_m:g} m square is larger than any calibration board (at most "
+        f"{MAX_SQUARE_M:g} m); the size is in metres: did you mean {meant}?"
+    )
+
 
 class IntrinsicsOptions(Schema):
     skew: bool = Field(False, description="Estimate the skew gamma = K[0][1].")
@@ -58,6 +75,14 @@ class IntrinsicsRunCreate(Schema):
         return self
 
 
+class SkippedPhoto(ReadSchema):
+    """An uploaded photo a run did not use."""
+
+    index: int = Field(description="Position of the image in the upload, from 0.")
+    filename: str
+    reason: str
+
+
 class CalibrationResult(ReadSchema):
     """What a successful intrinsic calibration produced, with its diagnostics."""
 
@@ -71,6 +96,9 @@ class CalibrationResult(ReadSchema):
     image_size: list[int]
     views_used: list[int] | None = Field(
         None, description="Indices of the uploaded images in which the pattern was found."
+    )
+    skipped: list[SkippedPhoto] = Field(
+        default_factory=list, description="Uploaded images the run could not use, and why."
     )
 
 
@@ -173,6 +201,13 @@ class NetworkRunResult(ReadSchema):
     )
 
 
+class RunProgress(ReadSchema):
+    """How far a run's current (or last) attempt has come."""
+
+    stage: str = Field(description="What it is doing, e.g. 'detecting the chessboard'.")
+    fraction: float = Field(ge=0, le=1, description="Share of the run done, 0 to 1.")
+
+
 class CalibrationRunRead(ReadSchema):
     id: int
     kind: str
@@ -184,5 +219,29 @@ class CalibrationRunRead(ReadSchema):
     error: str | None
     created_at: UtcDatetime
     updated_at: UtcDatetime
-    started_at: UtcDatetime | None
+    started_at: UtcDatetime | None = Field(description="When the current attempt began.")
     finished_at: UtcDatetime | None
+    attempts: int = Field(
+        0,
+        description="How many times a worker claimed the run; more than one when a worker "
+        "stopped (or died) during it and the run went back to the queue.",
+    )
+    lease_expires_at: UtcDatetime | None = Field(
+        None,
+        description="While running: when the claim lapses unless its worker renews it "
+        "(it renews it every few seconds while alive).",
+    )
+    progress: RunProgress | None = Field(
+        None, description="Stage and fraction reported by the running (or last) attempt."
+    )
+
+    @model_validator(mode="before")
+    @classmethod
+    def _progress_from_columns(cls, data: Any) -> Any:
+        stage = getattr(data, "progress_stage", None)
+        if stage is None or isinstance(data, dict):
+            return data
+        return {
+            **{name: getattr(data, name) for name in cls.model_fields if name != "progress"},
+            "progress": {"stage": stage, "fraction": data.progress_fraction or 0.0},
+        }

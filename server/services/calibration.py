@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import cv2
@@ -18,6 +18,21 @@ from core.sim.network_drive import drive_marker_calibration
 from core.sim.network_scenarios import INTRINSICS_FROM_BOARD, accuracy_study, camera_errors
 from core.sim.render import renderer_for
 from core.sim.scenario_records import CameraCalibrationError
+
+# Reports how far a run has come: (stage, fraction of the whole run 0-1); may raise to stop it.
+Progress = Callable[[str, float], None]
+
+# The accuracy study of a network run: drive lengths (s) and pixel noise levels (px).
+STUDY_BUDGETS_S = (100.0, 200.0, 300.0)
+STUDY_SIGMAS_PX = (0.25, 0.5, 1.0)
+# Share of a network run's time spent in the drive and joint calibration when the study runs
+# too (measured on the default home: 110 s of 250 s); the study's drives take the rest, each in
+# proportion to its length.
+DRIVE_SHARE = 0.45
+
+
+def _no_progress(stage: str, fraction: float) -> None:
+    del stage, fraction
 
 
 def decode_image(data: bytes, max_pixels: int) -> np.ndarray | None:
@@ -47,8 +62,11 @@ def _result(calibration: CameraCalibration, views_used: list[int] | None) -> dic
     }
 
 
-def calibrate_from_correspondences(inputs: dict[str, Any], options: dict[str, Any]) -> dict:
+def calibrate_from_correspondences(
+    inputs: dict[str, Any], options: dict[str, Any], progress: Progress = _no_progress
+) -> dict:
     """Return the stored result of Zhang's calibration on inline correspondences."""
+    progress("calibrating", 0.0)
     calibration = calibrate_camera(
         [np.asarray(v, dtype=float) for v in inputs["object_points"]],
         [np.asarray(v, dtype=float) for v in inputs["image_points"]],
@@ -60,30 +78,49 @@ def calibrate_from_correspondences(inputs: dict[str, Any], options: dict[str, An
 
 
 def calibrate_from_images(
-    images: Sequence[bytes], inputs: dict[str, Any], options: dict[str, Any]
+    images: Sequence[bytes],
+    inputs: dict[str, Any],
+    options: dict[str, Any],
+    progress: Progress = _no_progress,
+    *,
+    names: Sequence[str] | None = None,
 ) -> dict:
-    """Return the stored result of Zhang's calibration on photos of a chessboard; images where
-    the board is not found are skipped (their indices are missing from views_used)."""
+    """Return the stored result of Zhang's calibration on photos of a chessboard. Photos that
+    cannot be used are skipped and named in `skipped` with the reason (their indices are
+    missing from views_used); raises PatternNotFound, naming them, when none can be used."""
+    names = list(names) if names is not None else [f"image-{i}" for i in range(len(images))]
     cols, rows = inputs["chessboard"]
     model = board_object_points_for(cols, rows, float(inputs["square_m"]))
     object_points, image_points, used = [], [], []
+    skipped: list[dict[str, Any]] = []
     for index, data in enumerate(images):
+        # Detection is most of the run; the calibration itself takes the last tenth.
+        progress("detecting the chessboard", 0.9 * index / len(images))
         image = decode_image(data, max_pixels=2**31)
         if image is None:
+            skipped.append(_skip(index, names, "not an image OpenCV can decode"))
             continue
         try:
             detection = find_chessboard(image, (cols, rows))
-        except (PatternNotFound, cv2.error):
-            # OpenCV's detectors assert on images too small for their windows: not found either.
+        except PatternNotFound:
+            skipped.append(_skip(index, names, f"no {cols}x{rows} chessboard found"))
+            continue
+        except cv2.error:
+            # OpenCV's detectors assert on images too small for their windows.
+            skipped.append(_skip(index, names, "too small for the chessboard detector"))
             continue
         object_points.append(model[detection.ids])
         image_points.append(detection.corners)
         used.append(index)
     if not used:
+        listed = "; ".join(f"{s['filename']}: {s['reason']}" for s in skipped[:10])
+        more = f" (and {len(skipped) - 10} more)" if len(skipped) > 10 else ""
         raise PatternNotFound(
             f"no {cols}x{rows} chessboard (inner corners) found in any of the {len(images)} "
-            "images; check the pattern size (inner corners, not squares) and the photos"
+            f"images ({listed}{more}); check the pattern size (inner corners, not squares) "
+            "and the photos"
         )
+    progress("calibrating", 0.9)
     calibration = calibrate_camera(
         object_points,
         image_points,
@@ -91,10 +128,16 @@ def calibrate_from_images(
         skew=bool(options.get("skew", False)),
         distortion=str(options.get("distortion", "k1k2p1p2")),
     )
-    return _result(calibration, used)
+    return {**_result(calibration, used), "skipped": skipped}
 
 
-def calibrate_network(inputs: dict[str, Any], options: dict[str, Any]) -> dict:
+def _skip(index: int, names: Sequence[str], reason: str) -> dict[str, Any]:
+    return {"index": index, "filename": names[index], "reason": reason}
+
+
+def calibrate_network(
+    inputs: dict[str, Any], options: dict[str, Any], progress: Progress = _no_progress
+) -> dict:
     """Return the stored result of calibrating the twin's cameras by driving the robot's
     marker (`network_calibration_drive`), each camera named by its registry id too."""
     from core.sim import default_scene
@@ -104,6 +147,7 @@ def calibrate_network(inputs: dict[str, Any], options: dict[str, Any]) -> dict:
         int(options.get("seed", 0)),
         stops=int(options.get("stops", 32)),
         study=bool(options.get("study", True)),
+        progress=progress,
     )
     ids = inputs.get("cameras", {})
     for camera in result["cameras"]:
@@ -176,7 +220,12 @@ def _camera_bound(e: CameraCalibrationError) -> dict[str, Any]:
 
 
 def network_calibration_drive(
-    scene: Scene, seed: int, *, stops: int = 32, study: bool = True
+    scene: Scene,
+    seed: int,
+    *,
+    stops: int = 32,
+    study: bool = True,
+    progress: Progress = _no_progress,
 ) -> dict[str, Any]:
     """Return the result of calibrating the scene's cameras by the robot's marker
     (core.sim.network_drive: each camera's own chessboard calibration, the robot driving
@@ -184,11 +233,13 @@ def network_calibration_drive(
     odometry as prior), with each calibrated camera's K, dist, T_world_camera, standard
     deviations, per-pose residuals, its errors against the twin and their Cramer-Rao bound;
     with `study`, the errors and bounds as functions of drive length and pixel noise for this
-    seed (core.sim.network_scenarios.accuracy_study)."""
+    seed (core.sim.network_scenarios.accuracy_study over STUDY_BUDGETS_S x STUDY_SIGMAS_PX,
+    one drive and noise level at a time so that `progress` hears of each)."""
     if scene.robot is None or scene.robot.marker is None:
         raise InvalidInput("the twin's robot carries no marker to calibrate the network with")
     # Shared with the running twin: the static layer of each camera is built once.
     renderer = renderer_for(scene)
+    progress("driving the robot and calibrating", 0.0)
     md = drive_marker_calibration(scene, seed, stops=stops, noise=SensorNoise(), renderer=renderer)
     net = md.calibration
     scored = {e.name: e for e in camera_errors(net, md.true_cameras, md.bound)}
@@ -217,7 +268,21 @@ def network_calibration_drive(
         )
     accuracy = []
     if study:
-        rows = accuracy_study(scene, (seed,), session=md.intrinsics, renderer=renderer)
+        # Each (drive length, noise) row of the study draws from its own generator, seeded by
+        # (seed, length): one call per row gives the rows of one call over all of them.
+        cases = [(b, s) for b in STUDY_BUDGETS_S for s in STUDY_SIGMAS_PX]
+        done_at = np.cumsum([0.0] + [b for b, _ in cases]) / sum(b for b, _ in cases)
+        rows = []
+        for k, (budget, sigma) in enumerate(cases):
+            progress("accuracy study", DRIVE_SHARE + (1 - DRIVE_SHARE) * float(done_at[k]))
+            rows += accuracy_study(
+                scene,
+                (seed,),
+                budgets=(budget,),
+                sigmas=(sigma,),
+                session=md.intrinsics,
+                renderer=renderer,
+            )
         for row in rows:
             accuracy.append(
                 {

@@ -75,3 +75,43 @@ def test_sqlite_is_backed_up_before_a_pending_migration(tmp_path):
         assert (mode, keys) == ("wal", 1)
     finally:
         engine.dispose()
+
+
+def test_runs_left_running_before_leases_are_requeued(empty_database_url):
+    from sqlalchemy import text
+
+    from server.db.session import make_session_factory
+    from server.services.runs import LeasePolicy, release_expired_runs
+
+    config = alembic_config(empty_database_url)
+    engine = make_engine(empty_database_url, pool_size=1)
+    try:
+        command.upgrade(config, "0003")
+        with engine.begin() as connection:
+            for status, started in (("running", True), ("succeeded", True), ("queued", False)):
+                connection.execute(
+                    text(
+                        "INSERT INTO calibration_runs (kind, source, status, inputs, options, "
+                        "started_at) VALUES ('intrinsics', 'correspondences', :status, '{}', "
+                        "'{}', :started)"
+                    ),
+                    {"status": status, "started": "2026-01-01 00:00:00" if started else None},
+                )
+        command.upgrade(config, "0004")
+        engine.dispose()
+        with engine.connect() as connection:
+            rows = connection.execute(
+                text("SELECT status, attempts, lease_expires_at FROM calibration_runs ORDER BY id")
+            ).all()
+        assert [tuple(r) for r in rows] == [
+            ("running", 1, None),
+            ("succeeded", 1, None),
+            ("queued", 0, None),
+        ]
+        # Without a lease, the run left running counts as expired: back to the queue.
+        command.upgrade(config, "head")
+        with make_session_factory(engine)() as session:
+            released = release_expired_runs(session, LeasePolicy())
+        assert (released.requeued, released.given_up) == (1, 0)
+    finally:
+        engine.dispose()

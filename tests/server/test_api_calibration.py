@@ -1,5 +1,6 @@
-"""Calibration runs through the API: Zhang's published data, chessboard photos, apply, history,
-export, malformed uploads, and runs interrupted by a restart."""
+"""Calibration runs through the API: Zhang's published data, chessboard photos, apply (once),
+history, export, malformed uploads, runs checked against their camera, progress, and what a
+restart or a shutdown does to queued and running runs."""
 
 from __future__ import annotations
 
@@ -70,15 +71,20 @@ def test_zhang_data_calibrates_apply_history_export(
     assert listed["total"] == 1 and listed["items"][0]["id"] == run["id"]
     assert client.get("/api/v1/calibration-runs?camera_id=999", headers=admin).json()["total"] == 0
 
-    # Applying sets the camera's intrinsics and appends to its history, twice over.
-    for _ in range(2):
-        applied = client.post(f"/api/v1/calibration-runs/{run['id']}/apply", headers=admin)
-        assert applied.status_code == 200, applied.text
-    camera = applied.json()
+    assert run["attempts"] == 1 and run["progress"] == {"stage": "done", "fraction": 1.0}
+
+    # Applying sets the camera's intrinsics and appends to its history, once: applying the
+    # same run again answers the same camera and adds nothing.
+    applied = [
+        client.post(f"/api/v1/calibration-runs/{run['id']}/apply", headers=admin) for _ in range(2)
+    ]
+    assert [a.status_code for a in applied] == [200, 200], applied[1].text
+    assert applied[0].json() == applied[1].json()
+    camera = applied[1].json()
     assert camera["status"] == "calibrated" and camera["calibration_run_id"] == run["id"]
     assert np.allclose(camera["K"], K)
     history = client.get(f"/api/v1/cameras/{camera_id}/calibrations", headers=admin).json()
-    assert history["total"] == 2 and history["items"][0]["calibration_run_id"] == run["id"]
+    assert history["total"] == 1 and history["items"][0]["calibration_run_id"] == run["id"]
 
     # The OpenCV export reads back through cv2.FileStorage with the same numbers.
     exported = client.get(f"/api/v1/cameras/{camera_id}/calibration.yaml", headers=admin)
@@ -151,7 +157,7 @@ def _board_image() -> np.ndarray:
     return board.astype(np.uint8)
 
 
-def _photo(rvec: list[float], tvec: list[float], seed: int) -> bytes:
+def chessboard_photo(rvec: list[float], tvec: list[float], seed: int) -> bytes:
     board = _board_image()
     R, _ = cv2.Rodrigues(np.array(rvec, dtype=float))
     # Board pixel (u, v) -> board metres, with the first inner corner at the origin.
@@ -183,9 +189,12 @@ POSES = [
 def test_upload_of_chessboard_photos_calibrates(client, admin, run_waiter):
     camera_id = _camera(client, admin)
     files = [
-        ("files", (f"view{i}.png", _photo(r, t, seed=i), "image/png"))
+        ("files", (f"view{i}.png", chessboard_photo(r, t, seed=i), "image/png"))
         for i, (r, t) in enumerate(POSES)
     ]
+    # A photo without the board (the board turned away: nothing but white) is skipped, named.
+    _, blank = cv2.imencode(".png", np.full((480, 640), 255, np.uint8))
+    files.insert(2, ("files", ("wall.png", blank.tobytes(), "image/png")))
     response = client.post(
         "/api/v1/calibration-runs/upload",
         data={
@@ -209,8 +218,46 @@ def test_upload_of_chessboard_photos_calibrates(client, admin, run_waiter):
     assert K[1, 1] == pytest.approx(700.0, rel=0.01)
     assert K[0, 2] == pytest.approx(320.0, abs=3.0)
     assert K[1, 2] == pytest.approx(240.0, abs=3.0)
-    assert run["result"]["views_used"] == [0, 1, 2, 3]
+    assert run["result"]["views_used"] == [0, 1, 3, 4]
+    assert run["result"]["skipped"] == [
+        {"index": 2, "filename": "wall.png", "reason": "no 9x6 chessboard found"}
+    ]
     assert run["result"]["rms"] < 0.5
+
+
+def test_runs_are_checked_against_their_camera_at_submit(client, admin, shared_data_dir):
+    camera_id = _camera(client, admin, width=1280, height=720)
+    object_points, image_points = _zhang_views(shared_data_dir / "zhang1998")
+    body = {
+        "kind": "intrinsics",
+        "camera_id": camera_id,
+        "image_size": [640, 480],
+        "object_points": object_points,
+        "image_points": image_points,
+    }
+    refused = client.post("/api/v1/calibration-runs", json=body, headers=admin)
+    assert refused.status_code == 409, refused.text
+    error = refused.json()["errors"][0]
+    assert error["field"] == "image_size" and "640x480" in error["reason"]
+    assert "1280x720" in error["reason"]
+
+    photo = chessboard_photo(*POSES[0], seed=0)  # 640 x 480
+    upload = _upload(client, admin, camera_id, [("files", ("a.png", photo, "image/png"))])
+    assert upload.status_code == 409, upload.text
+    assert upload.json()["errors"][0]["field"] == "files"
+    # Nothing was queued by either.
+    assert client.get("/api/v1/calibration-runs", headers=admin).json()["total"] == 0
+
+
+def test_square_given_in_millimetres_is_refused_with_the_hint(client, admin):
+    camera_id = _camera(client, admin)
+    photo = chessboard_photo(*POSES[0], seed=0)
+    refused = _upload(
+        client, admin, camera_id, [("files", ("a.png", photo, "image/png"))], square="25"
+    )
+    assert refused.status_code == 422, refused.text
+    error = refused.json()["errors"][0]
+    assert error["field"] == "square" and "metres: did you mean 0.025" in error["reason"]
 
 
 def _upload(client, admin, camera_id, files, **form):
@@ -272,39 +319,137 @@ def test_malformed_uploads_are_4xx(make_settings, admin, run_waiter):
         no_token = client.post("/api/v1/calibration-runs/upload", data={"camera_id": "1"})
         assert no_token.status_code == 401
 
-        # A board that is not in the photo: the run fails with the core's reason.
-        blank = _upload(client, admin, camera_id, [("files", ("a.png", small, "image/png"))])
-        assert blank.status_code == 202
+        # A board that is not in the photo (of a camera of its size): the run fails with the
+        # core's reason, naming the photo.
+        tiny_camera = _camera(client, admin, width=8, height=8)
+        blank = _upload(client, admin, tiny_camera, [("files", ("a.png", small, "image/png"))])
+        assert blank.status_code == 202, blank.text
         run = run_waiter(client, blank.json()["id"])
         assert run["status"] == "failed" and run["error"].startswith("PatternNotFound")
+        assert "a.png: " in run["error"]
 
 
-def test_runs_left_unfinished_are_interrupted_at_restart(make_settings, admin, run_waiter):
+def _set_run(settings, run_id: int, **values) -> None:
+    """Write columns of a run directly, as a worker of another process would have."""
+    from sqlalchemy import update
+
+    from server.db.models import CalibrationRun
+    from server.db.session import make_engine, make_session_factory
+
+    engine = make_engine(settings.resolved_database_url, pool_size=1)
+    try:
+        with make_session_factory(engine)() as session:
+            session.execute(
+                update(CalibrationRun).where(CalibrationRun.id == run_id).values(**values)
+            )
+            session.commit()
+    finally:
+        engine.dispose()
+
+
+def test_applying_a_network_run_twice_changes_each_camera_once(make_settings, admin):
+    from server.db.models import CalibrationRun
+    from server.db.session import make_engine, make_session_factory
+
+    settings = make_settings(run_executor="external")
+    with TestClient(create_app(settings)) as client:
+        ids = [_camera(client, admin) for _ in range(2)]
+        pose = np.eye(4)
+        pose[:3, 3] = [1.0, 2.0, 2.5]
+        # What a network run stores for each camera it calibrated (the fields apply reads).
+        cameras = [
+            {
+                "name": f"cam{i}",
+                "camera_id": camera_id,
+                "K": K_TRUE.tolist(),
+                "dist": [0.01, 0.0, 0.0, 0.0, 0.0],
+                "T_world_camera": pose.tolist(),
+                "rms": 0.2,
+                "image_size": [640, 480],
+            }
+            for i, camera_id in enumerate(ids)
+        ]
+        engine = make_engine(settings.resolved_database_url, pool_size=1)
+        with make_session_factory(engine)() as session:
+            run = CalibrationRun(
+                kind="network",
+                source="twin",
+                status="succeeded",
+                inputs={},
+                options={},
+                result={"kind": "network", "cameras": cameras},
+            )
+            session.add(run)
+            session.commit()
+            run_id = run.id
+        engine.dispose()
+        applied = [
+            client.post(f"/api/v1/calibration-runs/{run_id}/apply", headers=admin) for _ in range(2)
+        ]
+        assert [a.status_code for a in applied] == [200, 200], applied[1].text
+        assert applied[0].json() == applied[1].json()
+        assert [c["id"] for c in applied[1].json()] == ids
+        for camera_id in ids:
+            history = client.get(f"/api/v1/cameras/{camera_id}/calibrations", headers=admin)
+            assert history.json()["total"] == 1
+            camera = client.get(f"/api/v1/cameras/{camera_id}", headers=admin).json()
+            assert camera["calibration_run_id"] == run_id
+            assert np.allclose(camera["T_world_camera"], pose)
+
+
+def test_restart_keeps_queued_runs_and_requeues_only_expired_claims(
+    make_settings, admin, run_waiter, shared_data_dir
+):
+    from datetime import timedelta
+
+    from server.db.base import utcnow
+    from server.services.runs import LeasePolicy
+
+    object_points, image_points = _zhang_views(shared_data_dir / "zhang1998")
     body = {
         "kind": "intrinsics",
         "image_size": [640, 480],
-        "object_points": [[[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]]] * 3,
-        "image_points": [[[0, 0], [10, 0], [10, 10], [0, 10]]] * 3,
+        "object_points": object_points[:3],
+        "image_points": image_points[:3],
     }
-    # With external workers the API only queues: the run is still queued when it stops.
-    with TestClient(create_app(make_settings(run_executor="external"))) as client:
+    # With external workers the API only queues: four runs, three of which a worker of another
+    # process had claimed: one whose worker died (lease expired), one that died as often as
+    # it may, and one whose worker is alive (lease still running).
+    settings = make_settings(run_executor="external")
+    with TestClient(create_app(settings)) as client:
         camera_id = _camera(client, admin)
-        run_id = client.post(
-            "/api/v1/calibration-runs", json={**body, "camera_id": camera_id}, headers=admin
-        ).json()["id"]
-        assert (
-            client.get(f"/api/v1/calibration-runs/{run_id}", headers=admin).json()["status"]
-            == "queued"
-        )
+        ids = [
+            client.post(
+                "/api/v1/calibration-runs", json={**body, "camera_id": camera_id}, headers=admin
+            ).json()["id"]
+            for _ in range(4)
+        ]
+    queued, expired, exhausted, alive = ids
+    past, future = utcnow() - timedelta(seconds=5), utcnow() + timedelta(hours=1)
+    claimed = {"status": "running", "started_at": past, "lease_owner": "elsewhere:1:0"}
+    _set_run(settings, expired, **claimed, attempts=1, lease_expires_at=past)
+    attempts = LeasePolicy().max_attempts
+    _set_run(settings, exhausted, **claimed, attempts=attempts, lease_expires_at=past)
+    _set_run(settings, alive, **claimed, attempts=1, lease_expires_at=future)
+
     with TestClient(create_app(make_settings())) as client:
-        run = client.get(f"/api/v1/calibration-runs/{run_id}", headers=admin).json()
-        assert run["status"] == "interrupted" and "restarted" in run["error"]
-        assert run["finished_at"] is not None
+        # The queued run stayed queued and is executed; the expired claim went back to the
+        # queue and is executed on its second attempt.
+        run = run_waiter(client, queued)
+        assert run["status"] == "succeeded" and run["attempts"] == 1, run["error"]
+        run = run_waiter(client, expired)
+        assert run["status"] == "succeeded" and run["attempts"] == 2, run["error"]
+        run = client.get(f"/api/v1/calibration-runs/{exhausted}", headers=admin).json()
+        assert run["status"] == "failed" and run["result"] is None
+        assert "worker stopped" in run["error"] and f"{attempts} time(s)" in run["error"]
+        # A live claim of another worker is left alone.
+        run = client.get(f"/api/v1/calibration-runs/{alive}", headers=admin).json()
+        assert run["status"] == "running" and run["attempts"] == 1
 
 
 def test_worker_claims_queued_runs(make_settings, admin, shared_data_dir):
     from server.db.session import make_engine, make_session_factory
-    from server.services.runs import claim_next_run, execute_claimed_run
+    from server.services.runs import LeasePolicy, claim_next_run, execute_claimed_run
 
     settings = make_settings(run_executor="external")
     object_points, image_points = _zhang_views(shared_data_dir / "zhang1998")
@@ -321,27 +466,29 @@ def test_worker_claims_queued_runs(make_settings, admin, shared_data_dir):
 
         engine = make_engine(settings.resolved_database_url, pool_size=1)
         factory = make_session_factory(engine)
+        policy = LeasePolicy()
         with factory() as session:
-            assert claim_next_run(session) == run_id
+            assert claim_next_run(session, "w1", policy) == run_id
         with factory() as session:
-            assert claim_next_run(session) is None  # nothing else is queued
-        assert execute_claimed_run(factory, run_id) == "succeeded"
+            assert claim_next_run(session, "w2", policy) is None  # nothing else is queued
+        assert execute_claimed_run(factory, run_id, "w2") is None  # not its claim: no write
+        assert execute_claimed_run(factory, run_id, "w1") == "succeeded"
         engine.dispose()
         run = client.get(f"/api/v1/calibration-runs/{run_id}", headers=admin).json()
         assert run["status"] == "succeeded" and run["started_at"] and run["finished_at"]
 
 
-def test_shutdown_interrupts_the_run_in_progress(make_settings, admin, monkeypatch):
-    import threading
+def test_progress_is_reported_and_shutdown_hands_the_run_back(make_settings, admin, monkeypatch):
     import time
 
     from server.services import calibration
 
-    release = threading.Event()
-
-    def slow_calibration(inputs, options):
-        release.wait(10)
-        return {"K": [[1, 0, 0], [0, 1, 0], [0, 0, 1]]}
+    def slow_calibration(inputs, options, progress):
+        # A long run reporting its progress; each report is a point where it can be stopped.
+        for k in range(400):
+            progress("slow stage", k / 400)
+            time.sleep(0.025)
+        raise AssertionError("the run should have been stopped at shutdown")
 
     monkeypatch.setattr(calibration, "calibrate_from_correspondences", slow_calibration)
     body = {
@@ -356,20 +503,21 @@ def test_shutdown_interrupts_the_run_in_progress(make_settings, admin, monkeypat
             "/api/v1/calibration-runs", json={**body, "camera_id": camera_id}, headers=admin
         ).json()["id"]
         deadline = time.monotonic() + 10
-        while (
-            client.get(f"/api/v1/calibration-runs/{run_id}", headers=admin).json()["status"]
-            != "running"
-        ):
-            assert time.monotonic() < deadline
-            time.sleep(0.02)
-    # The lifespan ended with the run still computing: it is recorded as interrupted, and the
-    # computation finishing afterwards does not overwrite that.
-    release.set()
-    time.sleep(0.2)
+        while True:
+            run = client.get(f"/api/v1/calibration-runs/{run_id}", headers=admin).json()
+            if run["status"] == "running" and (run["progress"] or {}).get("fraction", 0) > 0.05:
+                break
+            assert time.monotonic() < deadline, run
+            time.sleep(0.05)
+        assert run["progress"]["stage"] == "slow stage" and run["progress"]["fraction"] < 1
+        assert run["lease_expires_at"] is not None
+    # The service stopped with the run computing: the run is back in the queue (its attempt
+    # counted) and the attempt, stopped at its next progress report, wrote nothing.
+    time.sleep(0.3)
     with TestClient(create_app(make_settings(run_executor="external"))) as client:
         run = client.get(f"/api/v1/calibration-runs/{run_id}", headers=admin).json()
-    assert run["status"] == "interrupted" and "shutdown" in run["error"]
-    assert run["result"] is None
+    assert run["status"] == "queued" and run["attempts"] == 1
+    assert run["result"] is None and run["error"] is None and run["progress"] is None
 
 
 def test_network_drive_result_is_stored_and_read_with_its_diagnostics():

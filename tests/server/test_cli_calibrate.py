@@ -197,6 +197,19 @@ def test_bad_arguments(
     assert message in capsys.readouterr().err
 
 
+def test_square_in_millimetres_is_refused_with_the_metres_hint(
+    photo_dir: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # 25 typed for 25 mm: a 25 m square is no calibration board; nothing is calibrated.
+    assert main(["calibrate", str(photo_dir), "--chessboard", "9x6", "--square", "25"]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == ""
+    lines = captured.err.strip().splitlines()
+    assert len(lines) == 1 and "metres: did you mean 0.025" in lines[0]
+    # The largest plausible square (1 m) is accepted as it was.
+    assert main(["calibrate", str(photo_dir), "--chessboard", "9x6", "--square", "1"]) == 0
+
+
 def test_unwritable_output(
     photo_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

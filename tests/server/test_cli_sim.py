@@ -42,6 +42,15 @@ def test_bad_scene_file_exits_2_without_traceback(tmp_path: Path, text: str) -> 
     assert len(p.stderr.strip().splitlines()) == 1 and "error" in p.stderr
 
 
+def test_negative_seed_is_one_line_exit_2(capsys: pytest.CaptureFixture[str]) -> None:
+    # Refused before any scenario runs (numpy's generators take non-negative seeds only).
+    assert main(["sim", "run", "localization", "--seed", "-1"]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == ""
+    lines = captured.err.strip().splitlines()
+    assert lines == ["intspace sim: error: --seed must be a non-negative integer; got -1"]
+
+
 def test_missing_scene_file_and_unknown_scenario(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

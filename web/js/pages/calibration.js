@@ -829,15 +829,31 @@ export async function renderRun(main, [id], _query, setTitle) {
           "run-error",
         ),
       );
-    else
-      mount(
-        body,
-        h(
-          "p",
-          { class: "muted", role: "status", testid: "run-waiting" },
-          `The run is ${run.status}; this page updates by itself.`,
-        ),
-      );
+    else mount(body, progressView(run));
+  };
+
+  // A queued or running run: its stage and a bar of the fraction done, as its worker reports.
+  const progressView = (run) => {
+    const p = run.progress;
+    const pct = p ? Math.round(100 * p.fraction) : 0;
+    const retry = run.attempts > 1 ? ` (attempt ${run.attempts}: an earlier worker stopped)` : "";
+    return h(
+      "div",
+      { role: "status", testid: "run-waiting" },
+      h("p", { class: "muted" }, `The run is ${run.status}${retry}; this page updates by itself.`),
+      run.status === "running" && p
+        ? h(
+            "label",
+            { testid: "run-progress" },
+            `${p.stage}: ${pct} %`,
+            h("progress", {
+              max: 100,
+              value: pct,
+              style: { display: "block", width: "100%", height: "0.75rem", marginTop: "0.25rem" },
+            }),
+          )
+        : null,
+    );
   };
 
   let cameraName = null;
