@@ -3,6 +3,9 @@ detections to the service (spec 08).
 
     intspace node --source SRC --camera NAME [--space ID] [--api URL] [--fps N]
     intspace node --config cameras.yaml [--api URL]
+    intspace node ... --record DIR          (keep frames, detections, capture times)
+    intspace node --source DIR --camera NAME [--fast]   (replay a recording)
+    intspace node calibrate --camera NAME --board 9x6 --square 0.025 [--apply]
 
 SRC: a USB index, a video file, an RTSP or HTTP(S) MJPEG URL (the service's own
 /api/v1/cameras/{id}/stream.mjpg included). The token comes from INTSPACE_TOKEN only (never a
@@ -49,7 +52,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--marker-colour", metavar="R,G,B", help="the robot marker's colour")
     p.add_argument("--marker-height", type=float, metavar="M", help="its height (m)")
+    p.add_argument(
+        "--record",
+        type=Path,
+        metavar="DIR",
+        help="keep the frames, detections and capture times in DIR (a new folder), to replay "
+        "later with --source DIR",
+    )
     p.set_defaults(func=run_node)
+    from server.node import calibrate
+
+    calibrate.register(p.add_subparsers(dest="node_command", metavar="{calibrate}"))
 
 
 def _fail(message: str) -> int:
@@ -126,7 +139,11 @@ def run_node(args: argparse.Namespace) -> int:
     node = Node(config, api, token)
     try:
         node.prepare()
-    except NodeError as exc:
+        if args.record is not None:
+            from server.node.record import Recorder
+
+            node.recorder = Recorder.create(args.record, node)
+    except (NodeError, InvalidInput) as exc:
         node.client.close()
         return _fail(str(exc))
 

@@ -38,6 +38,10 @@ def make_source(camera: CameraConfig, api: str, token: str) -> Source:
     """Return the source of `camera`: httpx MJPEG for the service's own streams (with the
     token: it is sent to the service's own address only) or when asked, OpenCV otherwise."""
     src = camera.source
+    from server.node.record import RecordingSource, is_recording
+
+    if is_recording(src):  # a folder written by `intspace node --record`
+        return RecordingSource(camera.name, str(src), realtime=camera.realtime)
     is_http = isinstance(src, str) and src.lower().startswith(("http://", "https://"))
     if is_http and camera.reader != "opencv":
         assert isinstance(src, str)
@@ -96,6 +100,8 @@ class Node:
         self.cameras: list[CameraRun] = []
         self.stop_event = threading.Event()
         self._threads: list[threading.Thread] = []
+        # A server.node.record.Recorder (--record DIR): keeps each processed frame.
+        self.recorder: Any = None
 
     def prepare(self) -> None:
         """Fetch each camera's registry row and calibration. Raises NodeError for an unknown
@@ -163,6 +169,8 @@ class Node:
                     "%d detection(s) dropped while the service was unreachable",
                     self.uploader.dropped,
                 )
+            if self.recorder is not None:
+                self.recorder.close()
             self.client.close()
         return 0
 
@@ -203,7 +211,10 @@ class Node:
                 camera=run.network,
             )
             obs = [observation(run.camera_id, t, d) for d in found]
-            self.uploader.push([o for o in obs if o is not None])
+            kept = [o for o in obs if o is not None]
+            self.uploader.push(kept)
+            if self.recorder is not None:
+                self.recorder.write(run.config.name, frame, t, kept)
             run.detected += 1
             if period:
                 next_time = max(next_time + period, time.monotonic())
