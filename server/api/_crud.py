@@ -11,6 +11,7 @@ from sqlalchemy.orm import Session
 from server.api.deps import Pagination
 from server.api.errors import FieldProblem
 from server.db.base import Base
+from server.schemas.registry import camera_model_problem
 
 M = TypeVar("M", bound=Base)
 
@@ -43,3 +44,14 @@ def apply_changes(row: Base, changes: dict[str, Any]) -> None:
     """Set the given attributes on `row`."""
     for key, value in changes.items():
         setattr(row, key, value)
+
+
+def check_camera_model(row: Any, changes: dict[str, Any]) -> None:
+    """Raise 422 naming the field when a camera's or projector's model (K, dist, image size) as
+    it will be after `changes` (to `row`, or to nothing when it is created) is implausible or
+    one core cannot use."""
+    keys = ("K", "dist", "width", "height")
+    merged = {key: changes[key] if key in changes else getattr(row, key, None) for key in keys}
+    problem = camera_model_problem(merged["K"], merged["dist"], merged["width"], merged["height"])
+    if problem is not None:
+        raise FieldProblem(422, problem[0], problem[1])

@@ -12,7 +12,13 @@ from fastapi import APIRouter, HTTPException, Path, Query, Request, status
 from fastapi.responses import PlainTextResponse
 from sqlalchemy import select
 
-from server.api._crud import apply_changes, check_references, get_or_404, paginate
+from server.api._crud import (
+    apply_changes,
+    check_camera_model,
+    check_references,
+    get_or_404,
+    paginate,
+)
 from server.api.deps import PageDep, ReadAccess, SceneDep, SessionDep, WriteAccess
 from server.api.errors import PROBLEM_RESPONSES
 from server.db.models import Camera, CameraCalibration, Space
@@ -163,7 +169,9 @@ def create_camera(body: CameraCreate, session: SessionDep, scene: SceneDep):
     """Create a camera; intrinsics and pose are optional (the pose as T_world_camera or as
     position + quaternion_xyzw)."""
     check_references(session, {"space_id": (Space, body.space_id)})
-    camera = Camera(**body.changes())
+    changes = body.changes()
+    check_camera_model(None, changes)
+    camera = Camera(**changes)
     session.add(camera)
     session.commit()
     scene.camera_changed(camera)
@@ -193,6 +201,7 @@ def update_camera(camera_id: CameraId, body: CameraUpdate, session: SessionDep, 
     camera = get_or_404(session, Camera, camera_id, "camera")
     changes = body.changes()
     check_references(session, {"space_id": (Space, changes.get("space_id"))})
+    check_camera_model(camera, changes)
     apply_changes(camera, changes)
     session.commit()
     scene.camera_changed(camera)

@@ -16,17 +16,22 @@ from fastapi.responses import JSONResponse, Response
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
+from core.errors import IntspaceError
 from core.localization import coverage_map
+from core.localization.cameras import NetworkCamera
 from core.sim import Scene, default_scene
 from core.sim.occluders import scene_occluders
 from server.api.deps import ReadAccess, SessionDep
 from server.api.errors import PROBLEM_RESPONSES
 from server.db.models import Camera, Room, Space
 from server.schemas.common import MAX_ID
-from server.services.twin import registry_cameras
 
-# The PNG's map part is at most this many pixels (about 75 MB of BGR while it is drawn).
-_MAX_PNG_PIXELS = 25_000_000
+# Caps that keep one map's memory well under 150 MB (measured on `intspace serve`: the
+# projections and Jacobians cost ~0.5 kB per camera and cell, the JSON lists ~0.2 kB per cell,
+# the PNG ~10 bytes per pixel while it is drawn and encoded).
+MAX_CELLS = 100_000
+MAX_CAMERA_CELLS = 400_000
+MAX_PNG_PIXELS = 6_000_000
 
 router = APIRouter(prefix="/maps", tags=["maps"], responses=PROBLEM_RESPONSES)
 
@@ -58,6 +63,41 @@ def _floor_plan(request: Request, session: Session, space_id: int) -> Scene | No
         for (name, polygon), r in zip(rows, want, strict=False)
     )
     return scene if same else None
+
+
+def usable_cameras(
+    session: Session, space_id: int, bounds: tuple[tuple[float, float], tuple[float, float]]
+) -> tuple[dict[int, NetworkCamera], dict[int, str]]:
+    """Return the cameras of the space the coverage map can use, and the reason each other one
+    cannot be used: one bad device is reported, never the end of the whole read. Each camera
+    is tried alone on a 2 x 2 map of `bounds` ((x0, x1), (y0, y1)) first, so that a model whose
+    numbers overflow (fx = 1e-300) fails there, alone."""
+    usable: dict[int, NetworkCamera] = {}
+    refused: dict[int, str] = {}
+    rows = session.scalars(select(Camera).where(Camera.space_id == space_id).order_by(Camera.id))
+    (x0, x1), (y0, y1) = bounds
+    for camera in rows:
+        if camera.K is None:
+            refused[camera.id] = "no intrinsics K"
+            continue
+        if camera.T_world_camera is None:
+            refused[camera.id] = "no pose T_world_camera"
+            continue
+        try:
+            network = NetworkCamera.from_pose(
+                camera.K,
+                camera.dist,
+                camera.T_world_camera,
+                (camera.width, camera.height),
+                camera.name,
+            )
+            with np.errstate(over="raise", invalid="raise", divide="raise"):
+                coverage_map([network], (x0, x1), (y0, y1), spacing=max(x1 - x0, y1 - y0) / 2)
+        except (IntspaceError, ArithmeticError, ValueError, TypeError) as exc:
+            refused[camera.id] = f"unusable camera model: {type(exc).__name__}: {exc}"
+            continue
+        usable[camera.id] = network
+    return usable, refused
 
 
 @router.get(
@@ -101,25 +141,31 @@ def get_coverage(
         raise HTTPException(
             status.HTTP_409_CONFLICT, detail=f"space {space_id} has no rooms to bound the floor"
         )
-    ids = list(session.scalars(select(Camera.id).where(Camera.space_id == space_id)))
-    cameras, _ = registry_cameras(session, ids)
+    lo, hi = np.min(points, axis=0), np.max(points, axis=0)
+    bounds = ((float(lo[0]), float(hi[0])), (float(lo[1]), float(hi[1])))
+    cameras, refused = usable_cameras(session, space_id, bounds)
     if not cameras:
         raise HTTPException(
             status.HTTP_409_CONFLICT,
-            detail=f"space {space_id} has no camera with intrinsics and a pose",
+            detail=f"space {space_id} has no usable camera (intrinsics and a pose)"
+            + "".join(f"; camera {cid}: {why}" for cid, why in refused.items()),
         )
-    lo, hi = np.min(points, axis=0), np.max(points, axis=0)
-    cells = ((hi[0] - lo[0]) / spacing) * ((hi[1] - lo[1]) / spacing)
-    if cells > 1_000_000:
+    nx = max(1, round((hi[0] - lo[0]) / spacing))
+    ny = max(1, round((hi[1] - lo[1]) / spacing))
+    cells = nx * ny
+    if cells > MAX_CELLS or cells * len(cameras) > MAX_CAMERA_CELLS:
         raise HTTPException(
             status.HTTP_422_UNPROCESSABLE_ENTITY,
-            detail=f"spacing {spacing} m gives {cells:.0f} cells; use a larger spacing",
+            detail=f"spacing {spacing} m gives {nx} x {ny} = {cells} cells for {len(cameras)} "
+            f"camera(s), over the limit of {MAX_CELLS} cells and {MAX_CAMERA_CELLS} "
+            "camera-cells; use a larger spacing",
         )
-    if format == "png" and cells * scale**2 > _MAX_PNG_PIXELS:
+    if format == "png" and cells * scale**2 > MAX_PNG_PIXELS:
         raise HTTPException(
             status.HTTP_422_UNPROCESSABLE_ENTITY,
-            detail=f"a {cells:.0f}-cell map at scale {scale} is too large a PNG; "
-            "use a larger spacing or a smaller scale",
+            detail=f"a {nx} x {ny}-cell map at scale {scale} is a {nx * scale} x {ny * scale} "
+            f"= {cells * scale**2} pixel PNG, over the limit of {MAX_PNG_PIXELS} pixels; use "
+            "a larger spacing or a smaller scale",
         )
     plan = _floor_plan(request, session, space_id)
     cov = coverage_map(
@@ -139,5 +185,6 @@ def get_coverage(
     body["occlusion"] = None if plan is None else f"twin scene {plan.name!r}"
     body["space_id"] = space_id
     body["camera_ids"] = list(cameras)
+    body["cameras_refused"] = {str(cid): why for cid, why in refused.items()}
     body["fraction_covered"] = {"1": cov.fraction_covered(1), "2": cov.fraction_covered(2)}
     return JSONResponse(body)

@@ -13,7 +13,7 @@ from __future__ import annotations
 from typing import Annotated
 
 import numpy as np
-from fastapi import APIRouter, Depends, Request
+from fastapi import APIRouter, Depends, HTTPException, Request, status
 from fastapi.responses import JSONResponse
 from sqlalchemy import select
 
@@ -22,10 +22,18 @@ from server.api.deps import SessionDep, WriteAccess
 from server.api.errors import PROBLEM_RESPONSES, FieldProblem
 from server.db.models import Camera
 from server.schemas.localization import ObservationBatch, PositionBatch
+from server.services.targets import LiveTargets
 from server.services.tracking import DetectionIn, TrackingService
 from server.services.twin import registry_cameras
 
 router = APIRouter(tags=["localization"], responses=PROBLEM_RESPONSES)
+
+# Live labelled targets a space may hold: every distinct label is a live target until it has
+# been silent for the tracker's labelled_end_after (60 s), and each is in every stream tick. A
+# home labels a few bodies; 40,000 labels made each tick 7.8 MB.
+MAX_LIVE_LABELS = 256
+# How long a silent labelled target stays live (core TrackerConfig.labelled_end_after), s.
+LABEL_RETIRES_AFTER_S = 60
 
 _STATUS = {
     PointStatus.OK: "ok",
@@ -49,6 +57,7 @@ def post_observations(
     body: ObservationBatch,
     session: SessionDep,
     tracking: Annotated[TrackingService | None, Depends(get_tracking)],
+    live: Annotated[LiveTargets | None, Depends(get_live_targets)],
 ):
     """Store the batch's detections and queue them for the space's tracker; return how many
     were stored and queued, and the floor position of each labelled (target, t): its
@@ -65,6 +74,9 @@ def post_observations(
                 f"observations.{index}.camera_id",
                 f"{refused[o.camera_id]}; calibrate and pose it before sending its detections",
             )
+    space_of = _spaces(session, camera_ids)
+    if live is not None:
+        _check_labels(obs, space_of, live)
     labelled = [i for i, o in enumerate(obs) if o.target is not None]
     positions = _locate_labelled(obs, labelled, cameras) if labelled else []
     detections = [
@@ -79,13 +91,45 @@ def post_observations(
         )
         for o in obs
     ]
-    space_of = _spaces(session, camera_ids)
     if tracking is not None:
         result = tracking.ingest(session, detections, space_of)
         stored, frames, late = result.stored, result.frames, result.late
     else:  # pragma: no cover - the app always has its tracking service once started
         stored, frames, late = 0, 0, 0
     return JSONResponse({"stored": stored, "frames": frames, "late": late, "positions": positions})
+
+
+async def get_live_targets(request: Request) -> LiveTargets | None:
+    """Return the live targets of every space (None before the app started)."""
+    return getattr(request.app.state, "targets", None)
+
+
+def _check_labels(obs, space_of: dict[int, int | None], live: LiveTargets) -> None:
+    """Refuse a batch whose labels would make a space hold more than MAX_LIVE_LABELS live
+    labelled targets: 422 when the batch alone has more, 429 (retry once some have retired)
+    when the live ones and the batch's new ones together have."""
+    labels: dict[int | None, set[str]] = {}
+    for o in obs:
+        if o.target is not None:
+            labels.setdefault(space_of.get(o.camera_id), set()).add(o.target)
+    for space_id, wanted in labels.items():
+        if len(wanted) > MAX_LIVE_LABELS:
+            raise FieldProblem(
+                422,
+                "observations",
+                f"the batch labels {len(wanted)} distinct targets in space {space_id}; a space "
+                f"follows at most {MAX_LIVE_LABELS} labelled targets at once",
+            )
+        current = live.live_labels(space_id)
+        total = len(current | wanted)
+        if total > MAX_LIVE_LABELS:
+            raise HTTPException(
+                status.HTTP_429_TOO_MANY_REQUESTS,
+                detail=f"space {space_id} follows {len(current)} labelled targets and the batch "
+                f"adds {total - len(current)} more, over the limit of {MAX_LIVE_LABELS}; a "
+                f"label retires {LABEL_RETIRES_AFTER_S} s after its last detection",
+                headers={"Retry-After": str(LABEL_RETIRES_AFTER_S)},
+            )
 
 
 def _cov(o) -> tuple[tuple[float, float], tuple[float, float]]:

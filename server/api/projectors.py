@@ -7,7 +7,13 @@ from typing import Annotated
 from fastapi import APIRouter, Path, Query, status
 from sqlalchemy import select
 
-from server.api._crud import apply_changes, check_references, get_or_404, paginate
+from server.api._crud import (
+    apply_changes,
+    check_camera_model,
+    check_references,
+    get_or_404,
+    paginate,
+)
 from server.api.deps import PageDep, ReadAccess, SessionDep, WriteAccess
 from server.api.errors import PROBLEM_RESPONSES
 from server.db.models import Projector, Space
@@ -40,7 +46,9 @@ def list_projectors(
 def create_projector(body: ProjectorCreate, session: SessionDep):
     """Create a projector (pose as T_world_projector or position + quaternion_xyzw)."""
     check_references(session, {"space_id": (Space, body.space_id)})
-    projector = Projector(**body.changes())
+    changes = body.changes()
+    check_camera_model(None, changes)
+    projector = Projector(**changes)
     session.add(projector)
     session.commit()
     return projector
@@ -58,6 +66,7 @@ def update_projector(projector_id: ProjectorId, body: ProjectorUpdate, session: 
     projector = get_or_404(session, Projector, projector_id, "projector")
     changes = body.changes()
     check_references(session, {"space_id": (Space, changes.get("space_id"))})
+    check_camera_model(projector, changes)
     apply_changes(projector, changes)
     session.commit()
     return projector

@@ -2,13 +2,24 @@
 
 from __future__ import annotations
 
+import types
+import typing
 from datetime import UTC, datetime
-from typing import Annotated, Generic, TypeVar
+from typing import Annotated, Any, Generic, TypeVar, get_args, get_origin
 
 import numpy as np
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field, StringConstraints
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    ConfigDict,
+    Field,
+    Strict,
+    StringConstraints,
+)
 
 T = TypeVar("T")
+
+_UNIONS = (typing.Union, types.UnionType)
 
 # PostgreSQL integers are 32-bit: larger ids can only be "not found", never an overflow error.
 MAX_ID = 2**31 - 1
@@ -94,9 +105,26 @@ Distortion = Annotated[
 
 
 class Schema(BaseModel):
-    """Base of request schemas: unknown fields are errors, not silently dropped."""
+    """Base of request schemas: unknown fields are errors, not silently dropped, and a boolean
+    field takes only true or false (pydantic's lax mode would read 1, "yes" or "on" too)."""
 
     model_config = ConfigDict(extra="forbid")
+
+    @classmethod
+    def __pydantic_init_subclass__(cls, **kwargs: Any) -> None:
+        super().__pydantic_init_subclass__(**kwargs)
+        # Strict on the boolean fields only, decided once per class: no cost per request.
+        changed = False
+        for field in cls.model_fields.values():
+            annotation = field.annotation
+            union = get_origin(annotation) in _UNIONS
+            if (annotation is bool or (union and bool in get_args(annotation))) and not any(
+                isinstance(m, Strict) for m in field.metadata
+            ):
+                field.metadata.append(Strict())
+                changed = True
+        if changed:
+            cls.model_rebuild(force=True)
 
 
 class ReadSchema(BaseModel):
@@ -129,4 +157,10 @@ class Problem(BaseModel):
     title: str
     status: int
     detail: str
-    errors: list[FieldError] = Field(default_factory=list)
+    errors: list[FieldError] = Field(
+        default_factory=list, description="The first 20 field errors (error_count has them all)."
+    )
+    error_count: int = Field(0, description="How many field errors the request had in all.")
+    request_id: str | None = Field(
+        None, description="On a 500: the id the server log files its traceback under."
+    )

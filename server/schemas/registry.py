@@ -5,8 +5,13 @@ from __future__ import annotations
 import json
 from typing import Annotated, Any, ClassVar, Literal
 
+import numpy as np
 from pydantic import AfterValidator, Field, model_validator
+from shapely import Polygon as ShapelyPolygon
+from shapely.validation import explain_validity
 
+from core.errors import IntspaceError
+from core.localization.cameras import NetworkCamera
 from server.schemas.common import (
     Distortion,
     Finite,
@@ -25,20 +30,66 @@ from server.schemas.common import (
 )
 from server.services.poses import pose_from_position_quaternion
 
+
+def _simple_polygon(polygon: list[list[float]]) -> list[list[float]]:
+    # shapely (GEOS) judges validity: a self-intersecting ring or a zero area is no floor.
+    shape = ShapelyPolygon(polygon)
+    if not shape.is_valid:
+        raise ValueError(f"must be a simple polygon: {explain_validity(shape)}")
+    if not shape.area > 0:
+        raise ValueError("must enclose a positive area")
+    return polygon
+
+
 Polygon = Annotated[
     list[Vec2],
-    Field(min_length=3, max_length=10_000, description="Floor polygon [[x, y], ...] in metres"),
+    Field(
+        min_length=3,
+        max_length=10_000,
+        description="Floor polygon [[x, y], ...] in metres: simple (no self-intersection), "
+        "positive area",
+    ),
+    AfterValidator(_simple_polygon),
 ]
 
 
+# Free-form JSON nests at most this deep: 500 levels stored made every later read a 500 (the
+# serialiser's recursion limit), and no kinematic description needs more than a few.
+MAX_JSON_DEPTH = 32
+MAX_JSON_CHARS = 100_000
+
+
+def json_depth(value: Any) -> int:
+    """Return how deep `value` (dicts and lists of JSON values) nests; a scalar is 0. Iterative,
+    so that any depth is measured without recursion."""
+    deepest = 0
+    stack: list[tuple[Any, int]] = [(value, 0)]
+    while stack:
+        item, depth = stack.pop()
+        if isinstance(item, dict):
+            children: Any = item.values()
+        elif isinstance(item, list):
+            children = item
+        else:
+            continue
+        depth += 1
+        deepest = max(deepest, depth)
+        if deepest > MAX_JSON_DEPTH:
+            return deepest
+        stack.extend((child, depth) for child in children)
+    return deepest
+
+
 def _json_document(value: dict[str, Any]) -> dict[str, Any]:
-    # Strict JSON: no NaN or infinity, bounded size, no NUL (PostgreSQL refuses both).
+    # Strict JSON: bounded depth and size, no NaN or infinity, no NUL (PostgreSQL refuses both).
+    if json_depth(value) > MAX_JSON_DEPTH:
+        raise ValueError(f"must nest at most {MAX_JSON_DEPTH} levels of objects and arrays")
     try:
         text = json.dumps(value, allow_nan=False)
     except ValueError as exc:
         raise ValueError("must be finite JSON (no NaN or infinity)") from exc
-    if len(text) > 100_000:
-        raise ValueError("must be at most 100000 characters of JSON")
+    if len(text) > MAX_JSON_CHARS:
+        raise ValueError(f"must be at most {MAX_JSON_CHARS} characters of JSON")
     if "\\u0000" in text:
         raise ValueError("must not contain NUL characters")
     return value
@@ -130,6 +181,53 @@ class _PoseInput(Schema):
         if pose is not None:
             data[self.pose_field] = pose
         return data
+
+
+# A plausible camera model: focal lengths between 0.05 and 100 image sizes (a fisheye's is about
+# a third of its width, a long telephoto's tens of widths), the principal point within half an
+# image of it, skew at most a tenth of fx, distortion coefficients below 1e4 in magnitude.
+FOCAL_RANGE = (0.05, 100.0)
+MAX_SKEW_RATIO = 0.1
+MAX_DISTORTION = 1e4
+
+
+def camera_model_problem(
+    K: list[list[float]] | None, dist: list[float] | None, width: int, height: int
+) -> tuple[str, str] | None:
+    """Return (field, reason) when the camera model (K, dist) of a width x height image is
+    implausible or one core cannot use; None when it is fine (or K is not given)."""
+    if dist is not None and any(abs(d) > MAX_DISTORTION for d in dist):
+        return "dist", f"distortion coefficients must be below {MAX_DISTORTION:g} in magnitude"
+    if K is None:
+        return None
+    size = max(width, height)
+    lo, hi = FOCAL_RANGE[0] * size, FOCAL_RANGE[1] * size
+    for name, value in (("K.0.0", K[0][0]), ("K.1.1", K[1][1])):
+        if not lo <= value <= hi:
+            return name, (
+                f"focal length {value:g} px is implausible for a {width}x{height} image: give "
+                f"{lo:g} to {hi:g} px ({FOCAL_RANGE[0]:g} to {FOCAL_RANGE[1]:g} image sizes)"
+            )
+    for name, value, extent in (("K.0.2", K[0][2], width), ("K.1.2", K[1][2], height)):
+        if not -0.5 * extent <= value <= 1.5 * extent:
+            return name, (
+                f"principal point coordinate {value:g} px is more than half an image outside "
+                f"the {width}x{height} image"
+            )
+    if abs(K[0][1]) > MAX_SKEW_RATIO * K[0][0]:
+        return "K.0.1", f"skew {K[0][1]:g} px exceeds {MAX_SKEW_RATIO:g} fx"
+    try:
+        # What the localisation reads: refuse here what it could not use later.
+        NetworkCamera(
+            K=np.asarray(K, dtype=float),
+            dist=None if dist is None else np.asarray(dist, dtype=float),
+            R=np.eye(3),
+            t=np.zeros(3),
+            image_size=(width, height),
+        )
+    except (IntspaceError, ArithmeticError, ValueError) as exc:
+        return ("dist" if "dist" in str(exc) else "K"), str(exc)
+    return None
 
 
 class CameraCreate(_PoseInput):

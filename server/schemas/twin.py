@@ -17,6 +17,11 @@ class TwinState(ReadSchema):
     sim_time: float | None = None
     steps: int = 0
     rate_hz: float | None = None
+    stuck: bool = Field(
+        False,
+        description="The twin should run but finished no frame for 10 s (or 5 frame periods).",
+    )
+    last_step_age_s: float | None = Field(None, description="Seconds since the last frame ended.")
     robot: dict[str, float] | None = None
     people: list[dict[str, float]] = Field(default_factory=list)
     robot_error_rms_m: float | None = Field(
@@ -25,8 +30,18 @@ class TwinState(ReadSchema):
     cameras: dict[str, int] = Field(default_factory=dict)
 
 
+# Frames per second of the twin's cameras: below 0.5 Hz a frame simulates seconds of motion
+# (the tracker loses what it follows), above 30 Hz the frames outrun the renderer.
+MIN_RATE_HZ, MAX_RATE_HZ = 0.5, 30.0
+
+
 class TwinRate(Schema):
-    rate_hz: float = Field(gt=0, le=30, allow_inf_nan=False)
+    rate_hz: float = Field(
+        ge=MIN_RATE_HZ,
+        le=MAX_RATE_HZ,
+        allow_inf_nan=False,
+        description=f"Frames per second, {MIN_RATE_HZ:g} to {MAX_RATE_HZ:g}; takes effect at once.",
+    )
 
 
 class Scenario(ReadSchema):

@@ -28,6 +28,9 @@ log = logging.getLogger(__name__)
 LIVE = ("confirmed", "coasting")
 # In-memory track of each live target for the 3D scene and the floor page (points).
 _MEMORY_POINTS = 600
+# Targets written per transaction: a flood of targets must not hold SQLite's write lock for
+# seconds (every other writer would fail with "database is locked").
+FLUSH_CHUNK = 200
 
 
 @dataclass
@@ -52,6 +55,7 @@ class LiveTarget:
     pending: list[tuple[float, list[float], list[list[float]]]] = field(default_factory=list)
     dirty: bool = True
     last_stored: float = -float("inf")
+    labelled: bool = False
 
 
 class LiveTargets:
@@ -108,6 +112,7 @@ class LiveTargets:
                 target = LiveTarget(
                     space_id, track_id, name, kind, state, first_seen, t, t, xy, cov
                 )
+                target.labelled = label is not None
                 self._targets[key] = target
             target.kind, target.state = kind, state
             target.t, target.xy, target.cov, target.last_seen = t, xy, cov, t
@@ -182,6 +187,13 @@ class LiveTargets:
         with self._lock:
             return next((v for v in self._targets.values() if v.label == label), None)
 
+    def live_labels(self, space_id: int | None) -> set[str]:
+        """Return the labels senders gave the live targets of a space."""
+        with self._lock:
+            return {
+                v.label for (sid, _), v in self._targets.items() if sid == space_id and v.labelled
+            }
+
     def __len__(self) -> int:
         with self._lock:
             return len(self._targets)
@@ -228,8 +240,13 @@ class LiveTargets:
                 )
                 v.pending = []
                 v.dirty = False
-        if not work:
-            return 0
+        written = 0
+        for start in range(0, len(work), FLUSH_CHUNK):
+            written += self._write(work[start : start + FLUSH_CHUNK])
+        return written
+
+    def _write(self, work: list[Any]) -> int:
+        """Write one chunk of targets and their points in one short transaction."""
         written = 0
         with self._factory() as session:
             for live, points, (state, t, xy, cov, first, last, kind) in work:

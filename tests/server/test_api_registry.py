@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from alembic.script import ScriptDirectory
+
+from server.db.migrate import alembic_config
 
 K = [[800.0, 0.0, 320.0], [0.0, 800.0, 240.0], [0.0, 0.0, 1.0]]
 
@@ -14,7 +17,8 @@ def test_health_reports_backend_and_schema(client, database_url):
     body = response.json()
     assert body["status"] == "ok"
     assert body["database"] == ("postgresql" if database_url.startswith("postgresql") else "sqlite")
-    assert body["schema_revision"] == "0003"  # the latest migration
+    head = ScriptDirectory.from_config(alembic_config(database_url)).get_current_head()
+    assert body["schema_revision"] == head  # the latest migration
     assert body["version"]
 
 
@@ -237,7 +241,8 @@ def test_request_size_limit(make_settings, admin):
 
 def test_scene_link_uses_the_callers_host(client):
     response = client.get("/api/v1/scene", headers={"Host": "livingroom.local:8000"})
-    assert response.json() == {"viser_url": "http://livingroom.local:8080/"}
+    # The scene is served through the API's own origin (its proxy under /api/v1/scene/view/).
+    assert response.json() == {"viser_url": "http://livingroom.local:8000/api/v1/scene/view/"}
 
 
 def test_openapi_documents_the_api(client):
