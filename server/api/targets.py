@@ -8,15 +8,13 @@ from typing import Annotated, Literal
 
 from fastapi import APIRouter, Path, Query, WebSocket, WebSocketDisconnect, status
 from sqlalchemy import select
-from starlette.concurrency import run_in_threadpool
 
 from server.api._crud import get_or_404, paginate
-from server.api.deps import PageDep, ReadAccess, SessionDep
+from server.api.deps import AuthRefused, PageDep, ReadAccess, SessionDep, websocket_caller
 from server.api.errors import PROBLEM_RESPONSES
 from server.db.models import Target, TrackPoint
 from server.schemas.common import MAX_ID, Page
 from server.schemas.localization import TargetRead, Track, TrackSet
-from server.services.auth import authenticate
 from server.services.targets import LIVE
 
 router = APIRouter(tags=["localization"], responses=PROBLEM_RESPONSES)
@@ -120,31 +118,29 @@ def get_track(
     return {"target_id": target_id, "points": points}
 
 
-def _token_ok(websocket: WebSocket, token: str | None) -> bool:
-    state = websocket.app.state
-    settings = state.settings
-    if token is None:
-        return settings.public_reads
-    principal = state.token_cache.get(token)
-    if principal is None:
-        configured = settings.admin_token.get_secret_value() if settings.admin_token else None
-        with state.session_factory() as session:
-            principal = authenticate(session, token, configured)
-        if principal is None:
-            return False
-        state.token_cache.put(token, principal)
-    return principal.can("read")
-
-
 @router.websocket("/ws/targets")
-async def stream_targets(websocket: WebSocket, token: str | None = None) -> None:
+async def stream_targets(websocket: WebSocket) -> None:
     """Stream {"type": "positions", "t", "targets": [{id, label, kind, state, xy, cov}]} of
     the live targets whenever one changes, at most 10 times a second. Authenticate with
-    ?token=<read token>; a bad token closes the socket with code 1008."""
-    await websocket.accept()
-    if not await run_in_threadpool(_token_ok, websocket, token):
-        await websocket.close(code=status.WS_1008_POLICY_VIOLATION, reason="bad or missing token")
+    `Authorization: Bearer <read token>`, by offering the subprotocols `intspace` and
+    `bearer.<read token>` (the answer names only `intspace`), or with the dashboard's session
+    cookie from the service's own page; tokens in the URL are refused. A refused credential
+    closes the socket with code 1008 and the reason."""
+    if "token" in websocket.query_params:
+        await websocket.accept()
+        await websocket.close(
+            code=status.WS_1008_POLICY_VIOLATION,
+            reason="tokens never travel in URLs: use the Authorization header or "
+            "Sec-WebSocket-Protocol",
+        )
         return
+    try:
+        who = await websocket_caller(websocket, "read")
+    except AuthRefused as refused:
+        await websocket.accept()
+        await websocket.close(code=status.WS_1008_POLICY_VIOLATION, reason=refused.detail[:120])
+        return
+    await websocket.accept(subprotocol=who.subprotocol)
     live = websocket.app.state.targets
     seen = -1
     loop = asyncio.get_running_loop()

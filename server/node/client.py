@@ -70,16 +70,23 @@ class ServiceClient:
             params["space_id"] = space_id
         try:
             response = self.request("GET", "/cameras", params=params)
+            if response.status_code == 403:
+                # An ingest token reads only its own cameras: look among those.
+                items = self._own_cameras()
+            elif response.status_code == 401:
+                raise NodeError(
+                    "the service refused the token (401); set INTSPACE_TOKEN to an ingest token "
+                    "bound to this camera (or a token with the write scope)"
+                )
+            elif response.status_code != 200:
+                raise NodeError(f"GET /cameras answered {response.status_code}: {response.text}")
+            else:
+                items = response.json()["items"]
         except httpx.TransportError as exc:
             raise NodeError(f"cannot reach the service at {self.api}: {exc}") from exc
-        if response.status_code in (401, 403):
-            raise NodeError(
-                f"the service refused the token ({response.status_code}); set INTSPACE_TOKEN "
-                "to a token with the write scope"
-            )
-        if response.status_code != 200:
-            raise NodeError(f"GET /cameras answered {response.status_code}: {response.text}")
-        rows = [row for row in response.json()["items"] if row["name"] == name]
+        if space_id is not None:
+            items = [row for row in items if row["space_id"] == space_id]
+        rows = [row for row in items if row["name"] == name]
         where = f" in space {space_id}" if space_id is not None else ""
         if not rows:
             raise NodeError(
@@ -92,6 +99,23 @@ class ServiceClient:
                 f"{len(rows)} cameras are named {name!r} (spaces {spaces}); pick one with --space"
             )
         return rows[0]
+
+    def _own_cameras(self) -> list[dict[str, Any]]:
+        """Return the registry rows of the cameras an ingest token is bound to."""
+        who = self.request("GET", "/session").json()
+        ids = who.get("camera_ids")
+        if not who.get("authenticated") or not ids:
+            raise NodeError(
+                f"the service refused the token (403: scopes {who.get('scopes')}); an ingest "
+                "token finds its camera only when it is bound to it (POST /api/v1/tokens with "
+                '"scopes": ["ingest"], "camera_ids": [...]), or use a token with the write scope'
+            )
+        rows = []
+        for camera_id in ids:
+            response = self.request("GET", f"/cameras/{camera_id}")
+            if response.status_code == 200:
+                rows.append(response.json())
+        return rows
 
     def heartbeat(self, camera_id: int, body: dict[str, Any]) -> bool:
         """Report a camera's health; return whether the service took it."""

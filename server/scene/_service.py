@@ -200,6 +200,7 @@ class SceneService:
         self._drawn_tracks: dict[str, np.ndarray] = {}
         self._shown_images: dict[int, np.ndarray] = {}  # RGB, downscaled, as on the frusta
         self._camera_picker: Any = None  # the GUI dropdown, once started
+        self.share_requests_refused = 0  # viewers' share-URL requests refused so far
 
     # -- lifecycle ---------------------------------------------------------------------------
 
@@ -217,6 +218,7 @@ class SceneService:
             server.gui.configure_theme(
                 show_share_button=False, brand_color=_COLOR_CALIBRATED, control_width="small"
             )
+            self._refuse_share_urls(server)
             self._add_gui(server)
             with self._cond:
                 self._server = server
@@ -233,6 +235,27 @@ class SceneService:
                 self._worker = threading.Thread(target=self._run, name="scene-worker", daemon=True)
                 self._worker.start()
                 self._cond.notify_all()
+
+    def _refuse_share_urls(self, server: Any) -> None:
+        """Refuse every viewer's request to publish the scene through viser's share service
+        (a public tunnel to a third-party host): the scene shows live images of a home."""
+        from viser import _messages
+
+        def refuse(client_id: int, _message: object) -> None:
+            with self._cond:
+                self.share_requests_refused += 1
+            log.warning(
+                "refused viewer %s's request to publish the 3D scene (share URL)", client_id
+            )
+
+        def no_share_url(*_args: object, **_kwargs: object) -> None:
+            raise PermissionError("this service never publishes its 3D scene through a share URL")
+
+        websock = server._websock_server
+        for message in (_messages.ShareUrlRequest, _messages.ShareUrlDisconnect):
+            websock.unregister_handler(message)
+        websock.register_handler(_messages.ShareUrlRequest, refuse)
+        server.request_share_url = no_share_url
 
     def stop(self) -> None:
         """Stop the drawing thread and the viser server (safe to call when not started)."""

@@ -231,7 +231,8 @@ def test_network_calibration_from_the_page(twin_service, browser_page: Page):
     page.get_by_test_id("nav-calibration").click()
     page.get_by_test_id("network-calibrate").click()
     page.wait_for_function(
-        "location.hash.includes('/runs/') || document.querySelector('[data-testid=network-error]')"
+        "() => location.hash.includes('/runs/') || "
+        "document.querySelector('[data-testid=network-error]')"
     )
     refused = page.get_by_test_id("network-error")
     assert not refused.count(), f"the service refused the network run: {refused.inner_text()}"

@@ -164,7 +164,9 @@ def test_stream_sends_positions_and_refuses_a_bad_token(client, admin):
     }
     assert client.post("/api/v1/observations", json=body, headers=admin).status_code == 200
     deadline = time.monotonic() + 5
-    with client.websocket_connect("/api/v1/ws/targets?token=test-admin-token") as ws:
+    with client.websocket_connect(
+        "/api/v1/ws/targets", headers={"Authorization": "Bearer test-admin-token"}
+    ) as ws:
         while time.monotonic() < deadline:
             message = ws.receive_json()
             if message["targets"]:
@@ -176,7 +178,9 @@ def test_stream_sends_positions_and_refuses_a_bad_token(client, admin):
     assert np.linalg.norm(np.array(target["xy"]) - [2.0, 1.5]) < 1e-3
 
     with pytest.raises(WebSocketDisconnect) as info:
-        with client.websocket_connect("/api/v1/ws/targets?token=wrong") as ws:
+        with client.websocket_connect(
+            "/api/v1/ws/targets", headers={"Authorization": "Bearer wrong"}
+        ) as ws:
             ws.receive_json()
     assert info.value.code == 1008
 

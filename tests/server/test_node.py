@@ -227,10 +227,13 @@ class _Service:
             self.process.kill()
 
 
-def _node(repo_root: Path, *args: str, log: Path | None = None) -> subprocess.Popen:
-    """Start `intspace node`; its stderr to `log` (a long run) or a pipe (read at exit)."""
+def _node(
+    repo_root: Path, *args: str, log: Path | None = None, token: str = TOKEN
+) -> subprocess.Popen:
+    """Start `intspace node` with `token`; its stderr to `log` (a long run) or a pipe (read at
+    exit)."""
     env = _clean_env()
-    env["INTSPACE_TOKEN"] = TOKEN
+    env["INTSPACE_TOKEN"] = token
     return subprocess.Popen(
         [sys.executable, "-m", "server.cli", "node", *args],
         cwd=repo_root,
@@ -270,9 +273,21 @@ def test_node_tracks_the_twin_robot_through_mjpeg_and_goes_offline_when_killed(r
             ),
             encoding="utf-8",
         )
-        unknown = _node(repo_root, "--camera", "nope", "--source", "0", "--api", service.api)
+        # The node speaks with an ingest token bound to its two cameras (spec 06), which may
+        # read their streams and post their detections and heartbeats, and nothing else.
+        created = service.http.post(
+            "/tokens",
+            json={"name": "node", "scopes": ["ingest"], "camera_ids": [ids[n] for n in names]},
+        )
+        assert created.status_code == 201, created.text
+        node_token = created.json()["token"]
+        unknown = _node(
+            repo_root, "--camera", "nope", "--source", "0", "--api", service.api, token=node_token
+        )
         node_log = tmp_path / "node.log"
-        node = _node(repo_root, "--config", str(config), "--api", service.api, log=node_log)
+        node = _node(
+            repo_root, "--config", str(config), "--api", service.api, log=node_log, token=node_token
+        )
         _, err = unknown.communicate(timeout=30)
         assert unknown.returncode == 2
         assert err.strip().count("\n") == 0 and "no camera named 'nope'" in err

@@ -1,7 +1,10 @@
-// The service's REST API (/api/v1): bearer token from localStorage, problem-details errors.
+// The service's REST API (/api/v1): the dashboard signs in once with a token (POST /session),
+// after which an HttpOnly SameSite=Strict cookie the page cannot read carries the session, and
+// every write sends the session's CSRF token. No token is kept by the page: not in storage,
+// not in a URL.
 
 const BASE = "/api/v1";
-const TOKEN_KEY = "intspace.token";
+const SAFE = new Set(["GET", "HEAD", "OPTIONS"]);
 
 /** An HTTP error carrying the service's problem-details body ({type,title,status,detail,errors}). */
 export class ApiError extends Error {
@@ -16,14 +19,43 @@ export class ApiError extends Error {
   }
 }
 
-export function getToken() {
-  return localStorage.getItem(TOKEN_KEY) || "";
+// What GET /session said: {authenticated, name, scopes, csrf_token, public_reads}.
+let session = { authenticated: false };
+
+/** Return the dashboard's session as the service last described it. */
+export function currentSession() {
+  return session;
 }
 
-export function setToken(token) {
-  if (token) localStorage.setItem(TOKEN_KEY, token);
-  else localStorage.removeItem(TOKEN_KEY);
-  window.dispatchEvent(new CustomEvent("auth-changed"));
+function setSession(next, notify = true) {
+  session = next && next.authenticated ? next : { authenticated: false, public_reads: !!next?.public_reads };
+  if (notify) window.dispatchEvent(new CustomEvent("auth-changed"));
+}
+
+/** Ask the service who this browser is (the cookie is sent, never read). */
+export async function loadSession() {
+  try {
+    setSession(await api("/session", { checkingToken: true }), false);
+  } catch {
+    setSession(null, false);
+  }
+  return session;
+}
+
+/** Sign in with a token: the service answers with the session cookie and its CSRF token. */
+export async function signIn(token) {
+  const state = await api("/session", { method: "POST", json: { token }, checkingToken: true });
+  setSession(state);
+  return state;
+}
+
+/** Sign out: the service ends the session and removes its cookie. */
+export async function signOut() {
+  try {
+    await api("/session", { method: "DELETE", checkingToken: true });
+  } finally {
+    setSession(null);
+  }
 }
 
 async function problemFrom(response) {
@@ -51,11 +83,12 @@ async function problemFrom(response) {
  * and a plain Error with a readable message when the service cannot be reached.
  * options: {method, json, form, raw, checkingToken} - json is sent as a JSON body, form as
  * multipart; checkingToken: a 401 is the answer sought, not a sign that the session ended.
+ * Writes carry the session's CSRF token (X-CSRF-Token).
  */
 export async function api(path, options = {}) {
+  const method = (options.method || "GET").toUpperCase();
   const headers = { Accept: "application/json" };
-  const token = getToken();
-  if (token) headers.Authorization = `Bearer ${token}`;
+  if (!SAFE.has(method) && session.csrf_token) headers["X-CSRF-Token"] = session.csrf_token;
   let body;
   if (options.json !== undefined) {
     headers["Content-Type"] = "application/json";
@@ -65,14 +98,16 @@ export async function api(path, options = {}) {
   }
   let response;
   try {
-    response = await fetch(BASE + path, { method: options.method || "GET", headers, body });
+    response = await fetch(BASE + path, { method, headers, body, credentials: "same-origin" });
   } catch (err) {
     throw new Error(`The service did not answer (${err.message}). Is it running?`);
   }
   if (!response.ok) {
     const error = new ApiError(response.status, await problemFrom(response));
     if (response.status === 401 && !options.checkingToken) {
-      window.dispatchEvent(new CustomEvent("auth-required"));
+      const wasSignedIn = session.authenticated;
+      if (wasSignedIn) setSession(null, false);
+      window.dispatchEvent(new CustomEvent("auth-required", { detail: { wasSignedIn } }));
     }
     throw error;
   }
@@ -91,7 +126,7 @@ export async function list(path, { limit = 200, offset = 0 } = {}) {
   return { items, total: page.total ?? items.length };
 }
 
-/** Download an authenticated resource as a file (a plain link would not send the token). */
+/** Download an authenticated resource as a file (saved under `filename`, not the URL's name). */
 export async function download(path, filename) {
   const response = await api(path, { raw: true });
   const blob = await response.blob();

@@ -1,6 +1,6 @@
 // The dashboard's entry point: hash router, sign-in, service badge.
 
-import { api, getToken, setToken } from "./api.js";
+import { api, currentSession, loadSession, signIn, signOut } from "./api.js";
 import { errorBox, h, mount } from "./ui.js";
 import { renderOverview } from "./pages/overview.js";
 import { renderCameras, renderCamera } from "./pages/cameras.js";
@@ -92,18 +92,25 @@ async function route() {
 
 function renderAuth(notice = "") {
   const box = document.getElementById("auth");
-  if (getToken()) {
+  const session = currentSession();
+  if (session.authenticated) {
+    const scope = (session.scopes || []).join(", ");
     mount(
       box,
       h(
         "span",
-        { class: "who", testid: "auth-status" },
+        { class: "who", testid: "auth-status", title: session.name || "" },
         h("span", { class: "dot ok", "aria-hidden": "true" }),
-        "Signed in with a token",
+        scope ? `Signed in (${scope})` : "Signed in",
       ),
       h(
         "button",
-        { class: "btn small", type: "button", testid: "sign-out", onClick: () => setToken("") },
+        {
+          class: "btn small",
+          type: "button",
+          testid: "sign-out",
+          onClick: () => signOut().catch(() => {}),
+        },
         "Sign out",
       ),
     );
@@ -142,15 +149,11 @@ function renderAuth(notice = "") {
         ev.preventDefault();
         const token = input.value.trim();
         if (!token) return;
-        // Check the token with a read that needs it, so a typo is caught here and not on a save.
-        const previous = getToken();
-        localStorage.setItem("intspace.token", token);
+        // The token goes to the service once, in a POST body; the page keeps only the cookie
+        // the service sets (which it cannot read) and the session's CSRF token.
         try {
-          await api("/cameras?limit=1", { checkingToken: true });
-          setToken(token);
+          await signIn(token);
         } catch (err) {
-          if (previous) localStorage.setItem("intspace.token", previous);
-          else localStorage.removeItem("intspace.token");
           status.textContent =
             err.status === 401 || err.status === 403 ? "Token refused" : err.message;
           status.className = "small badge bad";
@@ -197,19 +200,17 @@ window.addEventListener("auth-changed", () => {
   renderAuth();
   route();
 });
-window.addEventListener("auth-required", () => {
-  // A stored token the service refuses (revoked, or a new data directory) is dropped, so the
-  // header does not claim a sign-in that no longer holds.
-  if (getToken()) {
-    localStorage.removeItem("intspace.token");
-    renderAuth("Token refused; sign in again");
-  }
+window.addEventListener("auth-required", (ev) => {
+  // A session the service no longer accepts (expired, signed out elsewhere, its token
+  // revoked): the header stops claiming a sign-in that no longer holds.
+  if (ev.detail?.wasSignedIn) renderAuth("Session ended; sign in again");
   const input = document.getElementById("token-input");
   if (input) input.focus();
 });
 
 decorateNav();
-renderAuth();
+// Who is signed in is asked while the first page loads (its reads carry the cookie anyway).
+loadSession().then(() => renderAuth());
 refreshServiceBadge();
 setInterval(refreshServiceBadge, 15_000);
 route();

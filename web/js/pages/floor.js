@@ -1,7 +1,7 @@
 // Floor: the plan seen from above with the coverage heat map under it, the live positions of
 // the robot and people (2-sigma covariance ellipses, tracks) and the digital twin's controls.
 
-import { api, getToken, list } from "../api.js";
+import { api, list } from "../api.js";
 import { centroid } from "../plot.js";
 import { fmt, h, infoBox, mount, panel, s, toastError } from "../ui.js";
 
@@ -555,8 +555,8 @@ export async function renderFloor(main) {
   };
   try {
     const proto = location.protocol === "https:" ? "wss" : "ws";
-    const token = encodeURIComponent(getToken());
-    socket = new WebSocket(`${proto}://${location.host}/api/v1/ws/targets?token=${token}`);
+    // The session cookie authenticates the stream (the service checks the page's Origin).
+    socket = new WebSocket(`${proto}://${location.host}/api/v1/ws/targets`, ["intspace"]);
     const fallback = setTimeout(() => {
       if (socket && socket.readyState !== WebSocket.OPEN) {
         socket.close();

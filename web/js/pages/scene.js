@@ -1,13 +1,13 @@
-// The live 3D scene: the viser viewer served by the service on its own port, embedded.
+// The live 3D scene: the viser viewer, proxied by the service under /api/v1/scene/view/ behind
+// the dashboard's sign-in (the session cookie reaches it; viser itself listens on loopback only).
 
 import { api } from "../api.js";
 import { h, mount, panel } from "../ui.js";
 
-/** Return the viewer's address as seen from this browser (the service may report 0.0.0.0). */
+/** Return the viewer's address as a same-origin path (the iframe must share the cookie). */
 export function viewerUrl(reported) {
   const url = new URL(reported, location.href);
-  if (["0.0.0.0", "::", "[::]"].includes(url.hostname)) url.hostname = location.hostname;
-  return url.toString();
+  return url.pathname + url.search;
 }
 
 export async function renderScene(main) {

@@ -1,0 +1,135 @@
+"""The live 3D scene behind the API's credentials: viser listens on loopback only, and the
+service proxies its page (GET /scene/view/...) and its WebSocket (/scene/view, the address
+viser's page derives from its own) to it, refusing a request without a read credential before a
+byte of the scene is sent.
+
+A browser reaches it with the dashboard's session cookie (the WebSocket's Origin must be the
+service's own); a script with `Authorization: Bearer <read token>`.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+from typing import Annotated
+
+import httpx
+from fastapi import APIRouter, HTTPException, Path, Request, WebSocket, status
+from fastapi.responses import Response
+from starlette.websockets import WebSocketDisconnect
+from websockets.asyncio.client import connect
+from websockets.exceptions import ConnectionClosed, InvalidHandshake
+
+from server.api.deps import AuthRefused, ReadAccess, websocket_caller
+from server.api.errors import PROBLEM_RESPONSES
+
+router = APIRouter(prefix="/scene/view", tags=["scene"], responses=PROBLEM_RESPONSES)
+
+UPSTREAM_HOST = "127.0.0.1"
+# Headers of viser's answer passed on to the browser; the rest (its server name, connection
+# handling) stays between the two processes.
+_PASSED = ("content-type", "content-encoding", "content-length", "last-modified", "etag")
+
+
+def _viser_port(connection: Request | WebSocket) -> int:
+    state = connection.app.state
+    if state.scene_sync.scene is None:
+        raise HTTPException(
+            status.HTTP_404_NOT_FOUND,
+            "the 3D scene does not run in this process (INTSPACE_VISER_ENABLED=false, or another "
+            "process owns it)",
+        )
+    return int(state.viser_port)
+
+
+@router.get("/", dependencies=[ReadAccess], include_in_schema=False)
+async def scene_index(request: Request) -> Response:
+    """Return the viser viewer's page."""
+    return await _fetch(request, "")
+
+
+@router.get("/{path:path}", dependencies=[ReadAccess], include_in_schema=False)
+async def scene_file(request: Request, path: Annotated[str, Path(max_length=512)]) -> Response:
+    """Return a file of the viser viewer."""
+    return await _fetch(request, path)
+
+
+async def _fetch(request: Request, path: str) -> Response:
+    """Return `path` fetched from the loopback viser server."""
+    port = _viser_port(request)
+    headers = {"Accept-Encoding": request.headers.get("accept-encoding", "identity")}
+    url = httpx.URL(scheme="http", host=UPSTREAM_HOST, port=port, path="/" + path)
+    try:
+        async with (
+            httpx.AsyncClient(timeout=10.0) as client,
+            client.stream("GET", url, headers=headers) as upstream,
+        ):
+            # Raw: still gzip-encoded when viser compressed it, as its headers say.
+            content = b"".join([chunk async for chunk in upstream.aiter_raw()])
+    except httpx.HTTPError as exc:
+        raise HTTPException(
+            status.HTTP_502_BAD_GATEWAY, f"the 3D scene server did not answer: {exc}"
+        ) from None
+    if upstream.status_code == 404:
+        raise HTTPException(status.HTTP_404_NOT_FOUND, f"the 3D scene has no file {path!r}")
+    passed = {k: v for k, v in upstream.headers.items() if k.lower() in _PASSED}
+    passed["Cache-Control"] = "no-store"
+    return Response(content, status_code=upstream.status_code, headers=passed)
+
+
+@router.websocket("")
+@router.websocket("/")
+async def scene_socket(websocket: WebSocket) -> None:
+    """Relay the viser viewer's WebSocket, after checking the caller may read. A refused
+    caller's handshake is answered 403 and never reaches viser."""
+    try:
+        who = await websocket_caller(websocket, "read", protocols=("viser-v*",))
+        port = _viser_port(websocket)
+    except (AuthRefused, HTTPException):
+        await websocket.close(code=status.WS_1008_POLICY_VIOLATION)
+        return
+    subprotocols = [who.subprotocol] if who.subprotocol else None
+    try:
+        upstream = await connect(
+            f"ws://{UPSTREAM_HOST}:{port}",
+            subprotocols=subprotocols,  # type: ignore[arg-type]
+            max_size=None,
+            compression=None,
+            open_timeout=10,
+        )
+    except (OSError, InvalidHandshake, TimeoutError):
+        await websocket.close(code=status.WS_1011_INTERNAL_ERROR)
+        return
+    await websocket.accept(subprotocol=who.subprotocol)
+
+    async def to_viser() -> None:
+        while True:
+            message = await websocket.receive()
+            if message["type"] == "websocket.disconnect":
+                return
+            if message.get("bytes") is not None:
+                await upstream.send(message["bytes"])
+            elif message.get("text") is not None:
+                await upstream.send(message["text"])
+
+    async def to_browser() -> None:
+        async for data in upstream:
+            if isinstance(data, bytes):
+                await websocket.send_bytes(data)
+            else:
+                await websocket.send_text(data)
+
+    tasks = [asyncio.create_task(to_viser()), asyncio.create_task(to_browser())]
+    try:
+        await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
+    finally:
+        for task in tasks:
+            task.cancel()
+        for task in tasks:
+            with contextlib.suppress(
+                asyncio.CancelledError, ConnectionClosed, WebSocketDisconnect, RuntimeError
+            ):
+                await task
+        await upstream.close()
+        with contextlib.suppress(RuntimeError):
+            await websocket.close()
