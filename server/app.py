@@ -17,12 +17,15 @@ import server
 from server.api import (
     calibration_runs,
     cameras,
+    export,
     landmarks,
     maps,
     observations,
     projectors,
     robots,
     rooms,
+    scene_proxy,
+    session,
     spaces,
     streams,
     system,
@@ -30,11 +33,12 @@ from server.api import (
     tokens,
     twin,
 )
-from server.api.errors import install_error_handlers
+from server.api.errors import install_api_fallback, install_error_handlers
 from server.api.limits import RequestSizeLimit
 from server.db.session import make_engine, make_session_factory
+from server.security import AuthFailureLimiter, SecurityHeaders, install_log_redaction
 from server.services.auth import TokenCache
-from server.services.runs import RunExecutor, interrupt_unfinished_runs
+from server.services.runs import LeasePolicy, RunExecutor
 from server.services.scene_sync import SceneSync
 from server.services.targets import LiveTargets
 from server.services.tracking import TrackingService
@@ -60,11 +64,14 @@ def api_router() -> APIRouter:
         landmarks,
         calibration_runs,
         tokens,
+        session,
         observations,
         targets,
         maps,
         twin,
         streams,
+        export,
+        scene_proxy,
     ):
         router.include_router(module.router)
     return router
@@ -97,21 +104,24 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        # After uvicorn configured its loggers: no token reaches a log line.
+        install_log_redaction(
+            [settings.admin_token.get_secret_value()] if settings.admin_token else []
+        )
         executor = None
         if settings.run_executor == "local":
-            # One process owns the runs: whatever it left unfinished is not running any more.
-            stale = await run_in_threadpool(
-                interrupt_unfinished_runs, factory, "interrupted: the service restarted"
+            # Queued runs stay queued; runs whose worker died go back to the queue once their
+            # lease expires (the executor's first poll re-queues those already expired).
+            executor = RunExecutor(
+                factory, settings.run_workers, LeasePolicy.from_settings(settings)
             )
-            if stale:
-                log.warning("marked %d unfinished calibration run(s) interrupted", stale)
-            executor = RunExecutor(factory, settings.run_workers)
         app.state.executor = executor
         scene = None
         if settings.viser_enabled:
             from server.scene import SceneService
 
-            scene = SceneService(app.state.viser_host, settings.viser_port)
+            # Loopback only: the API proxies the scene behind its credentials.
+            scene = SceneService("127.0.0.1", settings.viser_port)
             await run_in_threadpool(scene.start)
             app.state.viser_port = scene.port
             if scene.port != settings.viser_port:
@@ -160,7 +170,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             if executor is not None:
                 interrupted = await run_in_threadpool(executor.shutdown)
                 if interrupted:
-                    log.warning("marked %d calibration run(s) interrupted", interrupted)
+                    log.warning("handed %d calibration run(s) back to the queue", interrupted)
             if scene is not None:
                 await run_in_threadpool(scene.stop)
             engine.dispose()
@@ -171,7 +181,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         summary="Registry, calibration runs and live scene of a home intelligent space.",
         lifespan=lifespan,
         openapi_url=f"{API_PREFIX}/openapi.json",
-        docs_url=f"{API_PREFIX}/docs",
+        docs_url=None,  # served from the package by server.api.system
         redoc_url=None,
     )
     app.state.settings = settings
@@ -182,12 +192,14 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.targets = LiveTargets(factory)
     app.state.tracking = None
     app.state.token_cache = TokenCache()
+    app.state.auth_limiter = AuthFailureLimiter(settings.auth_failure_limit)
     app.state.scene_sync = SceneSync(None)
     app.state.viser_host = "127.0.0.1"
     app.state.viser_port = settings.viser_port
 
     install_error_handlers(app)
     app.include_router(api_router())
+    install_api_fallback(app, API_PREFIX)
     if settings.cors_origins:
         app.add_middleware(
             CORSMiddleware,
@@ -196,6 +208,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             allow_headers=["Authorization", "Content-Type"],
         )
     app.add_middleware(RequestSizeLimit, max_bytes=settings.max_request_bytes)
+    app.add_middleware(SecurityHeaders)
+    app.add_api_route("/docs", system.docs_redirect, include_in_schema=False)
     # Mounted last so that /api/v1 wins over the static files.
     if WEB_DIR.is_dir():
         app.mount("/", StaticFiles(directory=WEB_DIR, html=True), name="web")

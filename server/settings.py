@@ -28,11 +28,25 @@ class Settings(BaseSettings):
     cors_origins: list[str] = Field(
         default_factory=list, description="Origins allowed by CORS; empty closes CORS."
     )
+    session_ttl_s: float = Field(
+        12 * 3600.0, ge=60, le=30 * 86400, description="Life of a dashboard sign-in (s)."
+    )
+    auth_failure_limit: str = Field(
+        "10/minute",
+        pattern=r"^\d+ ?(/|per) ?\d* ?(second|minute|hour|day)s?$",
+        description="Failed authentications per client before 429 (`limits` notation).",
+    )
 
+    host: str = Field(
+        "127.0.0.1", min_length=1, description="Interface `intspace serve` binds (--host wins)."
+    )
+    port: int = Field(8000, ge=1, le=65535, description="API port (--port wins).")
     viser_enabled: bool = True
     viser_port: int = Field(8080, ge=1, le=65535)
     simulation: bool = Field(False, description="Run the digital twin so the space is alive.")
-    twin_rate_hz: float = Field(5.0, gt=0, le=30, description="Frames per second of the twin.")
+    twin_rate_hz: float = Field(
+        5.0, ge=0.5, le=30, description="Frames per second of the twin (0.5 to 30)."
+    )
     twin_seed: int = Field(0, ge=0, description="Seed of the twin's noise and motion.")
     twin_detection: Literal["internal", "external"] = Field(
         "internal",
@@ -68,11 +82,28 @@ class Settings(BaseSettings):
         description="local: runs execute in this process; external: `intspace worker` "
         "processes claim them from the database.",
     )
+    # A claim is a lease its worker renews by heartbeat: a worker that dies (SIGKILL, power
+    # loss) stops renewing, and its run goes back to the queue once the lease has expired.
+    run_lease_s: float = Field(
+        30.0, ge=0.5, le=3600, description="How long a claim on a run lasts unrenewed (s)."
+    )
+    run_heartbeat_s: float = Field(
+        5.0, ge=0.1, le=600, description="How often a worker renews its claims (s)."
+    )
+    run_max_attempts: int = Field(
+        3, ge=1, le=100, description="Claims of a run before it is given up, with the reason."
+    )
 
     max_request_bytes: int = Field(64 * 2**20, ge=1024, description="Whole request body cap.")
     max_upload_file_bytes: int = Field(16 * 2**20, ge=1024, description="Per uploaded image.")
     max_upload_files: int = Field(60, ge=1, description="Images per calibration upload.")
-    max_image_pixels: int = Field(40_000_000, ge=1, description="Decoded image size cap.")
+    # 12 MP decode to 36 MB of BGR (96 MB as 16-bit RGBA): one upload stays under 150 MB.
+    max_image_pixels: int = Field(
+        12_000_000, ge=1, description="Pixels per uploaded image, read from its header."
+    )
+    export_max_range_s: float = Field(
+        3600.0, gt=0, description="The longest time range one GET /spaces/{id}/export.mcap spans."
+    )
 
     @cached_property
     def resolved_database_url(self) -> str:

@@ -15,10 +15,8 @@ from server.settings import Settings
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the `serve` and `worker` commands."""
     serve = subparsers.add_parser("serve", help="Run the web service (API, dashboard, 3D scene).")
-    serve.add_argument(
-        "--host", default="127.0.0.1", help="Interface to bind (default: %(default)s)."
-    )
-    serve.add_argument("--port", type=int, default=8000, help="API port (default: %(default)s).")
+    serve.add_argument("--host", help="Interface to bind (default: INTSPACE_HOST, else 127.0.0.1).")
+    serve.add_argument("--port", type=int, help="API port (default: INTSPACE_PORT, else 8000).")
     serve.add_argument("--log-level", default="info", help="uvicorn log level.")
     serve.set_defaults(func=run_serve)
     worker = subparsers.add_parser(
@@ -56,20 +54,38 @@ def _browser_host(host: str) -> str:
 def run_serve(args: argparse.Namespace) -> int:
     """Run the service until interrupted; return the exit code."""
     import uvicorn
+    from sqlalchemy.exc import SQLAlchemyError
 
     from server.app import create_app
 
     settings = Settings()
+    bind = args.host if args.host is not None else settings.host
+    port = args.port if args.port is not None else settings.port
+    from server.services.auth import admin_token_problem
+
+    if (problem := admin_token_problem(settings.admin_token)) is not None:
+        print(f"intspace serve: {problem}", file=sys.stderr, flush=True)
+        return 2
     print("Settings:", flush=True)
     for name, value in settings.masked().items():
         print(f"  {name} = {value}", flush=True)
-    token = _prepare_database(settings)
+    try:
+        token = _prepare_database(settings)
+    except (OSError, SQLAlchemyError) as exc:
+        # One line that names the storage, not a traceback: the data directory or database
+        # cannot be opened, created or migrated.
+        reason = str(getattr(exc, "orig", None) or exc).splitlines()[0]
+        print(f"intspace serve: storage error: {reason}", file=sys.stderr, flush=True)
+        return 2
     app = create_app(settings)
-    app.state.viser_host = args.host
-    host = _browser_host(args.host)
-    print(f"Dashboard: http://{host}:{args.port}/", flush=True)
+    host = _browser_host(bind)
+    print(f"Dashboard: http://{host}:{port}/", flush=True)
     if settings.viser_enabled:
-        print(f"3D scene (viser): http://{host}:{settings.viser_port}/", flush=True)
+        print(
+            f"3D scene: http://{host}:{port}/api/v1/scene/view/ (viser listens on "
+            f"127.0.0.1:{settings.viser_port} only; the API proxies it behind the sign-in)",
+            flush=True,
+        )
     else:
         print("3D scene (viser): disabled (INTSPACE_VISER_ENABLED=false)", flush=True)
     if token is not None:
@@ -77,8 +93,8 @@ def run_serve(args: argparse.Namespace) -> int:
         print("  (shown once; only its hash is stored)", flush=True)
     uvicorn.run(
         app,
-        host=args.host,
-        port=args.port,
+        host=bind,
+        port=port,
         workers=1,
         log_level=args.log_level,
         timeout_graceful_shutdown=10,
@@ -87,39 +103,43 @@ def run_serve(args: argparse.Namespace) -> int:
 
 
 def run_worker(args: argparse.Namespace) -> int:
-    """Claim and execute queued runs until SIGTERM/SIGINT; return the exit code."""
+    """Claim and execute queued runs until SIGTERM/SIGINT, then hand the runs in progress back
+    to the queue; return the exit code. A worker killed outright (SIGKILL) stops renewing its
+    leases, and another worker re-queues its runs once they have expired."""
     from server.db.session import make_engine, make_session_factory
-    from server.services.runs import claim_next_run, execute_claimed_run, interrupt_run
+    from server.services.runs import LeasePolicy, RunExecutor
 
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(message)s")
     log = logging.getLogger("intspace.worker")
     settings = Settings()
-    engine = make_engine(settings.resolved_database_url, pool_size=2)
-    factory = make_session_factory(engine)
+    try:
+        policy = LeasePolicy.from_settings(settings)
+    except ValueError as exc:
+        print(f"intspace worker: error: {exc}", file=sys.stderr, flush=True)
+        return 2
+    engine = make_engine(settings.resolved_database_url, pool_size=settings.run_workers + 2)
     stop = threading.Event()
-    current: list[int] = []
 
     def on_signal(signum: int, _frame: object) -> None:
-        log.info("signal %d: stopping after marking the current run interrupted", signum)
+        log.info("signal %d: handing the runs in progress back to the queue", signum)
         stop.set()
-        for run_id in current:
-            interrupt_run(factory, run_id, "interrupted: the worker stopped")
-        sys.exit(0)
 
     signal.signal(signal.SIGTERM, on_signal)
     signal.signal(signal.SIGINT, on_signal)
-    log.info("worker polling %s", settings.masked()["database_url"])
-    try:
-        while not stop.is_set():
-            with factory() as session:
-                run_id = claim_next_run(session)
-            if run_id is None:
-                stop.wait(args.poll)
-                continue
-            current.append(run_id)
-            status = execute_claimed_run(factory, run_id)
-            current.remove(run_id)
-            log.info("run %d %s", run_id, status)
-    finally:
-        engine.dispose()
+    executor = RunExecutor(
+        make_session_factory(engine), settings.run_workers, policy, poll_s=args.poll
+    )
+    log.info(
+        "worker %s polling %s (lease %g s, heartbeat %g s, at most %d attempts)",
+        executor.owner,
+        settings.masked()["database_url"],
+        policy.lease_s,
+        policy.heartbeat_s,
+        policy.max_attempts,
+    )
+    while not stop.wait(0.5):
+        pass
+    released = executor.shutdown("interrupted: the worker stopped")
+    log.info("worker %s stopped; %d run(s) handed back", executor.owner, released)
+    engine.dispose()
     return 0

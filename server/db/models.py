@@ -142,6 +142,13 @@ class CalibrationRun(Timestamped, Base):
     error: Mapped[str | None] = mapped_column(Text)
     started_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True))
     finished_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True))
+    # The claim: how many times a worker took the run, which one holds it and until when
+    # (renewed by its heartbeat), and how far the current attempt has come.
+    attempts: Mapped[int] = mapped_column(Integer, default=0, server_default="0")
+    lease_owner: Mapped[str | None] = mapped_column(String(120))
+    lease_expires_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True))
+    progress_stage: Mapped[str | None] = mapped_column(String(80))
+    progress_fraction: Mapped[float | None] = mapped_column(Float)
 
     files: Mapped[list[CalibrationRunFile]] = relationship(
         back_populates="run", cascade="all, delete-orphan", passive_deletes=True
@@ -184,7 +191,11 @@ class CameraCalibration(Timestamped, Base):
 
 
 class ApiToken(Timestamped, Base):
-    """A bearer token, stored as its SHA-256 hex digest; the token itself is shown once."""
+    """A bearer token, stored as its SHA-256 hex digest; the token itself is shown once.
+
+    kind "api": a token for scripts and camera nodes (an ingest token may name the cameras it
+    speaks for); kind "session": a browser's sign-in, made from the token it signed in with
+    (`parent_id`, None for the configured admin token), ending at `expires_at` (Unix s)."""
 
     __tablename__ = "api_tokens"
 
@@ -193,6 +204,12 @@ class ApiToken(Timestamped, Base):
     token_hash: Mapped[str] = mapped_column(String(64), unique=True)
     scopes: Mapped[list[str]] = mapped_column(JSON)
     revoked: Mapped[bool] = mapped_column(Boolean, default=False)
+    kind: Mapped[str] = mapped_column(String(20), default="api", server_default="api")
+    camera_ids: Mapped[list[int] | None] = mapped_column(JSON, nullable=True)
+    expires_at: Mapped[float | None] = mapped_column(Float, nullable=True)
+    parent_id: Mapped[int | None] = mapped_column(
+        ForeignKey("api_tokens.id", ondelete="CASCADE"), nullable=True, index=True
+    )
 
 
 # Kinds of a located target and of a detection: one vocabulary (spec 08).

@@ -8,7 +8,8 @@ from pydantic import BaseModel, Field
 
 
 class Health(BaseModel):
-    status: Literal["ok"]
+    status: Literal["ok", "failing"]
+    storage: str = Field("ok", description='"ok", or why the storage is failing')
     version: str
     database: str = Field(description="sqlite or postgresql")
     schema_revision: str | None

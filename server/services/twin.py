@@ -28,10 +28,11 @@ from core.localization import NetworkCamera
 from core.localization.detect import MarkerDetectorConfig, PersonDetector
 from core.localization.detections import detect_frame
 from core.sim import Scene, UnicycleBase, WorldState, world_state
+from core.sim.installation import installed_calibration
 from core.sim.motion import Patrol
 from core.sim.occluders import scene_occluders
 from core.sim.render import camera_model, renderer_for
-from server.db.models import Camera, Robot, Room, Space
+from server.db.models import Camera, CameraCalibration, Robot, Room, Space
 from server.services.tracking import DetectionIn
 
 if TYPE_CHECKING:
@@ -41,7 +42,8 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-CAMERA_NOMINAL = "nominal"
+CAMERA_CALIBRATED = "calibrated"
+CAMERA_UNCALIBRATED = "uncalibrated"
 # Physics step of the robot base (s); the twin steps it as often as a frame period needs.
 _BASE_DT = 0.05
 # Pushes to the 3D scene (agents, tracks) and camera images, at most this often (Hz).
@@ -56,9 +58,13 @@ _IMAGE_HZ = 1.0
 
 
 def bootstrap_space(session: Session, scene: Scene) -> tuple[int, dict[str, int]]:
-    """Create the space, rooms, cameras (installed nominal calibration, status "nominal") and
-    robot of `scene` when the registry has no space yet; return (space id, camera name -> id)
-    of the space holding the scene's cameras."""
+    """Create the space, rooms, cameras and robot of `scene` when the registry has no space
+    yet; return (space id, camera name -> id) of the space holding the scene's cameras.
+
+    The cameras get the home's installed calibration (core.sim.installation: each camera's own
+    chessboard calibration, then the robot's marker drive), status "calibrated", with the
+    entry in their history; a camera the drive could not place is registered uncalibrated.
+    The twin's true cameras never enter the registry."""
     space = session.scalar(select(Space).order_by(Space.id).limit(1))
     if space is None:
         space = Space(name=scene.name, description="the digital twin's home")
@@ -67,20 +73,34 @@ def bootstrap_space(session: Session, scene: Scene) -> tuple[int, dict[str, int]
         for room in scene.rooms:
             polygon = [[float(x), float(y)] for x, y in room.polygon]
             session.add(Room(space_id=space.id, name=room.name, polygon=polygon))
+        installed = {c.name: c for c in installed_calibration(scene).cameras}
         for spec in scene.cameras:
+            # The resolution is the camera's own, known without calibration.
             model = camera_model(spec)
-            session.add(
-                Camera(
-                    space_id=space.id,
-                    name=spec.name,
-                    width=model.width,
-                    height=model.height,
-                    K=model.K.tolist(),
-                    dist=model.dist.tolist(),
-                    T_world_camera=model.T_world_camera.tolist(),
-                    status=CAMERA_NOMINAL,
-                )
+            cal = installed.get(spec.name)
+            camera = Camera(
+                space_id=space.id,
+                name=spec.name,
+                width=model.width,
+                height=model.height,
+                K=cal.K.tolist() if cal else None,
+                dist=cal.dist.tolist() if cal else None,
+                T_world_camera=cal.T_world_camera.tolist() if cal else None,
+                status=CAMERA_CALIBRATED if cal else CAMERA_UNCALIBRATED,
             )
+            session.add(camera)
+            if cal is not None:
+                session.flush()
+                session.add(
+                    CameraCalibration(
+                        camera_id=camera.id,
+                        K=cal.K.tolist(),
+                        dist=cal.dist.tolist(),
+                        rms=None,
+                        image_width=model.width,
+                        image_height=model.height,
+                    )
+                )
         if scene.robot is not None:
             session.add(
                 Robot(
@@ -182,6 +202,9 @@ class Twin:
         )
         self._lock = threading.Lock()
         self._stop = threading.Event()
+        # Set to cut the loop's wait short (a new rate, a stop): a slow rate must not hold it.
+        self._wake = threading.Event()
+        self._last_step = time.monotonic()
         self._paused = threading.Event()
         self._thread: threading.Thread | None = None
         self._frames: dict[int, CameraFrame] = {}
@@ -235,6 +258,7 @@ class Twin:
     def stop(self) -> None:
         """Stop the simulation thread (at the end of the current frame)."""
         self._stop.set()
+        self._wake.set()
         if self._thread is not None:
             self._thread.join(timeout=30)
             self._thread = None
@@ -243,6 +267,14 @@ class Twin:
     def running(self) -> bool:
         """Whether the thread runs and is not paused."""
         return self._thread is not None and self._thread.is_alive() and not self._paused.is_set()
+
+    @property
+    def stuck(self) -> bool:
+        """Whether the twin should run but has not finished a frame for 10 s or 5 periods."""
+        if self._paused.is_set() or self._thread is None:
+            return False
+        late = max(10.0, 5.0 / max(self.rate_hz, 1e-3))
+        return not self._thread.is_alive() or time.monotonic() - self._last_step > late
 
     def pause(self) -> None:
         """Hold the simulation clock (and the space's tracks) until `resume`."""
@@ -267,8 +299,9 @@ class Twin:
             self._tracking.reset(self.space_id)
 
     def set_rate(self, rate_hz: float) -> None:
-        """Set the frame rate of the simulation (Hz)."""
+        """Set the frame rate of the simulation (Hz); it takes effect at once."""
         self.rate_hz = float(rate_hz)
+        self._wake.set()
 
     # -- reads -------------------------------------------------------------------------------
 
@@ -286,6 +319,8 @@ class Twin:
                 "sim_time": self.sim_time,
                 "steps": self.steps,
                 "rate_hz": self.rate_hz,
+                "stuck": self.stuck,
+                "last_step_age_s": time.monotonic() - self._last_step,
                 "robot": None if pose is None else {"x": pose.x, "y": pose.y, "theta": pose.yaw},
                 "people": [{"x": x, "y": y} for x, y in people],
                 "robot_error_rms_m": float(np.sqrt(np.mean(errors**2))) if errors.size else None,
@@ -313,8 +348,11 @@ class Twin:
                     self.step(period)
                 except Exception:
                     log.exception("twin step failed")
+            self._last_step = time.monotonic()
             next_time = max(next_time + period, time.monotonic())
-            self._stop.wait(max(0.0, next_time - time.monotonic()))
+            if self._wake.wait(max(0.0, next_time - time.monotonic())):
+                self._wake.clear()
+                next_time = time.monotonic()
 
     def _network(self) -> dict[int, NetworkCamera]:
         # The registry's calibration, as a camera node reads it: the detector locates a person

@@ -12,6 +12,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from core.sim import default_scene, simulate_patrol
+from core.sim.render import camera_model
 from server.app import create_app
 
 
@@ -36,7 +37,14 @@ def test_twin_locates_the_robot_and_is_controlled(twin_client, admin):
     client = twin_client
     cameras = client.get("/api/v1/cameras", headers=admin).json()
     assert cameras["total"] == 4
-    assert {c["status"] for c in cameras["items"]} == {"nominal"}
+    # The home's installed calibration (its marker drive), never the twin's true cameras.
+    assert {c["status"] for c in cameras["items"]} == {"calibrated"}
+    truth = {c.name: c for c in default_scene().cameras}
+    for c in cameras["items"]:
+        K_true = camera_model(truth[c["name"]]).K
+        assert not np.allclose(c["K"], K_true, rtol=1e-6), c["name"]
+        # Spec 02's calibration: focal within 1 % of the twin's.
+        assert abs(c["K"][0][0] / K_true[0, 0] - 1.0) < 0.01, c["name"]
     assert client.get("/api/v1/rooms", headers=admin).json()["total"] == 3
 
     def robot_track():
@@ -95,7 +103,9 @@ def test_twin_locates_the_robot_and_is_controlled(twin_client, admin):
 
     # After the reset the robot's track forms again and the stream shows it.
     deadline = time.monotonic() + 20
-    with client.websocket_connect("/api/v1/ws/targets?token=test-admin-token") as ws:
+    with client.websocket_connect(
+        "/api/v1/ws/targets", headers={"Authorization": "Bearer test-admin-token"}
+    ) as ws:
         while time.monotonic() < deadline:
             message = ws.receive_json()
             if "robot" in {t["kind"] for t in message["targets"]}:
@@ -155,7 +165,8 @@ def test_network_run_calibrates_every_twin_camera_and_apply_updates_them(
         history = client.get(
             f"/api/v1/cameras/{cam['camera_id']}/calibrations", headers=admin
         ).json()
-        assert history["total"] == 1 and history["items"][0]["calibration_run_id"] == run["id"]
+        # The installed calibration the twin registered, then this run, newest first.
+        assert history["total"] == 2 and history["items"][0]["calibration_run_id"] == run["id"]
 
 
 def test_network_run_needs_the_twin(client, admin):

@@ -13,8 +13,13 @@ from pathlib import Path
 
 import httpx
 import pytest
+from alembic.script import ScriptDirectory
 
 from server.cli import main
+from server.db.migrate import alembic_config
+
+# The newest migration: what a fresh database is upgraded to.
+HEAD = ScriptDirectory.from_config(alembic_config("sqlite://")).get_current_head()
 
 
 def _free_port() -> int:
@@ -78,10 +83,11 @@ def test_serve_prints_urls_and_the_first_run_token_once(repo_root, tmp_path):
     first = _Server(repo_root, tmp_path)
     try:
         health = first.wait_healthy()
-        assert health["database"] == "sqlite" and health["schema_revision"] == "0003"
+        assert health["database"] == "sqlite" and health["schema_revision"] == HEAD
         assert first.line("Dashboard: ") == f"Dashboard: http://127.0.0.1:{first.port}/"
-        assert first.line("3D scene (viser): ") == (
-            f"3D scene (viser): http://127.0.0.1:{first.viser_port}/"
+        assert first.line("3D scene: ") == (
+            f"3D scene: http://127.0.0.1:{first.port}/api/v1/scene/view/ (viser listens on "
+            f"127.0.0.1:{first.viser_port} only; the API proxies it behind the sign-in)"
         )
         token_line = first.line("Admin token: ")
         assert token_line is not None
@@ -116,9 +122,9 @@ def test_db_upgrade_and_current(tmp_path, monkeypatch, capsys):
     assert main(["db", "current"]) == 1  # nothing applied yet
     assert "current: (none)" in capsys.readouterr().out
     assert main(["db", "upgrade"]) == 0
-    assert "revision 0003" in capsys.readouterr().out
+    assert f"revision {HEAD}" in capsys.readouterr().out
     assert main(["db", "current"]) == 0
-    assert "current: 0003" in capsys.readouterr().out
+    assert f"current: {HEAD}" in capsys.readouterr().out
     assert main(["db", "downgrade", "base"]) == 1
     out = capsys.readouterr().out
     assert "Backup: " in out and "current: (none)" in out
