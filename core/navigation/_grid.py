@@ -19,6 +19,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from core.errors import InvalidInput
+from core.geometry.polygon import inside_polygon
 
 Array = NDArray[np.float64]
 
@@ -84,16 +85,6 @@ class OccupancyGrid:
         return np.stack(np.meshgrid(x, y), -1)
 
 
-def _inside(P: Array, poly: Array) -> NDArray[np.bool_]:
-    """Return whether points (N, 2) lie inside a simple polygon (V, 2) (even-odd rule)."""
-    x, y = P[:, 0:1], P[:, 1:2]
-    a, b = poly, np.roll(poly, -1, axis=0)
-    cross = (a[:, 1] > y) != (b[:, 1] > y)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        xi = a[:, 0] + (y - a[:, 1]) * (b[:, 0] - a[:, 0]) / (b[:, 1] - a[:, 1])
-    return np.asarray(np.sum(cross & (x < xi), axis=1) % 2 == 1)
-
-
 def _segment_distance(P: Array, a: Array, b: Array) -> Array:
     d = b - a
     s = np.clip((P - a) @ d / (d @ d), 0.0, 1.0)
@@ -138,7 +129,7 @@ def occupancy_grid(plan: FloorPlan, robot_radius: float, resolution: float = 0.0
     clear = robot_radius + resolution * math.sqrt(0.5)
     ok = np.zeros(len(P), bool)
     for room in plan.rooms:
-        ok |= _inside(P, np.asarray(room.polygon, dtype=np.float64))
+        ok |= inside_polygon(P, np.asarray(room.polygon, dtype=np.float64))
     for w in plan.walls:
         for a, b in wall_spans(w):
             ok &= _segment_distance(P, a, b) >= clear + w.thickness / 2

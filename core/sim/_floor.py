@@ -10,19 +10,10 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 
 from core.errors import InvalidInput
+from core.geometry.polygon import inside_polygon as inside
 from core.sim.scene import Scene, Wall
 
 Array = NDArray[np.float64]
-
-
-def inside(P: Array, poly: Array) -> NDArray[np.bool_]:
-    """Return whether points (N, 2) lie inside a simple polygon (V, 2) (even-odd rule)."""
-    x, y = P[:, 0:1], P[:, 1:2]
-    a, b = poly, np.roll(poly, -1, axis=0)
-    cross = (a[:, 1] > y) != (b[:, 1] > y)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        xi = a[:, 0] + (y - a[:, 1]) * (b[:, 0] - a[:, 0]) / (b[:, 1] - a[:, 1])
-    return np.asarray(np.sum(cross & (x < xi), axis=1) % 2 == 1)
 
 
 def _solid_spans(w: Wall, doors: bool) -> list[tuple[Array, Array]]:

@@ -13,21 +13,16 @@ for it and applies it; the applied intrinsics are scored against the rendering c
 
 from __future__ import annotations
 
-import http.server
 import math
-import os
 import signal
-import socket
 import subprocess
 import sys
-import threading
-import time
-from pathlib import Path
 
 import cv2
 import httpx
 import numpy as np
 import pytest
+from node_helpers import MjpegStream, node_env, serve_without_twin
 
 from server.node.calibrate import (
     MIN_PARAM_DISTANCE,
@@ -127,95 +122,16 @@ def _board_views(n: int, seed: int) -> tuple[np.ndarray, list[bytes]]:
     return np.asarray(cam.K), frames
 
 
-class _BoardStream:
-    """An MJPEG server cycling through `frames` at `fps`, each part stamped with X-Timestamp."""
-
-    def __init__(self, frames: list[bytes], fps: float = 8.0) -> None:
-        class Handler(http.server.BaseHTTPRequestHandler):
-            def log_message(self, *args) -> None:
-                pass
-
-            def do_GET(self) -> None:
-                self.send_response(200)
-                self.send_header("Content-Type", "multipart/x-mixed-replace; boundary=b")
-                self.end_headers()
-                k = 0
-                while True:
-                    body = frames[k % len(frames)]
-                    head = (
-                        f"--b\r\nContent-Type: image/jpeg\r\nContent-Length: {len(body)}\r\n"
-                        f"X-Timestamp: {time.time():.6f}\r\n\r\n"
-                    )
-                    try:
-                        self.wfile.write(head.encode() + body + b"\r\n")
-                        self.wfile.flush()
-                    except (BrokenPipeError, ConnectionResetError):
-                        return
-                    k += 1
-                    time.sleep(1.0 / fps)
-
-        self.server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Handler)
-        self.server.daemon_threads = True
-        self.url = f"http://127.0.0.1:{self.server.server_address[1]}/stream.mjpg"
-        threading.Thread(target=self.server.serve_forever, daemon=True).start()
-
-    def close(self) -> None:
-        self.server.shutdown()
-        self.server.server_close()
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def _env() -> dict[str, str]:
-    return {k: v for k, v in os.environ.items() if not k.startswith("INTSPACE_")}
-
-
-def _serve(repo_root: Path, data_dir: Path) -> tuple[subprocess.Popen, str]:
-    """Start `intspace serve` without the twin; return the process and its API URL once
-    healthy."""
-    port = _free_port()
-    env = _env()
-    env.update(
-        INTSPACE_DATA_DIR=str(data_dir),
-        INTSPACE_SIMULATION="false",
-        INTSPACE_VISER_ENABLED="false",
-        INTSPACE_ADMIN_TOKEN=TOKEN,
-    )
-    process = subprocess.Popen(
-        [sys.executable, "-m", "server.cli", "serve", "--port", str(port)],
-        cwd=repo_root,
-        env=env,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-    )
-    api = f"http://127.0.0.1:{port}/api/v1"
-    deadline = time.monotonic() + 90
-    while time.monotonic() < deadline:
-        assert process.poll() is None, "intspace serve exited"
-        try:
-            if httpx.get(f"{api}/health", headers=HEADERS, timeout=2).status_code == 200:
-                return process, api
-        except httpx.TransportError:
-            pass
-        time.sleep(0.2)
-    process.kill()
-    raise AssertionError("intspace serve did not answer within 90 s")
-
-
 def test_calibrate_captures_views_from_a_stream_submits_and_applies_the_run(repo_root, tmp_path):
     K_true, frames = _board_views(14, seed=5)
-    stream = _BoardStream(frames)
-    service, api = _serve(repo_root, tmp_path)
+    stream = MjpegStream(frames)
+    service, api = serve_without_twin(repo_root, tmp_path, TOKEN)
     try:
         http_client = httpx.Client(base_url=api, headers=HEADERS, timeout=10)
         created = http_client.post("/cameras", json={"name": CAMERA, "width": 640, "height": 480})
         assert created.status_code == 201, created.text
         camera_id = created.json()["id"]
-        env = _env()
+        env = node_env()
         env["INTSPACE_TOKEN"] = TOKEN
         args = ["--camera", CAMERA, "--board", "9x6", "--square", str(SQUARE), "--api", api]
         done = subprocess.run(

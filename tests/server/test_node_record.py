@@ -10,15 +10,11 @@ replays the recording; both post to the service, whose stored detections are com
 
 from __future__ import annotations
 
-import http.server
 import json
-import os
 import signal
-import socket
 import sqlite3
 import subprocess
 import sys
-import threading
 import time
 from pathlib import Path
 
@@ -26,6 +22,7 @@ import cv2
 import httpx
 import numpy as np
 import pytest
+from node_helpers import MjpegStream, node_env, serve_without_twin
 
 from core.errors import InvalidInput
 from server.node.frames import Frame
@@ -145,81 +142,8 @@ def _robot_frames(n: int) -> tuple[list[bytes], dict]:
     return frames, row
 
 
-class _Stream:
-    """An MJPEG server cycling through `frames` at `fps`, each part stamped with X-Timestamp."""
-
-    def __init__(self, frames: list[bytes], fps: float = 10.0) -> None:
-        class Handler(http.server.BaseHTTPRequestHandler):
-            def log_message(self, *args) -> None:
-                pass
-
-            def do_GET(self) -> None:
-                self.send_response(200)
-                self.send_header("Content-Type", "multipart/x-mixed-replace; boundary=b")
-                self.end_headers()
-                k = 0
-                while True:
-                    body = frames[k % len(frames)]
-                    head = (
-                        f"--b\r\nContent-Type: image/jpeg\r\nContent-Length: {len(body)}\r\n"
-                        f"X-Timestamp: {time.time():.6f}\r\n\r\n"
-                    )
-                    try:
-                        self.wfile.write(head.encode() + body + b"\r\n")
-                        self.wfile.flush()
-                    except (BrokenPipeError, ConnectionResetError):
-                        return
-                    k += 1
-                    time.sleep(1.0 / fps)
-
-        self.server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Handler)
-        self.server.daemon_threads = True
-        self.url = f"http://127.0.0.1:{self.server.server_address[1]}/stream.mjpg"
-        threading.Thread(target=self.server.serve_forever, daemon=True).start()
-
-    def close(self) -> None:
-        self.server.shutdown()
-        self.server.server_close()
-
-
-def _env() -> dict[str, str]:
-    return {k: v for k, v in os.environ.items() if not k.startswith("INTSPACE_")}
-
-
-def _serve(repo_root: Path, data_dir: Path) -> tuple[subprocess.Popen, str]:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    env = _env()
-    env.update(
-        INTSPACE_DATA_DIR=str(data_dir),
-        INTSPACE_SIMULATION="false",
-        INTSPACE_VISER_ENABLED="false",
-        INTSPACE_ADMIN_TOKEN=TOKEN,
-    )
-    process = subprocess.Popen(
-        [sys.executable, "-m", "server.cli", "serve", "--port", str(port)],
-        cwd=repo_root,
-        env=env,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-    )
-    api = f"http://127.0.0.1:{port}/api/v1"
-    deadline = time.monotonic() + 90
-    while time.monotonic() < deadline:
-        assert process.poll() is None, "intspace serve exited"
-        try:
-            if httpx.get(f"{api}/health", headers=HEADERS, timeout=2).status_code == 200:
-                return process, api
-        except httpx.TransportError:
-            pass
-        time.sleep(0.2)
-    process.kill()
-    raise AssertionError("intspace serve did not answer within 90 s")
-
-
 def _node(repo_root: Path, *args: str) -> subprocess.Popen:
-    env = _env()
+    env = node_env()
     env["INTSPACE_TOKEN"] = TOKEN
     return subprocess.Popen(
         [sys.executable, "-m", "server.cli", "node", *args],
@@ -248,10 +172,10 @@ def _distinct(rows: np.ndarray, kinds: list[str]) -> set[tuple]:
 
 def test_a_recorded_stream_replayed_posts_the_same_detections(repo_root, tmp_path):
     frames, row = _robot_frames(30)
-    stream = _Stream(frames)
+    stream = MjpegStream(frames)
     data_dir = tmp_path / "service"
     data_dir.mkdir()
-    service, api = _serve(repo_root, data_dir)
+    service, api = serve_without_twin(repo_root, data_dir, TOKEN)
     recording = tmp_path / "recording"
     try:
         created = httpx.post(f"{api}/cameras", json=row, headers=HEADERS, timeout=10)
