@@ -648,3 +648,42 @@ def test_an_image_declaring_too_many_pixels_is_refused_before_decoding():
         check_image_size(b"hello", 12_000_000, "files.0", "a.png")
     assert unknown.value.status == 415
     assert check_image_size(_encoded(".png", (48, 64)), 12_000_000, "f", "ok.png").pixels == 3072
+
+
+def test_an_upload_declaring_too_many_pixels_is_refused_by_the_service(case, home):
+    import struct
+    import zlib
+
+    def chunk(kind: bytes, body: bytes) -> bytes:
+        crc = struct.pack(">I", zlib.crc32(kind + body))
+        return struct.pack(">I", len(body)) + kind + body + crc
+
+    # The case end to end: a few-byte PNG declaring 20000 x 20000 pixels cost the old
+    # service ~760 MB to decode before its 415.
+    ihdr = struct.pack(">IIBBBBB", 20000, 20000, 8, 0, 0, 0, 0)
+    png = b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IEND", b"")
+    boundary = "hostileboundary"
+    camera = home["cameras"][0]["id"]
+    parts = [
+        (f'--{boundary}\r\nContent-Disposition: form-data; name="{k}"\r\n\r\n{v}\r\n').encode()
+        for k, v in (("camera_id", camera), ("board", "9x6"), ("square", "0.025"))
+    ]
+    parts.append(
+        (
+            f'--{boundary}\r\nContent-Disposition: form-data; name="files"; '
+            'filename="big.png"\r\nContent-Type: image/png\r\n\r\n'
+        ).encode()
+        + png
+        + b"\r\n"
+    )
+    body = b"".join(parts) + f"--{boundary}--\r\n".encode()
+    status, _, problem, growth, _ = case.send(
+        "POST",
+        "/api/v1/calibration-runs/upload",
+        body,
+        **{"Content-Type": f"multipart/form-data; boundary={boundary}"},
+    )
+    assert status == 413, problem
+    assert "20000x20000" in json.dumps(problem) and "pixels" in json.dumps(problem)
+    assert growth < RSS_BOUND_MB
+    case.next_request_answered()

@@ -52,6 +52,9 @@ def test_a_deleted_data_directory_makes_writes_fail_loudly(sqlite_client):
     detail = response.json()["detail"]
     assert "storage failing" in detail and "deleted" in detail
     assert response.headers["retry-after"]
+    # /health says so too (before: "ok").
+    health = client.get("/api/v1/health").json()
+    assert health["status"] == "failing" and "deleted" in health["storage"], health
 
 
 def test_a_full_disk_is_named_and_nothing_is_acknowledged(sqlite_client):

@@ -269,6 +269,19 @@ export async function renderFloor(main) {
   const readout = h("span", { class: "small muted mono", testid: "coverage-readout" }, "");
   let heatMode = "std";
   const stdTop = cov ? stdScaleTop(cov) : 1;
+  // Cameras the map could not use are named with their reason; the rest of the space is served.
+  const refused = cov && cov.cameras_refused ? Object.entries(cov.cameras_refused) : [];
+  if (refused.length) {
+    const byId = new Map((cameras.value?.items || []).map((c) => [String(c.id), c.name]));
+    heatNote.append(
+      h(
+        "div",
+        { class: "small", testid: "coverage-refused" },
+        "Left out of the map: " +
+          refused.map(([id, why]) => `${byId.get(id) || `camera ${id}`} (${why})`).join("; "),
+      ),
+    );
+  }
   const drawHeat = () => {
     gHeat.replaceChildren();
     if (!cov) return;
