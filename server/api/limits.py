@@ -25,6 +25,8 @@ BODY_LIMITS: tuple[tuple[str, re.Pattern[str], int], ...] = (
     ("POST", re.compile(r"^/api/v1/calibration-runs/upload$"), 1 << 62),
     ("POST", re.compile(r"^/api/v1/observations$"), 4 * MiB),
     ("POST", re.compile(r"^/api/v1/calibration-runs$"), 8 * MiB),
+    # One photo (its own 16 MiB file cap and the pixel cap still apply).
+    ("POST", re.compile(r"^/api/v1/landmarks/detect$"), 32 * MiB),
     ("*", re.compile(r"^/api/v1/"), 1 * MiB),
 )
 

@@ -16,6 +16,7 @@ from sqlalchemy import (
     LargeBinary,
     String,
     Text,
+    UniqueConstraint,
 )
 from sqlalchemy.orm import Mapped, mapped_column, relationship
 
@@ -275,3 +276,62 @@ class Detection(Timestamped, Base):
     kind: Mapped[str] = mapped_column(String(20))
     height: Mapped[float] = mapped_column(Float)
     label: Mapped[str | None] = mapped_column(String(200))
+
+
+class SemanticObject(Timestamped, Base):
+    """An object of a space's semantic map (spec 04): one row per object mark read (`mark_id`,
+    the id its payload carries), with class, name, room, the fused world pose T_world_mark and
+    its 6x6 covariance (rotation perturbation rad, position m), last seen (Unix s), how many
+    reads were fused and the payload text last read."""
+
+    __tablename__ = "semantic_objects"
+    __table_args__ = (UniqueConstraint("space_id", "mark_id"),)
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    space_id: Mapped[int] = mapped_column(ForeignKey("spaces.id", ondelete="CASCADE"), index=True)
+    mark_id: Mapped[int] = mapped_column(Integer)
+    object_class: Mapped[str] = mapped_column(String(200))
+    name: Mapped[str] = mapped_column(String(200))
+    room: Mapped[str] = mapped_column(String(200))
+    T_world_mark: Mapped[list[list[float]]] = mapped_column(JSON)
+    cov: Mapped[list[list[float]]] = mapped_column(JSON)
+    last_seen: Mapped[float] = mapped_column(Float)
+    reads: Mapped[int] = mapped_column(Integer)
+    confidence: Mapped[float] = mapped_column(Float)
+    payload: Mapped[str] = mapped_column(Text)
+
+
+class NavigationPlace(Timestamped, Base):
+    """A place of a space's navigation map: a signpost read (`mark_id`), its name, room, world
+    pose (x, y, z, qx, qy, qz, qw) from its payload, neighbour mark ids, last seen (Unix s) and
+    the payload text."""
+
+    __tablename__ = "navigation_places"
+    __table_args__ = (UniqueConstraint("space_id", "mark_id"),)
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    space_id: Mapped[int] = mapped_column(ForeignKey("spaces.id", ondelete="CASCADE"), index=True)
+    mark_id: Mapped[int] = mapped_column(Integer)
+    name: Mapped[str] = mapped_column(String(200))
+    room: Mapped[str] = mapped_column(String(200))
+    pose: Mapped[list[float]] = mapped_column(JSON)
+    neighbours: Mapped[list[int]] = mapped_column(JSON)
+    last_seen: Mapped[float] = mapped_column(Float)
+    reads: Mapped[int] = mapped_column(Integer)
+    payload: Mapped[str] = mapped_column(Text)
+
+
+class NavigationEdge(Timestamped, Base):
+    """An edge of a space's navigation map between two places (their mark ids, from < to):
+    its length (m) and what made it ("neighbour": a payload's neighbour field; "room": the two
+    share a room)."""
+
+    __tablename__ = "navigation_edges"
+    __table_args__ = (UniqueConstraint("space_id", "from_mark", "to_mark"),)
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    space_id: Mapped[int] = mapped_column(ForeignKey("spaces.id", ondelete="CASCADE"), index=True)
+    from_mark: Mapped[int] = mapped_column(Integer)
+    to_mark: Mapped[int] = mapped_column(Integer)
+    length_m: Mapped[float] = mapped_column(Float)
+    via: Mapped[str] = mapped_column(String(20))

@@ -1,0 +1,377 @@
+// Landmarks: the registry's landmarks with their printable artwork, detection on an uploaded
+// photo (outlines and labels drawn over it), and the semantic and navigation maps read so far.
+
+import { api, list } from "../api.js";
+import { errorBox, fmt, h, mount, panel, s, sig, toastError } from "../ui.js";
+
+const BASE = "/api/v1";
+
+function printLinks(landmark) {
+  if (landmark.kind !== "qr") return h("span", { class: "muted" }, "not a QR landmark");
+  return h(
+    "span",
+    { class: "print-links" },
+    ["svg", "pdf", "png"].map((ext) =>
+      h(
+        "a",
+        {
+          class: "btn small",
+          href: `${BASE}/landmarks/${landmark.id}/print.${ext}`,
+          target: "_blank",
+          rel: "noopener",
+          testid: `print-${ext}-${landmark.id}`,
+        },
+        ext.toUpperCase(),
+      ),
+    ),
+  );
+}
+
+function landmarkTable(items) {
+  if (!items.length) {
+    return h(
+      "p",
+      { class: "empty", testid: "landmark-table-empty" },
+      "No landmarks registered yet (POST /api/v1/landmarks, or `intspace landmark make`).",
+    );
+  }
+  return h(
+    "div",
+    { class: "table-wrap" },
+    h(
+      "table",
+      { testid: "landmark-table" },
+      h(
+        "thead",
+        null,
+        h("tr", null, ["Id", "Kind", "Size", "Payload", "Print"].map((t) => h("th", null, t))),
+      ),
+      h(
+        "tbody",
+        null,
+        items.map((l) =>
+          h(
+            "tr",
+            { testid: `landmark-row-${l.id}` },
+            h("td", { class: "num" }, String(l.id)),
+            h("td", null, l.kind),
+            h("td", { class: "num" }, `${fmt(l.size_m * 100, 1)} cm`),
+            h("td", { class: "mono payload", title: l.payload }, l.payload),
+            h("td", null, printLinks(l)),
+          ),
+        ),
+      ),
+    ),
+  );
+}
+
+function label(det) {
+  if (det.record) return `#${det.record.id} ${det.record.name}`;
+  return `${det.kind}: ${det.reason || "not read"}`;
+}
+
+/** The photo with each detection's outline and label drawn over it (SVG in image pixels). */
+function overlay(url, result) {
+  const { width, height } = result;
+  const stroke = Math.max(2, width / 300);
+  const font = Math.max(12, width / 40);
+  return s(
+    "svg",
+    {
+      class: "detect-overlay",
+      viewBox: `0 0 ${width} ${height}`,
+      role: "img",
+      "aria-label": `${result.detections.length} landmark(s) found`,
+      testid: "detection-overlay",
+    },
+    s("image", { href: url, x: 0, y: 0, width, height }),
+    result.detections.map((det, i) => {
+      const pts = det.outline.map(([u, v]) => `${u},${v}`).join(" ");
+      const top = det.outline.reduce((a, b) => (b[1] < a[1] ? b : a), det.outline[0]);
+      return s(
+        "g",
+        { class: `detection ${det.kind}`, testid: `detection-${i}` },
+        s("polygon", {
+          points: pts,
+          class: "outline",
+          "stroke-width": stroke,
+          testid: "detection-outline",
+        }),
+        s(
+          "text",
+          {
+            x: top[0],
+            y: Math.max(font, top[1] - font / 3),
+            "font-size": font,
+            // Labels near the right edge end at their corner instead of running off the photo.
+            "text-anchor": top[0] > 0.6 * width ? "end" : "start",
+            class: "tag",
+          },
+          label(det),
+        ),
+      );
+    }),
+  );
+}
+
+function detectionTable(result) {
+  if (!result.detections.length) {
+    return h("p", { class: "empty", testid: "detections-empty" }, "No landmark found.");
+  }
+  return h(
+    "div",
+    { class: "table-wrap" },
+    h(
+      "table",
+      { testid: "detection-table" },
+      h(
+        "thead",
+        null,
+        h(
+          "tr",
+          null,
+          ["Kind", "Read", "Distance", "Position (camera)", "σ position"].map((t) =>
+            h("th", null, t),
+          ),
+        ),
+      ),
+      h(
+        "tbody",
+        null,
+        result.detections.map((d) => {
+          const sd = [3, 4, 5].map((k) => Math.sqrt(d.cov[k][k]) * 1000);
+          return h(
+            "tr",
+            null,
+            h("td", null, d.kind),
+            h("td", { testid: "detection-read" }, label(d)),
+            h("td", { class: "num" }, `${fmt(d.distance_m, 3)} m`),
+            h("td", { class: "num mono" }, d.position.map((v) => fmt(v, 3)).join(", ")),
+            h("td", { class: "num" }, `${sd.map((v) => sig(v, 2)).join(" / ")} mm`),
+          );
+        }),
+      ),
+    ),
+  );
+}
+
+function detectForm(cameras, out) {
+  const usable = cameras.filter((c) => c.K);
+  const file = h("input", {
+    type: "file",
+    accept: "image/*",
+    required: true,
+    id: "landmark-photo",
+    testid: "landmark-photo",
+  });
+  const camera = h(
+    "select",
+    { id: "detect-camera", testid: "detect-camera", required: true },
+    usable.map((c) => h("option", { value: String(c.id) }, `${c.name} (${c.width}x${c.height})`)),
+  );
+  const submit = h(
+    "button",
+    { class: "btn primary", type: "submit", testid: "detect-submit", disabled: !usable.length },
+    "Find landmarks",
+  );
+  let shown = null;
+  const form = h(
+    "form",
+    {
+      class: "form-grid",
+      testid: "detect-form",
+      onSubmit: async (event) => {
+        event.preventDefault();
+        if (!file.files.length) return;
+        const body = new FormData();
+        body.append("image", file.files[0]);
+        body.append("camera_id", camera.value);
+        submit.disabled = true;
+        mount(out, h("p", { class: "muted" }, "Detecting…"));
+        try {
+          const result = await api("/landmarks/detect", { method: "POST", form: body });
+          if (shown) URL.revokeObjectURL(shown);
+          shown = URL.createObjectURL(file.files[0]);
+          mount(out, overlay(shown, result), detectionTable(result));
+        } catch (err) {
+          mount(out, errorBox(err, "detect-error"));
+          toastError(err);
+        } finally {
+          submit.disabled = false;
+        }
+      },
+    },
+    h("div", { class: "form-row" }, h("label", { for: "landmark-photo" }, "Photo"), file),
+    h("div", { class: "form-row" }, h("label", { for: "detect-camera" }, "Camera"), camera),
+    h("div", { class: "form-actions" }, submit),
+  );
+  return [
+    usable.length
+      ? null
+      : h(
+          "p",
+          { class: "empty", testid: "detect-no-camera" },
+          "No camera has intrinsics yet: calibrate one to locate landmarks in its photos.",
+        ),
+    form,
+  ];
+}
+
+function mapTable(testid, head, rows) {
+  if (!rows.length) return h("p", { class: "empty", testid: `${testid}-empty` }, "Nothing read yet.");
+  return h(
+    "div",
+    { class: "table-wrap" },
+    h(
+      "table",
+      { testid },
+      h("thead", null, h("tr", null, head.map((t) => h("th", null, t)))),
+      h(
+        "tbody",
+        null,
+        rows.map((r) => h("tr", null, r.map((c) => h("td", null, c)))),
+      ),
+    ),
+  );
+}
+
+/** The maps on the floor plan: rooms, navigation edges and places (red), objects (blue). */
+function mapPlan(rooms, semantic, navigation) {
+  const W = 640;
+  const H = 360;
+  const places = navigation.features.filter((f) => f.properties.kind === "place");
+  const edges = navigation.features.filter((f) => f.properties.kind === "edge");
+  const pts = [
+    ...rooms.flatMap((r) => r.polygon || []),
+    ...places.map((f) => f.geometry.coordinates),
+    ...semantic.features.map((f) => f.geometry.coordinates),
+  ];
+  if (!pts.length) return null;
+  const xs = pts.map((p) => p[0]);
+  const ys = pts.map((p) => p[1]);
+  const [x0, x1, y0, y1] = [Math.min(...xs), Math.max(...xs), Math.min(...ys), Math.max(...ys)];
+  const pad = 28;
+  const scale = Math.min(
+    (W - 2 * pad) / Math.max(x1 - x0, 1e-6),
+    (H - 2 * pad) / Math.max(y1 - y0, 1e-6),
+  );
+  const X = (x) => (W - scale * (x1 - x0)) / 2 + (x - x0) * scale;
+  const Y = (y) => H - (H - scale * (y1 - y0)) / 2 - (y - y0) * scale; // world y up
+  return s(
+    "svg",
+    {
+      class: "plot floorplan maps-plan",
+      viewBox: `0 0 ${W} ${H}`,
+      role: "img",
+      "aria-label": "Semantic and navigation maps on the floor plan",
+      testid: "maps-plan",
+    },
+    rooms
+      .filter((r) => (r.polygon || []).length >= 3)
+      .map((r) =>
+        s("polygon", { class: "room", points: r.polygon.map((p) => `${X(p[0])},${Y(p[1])}`).join(" ") }),
+      ),
+    edges.map((f) => {
+      const [[ax, ay], [bx, by]] = f.geometry.coordinates;
+      return s("line", {
+        class: `nav-edge ${f.properties.via}`,
+        x1: X(ax),
+        y1: Y(ay),
+        x2: X(bx),
+        y2: Y(by),
+        testid: "plan-edge",
+      });
+    }),
+    places.map((f) => {
+      const [x, y] = f.geometry.coordinates;
+      return s(
+        "g",
+        { class: "nav-place", testid: "plan-place" },
+        s("circle", { cx: X(x), cy: Y(y), r: 6 }),
+        s("text", { x: X(x) + 9, y: Y(y) - 6 }, f.properties.name),
+      );
+    }),
+    semantic.features.map((f) => {
+      const [x, y] = f.geometry.coordinates;
+      return s(
+        "g",
+        { class: "sem-object", testid: "plan-object" },
+        s("rect", { x: X(x) - 5, y: Y(y) - 5, width: 10, height: 10 }),
+        s("text", { x: X(x) + 9, y: Y(y) + 14 }, f.properties.name),
+      );
+    }),
+  );
+}
+
+async function mapsPanel() {
+  let semantic;
+  let navigation;
+  try {
+    [semantic, navigation] = await Promise.all([api("/maps/semantic"), api("/maps/navigation")]);
+  } catch (err) {
+    if (err.status === 409) {
+      return panel(
+        "Maps",
+        "Objects and places read from landmarks",
+        h("p", { class: "empty", testid: "maps-missing" }, err.detail),
+      );
+    }
+    throw err;
+  }
+  const rooms = await list(`/rooms?space_id=${semantic.space_id}`, { limit: 500 });
+  const objects = semantic.features.map(({ geometry, properties: p }) => [
+    `#${p.id}`,
+    p.class,
+    p.name,
+    p.room,
+    geometry.coordinates.map((v) => fmt(v, 2)).join(", "),
+    String(p.reads),
+    fmt(p.confidence, 3),
+  ]);
+  const places = navigation.features
+    .filter((f) => f.properties.kind === "place")
+    .map(({ geometry, properties: p }) => [
+      `#${p.id}`,
+      p.name,
+      p.room,
+      geometry.coordinates.map((v) => fmt(v, 2)).join(", "),
+      p.neighbours.map((n) => `#${n}`).join(" "),
+    ]);
+  return panel(
+    "Maps",
+    "The semantic map (objects, blue) and the navigation map (places and their links, red) " +
+      "read from landmarks",
+    mapPlan(rooms.items, semantic, navigation),
+    h("h3", null, "Objects"),
+    mapTable(
+      "semantic-table",
+      ["Mark", "Class", "Name", "Room", "x, y (m)", "Reads", "Confidence"],
+      objects,
+    ),
+    h("h3", null, "Places"),
+    mapTable("places-table", ["Mark", "Name", "Room", "x, y (m)", "Neighbours"], places),
+  );
+}
+
+export async function renderLandmarks(main) {
+  const [landmarks, cameras] = await Promise.all([
+    list("/landmarks", { limit: 500 }),
+    list("/cameras", { limit: 500 }),
+  ]);
+  const out = h("div", { class: "detect-result", testid: "detect-result" });
+  mount(
+    main,
+    panel(
+      "Landmarks",
+      "Printed at true size: the blue frame's side or the red rings' diameter is the size",
+      landmarkTable(landmarks.items),
+    ),
+    panel(
+      "Find landmarks in a photo",
+      "Pick the camera that took it: its intrinsics locate each landmark",
+      detectForm(cameras.items, out),
+      out,
+    ),
+    await mapsPanel(),
+  );
+}
