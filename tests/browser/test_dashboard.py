@@ -101,6 +101,9 @@ def test_first_page_interactive_and_sign_in(
     page.get_by_test_id("token-submit").click()
     expect(page.get_by_test_id("sign-out")).to_be_visible()
     expect(page.get_by_test_id("health-database")).to_have_text("sqlite")
+    # Health in words, not raw values ("Scene: true").
+    expect(page.get_by_test_id("health-storage")).to_have_text("working")
+    expect(page.get_by_test_id("health")).not_to_contain_text("true")
     expect(page.get_by_test_id("count-cameras")).to_contain_text("0")
 
     # The page holds no token: the service's HttpOnly session cookie carries the sign-in.

@@ -70,11 +70,16 @@ export async function renderOverview(main) {
           h("dd", { class: "mono", testid: "health-version" }, hv.version || "–"),
           h("dt", null, "Database"),
           h("dd", { testid: "health-database" }, describeDatabase(hv.database)),
-          ...Object.entries(hv)
-            .filter(
-              ([k, v]) => !["status", "version", "database"].includes(k) && typeof v !== "object",
-            )
-            .map(([k, v]) => [h("dt", null, sentence(k)), h("dd", null, String(v))]),
+          h("dt", null, "Storage"),
+          h("dd", { testid: "health-storage" }, hv.storage === "ok" ? "working" : hv.storage || "–"),
+          h("dt", null, "Schema"),
+          h("dd", { class: "mono" }, hv.schema_revision ? `revision ${hv.schema_revision}` : "–"),
+          h("dt", null, "Reads"),
+          h("dd", null, hv.public_reads ? "open to anyone" : "need a token"),
+          h("dt", null, "Digital twin"),
+          h("dd", null, hv.simulation ? "running in this service" : "off"),
+          h("dt", null, "3D scene"),
+          h("dd", { testid: "health-scene" }, hv.scene ? "served by this process" : "not here"),
         ),
   );
 
@@ -173,11 +178,6 @@ export async function renderOverview(main) {
     ),
     runsPanel,
   );
-}
-
-function sentence(key) {
-  const words = key.replaceAll("_", " ");
-  return words.charAt(0).toUpperCase() + words.slice(1);
 }
 
 function cameraName(cameras, id) {
