@@ -19,7 +19,7 @@ SEEDS = (21,)
 
 @pytest.mark.parametrize("seed", SEEDS)
 def test_tracking_async_meets_spec_08(seed):
-    minutes = 3.0
+    minutes = 2.0
     r = ts.tracking_async(seed=seed, minutes=minutes)
     assert r.conditions == {
         "rate_hz": 10.0,
