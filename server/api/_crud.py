@@ -33,6 +33,29 @@ def check_references(session: Session, references: dict[str, tuple[type[Base], A
             raise FieldProblem(422, field, f"no {table} with id {id}")
 
 
+def check_unique_name(
+    session: Session, row: Any, model: type[Base], changes: dict[str, Any], what: str
+) -> None:
+    """Raise 409 naming the clash when `model`'s row as it will be after `changes` (to `row`,
+    or to nothing when it is created) has the name of another row of its space (spaces: of
+    another space). Names are how users and camera nodes tell things apart."""
+    name = changes.get("name", getattr(row, "name", None))
+    if name is None:
+        return
+    stmt = select(model.id).where(model.name == name)  # type: ignore[attr-defined]
+    scoped = hasattr(model, "space_id")
+    if scoped:
+        space_id = changes["space_id"] if "space_id" in changes else getattr(row, "space_id", None)
+        column = model.space_id  # type: ignore[attr-defined]
+        stmt = stmt.where(column.is_(None) if space_id is None else column == space_id)
+    if row is not None:
+        stmt = stmt.where(model.id != row.id)  # type: ignore[attr-defined]
+    clash = session.scalar(stmt.limit(1))
+    if clash is not None:
+        where = " in this space" if scoped else ""
+        raise FieldProblem(409, "name", f"{what} {clash} is already called {name!r}{where}")
+
+
 def paginate(session: Session, stmt: Select[Any], page: Pagination) -> dict[str, Any]:
     """Return {items, total, limit, offset} for `stmt` (ordered by the caller)."""
     total = session.scalar(select(func.count()).select_from(stmt.order_by(None).subquery()))

@@ -16,6 +16,7 @@ from server.api._crud import (
     apply_changes,
     check_camera_model,
     check_references,
+    check_unique_name,
     get_or_404,
     paginate,
 )
@@ -171,6 +172,7 @@ def create_camera(body: CameraCreate, session: SessionDep, scene: SceneDep):
     check_references(session, {"space_id": (Space, body.space_id)})
     changes = body.changes()
     check_camera_model(None, changes)
+    check_unique_name(session, None, Camera, changes, "camera")
     camera = Camera(**changes)
     session.add(camera)
     session.commit()
@@ -201,6 +203,7 @@ def update_camera(camera_id: CameraId, body: CameraUpdate, session: SessionDep, 
     camera = get_or_404(session, Camera, camera_id, "camera")
     changes = body.changes()
     check_references(session, {"space_id": (Space, changes.get("space_id"))})
+    check_unique_name(session, camera, Camera, changes, "camera")
     check_camera_model(camera, changes)
     apply_changes(camera, changes)
     session.commit()

@@ -11,6 +11,7 @@ from server.api._crud import (
     apply_changes,
     check_camera_model,
     check_references,
+    check_unique_name,
     get_or_404,
     paginate,
 )
@@ -47,6 +48,7 @@ def create_projector(body: ProjectorCreate, session: SessionDep):
     """Create a projector (pose as T_world_projector or position + quaternion_xyzw)."""
     check_references(session, {"space_id": (Space, body.space_id)})
     changes = body.changes()
+    check_unique_name(session, None, Projector, changes, "projector")
     check_camera_model(None, changes)
     projector = Projector(**changes)
     session.add(projector)
@@ -66,6 +68,7 @@ def update_projector(projector_id: ProjectorId, body: ProjectorUpdate, session: 
     projector = get_or_404(session, Projector, projector_id, "projector")
     changes = body.changes()
     check_references(session, {"space_id": (Space, changes.get("space_id"))})
+    check_unique_name(session, projector, Projector, changes, "projector")
     check_camera_model(projector, changes)
     apply_changes(projector, changes)
     session.commit()

@@ -7,7 +7,13 @@ from typing import Annotated
 from fastapi import APIRouter, Path, Query, status
 from sqlalchemy import select
 
-from server.api._crud import apply_changes, check_references, get_or_404, paginate
+from server.api._crud import (
+    apply_changes,
+    check_references,
+    check_unique_name,
+    get_or_404,
+    paginate,
+)
 from server.api.deps import PageDep, ReadAccess, SessionDep, WriteAccess
 from server.api.errors import PROBLEM_RESPONSES
 from server.db.models import Camera, Robot, Space
@@ -46,6 +52,7 @@ def create_robot(body: RobotCreate, session: SessionDep):
     """Create a robot."""
     data = body.model_dump()
     check_references(session, _references(data))
+    check_unique_name(session, None, Robot, data, "robot")
     robot = Robot(**data)
     session.add(robot)
     session.commit()
@@ -64,6 +71,7 @@ def update_robot(robot_id: RobotId, body: RobotUpdate, session: SessionDep):
     robot = get_or_404(session, Robot, robot_id, "robot")
     changes = body.model_dump(exclude_unset=True)
     check_references(session, _references(changes))
+    check_unique_name(session, robot, Robot, changes, "robot")
     apply_changes(robot, changes)
     session.commit()
     return robot

@@ -7,7 +7,13 @@ from typing import Annotated
 from fastapi import APIRouter, Path, Query, status
 from sqlalchemy import select
 
-from server.api._crud import apply_changes, check_references, get_or_404, paginate
+from server.api._crud import (
+    apply_changes,
+    check_references,
+    check_unique_name,
+    get_or_404,
+    paginate,
+)
 from server.api.deps import PageDep, ReadAccess, SceneDep, SessionDep, WriteAccess
 from server.api.errors import PROBLEM_RESPONSES
 from server.db.models import Room, Space
@@ -37,6 +43,7 @@ def list_rooms(
 def create_room(body: RoomCreate, session: SessionDep, scene: SceneDep):
     """Create a room."""
     check_references(session, {"space_id": (Space, body.space_id)})
+    check_unique_name(session, None, Room, body.model_dump(), "room")
     room = Room(**body.model_dump())
     session.add(room)
     session.commit()
@@ -56,6 +63,7 @@ def update_room(room_id: RoomId, body: RoomUpdate, session: SessionDep, scene: S
     room = get_or_404(session, Room, room_id, "room")
     changes = body.model_dump(exclude_unset=True)
     check_references(session, {"space_id": (Space, changes.get("space_id"))})
+    check_unique_name(session, room, Room, changes, "room")
     apply_changes(room, changes)
     session.commit()
     scene.rooms_changed(session)

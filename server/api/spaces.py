@@ -7,7 +7,7 @@ from typing import Annotated
 from fastapi import APIRouter, Path, status
 from sqlalchemy import select
 
-from server.api._crud import apply_changes, get_or_404, paginate
+from server.api._crud import apply_changes, check_unique_name, get_or_404, paginate
 from server.api.deps import PageDep, ReadAccess, SceneDep, SessionDep, WriteAccess
 from server.api.errors import PROBLEM_RESPONSES
 from server.db.models import Space
@@ -28,7 +28,8 @@ def list_spaces(session: SessionDep, page: PageDep):
     "", response_model=SpaceRead, status_code=status.HTTP_201_CREATED, dependencies=[WriteAccess]
 )
 def create_space(body: SpaceCreate, session: SessionDep):
-    """Create a space."""
+    """Create a space; its name is its own (409 when another space has it)."""
+    check_unique_name(session, None, Space, body.model_dump(), "space")
     space = Space(**body.model_dump())
     session.add(space)
     session.commit()
@@ -45,7 +46,9 @@ def get_space(space_id: SpaceId, session: SessionDep):
 def update_space(space_id: SpaceId, body: SpaceUpdate, session: SessionDep):
     """Change the fields given."""
     space = get_or_404(session, Space, space_id, "space")
-    apply_changes(space, body.model_dump(exclude_unset=True))
+    changes = body.model_dump(exclude_unset=True)
+    check_unique_name(session, space, Space, changes, "space")
+    apply_changes(space, changes)
     session.commit()
     return space
 

@@ -250,3 +250,38 @@ def test_openapi_documents_the_api(client):
     assert "/api/v1/cameras" in schema["paths"]
     assert "/api/v1/calibration-runs/upload" in schema["paths"]
     assert "HTTPBearer" in schema["components"]["securitySchemes"]
+
+
+def test_names_are_unique_where_users_tell_things_apart(client, admin):
+    home = client.post("/api/v1/spaces", json={"name": "home"}, headers=admin).json()["id"]
+    other = client.post("/api/v1/spaces", json={"name": "flat"}, headers=admin).json()["id"]
+    assert client.post("/api/v1/spaces", json={"name": "home"}, headers=admin).status_code == 409
+    body = {"name": "hall", "width": 640, "height": 480, "space_id": home}
+    first = client.post("/api/v1/cameras", json=body, headers=admin)
+    assert first.status_code == 201
+    again = client.post("/api/v1/cameras", json=body, headers=admin)
+    # A camera node finds its camera by name within its space: a second one is refused by name.
+    assert again.status_code == 409, again.text
+    assert again.json()["errors"][0]["field"] == "name"
+    assert (
+        f"camera {first.json()['id']}" in again.json()["detail"]
+        and "'hall'" in again.json()["detail"]
+    )
+    # The same name in another space is another camera.
+    elsewhere = client.post("/api/v1/cameras", json={**body, "space_id": other}, headers=admin)
+    assert elsewhere.status_code == 201
+    # Renaming or moving onto a taken name is refused too; nothing changes.
+    moved = client.patch(
+        f"/api/v1/cameras/{elsewhere.json()['id']}", json={"space_id": home}, headers=admin
+    )
+    assert moved.status_code == 409
+    kept = client.get(f"/api/v1/cameras/{elsewhere.json()['id']}", headers=admin).json()
+    assert kept["space_id"] == other
+    # Renaming a camera to its own name is no clash.
+    same = client.patch(
+        f"/api/v1/cameras/{first.json()['id']}", json={"name": "hall"}, headers=admin
+    )
+    assert same.status_code == 200
+    room = {"name": "kitchen", "space_id": home, "polygon": [[0, 0], [3, 0], [3, 2], [0, 2]]}
+    assert client.post("/api/v1/rooms", json=room, headers=admin).status_code == 201
+    assert client.post("/api/v1/rooms", json=room, headers=admin).status_code == 409
