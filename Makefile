@@ -17,8 +17,9 @@ $(STAMP): pyproject.toml
 run: $(STAMP)
 	INTSPACE_SIMULATION=$${INTSPACE_SIMULATION:-true} $(VENV)/bin/intspace serve
 
+# Both cores: every test has its own files, ports and PostgreSQL database.
 test: $(STAMP)
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n 2
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .

@@ -238,7 +238,9 @@ def test_network_calibration_from_the_page(twin_service, browser_page: Page):
     assert not refused.count(), f"the service refused the network run: {refused.inner_text()}"
     page.wait_for_url(re.compile(r".*#/calibration/runs/\d+$"))
     run_id = int(page.url.rsplit("/", 1)[1])
-    expect(page.get_by_test_id("run-status")).to_have_text("succeeded", timeout=60_000)
+    # The drive renders a few hundred frames (~20 s on a free core); the suite runs on both
+    # cores, so the run shares its CPU with another test: a wait, not a bar.
+    expect(page.get_by_test_id("run-status")).to_have_text("succeeded", timeout=180_000)
 
     run = twin_service.api("GET", f"/calibration-runs/{run_id}")
     cams = run["result"]["cameras"]
