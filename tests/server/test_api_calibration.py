@@ -27,8 +27,11 @@ def _zhang_views(data_dir: Path) -> tuple[list, list]:
 
 
 def _camera(client: TestClient, admin: dict, width: int = 640, height: int = 480) -> int:
+    # Names are unique within a space: the second camera of a test is "pulnix-2".
+    taken = client.get("/api/v1/cameras", headers=admin).json()["total"]
+    name = "pulnix" if taken == 0 else f"pulnix-{taken + 1}"
     response = client.post(
-        "/api/v1/cameras", json={"name": "pulnix", "width": width, "height": height}, headers=admin
+        "/api/v1/cameras", json={"name": name, "width": width, "height": height}, headers=admin
     )
     assert response.status_code == 201, response.text
     return response.json()["id"]
