@@ -80,6 +80,9 @@ class LiveTargets:
         self.detection_retention_s = detection_retention_s
         self.space_id = space_id
         self._lock = threading.Lock()
+        # One flush at a time: a flush returns only once everything pending when it was called
+        # is committed, even when the writer thread took the batch a moment before.
+        self._flush_lock = threading.Lock()
         self._targets: dict[tuple[int | None, int], LiveTarget] = {}
         self._ended: list[LiveTarget] = []
         self._stop = threading.Event()
@@ -226,6 +229,10 @@ class LiveTargets:
 
     def flush(self) -> int:
         """Write the changed targets and their pending points; return the points written."""
+        with self._flush_lock:
+            return self._flush()
+
+    def _flush(self) -> int:
         with self._lock:
             batch = [v for v in self._targets.values() if v.dirty] + self._ended
             self._ended = []

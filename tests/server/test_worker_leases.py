@@ -182,11 +182,11 @@ def _worker(database_url: str, log: Path) -> subprocess.Popen:
         )
 
 
+# Several worker processes share a PostgreSQL database (spec 06): this test runs on it only.
+@pytest.mark.parametrize("database_url", ["postgresql"], indirect=True)
 def test_a_run_survives_its_worker_killed_and_finishes_once(
     make_settings, admin, database_url, tmp_path
 ):
-    if not database_url.startswith("postgresql"):
-        pytest.skip("several worker processes share a PostgreSQL database (spec 06)")
     settings = make_settings(run_executor="external")
     logs = [tmp_path / "worker0.log", tmp_path / "worker1.log"]
     # The workers start (seconds of imports) while the photos are drawn.
