@@ -315,7 +315,7 @@ def test_the_coverage_map_refuses_a_grid_or_image_over_its_caps(case, home):
 @pytest.mark.parametrize(
     "query",
     [
-        "spacing=0.022&format=json",  # 364 x 273 = 99,372 cells, 4 cameras
+        "spacing=0.022&format=json",  # 364 x 273 = 99,372 cells, 5 cameras
         "spacing=0.022&format=png&scale=7",  # the same as a 2548 x 1911 PNG
         "spacing=0.1&format=png&scale=35",  # 80 x 60 cells as a 2800 x 2100 PNG
     ],

@@ -26,7 +26,8 @@ def test_default_home_matches_the_spec() -> None:
     xy = np.array([p for r in s.rooms for p in r.polygon])
     extent = xy.max(0) - xy.min(0)
     assert extent == pytest.approx([8.0, 6.0], abs=0.5)  # "about 8 m x 6 m"
-    assert len(s.cameras) == 4
+    # Two cameras in each of the rooms where people meet (living room, kitchen), one in the bedroom.
+    assert len(s.cameras) == 5
     for c in s.cameras:
         assert c.pose.position[2] == pytest.approx(2.8)
         assert c.resolution == (640, 480)

@@ -85,3 +85,27 @@ def test_scenario_needs_a_robot_with_a_marker():
     bare = scene.model_copy(update={"robot": None})
     with pytest.raises(InvalidInput, match="robot"):
         ts.tracking(bare, minutes=0.01)
+
+
+def _segment_distance(p, a, b):
+    ab, ap = b - a, p - a
+    s = np.clip(ap @ ab / max(ab @ ab, 1e-12), 0.0, 1.0)
+    return float(np.linalg.norm(ap - s * ab))
+
+
+def test_nobody_stands_where_another_walks():
+    # The twin's walkers pass through each other and people do not: a person standing within
+    # two body radii (plus 0.2 m to step round) of another's path would be walked through,
+    # which no camera of a real home sees. Paths may cross; standing places stay clear.
+    scene = ts.tracking_scene()
+    for w in scene.people:
+        stands = [np.asarray(p) for p, pause in zip(w.waypoints, w.pauses, strict=True) if pause]
+        assert stands, w.name
+        for other in scene.people:
+            if other is w:
+                continue
+            clear = w.radius + other.radius + 0.2
+            path = np.asarray(other.waypoints, dtype=np.float64)
+            for p in stands:
+                gap = min(_segment_distance(p, a, b) for a, b in zip(path[:-1], path[1:]))
+                assert gap >= clear, (w.name, p.tolist(), other.name, gap)
