@@ -88,7 +88,7 @@ def test_unlabelled_detections_from_unsynchronised_cameras_become_tracks(client,
     scene = ts.tracking_scene()
     # The service knows the cameras as their network calibration placed them; the twin's true
     # cameras only make the images' points and score.
-    calibrated = ts.calibrated_cameras(scene, SEED)
+    calibrated = ts.calibrated_cameras(scene, SEED).first(ts.ASYNC_CAMERAS)
     truth = ts.true_cameras(scene)
     ids = dict(zip(calibrated.index, _register(client, admin, calibrated.cameras), strict=True))
     rng = np.random.default_rng(SEED)
