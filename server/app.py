@@ -143,9 +143,18 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             detection_retention_s=settings.detection_retention_s,
         )
         app.state.targets = live
-        with factory() as session:
-            live.close_stale(session)
-        tracking = TrackingService(factory, live, latency=settings.tracker_latency_s)
+        # On PostgreSQL several processes share the spaces' trackers (one per space, taken
+        # over with its live targets when its process dies): live targets are not stale there.
+        shared = settings.database_backend == "postgresql"
+        if not shared:
+            with factory() as session:
+                live.close_stale(session)
+        tracking = TrackingService(
+            factory,
+            live,
+            latency=settings.tracker_latency_s,
+            shared_database_url=settings.resolved_database_url if shared else None,
+        )
         app.state.tracking = tracking
         twin = None
         if settings.simulation:

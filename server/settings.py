@@ -41,9 +41,17 @@ class Settings(BaseSettings):
         "127.0.0.1", min_length=1, description="Interface `intspace serve` binds (--host wins)."
     )
     port: int = Field(8000, ge=1, le=65535, description="API port (--port wins).")
-    viser_enabled: bool = True
+    # Several `intspace serve` processes on one PostgreSQL database: exactly one runs the 3D
+    # scene and the twin (the defaults); the others set viser_enabled and simulation false.
+    viser_enabled: bool = Field(
+        True, description="Run the 3D scene (viser) in this process; false on all but one."
+    )
     viser_port: int = Field(8080, ge=1, le=65535)
-    simulation: bool = Field(False, description="Run the digital twin so the space is alive.")
+    simulation: bool = Field(
+        False,
+        description="Run the digital twin so the space is alive (in one process only, where "
+        "several share a PostgreSQL database).",
+    )
     twin_rate_hz: float = Field(
         5.0, ge=0.5, le=30, description="Frames per second of the twin (0.5 to 30)."
     )

@@ -499,6 +499,91 @@ class Tracker:
         self._last = [v + dt for v in self._last]
         self._moved = [v + dt for v in self._moved]
 
+    def restore(self, t: float, tracks: Sequence[TrackSnapshot]) -> tuple[TrackSnapshot, ...]:
+        """Take over confirmed or coasting tracks another tracker followed, keeping their ids,
+        and move the clock to t (s); return the tracks that ended at t (life cycle, module).
+
+        Each snapshot's state x (4,) and cov (4, 4) hold at its own time `snap.t` <= t; it is
+        predicted to t by the constant-velocity model (F(dt) x, F P F^T + Q(dt)), so snapshots
+        taken at different times (stored one by one) restart in step. A snapshot whose speed is
+        unknown should carry a zero velocity with `initial_speed_std`^2 variances. The ids must
+        be new to this tracker; later tracks get ids after the largest. The tracks' hits, first
+        and last update times, kind and label are kept; the ambiguity timer restarts at their
+        last update. Tracks already here are predicted to t too.
+        """
+        t = _as_time(t)
+        if self._t is not None and t < self._t:
+            raise InvalidInput(
+                f"cannot restore at t = {t} s, before the tracker's time {self._t} s"
+            )
+        snaps = list(tracks)
+        n = len(snaps)
+        ids = [s.id for s in snaps]
+        for s in snaps:
+            if not isinstance(s, TrackSnapshot):
+                raise InvalidInput(f"restore takes TrackSnapshot objects, got {type(s).__name__}")
+            if isinstance(s.id, bool) or not isinstance(s.id, int | np.integer) or s.id < 1:
+                raise InvalidInput(f"a track id must be an integer >= 1, got {s.id!r}")
+            if s.state not in LIVE_STATES:
+                raise InvalidInput(
+                    f"track {s.id} is {s.state}: only confirmed or coasting tracks are restored"
+                )
+            if s.kind not in KINDS:
+                raise InvalidInput(f"track {s.id} has kind {s.kind!r}, not one of {KINDS}")
+            when = _as_time(s.t)
+            if when > t:
+                raise InvalidInput(f"track {s.id} is at t = {when} s, after the restore time {t} s")
+            if not s.first_seen <= s.last_seen <= t:
+                raise InvalidInput(
+                    f"track {s.id} needs first_seen <= last_seen <= {t} s, got "
+                    f"{s.first_seen} and {s.last_seen}"
+                )
+        if len(set(ids)) != n or set(ids) & set(self._ids):
+            raise InvalidInput("restored track ids must be distinct and new to this tracker")
+        if n == 0:
+            self._x, self._P = self._predicted(t)
+            self._t = t
+            return self._manage()[0]
+        x = np.array([np.asarray(s.x, dtype=np.float64) for s in snaps])
+        P = np.array([np.asarray(s.cov, dtype=np.float64) for s in snaps])
+        if x.shape != (n, 4) or P.shape != (n, 4, 4):
+            raise InvalidInput(f"each snapshot needs x (4,) and cov (4, 4), got {x.shape[1:]}")
+        if not (np.all(np.isfinite(x)) and np.all(np.isfinite(P))):
+            raise InvalidInput("restored states and covariances must be finite")
+        if np.any(np.abs(P - transposed(P)) > 1e-9 * (1.0 + np.abs(P))):
+            raise InvalidInput("restored covariances must be symmetric")
+        if np.any(np.linalg.eigvalsh(P)[:, 0] < -1e-12):
+            raise InvalidInput("restored covariances must be positive semi-definite")
+        # Each snapshot predicted from its own time to t: the batch form of cv_transition and
+        # cv_process_noise.
+        dt = t - np.array([float(s.t) for s in snaps])
+        F = np.broadcast_to(np.eye(4), (n, 4, 4)).copy()
+        F[:, 0, 2] = F[:, 1, 3] = dt
+        q = self.config.q
+        Q = np.zeros((n, 4, 4))
+        Q[:, 0, 0] = Q[:, 1, 1] = q * dt**3 / 3.0
+        Q[:, 0, 2] = Q[:, 2, 0] = Q[:, 1, 3] = Q[:, 3, 1] = q * dt**2 / 2.0
+        Q[:, 2, 2] = Q[:, 3, 3] = q * dt
+        x = np.einsum("nij,nj->ni", F, x)
+        P = F @ P @ transposed(F) + Q
+        self._x, self._P = self._predicted(t)
+        self._t = t
+        self._x = np.concatenate([self._x, x])
+        self._P = np.concatenate([self._P, 0.5 * (P + transposed(P))])
+        for s in snaps:
+            self._ids.append(int(s.id))
+            self._kinds.append(s.kind)
+            self._labels.append(s.label)
+            self._states.append(TrackState(s.state))
+            self._hits.append(int(s.hits))
+            self._first.append(float(s.first_seen))
+            self._last.append(float(s.last_seen))
+            self._score.append(0.0)
+            self._height.append(0.0)  # used by tentative tracks only
+            self._moved.append(float(s.last_seen))
+        self._next_id = max(self._next_id, max(ids) + 1)
+        return self._manage()[0]
+
     # -- one camera frame ----------------------------------------------------------------------
 
     def update(

@@ -19,8 +19,9 @@ from server.services.targets import LIVE
 
 router = APIRouter(tags=["localization"], responses=PROBLEM_RESPONSES)
 TargetId = Annotated[int, Path(ge=1, le=MAX_ID)]
-# The stream's fastest rate (messages per second).
+# The stream's fastest rate (messages per second), and how often it checks for a change (s).
 _STREAM_HZ = 10.0
+_CHECK_S = 0.02
 
 
 @router.get("/targets", response_model=Page[TargetRead], dependencies=[ReadAccess])
@@ -144,29 +145,37 @@ async def stream_targets(websocket: WebSocket) -> None:
     live = websocket.app.state.targets
     seen = -1
     loop = asyncio.get_running_loop()
+    last_sent = -float("inf")
+    receiving = asyncio.ensure_future(websocket.receive_text())
     try:
         while True:
-            version, items = live.snapshot()
-            if version != seen:
-                seen = version
-                await websocket.send_json(
-                    {
-                        "type": "positions",
-                        "t": max((i["t"] for i in items), default=None),
-                        "targets": [
-                            {k: i[k] for k in ("id", "label", "kind", "state", "xy", "cov")}
-                            for i in items
-                        ],
-                    }
-                )
-            start = loop.time()
-            try:
-                # A client message (or its leaving) is noticed while waiting for the next tick.
-                await asyncio.wait_for(websocket.receive_text(), timeout=1.0 / _STREAM_HZ)
-            except TimeoutError:
-                pass
-            remaining = 1.0 / _STREAM_HZ - (loop.time() - start)
-            if remaining > 0:
-                await asyncio.sleep(remaining)
+            # A change is sent as soon as it is seen (checked every _CHECK_S), but no sooner
+            # than 1 / _STREAM_HZ after the previous message: an idle stream answers a new
+            # target within milliseconds, a busy one at the stream's rate.
+            wait = _CHECK_S
+            if live.version != seen:
+                wait = max(0.0, last_sent + 1.0 / _STREAM_HZ - loop.time())
+                if wait == 0.0:
+                    version, items = live.snapshot()
+                    seen = version
+                    last_sent = loop.time()
+                    await websocket.send_json(
+                        {
+                            "type": "positions",
+                            "t": max((i["t"] for i in items), default=None),
+                            "targets": [
+                                {k: i[k] for k in ("id", "label", "kind", "state", "xy", "cov")}
+                                for i in items
+                            ],
+                        }
+                    )
+                    wait = _CHECK_S
+            # A client message (or its leaving) is noticed while waiting for the next check.
+            done, _ = await asyncio.wait({receiving}, timeout=wait)
+            if done:
+                receiving.result()  # raises WebSocketDisconnect when the client left
+                receiving = asyncio.ensure_future(websocket.receive_text())
     except WebSocketDisconnect:
         return
+    finally:
+        receiving.cancel()

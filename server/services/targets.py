@@ -6,10 +6,17 @@ A target is one track of a space's tracker (core.localization.tracking), keyed b
 track id). Its points are stored at most `track_hz` times a second, each with the time of the
 observation that produced it; the ended ones leave memory once written. Track points and
 detections older than their retention are deleted, as are ended targets not seen since.
+
+Where several service processes share a PostgreSQL database, only the process that runs a
+space's tracker (server.services.ownership) writes that space's targets; it hands every change
+to the others (`drain_changes`, sent by server.services.fanout), which keep them in memory as
+remote targets (`apply_remote`) for their own streams and never write them. A process that
+takes a space over adopts its remote targets (`adopt`), keeping their ids.
 """
 
 from __future__ import annotations
 
+import copy
 import logging
 import threading
 import time
@@ -56,6 +63,12 @@ class LiveTarget:
     dirty: bool = True
     last_stored: float = -float("inf")
     labelled: bool = False
+    # The tracker's full state covariance (4 x 4: x, y, vx, vy) and its number of updates,
+    # what another process needs to take the track over.
+    state_cov: list[list[float]] | None = None
+    hits: int = 0
+    # Followed by another process's tracker: shown, never written here.
+    remote: bool = False
 
 
 class LiveTargets:
@@ -89,6 +102,9 @@ class LiveTargets:
         self._thread: threading.Thread | None = None
         self._last_retention = 0.0
         self.version = 0
+        # Set when other processes follow this one's targets: changes wait in the outbox.
+        self.publishing = False
+        self._outbox: dict[tuple[int | None, int], LiveTarget] = {}
 
     # -- from the trackers -----------------------------------------------------------------------
 
@@ -105,8 +121,11 @@ class LiveTargets:
         xy: list[float],
         cov: list[list[float]],
         velocity: list[float] | None = None,
+        state_cov: list[list[float]] | None = None,
+        hits: int | None = None,
     ) -> None:
-        """Record a new position of a track (its target is created on first sight)."""
+        """Record a new position of a track (its target is created on first sight);
+        state_cov is the tracker's 4 x 4 covariance of (x, y, vx, vy), hits its updates."""
         key = (space_id, track_id)
         with self._lock:
             target = self._targets.get(key)
@@ -121,11 +140,17 @@ class LiveTargets:
             target.t, target.xy, target.cov, target.last_seen = t, xy, cov, t
             if velocity is not None:
                 target.velocity = velocity
+            if state_cov is not None:
+                target.state_cov = state_cov
+            if hits is not None:
+                target.hits = hits
+            target.remote = False
             target.track.append((t, xy[0], xy[1]))
             if t - target.last_stored >= self._min_dt - 1e-9:
                 target.pending.append((t, xy, cov))
                 target.last_stored = t
             target.dirty = True
+            self._changed(key, target)
             self.version += 1
 
     def set_state(self, space_id: int | None, track_id: int, state: str) -> None:
@@ -134,7 +159,8 @@ class LiveTargets:
             target = self._targets.get((space_id, track_id))
             if target is not None and target.state != state:
                 target.state = state
-                target.dirty = True
+                target.dirty = not target.remote
+                self._changed((space_id, track_id), target)
                 self.version += 1
 
     def end(self, space_id: int | None, track_id: int) -> None:
@@ -143,8 +169,10 @@ class LiveTargets:
             target = self._targets.pop((space_id, track_id), None)
             if target is not None:
                 target.state = "ended"
-                target.dirty = True
-                self._ended.append(target)
+                if not target.remote:
+                    target.dirty = True
+                    self._ended.append(target)
+                    self._changed((space_id, track_id), target)
                 self.version += 1
 
     def end_space(self, space_id: int | None) -> None:
@@ -153,6 +181,120 @@ class LiveTargets:
             keys = [k for k in self._targets if k[0] == space_id]
         for key in keys:
             self.end(*key)
+
+    # -- between processes ----------------------------------------------------------------------
+
+    def _changed(self, key: tuple[int | None, int], target: LiveTarget) -> None:
+        if self.publishing and not target.remote:
+            self._outbox[key] = target
+
+    def drain_changes(self) -> list[dict[str, Any]]:
+        """Return (and forget) the targets changed here since the last call, as messages for
+        the other processes (`apply_remote`); empty unless `publishing`."""
+        with self._lock:
+            changed, self._outbox = list(self._outbox.values()), {}
+            return [_message(v) for v in changed]
+
+    def apply_remote(self, items: list[dict[str, Any]]) -> int:
+        """Show targets that another process's tracker follows (messages of its
+        `drain_changes`); return how many changed. Targets this process follows are left
+        alone."""
+        changed = 0
+        with self._lock:
+            for item in items:
+                key = (item["space"], int(item["track"]))
+                target = self._targets.get(key)
+                if target is not None and not target.remote:
+                    continue
+                if item["state"] == "ended":
+                    if self._targets.pop(key, None) is not None:
+                        changed += 1
+                    continue
+                if target is None:
+                    target = LiveTarget(
+                        key[0],
+                        key[1],
+                        item["label"],
+                        item["kind"],
+                        item["state"],
+                        item["first_seen"],
+                        item["last_seen"],
+                        item["t"],
+                        item["xy"],
+                        item["cov"],
+                    )
+                    target.remote = True
+                    self._targets[key] = target
+                target.id = item["id"] if item["id"] is not None else target.id
+                target.label, target.labelled = item["label"], bool(item["labelled"])
+                target.kind, target.state = item["kind"], item["state"]
+                target.first_seen, target.last_seen = item["first_seen"], item["last_seen"]
+                target.t, target.xy, target.cov = item["t"], item["xy"], item["cov"]
+                target.velocity, target.state_cov = item["velocity"], item["P"]
+                target.hits = int(item["hits"])
+                target.dirty = False
+                if not target.track or target.track[-1][0] < target.t:
+                    target.track.append((target.t, target.xy[0], target.xy[1]))
+                changed += 1
+            if changed:
+                self.version += 1
+        return changed
+
+    def adopt(self, space_id: int | None) -> list[LiveTarget]:
+        """Make the remote targets of a space this process's own (it now runs the space's
+        tracker); return copies of them, to seed the tracker with."""
+        out = []
+        with self._lock:
+            for (sid, _), v in self._targets.items():
+                if sid == space_id and v.remote:
+                    v.remote = False
+                    v.dirty = True
+                    v.last_stored = v.t  # the previous owner stored its points up to here
+                    out.append(copy.copy(v))
+        return out
+
+    def track_ids(self, space_id: int | None) -> list[int]:
+        """Return the track ids of the targets of a space followed here (not remote)."""
+        with self._lock:
+            return [k for (s, k), v in self._targets.items() if s == space_id and not v.remote]
+
+    def retain_remote(self, space_id: int | None, track_ids: set[int]) -> int:
+        """Drop the remote targets of a space whose tracker no longer follows them (not in
+        `track_ids`); return how many went."""
+        with self._lock:
+            gone = [
+                key
+                for key, v in self._targets.items()
+                if key[0] == space_id and v.remote and key[1] not in track_ids
+            ]
+            for key in gone:
+                del self._targets[key]
+            if gone:
+                self.version += 1
+        return len(gone)
+
+    def seed(self, target: LiveTarget) -> None:
+        """Follow a stored target again (a tracker that took its space over restored it): it
+        is live here, with its stored id and name."""
+        key = (target.space_id, target.track_id)
+        with self._lock:
+            if key in self._targets:
+                return
+            target.remote, target.dirty, target.last_stored = False, True, target.t
+            target.track.append((target.t, target.xy[0], target.xy[1]))
+            self._targets[key] = target
+            self._changed(key, target)
+            self.version += 1
+
+    def disown(self, space_id: int | None) -> int:
+        """Hand the targets of a space to whichever process runs its tracker now (this one
+        lost it): they stay shown, as remote, until that process says otherwise."""
+        with self._lock:
+            mine = [v for (sid, _), v in self._targets.items() if sid == space_id and not v.remote]
+            for v in mine:
+                v.remote, v.dirty, v.pending = True, False, []
+                self._outbox.pop((v.space_id, v.track_id), None)
+        return len(mine)
 
     # -- reads -----------------------------------------------------------------------------------
 
@@ -234,7 +376,7 @@ class LiveTargets:
 
     def _flush(self) -> int:
         with self._lock:
-            batch = [v for v in self._targets.values() if v.dirty] + self._ended
+            batch = [v for v in self._targets.values() if v.dirty and not v.remote] + self._ended
             self._ended = []
             work = []
             for v in batch:
@@ -247,9 +389,16 @@ class LiveTargets:
                 )
                 v.pending = []
                 v.dirty = False
+        known = {id(v) for v, _, _ in work if v.id is not None}
         written = 0
         for start in range(0, len(work), FLUSH_CHUNK):
             written += self._write(work[start : start + FLUSH_CHUNK])
+        if self.publishing:
+            # The other processes learn the new targets' database ids.
+            with self._lock:
+                for v, _, _ in work:
+                    if id(v) not in known and v.state != "ended":
+                        self._changed((v.space_id, v.track_id), v)
         return written
 
     def _write(self, work: list[Any]) -> int:
@@ -306,7 +455,53 @@ class LiveTargets:
         session.commit()
         return result.rowcount or 0
 
+    def close_stale_space(self, session: Session, space_id: int | None, keep: list[int]) -> int:
+        """Mark the stored live targets of one space as ended but those whose track ids are in
+        `keep` (the tracker that takes the space over goes on with those); return how many."""
+        stmt = update(Target).where(Target.state.in_(LIVE), _same_space(space_id))
+        if keep:
+            stmt = stmt.where(Target.track_id.is_(None) | Target.track_id.not_in(keep))
+        result = session.execute(stmt.values(state="ended"))
+        session.commit()
+        return result.rowcount or 0
+
+    def stored_live(self, session: Session, space_id: int | None) -> list[Target]:
+        """Return the stored live targets of a space that have a track id."""
+        stmt = select(Target).where(
+            _same_space(space_id), Target.state.in_(LIVE), Target.track_id.is_not(None)
+        )
+        return list(session.scalars(stmt))
+
     def next_track_id(self, session: Session, space_id: int | None) -> int:
-        """Return the first track id a new tracker of `space_id` may use (after the stored)."""
-        stmt = select(func.max(Target.track_id)).where(Target.space_id == space_id)
-        return int(session.scalar(stmt) or 0) + 1
+        """Return the first track id a new tracker of `space_id` may use (after the stored and
+        those in memory)."""
+        stmt = select(func.max(Target.track_id)).where(_same_space(space_id))
+        stored = int(session.scalar(stmt) or 0)
+        with self._lock:
+            shown = max((k for s, k in self._targets if s == space_id), default=0)
+        return max(stored, shown) + 1
+
+
+def _same_space(space_id: int | None) -> Any:
+    return Target.space_id.is_(None) if space_id is None else Target.space_id == space_id
+
+
+def _message(v: LiveTarget) -> dict[str, Any]:
+    """Return the fan-out message of a target (see LiveTargets.apply_remote)."""
+    return {
+        "space": v.space_id,
+        "track": v.track_id,
+        "id": v.id,
+        "label": v.label,
+        "labelled": v.labelled,
+        "kind": v.kind,
+        "state": v.state,
+        "first_seen": v.first_seen,
+        "last_seen": v.last_seen,
+        "t": v.t,
+        "xy": v.xy,
+        "cov": v.cov,
+        "velocity": v.velocity,
+        "P": v.state_cov,
+        "hits": v.hits,
+    }

@@ -9,20 +9,32 @@ targets store. It also moves each tracker's clock on when no frame comes, so sil
 coast and end on time. The association and filtering are all in core; this module only moves
 frames and results.
 
+Several processes on one PostgreSQL database (`shared_database_url`): each space's tracker runs
+in the one process that holds the space's advisory lock (server.services.ownership). A process
+that stores detections of a space it does not track tells the others which rows it stored
+(LISTEN/NOTIFY, server.services.fanout); the owner reads those rows by id and feeds them to its
+tracker, and sends every target change to the others, whose live targets show it. The processes
+try for free locks every `_OWNERSHIP_POLL_S`; one that gets a space (its owner died, and
+PostgreSQL freed the lock with its connection) restores the space's tracks from what it last
+heard of them (or, failing that, from the stored targets), keeping their ids
+(core Tracker.restore), then replays the space's detections stored since.
+
 Times are Unix seconds on the service's clock.
 """
 
 from __future__ import annotations
 
 import logging
+import re
 import threading
 import time
+from collections import OrderedDict
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from sqlalchemy import select
+from sqlalchemy import insert, or_, select
 from sqlalchemy.orm import Session, sessionmaker
 
 from core.errors import IntspaceError
@@ -36,14 +48,33 @@ from core.localization.tracking import (
     TrackSnapshot,
     TrackState,
 )
-from server.db.models import Camera, Detection
-from server.services.targets import LiveTargets
+from server.db.models import Camera, Detection, Target
+from server.services.fanout import Fanout
+from server.services.ownership import SpaceLocks
+from server.services.targets import LIVE, LiveTarget, LiveTargets
 
 log = logging.getLogger(__name__)
 
 # How often the tracker thread wakes (s), and how often it reloads the cameras' calibration.
 _TICK_S = 0.02
 _CAMERAS_RELOAD_S = 1.0
+# Between processes: how often a process tries for the free spaces' locks (s); the channels.
+_OWNERSHIP_POLL_S = 1.0
+TARGETS_CHANNEL = "intspace_targets"
+DETECTIONS_CHANNEL = "intspace_detections"
+CONTROL_CHANNEL = "intspace_tracker_control"
+# A space taken over: stored detections replayed (s before now at most, and how many), when
+# there are no tracks to restore the last _REPLAY_FRESH_S; stored targets older than
+# _RESTORE_S are not restored (a labelled track waits 60 s for its label, the others 5 s).
+_REPLAY_MAX_S = 10.0
+_REPLAY_FRESH_S = 2.0
+_REPLAY_LIMIT = 50_000
+_RESTORE_S = 60.0
+# Detection ids a tracker remembers having been fed (one frame may reach it twice around a
+# takeover: from the replay and from its notification).
+_FED_IDS = 200_000
+# Ids per query when reading notified detections.
+_RUNS_PER_QUERY = 200
 
 
 @dataclass(frozen=True)
@@ -71,6 +102,7 @@ class CameraFrame:
     heights: np.ndarray
     kinds: list[str]
     labels: list[str | None]
+    ids: tuple[int, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -82,12 +114,17 @@ class IngestResult:
     late: int
 
 
-def camera_frames(detections: Sequence[DetectionIn]) -> list[CameraFrame]:
+def camera_frames(
+    detections: Sequence[DetectionIn], ids: Sequence[int] | None = None
+) -> list[CameraFrame]:
     """Return the detections split into camera frames (same camera and capture time), in time
-    order."""
+    order; `ids` (one per detection) are their stored rows' ids, when known."""
     by_frame: dict[tuple[int, float], list[DetectionIn]] = {}
-    for d in detections:
+    row_ids: dict[tuple[int, float], list[int]] = {}
+    for k, d in enumerate(detections):
         by_frame.setdefault((d.camera_id, d.t), []).append(d)
+        if ids is not None:
+            row_ids.setdefault((d.camera_id, d.t), []).append(int(ids[k]))
     frames = []
     for (camera_id, t), dets in sorted(by_frame.items(), key=lambda kv: (kv[0][1], kv[0][0])):
         frames.append(
@@ -99,9 +136,21 @@ def camera_frames(detections: Sequence[DetectionIn]) -> list[CameraFrame]:
                 heights=np.array([d.height for d in dets], dtype=np.float64),
                 kinds=[d.kind for d in dets],
                 labels=[d.label for d in dets],
+                ids=tuple(row_ids.get((camera_id, t), ())),
             )
         )
     return frames
+
+
+def _id_runs(ids: Sequence[int]) -> list[list[int]]:
+    """Return the sorted ids as runs [first, last] of consecutive ids."""
+    runs: list[list[int]] = []
+    for i in sorted(set(ids)):
+        if runs and i == runs[-1][1] + 1:
+            runs[-1][1] = i
+        else:
+            runs.append([i, i])
+    return runs
 
 
 class _SpaceTracker:
@@ -125,10 +174,26 @@ class _SpaceTracker:
         self.lock = threading.RLock()
         # Service time at which the space's world was held still (the twin paused), or None.
         self.held_since: float | None = None
+        self.fed: OrderedDict[int, None] = OrderedDict()
+
+    def fresh(self, ids: tuple[int, ...]) -> bool:
+        """Whether a frame of stored detections `ids` is new to this tracker (and remember it);
+        a frame without ids (not stored by id) always is."""
+        if not ids:
+            return True
+        if ids[0] in self.fed:
+            return False
+        for i in ids:
+            self.fed[i] = None
+        while len(self.fed) > _FED_IDS:
+            self.fed.popitem(last=False)
+        return True
 
 
 class TrackingService:
-    """One tracker per space, fed by `ingest`, run by one background thread."""
+    """One tracker per space, fed by `ingest`, run by one background thread. With
+    `shared_database_url` (PostgreSQL), the processes sharing that database share the spaces'
+    trackers (module docstring)."""
 
     def __init__(
         self,
@@ -138,6 +203,7 @@ class TrackingService:
         config: TrackerConfig | None = None,
         latency: float = 0.15,
         clock: Any = time.time,
+        shared_database_url: str | None = None,
     ) -> None:
         self._factory = factory
         self._live = live
@@ -152,6 +218,22 @@ class TrackingService:
         self._thread: threading.Thread | None = None
         self.frames_processed = 0
         self.errors = 0
+        self._fanout: Fanout | None = None
+        self._locks: SpaceLocks | None = None
+        self._notified: list[tuple[int | None, list[list[int]]]] = []
+        self._notified_lock = threading.Lock()
+        # Held while spaces are taken over or given up; the spaces tried for at least once.
+        self._ownership_lock = threading.RLock()
+        self._tried: set[int | None] = set()
+        # Set when notifications may have been missed (the listener reconnected).
+        self._resync = threading.Event()
+        if shared_database_url is not None:
+            self._fanout = Fanout(shared_database_url)
+            self._locks = SpaceLocks(shared_database_url)
+            self._fanout.subscribe(TARGETS_CHANNEL, self._on_targets)
+            self._fanout.subscribe(DETECTIONS_CHANNEL, self._on_detections)
+            self._fanout.subscribe(CONTROL_CHANNEL, self._on_control)
+            self._fanout.on_reconnect(self._resync.set)
 
     # -- ingest ------------------------------------------------------------------------------
 
@@ -162,27 +244,31 @@ class TrackingService:
         of their cameras' spaces (`space_of`: camera id -> space id)."""
         if not detections:
             return IngestResult(0, 0, 0)
-        session.execute(
-            Detection.__table__.insert(),
-            [
-                {
-                    "space_id": space_of.get(d.camera_id),
-                    "camera_id": d.camera_id,
-                    "t": d.t,
-                    "u": d.pixel[0],
-                    "v": d.pixel[1],
-                    "cxx": d.cov[0][0],
-                    "cxy": d.cov[0][1],
-                    "cyy": d.cov[1][1],
-                    "kind": d.kind,
-                    "height": d.height,
-                    "label": d.label,
-                }
-                for d in detections
-            ],
-        )
+        rows = [
+            {
+                "space_id": space_of.get(d.camera_id),
+                "camera_id": d.camera_id,
+                "t": d.t,
+                "u": d.pixel[0],
+                "v": d.pixel[1],
+                "cxx": d.cov[0][0],
+                "cxy": d.cov[0][1],
+                "cyy": d.cov[1][1],
+                "kind": d.kind,
+                "height": d.height,
+                "label": d.label,
+            }
+            for d in detections
+        ]
+        ids: list[int] | None = None
+        if self._locks is not None:
+            # The rows' ids tell the space's tracker, maybe in another process, what to read.
+            stmt = insert(Detection).returning(Detection.id, sort_by_parameter_order=True)
+            ids = list(session.scalars(stmt, rows))
+        else:
+            session.execute(Detection.__table__.insert(), rows)
         session.commit()
-        frames = camera_frames(detections)
+        frames = camera_frames(detections, ids)
         late = self.submit(frames, space_of)
         return IngestResult(len(detections), len(frames), late)
 
@@ -190,23 +276,45 @@ class TrackingService:
         """Queue camera frames for their spaces' trackers; return how many came too late (older
         than what the tracker already processed)."""
         late = 0
+        elsewhere: dict[int | None, list[int]] = {}
+        if self._locks is not None:
+            # A space never tried for is tried for at once: its first frames need not wait
+            # for the next poll.
+            for space_id in {space_of.get(f.camera_id) for f in frames} - self._tried:
+                self._claim([space_id])
         with self._lock:
             for f in frames:
-                space = self._space(space_of.get(f.camera_id))
-                if not space.buffer.push(f.t, f):
+                space_id = space_of.get(f.camera_id)
+                space = self._space(space_id)
+                if space is None:
+                    elsewhere.setdefault(space_id, []).extend(f.ids)
+                elif space.fresh(f.ids) and not space.buffer.push(f.t, f):
                     late += 1
         self._wake.set()
+        if self._fanout is not None:
+            for space_id, ids in elsewhere.items():
+                self._fanout.publish(DETECTIONS_CHANNEL, {"space": space_id}, _id_runs(ids))
         return late
 
-    def _space(self, space_id: int | None) -> _SpaceTracker:
+    def _space(self, space_id: int | None) -> _SpaceTracker | None:
+        """Return the tracker of a space (made on first use), None when another process
+        runs it (shared database). Call with self._lock held."""
         space = self._spaces.get(space_id)
-        if space is None:
-            with self._factory() as session:
-                next_id = self._live.next_track_id(session, space_id)
-            occluders = self._occluders.get(space_id)
-            space = _SpaceTracker(space_id, self.config, self.latency, next_id, occluders)
+        if space is None and self._locks is None:
+            space = self._new_space(space_id)
             self._spaces[space_id] = space
         return space
+
+    def _new_space(self, space_id: int | None) -> _SpaceTracker:
+        with self._factory() as session:
+            next_id = self._live.next_track_id(session, space_id)
+        occluders = self._occluders.get(space_id)
+        return _SpaceTracker(space_id, self.config, self.latency, next_id, occluders)
+
+    def owns(self, space_id: int | None) -> bool:
+        """Whether this process runs the tracker of `space_id`."""
+        with self._lock:
+            return self._locks is None or space_id in self._spaces
 
     def set_floor_plan(self, space_id: int | None, occluders: Occluders) -> None:
         """Give the tracker of a space its walls and furniture (a camera hidden from a place
@@ -222,6 +330,9 @@ class TrackingService:
         its tracks must neither coast nor end until `release`."""
         with self._lock:
             space = self._space(space_id)
+        if space is None:
+            self._forward(space_id, "hold")
+            return
         with space.lock:
             if space.held_since is None:
                 space.held_since = self._clock()
@@ -230,6 +341,9 @@ class TrackingService:
         """Let a held space's tracks go on: their clock moves on by the time held."""
         with self._lock:
             space = self._space(space_id)
+        if space is None:
+            self._forward(space_id, "release")
+            return
         with space.lock:
             if space.held_since is not None:
                 space.tracker.shift(max(0.0, self._clock() - space.held_since))
@@ -238,34 +352,80 @@ class TrackingService:
     def reset(self, space_id: int | None) -> None:
         """Forget the tracks of a space (its targets end) and start its tracker afresh."""
         with self._lock:
-            old = self._spaces.pop(space_id, None)
-            if old is not None:
-                for snap in old.tracker.tracks(states=LIVE_STATES):
-                    self._live.end(space_id, snap.id)
-            self._space(space_id)
+            elsewhere = self._locks is not None and space_id not in self._spaces
+            if not elsewhere:
+                old = self._spaces.pop(space_id, None)
+                if old is not None:
+                    for snap in old.tracker.tracks(states=LIVE_STATES):
+                        self._live.end(space_id, snap.id)
+                self._spaces[space_id] = self._new_space(space_id)
+        if elsewhere:
+            self._forward(space_id, "reset")
+
+    def _forward(self, space_id: int | None, op: str) -> None:
+        """Ask the process that runs a space's tracker to hold, release or reset it."""
+        if self._fanout is not None:
+            self._fanout.publish(CONTROL_CHANNEL, {"space": space_id}, [op])
+
+    def _on_control(self, message: dict[str, Any]) -> None:
+        """Hold, release or reset a space tracked here, as another process asked (its twin
+        paused, resumed or was reset); listener thread."""
+        space_id = message.get("space")
+        with self._lock:
+            if space_id not in self._spaces:
+                return
+        for op in message.get("items", ()):
+            if op == "hold":
+                self.hold(space_id)
+            elif op == "release":
+                self.release(space_id)
+            elif op == "reset":
+                self.reset(space_id)
 
     # -- the thread --------------------------------------------------------------------------
 
     def start(self) -> None:
-        """Start the tracker thread."""
+        """Start the tracker thread (and, on a shared database, listening to the others)."""
         self._stop.clear()
+        if self._fanout is not None:
+            self._live.publishing = True
+            self._fanout.start()
         self._thread = threading.Thread(target=self._loop, name="tracker", daemon=True)
         self._thread.start()
 
     def stop(self) -> None:
-        """Stop the tracker thread."""
+        """Stop the tracker thread; on a shared database give the spaces up to the others."""
         self._stop.set()
         self._wake.set()
         if self._thread is not None:
             self._thread.join(timeout=10)
             self._thread = None
+        if self._locks is not None:
+            self._publish_changes()
+            self._locks.close()
+        if self._fanout is not None:
+            self._fanout.stop()
 
     def _loop(self) -> None:
+        last_poll = -float("inf")
         while not self._stop.is_set():
             self._wake.wait(_TICK_S)
             self._wake.clear()
             try:
+                if self._locks is not None:
+                    beat = time.monotonic() - last_poll >= _OWNERSHIP_POLL_S
+                    if beat:
+                        last_poll = time.monotonic()
+                        self._poll_ownership()
+                    self._read_notified()
+                    if self._resync.is_set():
+                        self._resync.clear()
+                        self._catch_up()
                 self.process(self._clock())
+                if self._fanout is not None:
+                    self._publish_changes()
+                    if beat:
+                        self._publish_live()
             except Exception:
                 self.errors += 1
                 log.exception("tracking failed")
@@ -275,7 +435,13 @@ class TrackingService:
         clocks to now - latency; return the frames processed."""
         with self._lock:
             spaces = list(self._spaces.values())
-            ready = [(space, space.buffer.pop_ready(now)) for space in spaces]
+            # A tracker that never had a frame does not close its window: its first frame is
+            # taken however late it comes, as when the tracker is made for that frame.
+            ready = [
+                (space, space.buffer.pop_ready(now))
+                for space in spaces
+                if len(space.buffer) or space.tracker.time is not None
+            ]
         done = 0
         for space, frames in ready:
             self._load_cameras(space)
@@ -354,6 +520,8 @@ class TrackingService:
                 xy=[float(snap.x[0]), float(snap.x[1])],
                 cov=snap.xy_cov.tolist(),
                 velocity=[float(snap.x[2]), float(snap.x[3])],
+                state_cov=snap.cov.tolist(),
+                hits=snap.hits,
             )
             space.states[snap.id] = snap.state
         self._publish_ended(space, result.ended)
@@ -369,6 +537,179 @@ class TrackingService:
                 space.states[snap.id] = snap.state
                 self._live.set_state(space.space_id, snap.id, str(snap.state))
 
+    # -- between processes -----------------------------------------------------------------
+
+    def _on_targets(self, message: dict[str, Any]) -> None:
+        """Show the target changes another process's trackers sent (listener thread)."""
+        with self._lock:
+            mine = set(self._spaces)
+        if message.get("live"):
+            if message.get("space") not in mine:
+                self._live.retain_remote(message.get("space"), set(message.get("items", ())))
+            return
+        items = [i for i in message.get("items", ()) if i.get("space") not in mine]
+        self._live.apply_remote(items)
+
+    def _on_detections(self, message: dict[str, Any]) -> None:
+        """Queue the ids of detections another process stored (listener thread)."""
+        with self._notified_lock:
+            self._notified.append((message.get("space"), list(message.get("items", ()))))
+        self._wake.set()
+
+    def _publish_changes(self) -> None:
+        assert self._fanout is not None
+        self._fanout.publish(TARGETS_CHANNEL, {}, self._live.drain_changes())
+
+    def _publish_live(self) -> None:
+        """Tell the others which targets of each space tracked here are live: a target they
+        show that is not (its end was missed, or its process died and the new owner could not
+        restore it) leaves their lists."""
+        assert self._fanout is not None
+        with self._lock:
+            spaces = list(self._spaces)
+        for space_id in spaces:
+            ids = self._live.track_ids(space_id)
+            self._fanout.publish(TARGETS_CHANNEL, {"space": space_id, "live": True}, ids or [0])
+
+    def _read_notified(self) -> None:
+        """Feed the notified detections of the spaces tracked here to their trackers."""
+        with self._notified_lock:
+            batch, self._notified = self._notified, []
+        if not batch:
+            return
+        runs_of: dict[int | None, list[list[int]]] = {}
+        with self._lock:
+            for space_id, runs in batch:
+                if space_id in self._spaces:
+                    runs_of.setdefault(space_id, []).extend(runs)
+        for space_id, runs in runs_of.items():
+            for start in range(0, len(runs), _RUNS_PER_QUERY):
+                part = runs[start : start + _RUNS_PER_QUERY]
+                cond = or_(*(Detection.id.between(int(lo), int(hi)) for lo, hi in part))
+                self._submit_stored(space_id, cond)
+
+    def _catch_up(self) -> None:
+        """Read again the detections of the spaces tracked here that their trackers have not
+        passed yet: notifications of some may have been lost (frames already fed are known by
+        their ids and skipped)."""
+        with self._lock:
+            since = {sid: space.buffer.released for sid, space in self._spaces.items()}
+        for space_id, released in since.items():
+            start = max(released, self._clock() - _REPLAY_MAX_S)
+            self._submit_stored(space_id, Detection.t > start, limit=_REPLAY_LIMIT)
+
+    def _submit_stored(
+        self, space_id: int | None, *conditions: Any, limit: int | None = None
+    ) -> int:
+        """Read stored detections of a space (conditions) and queue them for its tracker;
+        return how many were read."""
+        same = Detection.space_id.is_(None) if space_id is None else Detection.space_id == space_id
+        stmt = select(Detection).where(same, *conditions).order_by(Detection.t, Detection.id)
+        with self._factory() as session:
+            rows = session.scalars(stmt.limit(limit) if limit else stmt).all()
+        if not rows:
+            return 0
+        detections = [
+            DetectionIn(
+                camera_id=r.camera_id,
+                t=r.t,
+                pixel=(r.u, r.v),
+                cov=((r.cxx, r.cxy), (r.cxy, r.cyy)),
+                kind=r.kind,
+                height=r.height,
+                label=r.label,
+            )
+            for r in rows
+        ]
+        frames = camera_frames(detections, [r.id for r in rows])
+        self.submit(frames, {d.camera_id: space_id for d in detections})
+        return len(rows)
+
+    def _poll_ownership(self) -> None:
+        """Try for the free spaces' locks; take over those acquired, let go of those lost."""
+        with self._factory() as session:
+            spaces = set(session.scalars(select(Camera.space_id).distinct()))
+        self._claim(spaces)
+
+    def _claim(self, spaces: Any) -> None:
+        """Try for the locks of `spaces`; take over those acquired, let go of those lost."""
+        assert self._locks is not None
+        with self._ownership_lock:
+            spaces = set(spaces)
+            self._tried |= spaces
+            acquired, lost = self._locks.poll(spaces)
+            self._hand_over(acquired, lost)
+
+    def _hand_over(self, acquired: set[int | None], lost: set[int | None]) -> None:
+        for space_id in lost:
+            with self._lock:
+                self._spaces.pop(space_id, None)
+            self._live.disown(space_id)
+            log.warning("space %s: tracker lock lost; another process takes it over", space_id)
+        for space_id in sorted(acquired, key=lambda s: -1 if s is None else s):
+            self._take_over(space_id)
+
+    def _take_over(self, space_id: int | None) -> None:
+        """Start the tracker of a space this process now owns: restore the live tracks another
+        process followed (keeping their ids), then replay the detections stored since."""
+        now = self._clock()
+        seeds: dict[int, TrackSnapshot] = {}
+        adopted = self._live.adopt(space_id)
+        for v in adopted:
+            if v.state in LIVE:
+                seeds[v.track_id] = _snapshot_of(v, self.config)
+        stored_only: list[LiveTarget] = []
+        with self._factory() as session:
+            for row in self._live.stored_live(session, space_id):
+                tid = int(row.track_id or 0)
+                if tid in seeds or tid < 1 or row.t is None or row.xy is None or row.cov is None:
+                    continue
+                if now - float(row.last_seen or row.t) > _RESTORE_S:
+                    continue
+                v = _live_of(row)
+                stored_only.append(v)
+                seeds[tid] = _snapshot_of(v, self.config)
+        space = self._new_space(space_id)
+        ended: tuple[TrackSnapshot, ...] = ()
+        restored: list[TrackSnapshot] = []
+        if seeds:
+            t0 = max(s.t for s in seeds.values())
+            try:
+                ended = space.tracker.restore(t0, list(seeds.values()))
+                restored = list(space.tracker.tracks(states=LIVE_STATES))
+            except IntspaceError as exc:
+                log.warning("space %s: its tracks could not be restored: %s", space_id, exc)
+                space = self._new_space(space_id)
+        for v in stored_only:
+            if v.track_id in {s.id for s in restored}:
+                self._live.seed(v)
+        for snap in restored:
+            space.states[snap.id] = snap.state
+        for snap in ended:
+            self._live.end(space_id, snap.id)
+        kept = {s.id for s in restored} | {s.id for s in ended}
+        for v in adopted:
+            if v.track_id not in kept:
+                self._live.end(space_id, v.track_id)  # not restorable: it ends here
+        with self._lock:
+            self._spaces[space_id] = space
+        # Frames stored while the space had no tracker: from the restored tracks' time on.
+        since = space.tracker.time if space.tracker.time is not None else now - _REPLAY_FRESH_S
+        since = max(since, now - _REPLAY_MAX_S)
+        replayed = self._submit_stored(space_id, Detection.t > since, limit=_REPLAY_LIMIT)
+        with self._factory() as session:
+            closed = self._live.close_stale_space(session, space_id, [s.id for s in restored])
+        log.info(
+            "space %s: tracker taken over (%d track(s) restored, %d ended, %d stale closed, "
+            "%d detection(s) replayed)",
+            space_id,
+            len(restored),
+            len(ended),
+            closed,
+            replayed,
+        )
+        self._wake.set()
+
     # -- reads -------------------------------------------------------------------------------
 
     def tracks(self, space_id: int | None) -> tuple[TrackSnapshot, ...]:
@@ -379,3 +720,55 @@ class TrackingService:
             return ()
         with space.lock:
             return space.tracker.tracks(states=LIVE_STATES)
+
+
+# A target's name when no sender labelled it (LiveTargets.update): kind-space-track.
+_AUTO_NAME = re.compile(r"(robot|person|unknown)-(\d+)-(\d+)")
+
+
+def _live_of(row: Target) -> LiveTarget:
+    """Return a stored live target as a LiveTarget (speed unknown)."""
+    space = row.space_id if row.space_id is not None else 0
+    auto = _AUTO_NAME.fullmatch(row.label)
+    labelled = auto is None or (int(auto[2]), int(auto[3])) != (space, row.track_id)
+    t = float(row.t or 0.0)
+    v = LiveTarget(
+        row.space_id,
+        int(row.track_id or 0),
+        row.label,
+        row.kind,
+        row.state,
+        float(row.first_seen if row.first_seen is not None else t),
+        float(row.last_seen if row.last_seen is not None else t),
+        t,
+        [float(c) for c in (row.xy or [0.0, 0.0])],
+        [[float(c) for c in r] for r in (row.cov or [[1.0, 0.0], [0.0, 1.0]])],
+    )
+    v.id, v.labelled = row.id, labelled
+    return v
+
+
+def _snapshot_of(v: LiveTarget, config: TrackerConfig) -> TrackSnapshot:
+    """Return a live target as the tracker's snapshot, for Tracker.restore: its full state
+    covariance when its tracker sent it, else its position's with an unknown speed (zero,
+    the prior's variance)."""
+    if v.state_cov is not None:
+        x = np.array([v.xy[0], v.xy[1], v.velocity[0], v.velocity[1]], dtype=np.float64)
+        P = np.array(v.state_cov, dtype=np.float64)
+    else:
+        x = np.array([v.xy[0], v.xy[1], 0.0, 0.0], dtype=np.float64)
+        P = np.zeros((4, 4))
+        P[:2, :2] = np.array(v.cov, dtype=np.float64)
+        P[2, 2] = P[3, 3] = config.initial_speed_std**2
+    return TrackSnapshot(
+        id=v.track_id,
+        kind=v.kind,
+        label=v.label if v.labelled else None,
+        state=TrackState(v.state),
+        t=v.t,
+        x=x,
+        cov=P,
+        hits=max(v.hits, 1),
+        first_seen=min(v.first_seen, v.last_seen),
+        last_seen=min(v.last_seen, v.t),
+    )
