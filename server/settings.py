@@ -77,11 +77,13 @@ class Settings(BaseSettings):
         3600.0, gt=0, description="Stored detections kept this long (s)."
     )
     tracker_latency_s: float = Field(
-        0.15,
+        1.0,
         ge=0,
         le=5,
-        description="How long the tracker waits for late camera frames before it takes a "
-        "frame (s): frames are put in time order within this window.",
+        description="The longest the tracker waits for a camera's late frames (s): frames are "
+        "put in time order within this window, and released sooner once every camera heard "
+        "from within it has delivered frames as recent. Above the cameras' delay (stream, node "
+        "and network: 0.3-1 s for RTSP cameras); a frame later than that is refused as late.",
     )
 
     run_workers: int = Field(2, ge=1, le=64, description="Threads executing calibration runs.")

@@ -1021,6 +1021,15 @@ class ReorderBuffer:
     frame that arrives older than that (the tracker has moved past it) is refused by `push`
     (returns False) and counted in `late`. `limit` bounds the frames held; beyond it the
     oldest are released early.
+
+    Frames pushed with their `source` (the camera) and `arrived` time (on the clock of `now`)
+    also move a watermark: once every source heard from within the last `latency` seconds has
+    delivered a frame captured at or after t, no frame older than t can still come from them
+    (each camera's frames arrive in capture order), so frames up to t are released at once
+    instead of at the window's end. The window stays the longest wait; a camera silent for
+    longer than the window no longer holds the others back (its later frames older than the
+    released time are late). Cameras that post every frame, even with nothing detected, keep
+    the delay down to the slowest camera's own.
     """
 
     def __init__(self, latency: float = 0.15, limit: int = 10_000) -> None:
@@ -1033,6 +1042,8 @@ class ReorderBuffer:
         self._heap: list[_Queued] = []
         self._seq = itertools.count()
         self._released: float = -math.inf
+        # source -> (newest capture time, arrival time of that push)
+        self._sources: dict[object, tuple[float, float]] = {}
         self.late = 0
 
     def __len__(self) -> int:
@@ -1043,19 +1054,37 @@ class ReorderBuffer:
         """The time up to which frames were released (-inf before any): older ones are late."""
         return self._released
 
-    def push(self, t: float, frame: object) -> bool:
-        """Queue `frame` captured at time t (s); return False (and count it) when it is late."""
+    def push(
+        self, t: float, frame: object, *, source: object = None, arrived: float | None = None
+    ) -> bool:
+        """Queue `frame` captured at time t (s) by `source`, which delivered it at `arrived`
+        (both optional: the watermark, class docstring); return False (and count it) when it
+        is late."""
         t = _as_time(t)
+        if source is not None and arrived is not None:
+            arrived = _as_time(arrived)
+            newest = self._sources.get(source, (t, arrived))[0]
+            self._sources[source] = (max(newest, t), arrived)
         if t < self._released:
             self.late += 1
             return False
         heapq.heappush(self._heap, _Queued(t, next(self._seq), frame))
         return True
 
+    def watermark(self, now: float) -> float:
+        """Return the capture time up to which every source heard from within the window
+        has delivered its frames (-inf when none has been heard from)."""
+        since = _as_time(now) - self.latency
+        for source in [k for k, (_, a) in self._sources.items() if a < since - self.latency]:
+            del self._sources[source]  # long silent: forgotten
+        active = [t for t, a in self._sources.values() if a >= since]
+        return min(active) if active else -math.inf
+
     def pop_ready(self, now: float) -> list[tuple[float, object]]:
-        """Return the (t, frame) pairs captured at or before now - latency (oldest first), and
-        the oldest beyond `limit`."""
-        horizon = _as_time(now) - self.latency
+        """Return the (t, frame) pairs captured at or before now - latency or the watermark
+        (oldest first), and the oldest beyond `limit`."""
+        now = _as_time(now)
+        horizon = max(now - self.latency, min(self.watermark(now), now))
         out: list[tuple[float, object]] = []
         while self._heap and (self._heap[0].t <= horizon or len(self._heap) > self.limit):
             item = heapq.heappop(self._heap)

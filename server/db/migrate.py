@@ -12,7 +12,7 @@ from alembic import command
 from alembic.config import Config
 from alembic.runtime.migration import MigrationContext
 from alembic.script import ScriptDirectory
-from sqlalchemy import Connection, Engine, inspect
+from sqlalchemy import Connection, Engine, inspect, text
 from sqlalchemy.engine import make_url
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
@@ -72,10 +72,28 @@ def _has_tables(engine: Engine) -> bool:
     return bool(inspect(engine).get_table_names())
 
 
+# The advisory lock key that serialises migrations of one PostgreSQL database ("isMG").
+_MIGRATION_LOCK = 0x69734D47
+
+
 def upgrade_to_head(engine: Engine, database_url: str) -> Path | None:
-    """Apply pending migrations; SQLite files are backed up first. Return the backup's path."""
+    """Apply pending migrations; SQLite files are backed up first. Return the backup's path.
+
+    On PostgreSQL, several processes started at once on one database take turns by an
+    advisory lock held for the whole upgrade; each looks again at what is pending once it holds
+    the lock, so the later ones find nothing to do."""
     state = schema_state(engine, database_url)
     if not state.pending:
+        return None
+    if engine.dialect.name == "postgresql":
+        with engine.connect() as lock:
+            lock.execute(text("SELECT pg_advisory_lock(:k)"), {"k": _MIGRATION_LOCK})
+            try:
+                if schema_state(engine, database_url).pending:
+                    command.upgrade(alembic_config(database_url), "head")
+            finally:
+                lock.execute(text("SELECT pg_advisory_unlock(:k)"), {"k": _MIGRATION_LOCK})
+                lock.commit()
         return None
     backup = None
     if engine.dialect.name == "sqlite" and _has_tables(engine):

@@ -114,6 +114,11 @@ class IngestResult:
     late: int
 
 
+def empty_frame(camera_id: int, t: float) -> CameraFrame:
+    """Return a camera frame captured at `t` in which nothing was detected."""
+    return CameraFrame(camera_id, t, np.zeros((0, 2)), np.zeros((0, 2, 2)), np.zeros(0), [], [])
+
+
 def camera_frames(
     detections: Sequence[DetectionIn], ids: Sequence[int] | None = None
 ) -> list[CameraFrame]:
@@ -201,7 +206,7 @@ class TrackingService:
         live: LiveTargets,
         *,
         config: TrackerConfig | None = None,
-        latency: float = 0.15,
+        latency: float = 1.0,
         clock: Any = time.time,
         shared_database_url: str | None = None,
     ) -> None:
@@ -276,6 +281,7 @@ class TrackingService:
         """Queue camera frames for their spaces' trackers; return how many came too late (older
         than what the tracker already processed)."""
         late = 0
+        arrived = self._clock()
         elsewhere: dict[int | None, list[int]] = {}
         if self._locks is not None:
             # A space never tried for is tried for at once: its first frames need not wait
@@ -288,7 +294,9 @@ class TrackingService:
                 space = self._space(space_id)
                 if space is None:
                     elsewhere.setdefault(space_id, []).extend(f.ids)
-                elif space.fresh(f.ids) and not space.buffer.push(f.t, f):
+                elif space.fresh(f.ids) and not space.buffer.push(
+                    f.t, f, source=f.camera_id, arrived=arrived
+                ):
                     late += 1
         self._wake.set()
         if self._fanout is not None:
@@ -431,8 +439,9 @@ class TrackingService:
                 log.exception("tracking failed")
 
     def process(self, now: float) -> int:
-        """Feed every frame older than now - latency to its tracker and move the trackers'
-        clocks to now - latency; return the frames processed."""
+        """Feed every frame the reorder buffers release (older than now - latency, or than
+        the cameras' watermark) to its tracker and move the trackers' clocks to the released
+        time; return the frames processed."""
         with self._lock:
             spaces = list(self._spaces.values())
             # A tracker that never had a frame does not close its window: its first frame is
@@ -450,7 +459,7 @@ class TrackingService:
                     assert isinstance(frame, CameraFrame)
                     self._feed(space, frame)
                     done += 1
-                horizon = now - self.latency
+                horizon = space.buffer.released
                 t = space.tracker.time
                 moving = space.held_since is None
                 if moving and t is not None and horizon > t and len(space.tracker):

@@ -33,7 +33,7 @@ from core.sim.motion import Patrol
 from core.sim.occluders import scene_occluders
 from core.sim.render import camera_model, renderer_for
 from server.db.models import Camera, CameraCalibration, Robot, Room, Space
-from server.services.tracking import DetectionIn
+from server.services.tracking import DetectionIn, empty_frame
 
 if TYPE_CHECKING:
     from server.services.scene_sync import SceneSync
@@ -67,13 +67,16 @@ def bootstrap_space(session: Session, scene: Scene) -> tuple[int, dict[str, int]
     The twin's true cameras never enter the registry."""
     space = session.scalar(select(Space).order_by(Space.id).limit(1))
     if space is None:
+        # Before the first write: a home that is not the shipped one is calibrated by its drive
+        # (minutes), which must not hold the database's write lock meanwhile.
+        session.rollback()
+        installed = {c.name: c for c in installed_calibration(scene).cameras}
         space = Space(name=scene.name, description="the digital twin's home")
         session.add(space)
         session.flush()
         for room in scene.rooms:
             polygon = [[float(x), float(y)] for x, y in room.polygon]
             session.add(Room(space_id=space.id, name=room.name, polygon=polygon))
-        installed = {c.name: c for c in installed_calibration(scene).cameras}
         for spec in scene.cameras:
             # The resolution is the camera's own, known without calibration.
             model = camera_model(spec)
@@ -434,6 +437,10 @@ class Twin:
             if self._tracking is not None and detections:
                 with self._factory() as session:
                     self._tracking.ingest(session, detections, {camera_id: self.space_id})
+            elif self._tracking is not None and self.detect:
+                # A frame in which nothing was found still tells the tracker that this camera
+                # looked at that time: its reorder window need not wait for it.
+                self._tracking.submit([empty_frame(camera_id, stamp)], {camera_id: self.space_id})
         with self._lock:
             self.steps += 1
         self._score_robot(state)

@@ -34,9 +34,8 @@ HEIGHT = 1.0
 SIGMA_PX = 0.5
 # A camera node posts a frame once it has read and detected it: its capture time is some tens
 # of milliseconds before the post (detection takes ~30 ms at 30 fps, then HTTP on the LAN).
-# The service holds each frame until tracker_latency_s (0.15 s) after its capture, to put
-# unsynchronised cameras in order: that hold is most of the latency measured here. (Stamped at
-# the post's own instant, the same measurement gave p95 168 ms on a loaded two-core box.)
+# The service holds each frame until every camera it hears from has delivered one as recent
+# (at most tracker_latency_s after its capture), to put unsynchronised cameras in order.
 CAPTURE_DELAY_S = 0.05
 FRAME_PERIOD_S = 0.05
 

@@ -253,6 +253,28 @@ def test_reorder_buffer_releases_in_time_order_and_counts_late_frames():
     assert small.pop_ready(0.0) == [(1.0, 1.0)] and len(small) == 2
 
 
+def test_reorder_buffer_releases_at_the_watermark_of_the_cameras_it_hears():
+    buf = ReorderBuffer(latency=1.0)
+    # Two cameras, each delivering 0.2 s after capture; camera b is a frame behind camera a.
+    assert buf.push(10.0, "a10", source="a", arrived=10.2)
+    assert buf.push(10.1, "a10.1", source="a", arrived=10.3)
+    assert buf.push(10.05, "b10.05", source="b", arrived=10.3)
+    # Both have delivered up to 10.05: that much is released 0.95 s before the window's end.
+    assert buf.pop_ready(10.3) == [(10.0, "a10"), (10.05, "b10.05")]
+    assert buf.pop_ready(10.35) == []  # b has not yet delivered anything after 10.05
+    assert buf.push(10.15, "b10.15", source="b", arrived=10.4)
+    assert buf.pop_ready(10.4) == [(10.1, "a10.1")]
+    # Camera a falls silent: after the window b alone sets the watermark, and a frame of a's
+    # older than what was released is late.
+    assert buf.push(12.0, "b12", source="b", arrived=12.2)
+    assert [t for t, _ in buf.pop_ready(12.2)] == [10.15, 12.0]
+    assert not buf.push(11.0, "a11", source="a", arrived=12.3) and buf.late == 1
+    # A source's clock ahead of `now` never releases beyond `now`.
+    ahead = ReorderBuffer(latency=1.0)
+    assert ahead.push(5.0, "c5", source="c", arrived=3.0)
+    assert ahead.pop_ready(3.0) == [] and ahead.released == 3.0
+
+
 def _disagreeing_cameras_track(config: TrackerConfig) -> tuple[np.ndarray, float, list[int]]:
     """A still robot seen by two cameras whose calibrations disagree by 3 cm on the floor
     (the second one's pose shifted), frames 5 ms apart, each pixel sure to 0.05 px: return the
