@@ -8,8 +8,9 @@
   replayed at its own frame rate, or as fast as it decodes, and ends.
 
 A read that times out (no frame for 2 s) is a stall; the source is reopened with back-off
-(0.25 s doubling to 2 s, so a camera that returns is read again within about 4 s). Counters:
-frames, stalls, reconnects; frames per second over the last 2 s.
+(0.25 s doubling to 1 s: a camera that returns waits at most 1 s for the next attempt, then
+the open, which FFmpeg spends about 2 s probing an RTSP stream in; spec 08 asks for 5 s).
+Counters: frames, stalls, reconnects; frames per second over the last 2 s.
 """
 
 from __future__ import annotations
@@ -32,7 +33,7 @@ log = logging.getLogger("intspace.node")
 
 TIMEOUT_S = 2.0
 _BACKOFF_FIRST_S = 0.25
-_BACKOFF_MAX_S = 2.0
+_BACKOFF_MAX_S = 1.0
 _FPS_WINDOW_S = 2.0
 
 

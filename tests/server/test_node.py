@@ -471,7 +471,7 @@ def test_mjpeg_source_reconnects_with_backoff_and_reads_again_when_the_camera_re
         camera.down.clear()
         back = time.monotonic()
         _wait(lambda: source.stats.frames > frames_before, 5, "frames after the camera returned")
-        # Back-off is capped at 2 s: the camera is read again well within spec 08's 5 s.
+        # Back-off is capped at 1 s: the camera is read again well within spec 08's 5 s.
         assert time.monotonic() - back < 3.0
         assert source.stats.stalls >= 2  # each dropped connection is a stall
     finally:

@@ -1,0 +1,212 @@
+"""`intspace node --source rtsp://...` against a local RTSP camera (GStreamer's RTSP server
+serving the twin's living-room view as H.264, tests/server/rtsp_server.py), as against an IP
+camera: frames are read, the robot's marker is detected and tracked where it stands, and a
+camera that goes away for 10 s is read again within 5 s of its return (spec 08).
+
+The server runs under the system Python with PyGObject (Debian: python3-gi,
+gir1.2-gst-rtsp-server-1.0, gstreamer1.0-plugins-good, gstreamer1.0-plugins-ugly). Without
+them the test is skipped with the reason, except under CI=true, where it fails.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import httpx
+import numpy as np
+import pytest
+from node_helpers import free_port, node_env, serve_without_twin
+
+from core.sim import WorldState, default_scene
+from core.sim.installation import installed_calibration
+from core.sim.motion import Pose2D
+from core.sim.render import renderer_for
+
+TOKEN = "rtsp-test-admin-token"
+HEADERS = {"Authorization": f"Bearer {TOKEN}"}
+SYSTEM_PYTHON = Path("/usr/bin/python3")
+SERVER = Path(__file__).with_name("rtsp_server.py")
+PACKAGES = (
+    "python3-gi gir1.2-gst-rtsp-server-1.0 gstreamer1.0-plugins-good gstreamer1.0-plugins-ugly"
+)
+CAMERA = "cam_living_sw"
+# Where the robot stands in the clip: in the middle of the living room, in CAMERA's view.
+ROBOT = Pose2D(2.0, 2.0, 0.3)
+
+
+def _rtsp_unavailable() -> str | None:
+    """Return why the local RTSP server cannot run here, None when it can."""
+    if not SYSTEM_PYTHON.exists():
+        return f"no system Python at {SYSTEM_PYTHON}"
+    check = subprocess.run(
+        [str(SYSTEM_PYTHON), str(SERVER), "--check"], capture_output=True, text=True, timeout=60
+    )
+    return None if check.returncode == 0 else (check.stderr.strip() or "the check failed")
+
+
+@pytest.fixture(scope="module")
+def rtsp_ready() -> None:
+    reason = _rtsp_unavailable()
+    if reason is None:
+        return
+    message = f"GStreamer's RTSP server is not usable ({reason}); apt-get install {PACKAGES}"
+    if os.environ.get("CI", "").lower() == "true":
+        pytest.fail(message)
+    pytest.skip(message)
+
+
+def _clip(path: Path, frames: int = 30, fps: float = 10.0) -> None:
+    """Write the twin's view of CAMERA with the robot at ROBOT and nobody else in the home."""
+    scene = default_scene()
+    renderer = renderer_for(scene)
+    away = tuple((1e4, 1e4) for _ in scene.people)
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), fps, (640, 480))
+    for k in range(frames):
+        frame = renderer.render(CAMERA, WorldState(k / fps, ROBOT, away), rng=k)
+        writer.write(frame.image)
+    writer.release()
+
+
+class _RtspCamera:
+    """The RTSP server subprocess, (re)started on a fixed port."""
+
+    def __init__(self, clip: Path) -> None:
+        self.clip = clip
+        self.port = free_port()
+        self.url = f"rtsp://127.0.0.1:{self.port}/cam"
+        self.process: subprocess.Popen | None = None
+
+    def start(self) -> None:
+        self.process = subprocess.Popen(
+            [str(SYSTEM_PYTHON), str(SERVER), "--port", str(self.port), str(self.clip)],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        assert self.process.stdout is not None
+        line = self.process.stdout.readline()
+        if not line.startswith("ready"):
+            self.process.kill()
+            raise AssertionError(f"the RTSP server did not start: {self.process.stderr.read()}")
+
+    def stop(self) -> None:
+        if self.process is not None and self.process.poll() is None:
+            self.process.send_signal(signal.SIGTERM)
+            try:
+                self.process.wait(10)
+            except subprocess.TimeoutExpired:
+                self.process.kill()
+                self.process.wait()
+
+
+def _wait(condition, timeout: float, what: str):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        value = condition()
+        if value:
+            return value
+        time.sleep(0.1)
+    raise AssertionError(f"{what} within {timeout} s")
+
+
+def test_node_reads_an_rtsp_camera_tracks_its_robot_and_reconnects(rtsp_ready, repo_root, tmp_path):
+    clip = tmp_path / "clip.avi"
+    _clip(clip)
+    camera = _RtspCamera(clip)
+    camera.start()
+    service, api = serve_without_twin(repo_root, tmp_path / "service", TOKEN)
+    node = None
+    node_log = tmp_path / "node.log"
+    http = httpx.Client(base_url=api, headers=HEADERS, timeout=10)
+    try:
+        space = http.post("/spaces", json={"name": "flat"}).json()["id"]
+        # The camera as its installation calibrated it (not the twin's true camera).
+        cal = {c.name: c for c in installed_calibration(default_scene()).cameras}[CAMERA]
+        created = http.post(
+            "/cameras",
+            json={
+                "name": CAMERA,
+                "space_id": space,
+                "width": 640,
+                "height": 480,
+                "K": cal.K.tolist(),
+                "dist": cal.dist.tolist(),
+                "T_world_camera": cal.T_world_camera.tolist(),
+            },
+        )
+        assert created.status_code == 201, created.text
+        camera_id = created.json()["id"]
+        env = node_env()
+        env["INTSPACE_TOKEN"] = TOKEN
+        node = subprocess.Popen(
+            [
+                *(sys.executable, "-m", "server.cli", "node", "--source", camera.url),
+                *("--camera", CAMERA, "--space", str(space), "--api", api),
+            ],
+            cwd=repo_root,
+            env=env,
+            stdout=subprocess.DEVNULL,
+            stderr=node_log.open("w"),
+        )
+
+        def health() -> dict:
+            return http.get(f"/cameras/{camera_id}").json()["health"]
+
+        def robot() -> dict | None:
+            items = http.get("/targets", params={"kind": "robot"}).json()["items"]
+            return items[0] if items else None
+
+        try:
+            target = _wait(robot, 40, "a robot target from the RTSP camera's frames")
+        except AssertionError as exc:
+            raise AssertionError(f"{exc}\nnode:\n{node_log.read_text()}") from None
+        _wait(lambda: health()["fps"] > 0, 5, "a heartbeat counting the camera's frames")
+        error = float(np.hypot(target["xy"][0] - ROBOT.x, target["xy"][1] - ROBOT.y))
+        print(f"robot at {target['xy']}, {100 * error:.2f} cm from where it stands")
+        # 5 cm: spec 08's RMSE for points at a known height (the marker's). One camera with its
+        # installed calibration locates the marker to about a centimetre; H.264 at the
+        # encoder's default quality moves the marker's centroid by well under a pixel.
+        assert error < 0.05, (target, node_log.read_text())
+
+        # The camera goes away for 10 s (an IP camera rebooting), then returns on its address.
+        camera.stop()
+        time.sleep(10.0)
+        camera.start()
+        back = time.time()
+
+        def received(h: dict) -> float:
+            # The node stamps an RTSP frame with its own clock plus the offset it measured to
+            # the service's; this machine's clock is the node's.
+            return h["last_frame_t"] - h["clock_offset_s"]
+
+        seen = _wait(
+            lambda: (h := health())["last_frame_t"] is not None and received(h) > back and h,
+            8,
+            "frames after the camera returned",
+        )
+        delay = received(seen) - back
+        print(f"read again {delay:.2f} s after the camera returned; health {seen}")
+        # Spec 08: within 5 s of its return (the back-off is capped at 1 s, and FFmpeg's open
+        # probes the stream for about 2 s more).
+        assert delay <= 5.0, (delay, node_log.read_text())
+        assert seen["reconnects"] >= 1 and seen["stalls"] >= 1
+    finally:
+        http.close()
+        if node is not None and node.poll() is None:
+            node.send_signal(signal.SIGINT)
+            try:
+                node.wait(15)
+            except subprocess.TimeoutExpired:
+                node.kill()
+        camera.stop()
+        service.send_signal(signal.SIGINT)
+        try:
+            service.wait(20)
+        except subprocess.TimeoutExpired:
+            service.kill()
