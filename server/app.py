@@ -15,12 +15,14 @@ from starlette.concurrency import run_in_threadpool
 
 import server
 from server.api import (
+    arms,
     calibration_runs,
     cameras,
     export,
     landmarks,
     maps,
     observations,
+    paths,
     projectors,
     robots,
     rooms,
@@ -31,6 +33,7 @@ from server.api import (
     streams,
     system,
     targets,
+    tasks,
     tokens,
     twin,
 )
@@ -61,9 +64,12 @@ def api_router() -> APIRouter:
         rooms,
         cameras,
         projectors,
+        paths,
         robots,
+        arms,
         landmarks,
         calibration_runs,
+        tasks,
         tokens,
         session,
         observations,
@@ -176,6 +182,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         finally:
             if twin is not None:
                 await run_in_threadpool(twin.stop)
+            if getattr(app.state, "task_runner", None) is not None:
+                await run_in_threadpool(app.state.task_runner.shutdown)
             await run_in_threadpool(tracking.stop)
             await run_in_threadpool(live.stop)
             if executor is not None:

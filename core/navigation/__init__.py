@@ -1,6 +1,7 @@
 """Navigation: occupancy grids, path planning, and the laws that follow the projected spot.
 
-* `occupancy_grid(plan, robot_radius, resolution)`: the inflated grid of a floor plan.
+* `occupancy_grid(plan, robot_radius, resolution)`: the inflated grid of a floor plan;
+  `wall_spans(wall)`: a wall's solid spans between its doors.
 * `plan_path(free, start, goal, *, resolution, origin)`: scikit-image's minimum-cost route
   pulled taut by line of sight; `BlockedEndpoint`, `NoRoute` when it cannot.
 * Following the projected spot: `StateFeedbackLaw` (Kanayama), `AdaptiveLaw` (Lyapunov-based
@@ -21,7 +22,7 @@ from core.navigation._control import (
     control_point,
     point_to_unicycle,
 )
-from core.navigation._grid import FloorPlan, OccupancyGrid, occupancy_grid
+from core.navigation._grid import FloorPlan, OccupancyGrid, occupancy_grid, wall_spans
 from core.navigation._planner import (
     BlockedEndpoint,
     NoRoute,
@@ -51,4 +52,5 @@ __all__ = [
     "plan_path",
     "point_to_unicycle",
     "segment_is_free",
+    "wall_spans",
 ]

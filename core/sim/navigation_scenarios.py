@@ -37,6 +37,7 @@ from __future__ import annotations
 import itertools
 import math
 from collections import deque
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -67,6 +68,8 @@ from core.sim.motion import Pose2D, UnicycleBase
 from core.sim.scene import Scene, default_scene
 
 Array = NDArray[np.float64]
+# on_step(t, pose, spot, error) of simulate_following: s, (3,) x y theta, (2,) x y, m.
+StepCallback = Callable[[float, Array, Array, float], None]
 
 # The floor camera on the robot (robot frame: x forward, y left, z up): 0.15 m ahead of the
 # axle, 0.40 m up, pitched 40 degrees down; 640 x 480, f = 500 px, mild barrel distortion.
@@ -211,14 +214,17 @@ def plan_tour(scene: Scene, waypoints: tuple[tuple[float, float], ...] = TOUR) -
 
 @dataclass(frozen=True)
 class FollowRun:
-    """One law's run: `time` (N,) s, `error` (N,) m (|P - spot| against the twin), `state`
-    (N,) the follower's state, `straight` (N,) whether the spot was cruising on a straight
-    stretch for at least 3 s, `finished_s` the time the projector finished drawing (None if it
-    never did), `lost_events`."""
+    """One law's run: `time` (N,) s, `error` (N,) m (|P - spot| against the twin), `pose`
+    (N, 3) the robot's true pose (x, y m, theta rad), `spot` (N, 2) the true spot on the floor
+    (x, y m), `state` (N,) the follower's state, `straight` (N,) whether the spot was cruising
+    on a straight stretch for at least 3 s, `finished_s` the time the projector finished
+    drawing (None if it never did), `lost_events`."""
 
     law: str
     time: Array
     error: Array
+    pose: Array
+    spot: Array
     state: NDArray[np.str_]
     straight: NDArray[np.bool_]
     finished_s: float | None
@@ -246,12 +252,16 @@ def simulate_following(
     seed: int,
     *,
     settle: float = 3.0,
+    on_step: StepCallback | None = None,
 ) -> FollowRun:
     """Run one law in closed loop (module docstring) and return its errors against the twin.
 
     `projector` is the twin's true unit (it draws the spot from the commanded angles);
     `plane` the robot's own calibration of its floor camera; the noise streams (slip, pixels,
-    missed frames) come from `seed` and are the same for every law.
+    missed frames) come from `seed` and are the same for every law. `on_step(t, pose, spot,
+    error)`, when given, is called at every control step (CONTROL_DT) with the simulated time
+    (s), the robot's true pose (3,), the true spot (2,) and the error (m) as the run records
+    them, so a caller can show the run while it goes; it must not modify the arrays.
     """
     robot = scene.robot
     if robot is None:
@@ -265,6 +275,8 @@ def simulate_following(
     tau = 0.0
     end = trajectory.duration
     times, errors, states, straight = [], [], [], []
+    poses: list[Array] = []
+    spots: list[Array] = []
     finished: float | None = None
     speed = np.linalg.norm(trajectory.spot_velocity, axis=1)
     _, _, turn = trajectory.reference(trajectory.t)
@@ -283,8 +295,13 @@ def simulate_following(
         pose = st.pose.as_array()
         odom = st.odometry.as_array()
         spot = np.array([np.interp(tau, trajectory.t, drawn[:, j]) for j in range(2)])
+        error = float(np.linalg.norm(control_point(pose, follower.L) - spot))
         times.append(t)
-        errors.append(float(np.linalg.norm(control_point(pose, follower.L) - spot)))
+        errors.append(error)
+        poses.append(pose)
+        spots.append(spot)
+        if on_step is not None:
+            on_step(t, pose, spot, error)
         states.append(follower.state.value)
         straight.append(bool(np.interp(tau, trajectory.t, run) >= 3.0) and tau < end)
         if t + 1e-9 >= next_capture:
@@ -316,6 +333,8 @@ def simulate_following(
         law=follower.name,
         time=np.asarray(times),
         error=np.asarray(errors),
+        pose=np.asarray(poses).reshape(-1, 3),
+        spot=np.asarray(spots).reshape(-1, 2),
         state=np.asarray(states),
         straight=np.asarray(straight),
         finished_s=finished,

@@ -21,6 +21,7 @@ from pydantic import Field
 from sqlalchemy import or_, select, update
 
 from server.api._crud import check_references, get_or_404, paginate
+from server.api.arms import apply_hand_eye_run, hand_eye_run
 from server.api.deps import (
     PageDep,
     ReadAccess,
@@ -32,6 +33,7 @@ from server.api.deps import (
 )
 from server.api.errors import PROBLEM_RESPONSES, FieldProblem
 from server.api.limits import check_image_size
+from server.api.paths import apply_projector_run, projector_run
 from server.db.base import utcnow
 from server.db.models import (
     RUN_SUCCEEDED,
@@ -48,7 +50,9 @@ from server.schemas.calibration import (
     implausible_square,
 )
 from server.schemas.common import MAX_ID, Page
-from server.schemas.registry import CameraRead
+from server.schemas.manipulation import ArmRead, HandEyeRunCreate
+from server.schemas.paths import ProjectorRunCreate
+from server.schemas.registry import CameraRead, ProjectorRead
 from server.schemas.twin import NetworkRunCreate
 from server.services.calibration import decode_image
 from server.services.runs import RunExecutor
@@ -76,14 +80,24 @@ def _queue(session, executor: RunExecutor | None, run: CalibrationRun) -> Calibr
     dependencies=[WriteAccess],
 )
 def create_calibration_run(
-    body: Annotated[IntrinsicsRunCreate | NetworkRunCreate, Field(discriminator="kind")],
+    body: Annotated[
+        IntrinsicsRunCreate | NetworkRunCreate | HandEyeRunCreate | ProjectorRunCreate,
+        Field(discriminator="kind"),
+    ],
     session: SessionDep,
     executor: ExecutorDep,
     request: Request,
 ):
     """Queue a calibration; poll GET /calibration-runs/{id}. Kind "intrinsics": Zhang's method
     on point correspondences of one camera. Kind "network": the twin's calibration drive (the
-    robot's marker driven over the floor) calibrates every twin camera, intrinsics and pose."""
+    robot's marker driven over the floor) calibrates every twin camera, intrinsics and pose.
+    Kind "hand-eye": an arm's eye-in-hand camera, on the twin or from uploaded pose pairs.
+    Kind "projector": the twin's projector's mount, from spots the ceiling cameras locate."""
+    if isinstance(body, ProjectorRunCreate):
+        return _queue(session, executor, projector_run(body, session, request))
+    if isinstance(body, HandEyeRunCreate):
+        twin = getattr(request.app.state, "twin", None)
+        return _queue(session, executor, hand_eye_run(body, session, twin is not None))
     if isinstance(body, NetworkRunCreate):
         twin = getattr(request.app.state, "twin", None)
         if twin is None:
@@ -243,20 +257,26 @@ def get_calibration_run(run_id: RunId, session: SessionDep):
 
 @router.post(
     "/{run_id}/apply",
-    response_model=CameraRead | list[CameraRead],
+    response_model=CameraRead | list[CameraRead] | ArmRead | ProjectorRead,
     dependencies=[WriteAccess],
 )
 def apply_calibration_run(run_id: RunId, session: SessionDep, scene: SceneDep):
     """Set the camera's intrinsics from a successful run and record it in the camera's
     calibration history; return the updated camera. Applying the run the camera already has
     changes nothing and adds no history entry. A network run sets intrinsics and pose of
-    every camera it calibrated and returns the list of them."""
+    every camera it calibrated and returns the list of them. A hand-eye run sets its arm's
+    T_ee_camera, records it in the arm's hand-eye history and returns the arm. A projector run
+    sets the projector's pose, records it in its history and returns the projector."""
     run = get_or_404(session, CalibrationRun, run_id, "calibration run")
     if run.status != RUN_SUCCEEDED or run.result is None:
         raise HTTPException(
             status.HTTP_409_CONFLICT,
             detail=f"run {run_id} is {run.status}; only a succeeded run can be applied",
         )
+    if run.kind == "hand-eye":
+        return apply_hand_eye_run(run, session)
+    if run.kind == "projector":
+        return apply_projector_run(run, session)
     if run.kind == "network":
         return _apply_network(run, session, scene)
     if run.camera_id is None:

@@ -19,12 +19,13 @@ from sqlalchemy.orm import Session
 from core.errors import IntspaceError
 from core.localization import coverage_map
 from core.localization.cameras import NetworkCamera
-from core.sim import Scene, default_scene
+from core.sim import Scene
 from core.sim.occluders import scene_occluders
 from server.api.deps import ReadAccess, SessionDep
 from server.api.errors import PROBLEM_RESPONSES
 from server.db.models import Camera, Room, Space
 from server.schemas.common import MAX_ID
+from server.services.floor_plan import twin_scene_of
 
 # Caps that keep one map's memory well under 150 MB (measured on `intspace serve`: the
 # projections and Jacobians cost ~0.5 kB per camera and cell, the JSON lists ~0.2 kB per cell,
@@ -37,32 +38,9 @@ router = APIRouter(prefix="/maps", tags=["maps"], responses=PROBLEM_RESPONSES)
 
 
 def _floor_plan(request: Request, session: Session, space_id: int) -> Scene | None:
-    """Return the twin scene whose walls and furniture stand in the space, or None.
-
-    The running twin's scene when the twin lives in this space; otherwise the default home when
-    the space is its registered copy (the service was run with the twin before): same name and
-    the very same rooms, polygon for polygon.
-    """
-    twin = getattr(request.app.state, "twin", None)
-    if twin is not None and twin.space_id == space_id:
-        return twin.scene
-    scene = default_scene()
-    space = session.get(Space, space_id)
-    if space is None or space.name != scene.name:
-        return None
-    # Sorted here, not by the database, whose collation may order names differently.
-    rows = sorted(
-        session.execute(select(Room.name, Room.polygon).where(Room.space_id == space_id)).all(),
-        key=lambda row: str(row[0]),
-    )
-    want = sorted(scene.rooms, key=lambda r: r.name)
-    same = len(rows) == len(want) and all(
-        name == r.name
-        and np.shape(polygon) == (len(r.polygon), 2)
-        and np.allclose(polygon, r.polygon, rtol=0.0, atol=1e-9)
-        for (name, polygon), r in zip(rows, want, strict=False)
-    )
-    return scene if same else None
+    """Return the twin scene whose walls and furniture stand in the space, or None
+    (server.services.floor_plan)."""
+    return twin_scene_of(getattr(request.app.state, "twin", None), session, space_id)
 
 
 def usable_cameras(

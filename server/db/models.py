@@ -137,6 +137,10 @@ class CalibrationRun(Timestamped, Base):
     camera_id: Mapped[int | None] = mapped_column(
         ForeignKey("cameras.id", ondelete="SET NULL"), index=True
     )
+    # A hand-eye run's arm (migration 0008).
+    arm_id: Mapped[int | None] = mapped_column(
+        ForeignKey("arms.id", ondelete="SET NULL"), index=True
+    )
     inputs: Mapped[dict[str, Any]] = mapped_column(JSON)
     options: Mapped[dict[str, Any]] = mapped_column(JSON, default=dict)
     result: Mapped[dict[str, Any] | None] = mapped_column(JSON)
@@ -335,3 +339,135 @@ class NavigationEdge(Timestamped, Base):
     to_mark: Mapped[int] = mapped_column(Integer)
     length_m: Mapped[float] = mapped_column(Float)
     via: Mapped[str] = mapped_column(String(20))
+
+
+# Status values of a path's follow task (server.services.paths).
+FOLLOW_STATUSES = ("idle", "running", "succeeded", "failed", "interrupted")
+
+
+class PlannedPath(Timestamped, Base):
+    """A path planned on a space's floor plan (spec 03): start and goal (x, y) m, the planned
+    poly-line `points` and its `length_m`, the planning inputs (robot radius, grid resolution,
+    which floor plan), and when a projector draws it: the projector model used and the joint
+    trajectory (`trajectory`: t s, q rad, spot m). The follow task on the twin keeps its status,
+    law, progress, metrics and tracking-error series (t s, error m) on the row."""
+
+    __tablename__ = "paths"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    space_id: Mapped[int] = mapped_column(ForeignKey("spaces.id", ondelete="CASCADE"), index=True)
+    projector_id: Mapped[int | None] = mapped_column(
+        ForeignKey("projectors.id", ondelete="SET NULL")
+    )
+    start: Mapped[list[float]] = mapped_column(JSON)
+    goal: Mapped[list[float]] = mapped_column(JSON)
+    points: Mapped[list[list[float]]] = mapped_column(JSON)
+    length_m: Mapped[float] = mapped_column(Float)
+    robot_radius_m: Mapped[float] = mapped_column(Float)
+    resolution_m: Mapped[float] = mapped_column(Float)
+    floor_plan: Mapped[str] = mapped_column(String(200))
+    spot_speed_mps: Mapped[float | None] = mapped_column(Float)
+    projector_model: Mapped[dict[str, Any] | None] = mapped_column(JSON)
+    trajectory: Mapped[dict[str, Any] | None] = mapped_column(JSON)
+    follow_status: Mapped[str] = mapped_column(String(20), default="idle")
+    follow_law: Mapped[str | None] = mapped_column(String(40))
+    follow_seed: Mapped[int | None] = mapped_column(Integer)
+    follow_progress: Mapped[float | None] = mapped_column(Float)
+    follow_heartbeat: Mapped[float | None] = mapped_column(Float)
+    follow_result: Mapped[dict[str, Any] | None] = mapped_column(JSON)
+    follow_series: Mapped[dict[str, Any] | None] = mapped_column(JSON)
+    follow_error: Mapped[str | None] = mapped_column(Text)
+    follow_started_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True))
+    follow_finished_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True))
+
+
+class Arm(Timestamped, Base):
+    """An arm mounted on a robot (spec 05): its standard Denavit-Hartenberg parameters `dh`
+    ({a, d, alpha, offset}: six values each, metres and radians), joint `limits` (6 x [lower,
+    upper] rad), `tool` T_flange_ee and mount `T_robot_arm` (4x4, metres), a `home`
+    configuration (rad), its eye-in-hand camera and the hand-eye transform T_ee_camera applied
+    last (by `hand_eye_run_id`, or typed in: no run)."""
+
+    __tablename__ = "arms"
+    __table_args__ = (UniqueConstraint("robot_id", "name"),)
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    robot_id: Mapped[int] = mapped_column(ForeignKey("robots.id", ondelete="CASCADE"), index=True)
+    name: Mapped[str] = mapped_column(String(200))
+    dh: Mapped[dict[str, list[float]]] = mapped_column(JSON)
+    limits: Mapped[list[list[float]]] = mapped_column(JSON)
+    tool: Mapped[list[list[float]]] = mapped_column(JSON)
+    home: Mapped[list[float]] = mapped_column(JSON)
+    T_robot_arm: Mapped[list[list[float]]] = mapped_column(JSON)
+    camera_id: Mapped[int | None] = mapped_column(ForeignKey("cameras.id", ondelete="SET NULL"))
+    T_ee_camera: Mapped[list[list[float]] | None] = mapped_column(JSON)
+    hand_eye_run_id: Mapped[int | None] = mapped_column(
+        ForeignKey("calibration_runs.id", ondelete="SET NULL", use_alter=True)
+    )
+
+
+class HandEyeCalibration(Timestamped, Base):
+    """A hand-eye calibration applied to an arm; the rows of one arm are its history: the
+    transform T_ee_camera, its rotation (deg) and translation (m) standard deviations, the
+    refinement's reprojection RMS (px, None without one) and the method."""
+
+    __tablename__ = "hand_eye_calibrations"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    arm_id: Mapped[int] = mapped_column(ForeignKey("arms.id", ondelete="CASCADE"), index=True)
+    calibration_run_id: Mapped[int | None] = mapped_column(
+        ForeignKey("calibration_runs.id", ondelete="SET NULL")
+    )
+    T_ee_camera: Mapped[list[list[float]]] = mapped_column(JSON)
+    rotation_std_deg: Mapped[float] = mapped_column(Float)
+    translation_std_m: Mapped[float] = mapped_column(Float)
+    rms_px: Mapped[float | None] = mapped_column(Float)
+    method: Mapped[str] = mapped_column(String(40))
+
+
+# Status values of a task (server.services.manipulation).
+TASK_STATUSES = ("queued", "running", "succeeded", "failed", "interrupted")
+
+
+class Task(Timestamped, Base):
+    """A robot task run on the twin (kind "fetch": grasp episodes with an arm): its inputs,
+    status, current phase and progress (0-1), result (filled episode by episode) or error, the
+    process running it (`owner`) and its last sign of life (`heartbeat`, Unix s)."""
+
+    __tablename__ = "tasks"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    kind: Mapped[str] = mapped_column(String(40))
+    status: Mapped[str] = mapped_column(String(20), default="queued", index=True)
+    arm_id: Mapped[int | None] = mapped_column(
+        ForeignKey("arms.id", ondelete="SET NULL"), index=True
+    )
+    inputs: Mapped[dict[str, Any]] = mapped_column(JSON)
+    phase: Mapped[str | None] = mapped_column(String(80))
+    progress: Mapped[float | None] = mapped_column(Float)
+    result: Mapped[dict[str, Any] | None] = mapped_column(JSON)
+    error: Mapped[str | None] = mapped_column(Text)
+    owner: Mapped[str | None] = mapped_column(String(120))
+    heartbeat: Mapped[float | None] = mapped_column(Float)
+    started_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True))
+    finished_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True))
+
+
+class ProjectorCalibration(Timestamped, Base):
+    """A calibration applied to a projector (spec 03 section 2); the rows of one projector are
+    its history: the mount pose T_world_projector (the pan-tilt base), the tilt joint's zero
+    offset (rad), the floor RMS (m) and the number of spots it used."""
+
+    __tablename__ = "projector_calibrations"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    projector_id: Mapped[int] = mapped_column(
+        ForeignKey("projectors.id", ondelete="CASCADE"), index=True
+    )
+    calibration_run_id: Mapped[int | None] = mapped_column(
+        ForeignKey("calibration_runs.id", ondelete="SET NULL")
+    )
+    T_world_projector: Mapped[list[list[float]]] = mapped_column(JSON)
+    tilt_offset: Mapped[float] = mapped_column(Float)
+    rms_m: Mapped[float] = mapped_column(Float)
+    spots: Mapped[int] = mapped_column(Integer)

@@ -8,6 +8,8 @@ scene.upsert_camera({"id": 3, "name": "ceiling-1", "width": 640, "height": 480,
 scene.set_camera_image(3, frame_bgr)                 # throttled; False when dropped
 scene.upsert_agent({"id": "robot", "kind": "robot", "x": 1.0, "y": 2.0, "theta": 0.3})
 scene.set_track("robot", [[0.0, 0.0], [0.5, 1.0], [1.0, 2.0]])
+scene.set_planned_path([[1.0, 2.5], [3.5, 1.6]])      # [] removes it
+scene.set_projector({"name": "laser", "T_world_projector": T, "spot": [1.0, 2.5]})
 scene.remove_agent("robot")
 scene.remove_camera(3)
 scene.stop()
@@ -15,6 +17,7 @@ scene.stop()
 
 from server.scene._agents import MAX_TRACK_POINTS, AgentView
 from server.scene._geometry import Frustum, Pose
+from server.scene._navigation import ProjectorView
 from server.scene._service import CameraView, RoomView, SceneService
 
 __all__ = [
@@ -23,6 +26,7 @@ __all__ = [
     "CameraView",
     "Frustum",
     "Pose",
+    "ProjectorView",
     "RoomView",
     "SceneService",
 ]

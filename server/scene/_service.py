@@ -41,6 +41,7 @@ from server.scene._geometry import (
     pose_from_transform,
     triangulate_polygon,
 )
+from server.scene._navigation import ProjectorView, parse_path, parse_projector
 
 log = logging.getLogger(__name__)
 
@@ -59,6 +60,10 @@ _COLOR_TRACK = {"robot": (194, 65, 12), "person": (109, 40, 217)}
 _COLOR_TRACK_UNKNOWN = (71, 85, 105)
 # Tracks float this far (m) above the floor, so the room fills never hide them.
 _TRACK_HEIGHT = 0.012
+# The planned path in green a little above the tracks; the projector's beam in laser red.
+_COLOR_PATH = (22, 163, 74)
+_COLOR_BEAM = (220, 38, 38)
+_PATH_HEIGHT = 0.016
 
 # Cameras without a pose wait in a row this far (m) outside the floor plan's -Y side, this far
 # apart, at this height, looking straight down (camera z = world -Z, camera x = world +X).
@@ -190,6 +195,9 @@ class SceneService:
         self._dirty_agents: set[str] = set()
         self._dirty_tracks: set[str] = set()
         self._dirty_images: set[int] = set()
+        self._path = np.zeros((0, 2))  # the planned path, (N, 2) m
+        self._projector: ProjectorView | None = None
+        self._dirty_navigation = False
         self._busy = False
         self._stopping = False
         self._worker: threading.Thread | None = None
@@ -198,6 +206,8 @@ class SceneService:
         self._drawn_rooms: list[RoomView] = []
         self._drawn_agents: dict[str, AgentView] = {}
         self._drawn_tracks: dict[str, np.ndarray] = {}
+        self._drawn_path = np.zeros((0, 2))
+        self._drawn_projector: ProjectorView | None = None
         self._shown_images: dict[int, np.ndarray] = {}  # RGB, downscaled, as on the frusta
         self._camera_picker: Any = None  # the GUI dropdown, once started
         self.share_requests_refused = 0  # viewers' share-URL requests refused so far
@@ -229,6 +239,7 @@ class SceneService:
                 self._dirty_agents = set(self._agents)
                 self._dirty_tracks = set(self._tracks)
                 self._dirty_images = set(self._images)
+                self._dirty_navigation = True
                 self._drawn_cameras = {}
                 self._drawn_agents = {}
                 self._drawn_tracks = {}
@@ -400,6 +411,27 @@ class SceneService:
             self._dirty_tracks.add(ident)
             self._cond.notify_all()
 
+    def set_planned_path(self, points: Sequence[Sequence[float]]) -> None:
+        """Replace the planned path by the poly-line through `points` ([[x, y], ...], world m,
+        at least 2), drawn just above the floor; an empty list removes it. Raises InvalidInput
+        (nothing changes) for malformed points."""
+        path = parse_path(points)
+        with self._cond:
+            self._path = path
+            self._dirty_navigation = True
+            self._cond.notify_all()
+
+    def set_projector(self, projector: Mapping[str, Any] | None) -> None:
+        """Show the ceiling projector: {"name", "T_world_projector" (4x4 mount pose, the
+        pan-tilt base), "spot": [x, y] (m) or None}: its frame with axes at the mount and, with
+        a spot, its beam from the mount to that floor point; None removes it. Raises
+        InvalidInput (nothing changes) for a pose that is not rigid or a bad spot."""
+        view = None if projector is None else parse_projector(projector)
+        with self._cond:
+            self._projector = view
+            self._dirty_navigation = True
+            self._cond.notify_all()
+
     def set_camera_image(self, camera_id: int, image_bgr: np.ndarray) -> bool:
         """Show `image_bgr` ((H, W, 3) BGR or (H, W) grey, uint8) on the camera's frustum.
 
@@ -448,6 +480,7 @@ class SceneService:
             or self._dirty_agents
             or self._dirty_tracks
             or self._dirty_images
+            or self._dirty_navigation
         )
 
     # -- what is drawn -----------------------------------------------------------------------
@@ -471,6 +504,16 @@ class SceneService:
         """Return the tracks as currently drawn: id -> (N, 2) points (m)."""
         with self._cond:
             return {k: v.copy() for k, v in self._drawn_tracks.items()}
+
+    def planned_path(self) -> np.ndarray:
+        """Return the planned path as currently drawn, (N, 2) m (N = 0: none)."""
+        with self._cond:
+            return self._drawn_path.copy()
+
+    def projector(self) -> ProjectorView | None:
+        """Return the projector as currently drawn, or None."""
+        with self._cond:
+            return self._drawn_projector
 
     def camera_image(self, camera_id: int) -> np.ndarray | None:
         """Return the RGB image currently shown on a camera's frustum (downscaled), or None."""
@@ -546,12 +589,16 @@ class SceneService:
                 }
                 images = {i: self._images.get(i) for i in self._dirty_images}
                 self._dirty_agents, self._dirty_tracks, self._dirty_images = set(), set(), set()
+                navigation = (self._path, self._projector) if self._dirty_navigation else None
+                self._dirty_navigation = False
                 self._busy = True
             try:
                 self._draw_images(images)  # before the cameras, which may be redrawn with them
                 self._draw(dirty, floor_dirty, cameras, rooms)
                 self._draw_agents(moved)
                 self._draw_tracks(tracks)
+                if navigation is not None:
+                    self._draw_navigation(*navigation)
             except Exception:  # a drawing bug must not kill the scene for good
                 log.exception("redrawing the 3D scene failed")
             finally:
@@ -693,6 +740,49 @@ class SceneService:
             anchor="bottom-center",
             font_screen_scale=0.8,
         )
+
+    def _draw_navigation(self, path: np.ndarray, projector: ProjectorView | None) -> None:
+        server = self._server
+        if server is None:
+            return
+        with server.atomic():
+            server.scene.remove_by_name("/navigation/path")
+            if len(path) >= 2:
+                segments = np.stack([path[:-1], path[1:]], axis=1)  # (N - 1, 2, 2)
+                height = np.full((len(segments), 2, 1), _PATH_HEIGHT)
+                server.scene.add_line_segments(
+                    "/navigation/path",
+                    points=np.concatenate([segments, height], axis=2),
+                    colors=_COLOR_PATH,
+                    thickness=4.0,
+                    thickness_units="screen",
+                )
+            server.scene.remove_by_name("/navigation/projector")
+            server.scene.remove_by_name("/navigation/beam")
+            if projector is not None:
+                pose = projector.pose
+                server.scene.add_frame(
+                    "/navigation/projector",
+                    wxyz=pose.wxyz,
+                    position=pose.position,
+                    axes_length=0.25,
+                    axes_radius=0.012,
+                )
+                server.scene.add_label(
+                    "/navigation/projector/label", projector.name, position=(0.0, 0.0, 0.1)
+                )
+                if projector.spot is not None:
+                    beam = np.array([[pose.position, (*projector.spot, 0.0)]], dtype=np.float64)
+                    server.scene.add_line_segments(
+                        "/navigation/beam",
+                        points=beam,
+                        colors=_COLOR_BEAM,
+                        thickness=2.0,
+                        thickness_units="screen",
+                    )
+        with self._cond:
+            self._drawn_path = path
+            self._drawn_projector = projector
 
     def _draw_tracks(self, tracks: dict[str, tuple[np.ndarray | None, np.ndarray | None]]) -> None:
         server = self._server

@@ -208,14 +208,98 @@ class RunProgress(ReadSchema):
     fraction: float = Field(ge=0, le=1, description="Share of the run done, 0 to 1.")
 
 
+# The results of hand-eye runs (created by server.schemas.manipulation's HandEyeRunCreate) and
+# projector runs (server.schemas.paths' ProjectorRunCreate), here so that one read model covers
+# every kind.
+
+
+class HandEyeMethodRow(ReadSchema):
+    """One method's estimate on the same views, against the twin's truth."""
+
+    method: str
+    rotation_error_deg: float
+    translation_error_mm: float
+    rotation_std_deg: float
+    translation_std_mm: float
+
+
+class HandEyeRunResult(ReadSchema):
+    """What a hand-eye run produced: X = T_ee_camera with its uncertainty and diagnostics."""
+
+    kind: Literal["hand-eye"]
+    arm_id: int
+    source: Literal["twin", "poses"]
+    method: str = Field(description="The linear method, '+refine' when refined.")
+    X: list[list[float]] = Field(description="T_ee_camera, 4x4, metres.")
+    covariance: list[list[float]] = Field(
+        description="6x6 of a perturbation X exp(w, v): rotation rad then translation m, "
+        "camera frame."
+    )
+    rotation_std_deg: float
+    translation_std_m: float
+    views: int
+    motions: int = Field(description="Pairs of views used.")
+    rotation_residuals_deg: list[float] = Field(description="Per motion, degrees.")
+    translation_residuals_m: list[float] = Field(description="Per motion, metres.")
+    refined: bool
+    rms_px: float | None = Field(None, description="Reprojection RMS of the refinement, px.")
+    per_view_rms_px: list[float] | None = None
+    iterations: int = 0
+    T_base_target: list[list[float]] = Field(description="The target in the arm's base frame.")
+    seed: int | None = None
+    sigma_px: float | None = Field(None, description="Twin: the pixel noise added, per axis.")
+    rendered: bool | None = None
+    truth: HandEyeMethodRow | None = Field(
+        None, description="Twin: this result's errors against the twin's true hand-eye."
+    )
+    methods: list[HandEyeMethodRow] = Field(
+        default_factory=list, description="Twin: every linear method on the same views."
+    )
+
+
+class ProjectorTwinErrors(ReadSchema):
+    """The calibrated mount against the twin's true projector (scoring only)."""
+
+    position_m: float
+    rotation_deg: float
+    aligned_position_m: float = Field(
+        description="After removing the frame error of the cameras' own calibration."
+    )
+    aligned_rotation_deg: float
+    tilt_offset_rad: float
+
+
+class ProjectorRunResult(ReadSchema):
+    """What a projector calibration produced: the mount, the tilt offset, their standard
+    deviations, the floor RMS and the spots used, with the errors against the twin."""
+
+    kind: Literal["projector"]
+    projector_id: int
+    T_world_projector: list[list[float]]
+    tilt_offset_rad: float
+    spots: int
+    rms_m: float = Field(description="RMS floor distance of the located spots to the model's.")
+    position_std_m: float
+    rotation_std_deg: float
+    spot_error_rms_m: float = Field(description="Located spots against the twin's, per axis.")
+    cameras: list[str]
+    camera_ids: list[int]
+    spots_from: str
+    twin_errors: ProjectorTwinErrors
+
+
 class CalibrationRunRead(ReadSchema):
+    """A calibration run of any kind: intrinsics, network, hand-eye (with its arm) or
+    projector, with its status, progress and result."""
+
     id: int
     kind: str
-    source: Literal["correspondences", "images", "twin"]
+    source: Literal["correspondences", "images", "twin", "poses"]
     status: RunStatus
     camera_id: int | None
+    arm_id: int | None = Field(None, description="A hand-eye run's arm.")
     options: dict[str, Any]
-    result: CalibrationResult | NetworkRunResult | None
+    result: CalibrationResult | NetworkRunResult | HandEyeRunResult | ProjectorRunResult | None
     error: str | None
     created_at: UtcDatetime
     updated_at: UtcDatetime

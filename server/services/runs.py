@@ -282,6 +282,16 @@ def compute(
     """Return the result of a claimed run (raising core's typed errors on bad data)."""
     if run.kind == "network":
         return calibration.calibrate_network(run.inputs, run.options, progress)
+    if run.kind == "hand-eye":
+        # Imported here: server.services.manipulation uses this module's worker ids.
+        from server.services.manipulation import calibrate_hand_eye_run
+
+        return calibrate_hand_eye_run(run.inputs, run.options, progress)
+    if run.kind == "projector":
+        # Imported here: a worker loads the twin's navigation scenarios only when it needs them.
+        from server.services.paths import calibrate_projector_run
+
+        return calibrate_projector_run(run.inputs, run.options, progress)
     if run.source == "images":
         files = session.execute(
             select(CalibrationRunFile.filename, CalibrationRunFile.data)

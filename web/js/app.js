@@ -8,6 +8,8 @@ import { renderCalibration, renderRun } from "./pages/calibration.js";
 import { renderScene } from "./pages/scene.js";
 import { renderFloor } from "./pages/floor.js";
 import { renderLandmarks } from "./pages/landmarks.js";
+import { renderNavigation } from "./pages/navigation.js";
+import { renderManipulation } from "./pages/manipulation.js";
 
 // Routes: [pattern, nav section, page title, render(main, params, query) -> cleanup?]
 const ROUTES = [
@@ -16,6 +18,8 @@ const ROUTES = [
   [/^\/cameras\/(\d+)$/, "cameras", "Camera", renderCamera],
   [/^\/floor$/, "floor", "Floor", renderFloor],
   [/^\/landmarks$/, "landmarks", "Landmarks", renderLandmarks],
+  [/^\/navigation$/, "navigation", "Navigation", renderNavigation],
+  [/^\/manipulation$/, "manipulation", "Manipulation", renderManipulation],
   [/^\/calibration$/, "calibration", "Calibration runs", renderCalibration],
   [/^\/calibration\/runs\/(\d+)$/, "calibration", "Calibration run", renderRun],
   [/^\/scene$/, "scene", "Live 3D scene", renderScene],
@@ -27,6 +31,8 @@ const ICONS = {
     "M4 7h3l2-3h6l2 3h3a1 1 0 0 1 1 1v11a1 1 0 0 1-1 1H4a1 1 0 0 1-1-1V8a1 1 0 0 1 1-1zm8 11a4.5 4.5 0 1 0 0-9 4.5 4.5 0 0 0 0 9z",
   floor: "M3 4h18v16H3zM11 4v6M11 14v6M3 12h8M15 12h6",
   landmarks: "M4 4h16v16H4zM8 8h3v3H8zM13 8h3v3h-3zM8 13h3v3H8zM13 13h3v3h-3z",
+  navigation: "M5 19c3-1 4-5 7-7s6-2 7-7M5 19a1.5 1.5 0 1 0 0 .01M19 5a1.5 1.5 0 1 0 0 .01",
+  manipulation: "M4 20h8M8 20v-5l5-6 4 3M13 9l-2-4M17 12l3-3M17 12l2 4",
   calibration: "M3 3h18v18H3zM3 9h18M3 15h18M9 3v18M15 3v18",
   scene: "M12 2 3 7v10l9 5 9-5V7zm0 0v10m0 0 9-5m-9 5-9-5m9 5v10",
 };

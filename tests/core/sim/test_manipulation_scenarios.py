@@ -9,9 +9,21 @@ import pytest
 from core.errors import InvalidInput
 from core.geometry.camera import project_points
 from core.geometry.rotations import matrix_to_rotvec
-from core.manipulation import calibrate_hand_eye, default_arm, invert_pose, pose_error
+from core.manipulation import (
+    calibrate_hand_eye,
+    default_arm,
+    default_manipulator,
+    invert_pose,
+    pose_error,
+)
 from core.sim import Renderer, default_scene
-from core.sim.manipulation_scenarios import grasp, hand_eye, hand_eye_views
+from core.sim.manipulation_scenarios import (
+    GRASP_PHASES,
+    grasp,
+    grasp_episode,
+    hand_eye,
+    hand_eye_views,
+)
 
 
 def test_views_are_reachable_and_consistent() -> None:
@@ -80,3 +92,35 @@ def test_grasp_scenario_keys_and_accuracy() -> None:
     for e in r.per_episode:
         if e.success:
             assert e.position_error_mm < 5.0 and e.rotation_error_deg < 2.0 and e.switches >= 1
+
+
+def _turned(X: np.ndarray, degrees: float) -> np.ndarray:
+    """Return X with its rotation turned by `degrees` about the camera's x axis."""
+    a = np.radians(degrees)
+    R = np.array([[1.0, 0.0, 0.0], [0.0, np.cos(a), -np.sin(a)], [0.0, np.sin(a), np.cos(a)]])
+    out = X.copy()
+    out[:3, :3] = X[:3, :3] @ R
+    return out
+
+
+def test_grasp_episode_reports_its_phases_as_it_enters_them() -> None:
+    mm = default_manipulator()
+    X = mm.T_ee_camera  # the hand-eye estimate given to the controller (exact here)
+    # A fetch that succeeds goes through every phase, in order.
+    seen: list[str] = []
+    e = grasp_episode(np.random.default_rng(5), mm, X, on_phase=seen.append)
+    assert e.success and seen == list(GRASP_PHASES) and e.phase == "lift and carry"
+    # A hand-eye estimate 3 cm off (same episode): the robot goes through every phase, and the
+    # scoring finds the grasp about 3 cm off, over the 5 mm tolerance: failed in the grasp.
+    shifted = X.copy()
+    shifted[:3, 3] += [0.03, 0.0, 0.0]
+    seen = []
+    e = grasp_episode(np.random.default_rng(5), mm, shifted, on_phase=seen.append)
+    assert not e.success and e.position_error_mm > 20.0
+    assert seen == list(GRASP_PHASES) and e.phase == "grasp"
+    assert e.reason.startswith("final pose error")
+    # A camera believed turned 60 degrees: the first look cannot be reached or never sees the
+    # mark, so the fetch fails in the approach and enters no later phase.
+    seen = []
+    e = grasp_episode(np.random.default_rng(5), mm, _turned(X, 60.0), on_phase=seen.append)
+    assert not e.success and seen == ["approach"] and e.phase == "approach"

@@ -685,6 +685,157 @@ function resultView(run) {
   );
 }
 
+/** A 4x4 pose as its rotation matrix and translation (metres), in a table. */
+const poseTable = (T, testid) => matrixTable(T, 4, testid);
+
+/** A projector run's result: the mount T_world_projector, its spread and its twin errors. */
+function projectorResultView(run) {
+  const r = run.result;
+  const e = r.twin_errors || {};
+  const fact = (label, value, testid) => [
+    h("dt", null, label),
+    h("dd", { class: "num", testid }, value),
+  ];
+  return h(
+    "div",
+    { class: "grid two", testid: "projector-result" },
+    panel(
+      "Projector mount",
+      `T_world_projector from ${r.spots} spots (${r.spots_from}), located by ` +
+        `${(r.cameras || []).join(", ") || "–"}; ± one standard deviation`,
+      poseTable(r.T_world_projector, "projector-T"),
+      h(
+        "dl",
+        { class: "facts" },
+        fact("Spots", String(r.spots), "projector-spots"),
+        fact("Floor RMS", `${fmt(r.rms_m * 1000, 2)} mm`, "projector-rms"),
+        fact("Position std", `${fmt(r.position_std_m * 1000, 2)} mm`, "projector-position-std"),
+        fact("Rotation std", `${fmt(r.rotation_std_deg, 3)}°`, "projector-rotation-std"),
+        fact("Tilt offset", `${fmt((r.tilt_offset_rad * 180) / Math.PI, 3)}°`, "projector-tilt"),
+      ),
+    ),
+    panel(
+      "Against the digital twin",
+      "The mount's errors against the twin's true projector (aligned: after removing the frame " +
+        "error of the cameras' own calibration); targets: position < 1 cm, rotation < 0.2°.",
+      h(
+        "dl",
+        { class: "facts", testid: "projector-twin-errors" },
+        fact("Position error", `${fmt(e.position_m * 1000, 2)} mm`, "projector-position-error"),
+        fact("Rotation error", `${fmt(e.rotation_deg, 3)}°`, "projector-rotation-error"),
+        fact(
+          "Aligned",
+          `${fmt(e.aligned_position_m * 1000, 2)} mm, ${fmt(e.aligned_rotation_deg, 3)}°`,
+          "projector-aligned-error",
+        ),
+        fact("Tilt offset error", `${fmt((e.tilt_offset_rad * 180) / Math.PI, 3)}°`),
+        fact("Located spots", `${fmt(r.spot_error_rms_m * 1000, 2)} mm RMS per axis`),
+      ),
+    ),
+  );
+}
+
+/** A hand-eye run's result: X = T_ee_camera, its standard deviations, the residuals and, on
+ * the twin, every method's errors against the truth. */
+function handEyeResultView(run) {
+  const r = run.result;
+  const fact = (label, value, testid) => [
+    h("dt", null, label),
+    h("dd", { class: "num", testid }, value),
+  ];
+  const methods = r.methods || [];
+  const row = (m, testid) =>
+    h(
+      "tr",
+      { testid },
+      h("td", null, m.method),
+      h("td", { class: "num" }, fmt(m.rotation_error_deg, 4)),
+      h("td", { class: "num" }, fmt(m.translation_error_mm, 3)),
+      h("td", { class: "num" }, fmt(m.rotation_std_deg, 4)),
+      h("td", { class: "num" }, fmt(m.translation_std_mm, 3)),
+    );
+  return h(
+    "div",
+    { class: "grid two", testid: "run-hand-eye-result" },
+    panel(
+      "Hand-eye transform",
+      `X = T_ee_camera (${r.method}) from ${r.views} views, ${r.motions} motions; ` +
+        "± one standard deviation",
+      poseTable(r.X, "run-hand-eye-X"),
+      h(
+        "dl",
+        { class: "facts" },
+        fact("Rotation std", `${fmt(r.rotation_std_deg, 4)}°`, "run-hand-eye-rotation-std"),
+        fact(
+          "Translation std",
+          `${fmt(r.translation_std_m * 1000, 3)} mm`,
+          "run-hand-eye-translation-std",
+        ),
+        fact("Refined", r.refined ? `yes, ${fmt(r.rms_px, 3)} px RMS` : "no", "run-hand-eye-refined"),
+        r.sigma_px != null ? fact("Pixel noise (twin)", `${fmt(r.sigma_px, 2)} px`) : null,
+      ),
+    ),
+    (r.rotation_residuals_deg || []).length
+      ? panel(
+          "Residuals per motion",
+          "Rotation residual of each motion pair (AX = XB), degrees",
+          barChart(r.rotation_residuals_deg, {
+            unit: "°",
+            title: "Rotation residual per motion",
+          }),
+        )
+      : null,
+    r.truth
+      ? panel(
+          "Against the digital twin",
+          "This result and every linear method on the same views, against the twin's true " +
+            "hand-eye; targets: rotation < 0.1°, translation < 1 mm.",
+          h(
+            "div",
+            { class: "table-wrap" },
+            h(
+              "table",
+              { testid: "run-hand-eye-methods" },
+              h(
+                "thead",
+                null,
+                h(
+                  "tr",
+                  null,
+                  [
+                    "Method",
+                    "Rotation error (°)",
+                    "Translation error (mm)",
+                    "Rotation std (°)",
+                    "Translation std (mm)",
+                  ].map((t, i) => h("th", { class: i ? "num" : null }, t)),
+                ),
+              ),
+              h(
+                "tbody",
+                null,
+                row(r.truth, "run-hand-eye-truth"),
+                methods.map((m, i) => row(m, `run-hand-eye-method-${i}`)),
+              ),
+            ),
+          ),
+        )
+      : null,
+  );
+}
+
+/** What the Apply button of a succeeded run says, by kind. */
+function applyLabel(run) {
+  if (run.kind === "network") return "Apply to the cameras";
+  if (run.kind === "projector") return `Apply to projector #${run.result.projector_id}`;
+  if (run.kind === "hand-eye") return `Apply to arm #${run.result.arm_id}`;
+  return "Apply to camera";
+}
+
+/** Whether a succeeded run has something to apply to. */
+const applicable = (run) =>
+  Boolean(run.camera_id) || ["network", "projector", "hand-eye"].includes(run.kind);
+
 export async function renderRun(main, [id], _query, setTitle) {
   setTitle(`Calibration run #${id}`);
   let timer = null;
@@ -711,6 +862,30 @@ export async function renderRun(main, [id], _query, setTitle) {
             const answer = await api(`/calibration-runs/${run.id}/apply`, { method: "POST" });
             applied = true;
             btn.textContent = "Applied";
+            if (run.kind === "projector" || run.kind === "hand-eye") {
+              const what = run.kind === "projector" ? "projector" : "arm";
+              const target = run.kind === "projector" ? "#/navigation" : "#/manipulation";
+              toast(`Calibration applied to ${what} ${answer.name ?? `#${answer.id}`}`);
+              mount(
+                notice,
+                h(
+                  "div",
+                  { class: "alert info", role: "status", testid: "run-applied" },
+                  run.kind === "projector"
+                    ? `Applied: projector ${answer.name} now has this mount (recorded in its ` +
+                        "calibration history). "
+                    : `Applied: arm ${answer.name} now has this hand-eye transform (recorded ` +
+                        "in its hand-eye history). ",
+                  h(
+                    "a",
+                    { href: target, testid: "run-target-link" },
+                    run.kind === "projector" ? "Plan a path with it" : "Open Manipulation",
+                  ),
+                  ".",
+                ),
+              );
+              return;
+            }
             if (run.kind === "network") {
               const n = Array.isArray(answer) ? answer.length : 0;
               toast(`Network calibration applied to ${n} cameras`);
@@ -747,7 +922,7 @@ export async function renderRun(main, [id], _query, setTitle) {
           }
         },
       },
-      applied ? "Applied" : run.kind === "network" ? "Apply to the cameras" : "Apply to camera",
+      applied ? "Applied" : applyLabel(run),
     );
 
   const draw = (run) => {
@@ -764,8 +939,19 @@ export async function renderRun(main, [id], _query, setTitle) {
           ? h("a", { href: `#/cameras/${run.camera_id}` }, cameraName || `#${run.camera_id}`)
           : run.kind === "network"
             ? "every camera of the digital twin's home"
-            : "–",
+            : run.kind === "projector" && run.result
+              ? `locating the spots: ${(run.result.cameras || []).join(", ")}`
+              : "–",
       ),
+      run.kind === "hand-eye" && run.arm_id
+        ? [h("dt", null, "Arm"), h("dd", { testid: "run-arm" }, `#${run.arm_id}`)]
+        : null,
+      run.kind === "projector" && run.result
+        ? [
+            h("dt", null, "Projector"),
+            h("dd", { testid: "run-projector" }, `#${run.result.projector_id}`),
+          ]
+        : null,
       h("dt", null, "Kind"),
       h("dd", null, [run.kind, run.source ? ` · ${run.source}` : ""]),
       h("dt", null, "Options"),
@@ -782,7 +968,28 @@ export async function renderRun(main, [id], _query, setTitle) {
       h("dd", null, when(run.created_at)),
       h("dt", null, "Ran for"),
       h("dd", null, duration(run.started_at, run.finished_at)),
-      run.result
+      run.result && run.kind === "projector"
+        ? [
+            h("dt", null, "RMS error"),
+            h(
+              "dd",
+              { class: "num", testid: "run-rms" },
+              `${fmt(run.result.rms_m * 1000, 2)} mm over ${run.result.spots} spots`,
+            ),
+          ]
+        : null,
+      run.result && run.kind === "hand-eye"
+        ? [
+            h("dt", null, "Uncertainty"),
+            h(
+              "dd",
+              { class: "num", testid: "run-rms" },
+              `${fmt(run.result.rotation_std_deg, 4)}°, ` +
+                `${fmt(run.result.translation_std_m * 1000, 3)} mm (one std)`,
+            ),
+          ]
+        : null,
+      run.result && run.kind !== "projector" && run.kind !== "hand-eye"
         ? [
             h("dt", null, "RMS error"),
             h(
@@ -810,7 +1017,7 @@ export async function renderRun(main, [id], _query, setTitle) {
           h(
             "div",
             { class: "form-actions", style: { marginTop: 0 } },
-            run.status === "succeeded" && (run.camera_id || run.kind === "network")
+            run.status === "succeeded" && run.result && applicable(run)
               ? applyButton(run)
               : null,
             h("a", { class: "btn", href: "#/calibration" }, "All runs"),
@@ -820,6 +1027,10 @@ export async function renderRun(main, [id], _query, setTitle) {
     );
     if (run.status === "succeeded" && run.result && run.kind === "network")
       mount(body, networkResultView(run), accuracyView(run.result));
+    else if (run.status === "succeeded" && run.result && run.kind === "projector")
+      mount(body, projectorResultView(run));
+    else if (run.status === "succeeded" && run.result && run.kind === "hand-eye")
+      mount(body, handEyeResultView(run));
     else if (run.status === "succeeded" && run.result?.K) mount(body, resultView(run));
     else if (run.status === "failed" || run.status === "interrupted")
       mount(

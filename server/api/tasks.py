@@ -1,0 +1,105 @@
+"""Robot tasks on the digital twin: a fetch (grasp episodes with an arm) runs in a background
+thread; its phase, progress and result are stored as it goes and read back by id."""
+
+from __future__ import annotations
+
+import secrets
+import threading
+import time
+from typing import Annotated
+
+from fastapi import APIRouter, Depends, HTTPException, Path, Query, Request, status
+from sqlalchemy import select
+
+from server.api._crud import check_references, get_or_404, paginate
+from server.api.deps import PageDep, ReadAccess, SessionDep, WriteAccess
+from server.api.errors import PROBLEM_RESPONSES, FieldProblem
+from server.db.models import Arm, Task
+from server.schemas.common import MAX_ID, Page
+from server.schemas.manipulation import FetchTaskCreate, TaskRead, TaskStatus
+from server.services.manipulation import TaskRunner, arm_values, closed_form
+
+router = APIRouter(prefix="/tasks", tags=["tasks"], responses=PROBLEM_RESPONSES)
+TaskId = Annotated[int, Path(ge=1, le=MAX_ID)]
+_runner_lock = threading.Lock()
+
+
+def get_task_runner(request: Request) -> TaskRunner:
+    """Return the app's task runner, started on first use (app.state.task_runner)."""
+    state = request.app.state
+    with _runner_lock:
+        runner = getattr(state, "task_runner", None)
+        if runner is None:
+            runner = TaskRunner(state.session_factory)
+            state.task_runner = runner
+    return runner
+
+
+RunnerDep = Annotated[TaskRunner, Depends(get_task_runner)]
+# Reading tasks starts the runner too: it marks interrupted the tasks of processes that stopped.
+Runner = Depends(get_task_runner)
+
+
+@router.post(
+    "", response_model=TaskRead, status_code=status.HTTP_202_ACCEPTED, dependencies=[WriteAccess]
+)
+def create_task(body: FetchTaskCreate, session: SessionDep, request: Request, runner: RunnerDep):
+    """Start a task on the twin; poll GET /tasks/{id} for its phase, progress and result.
+    Kind "fetch": the arm fetches a marked box from the dining table, `episodes` times."""
+    if getattr(request.app.state, "twin", None) is None:
+        raise HTTPException(
+            status.HTTP_409_CONFLICT,
+            detail="a fetch runs on the digital twin; start the service with "
+            "INTSPACE_SIMULATION=true",
+        )
+    check_references(session, {"arm_id": (Arm, body.arm_id)})
+    arm = session.get(Arm, body.arm_id)
+    assert arm is not None
+    values = arm_values(arm)
+    if not closed_form(values):
+        raise FieldProblem(
+            422,
+            "arm_id",
+            f"arm {arm.id} is not of the Puma type whose closed-form inverse kinematics places "
+            "the twin's robot base for the grasp",
+        )
+    inputs = body.model_dump()
+    if inputs["seed"] is None:
+        inputs["seed"] = secrets.randbelow(2**31)
+    inputs["arm"] = values
+    task = Task(
+        kind=body.kind,
+        status="queued",
+        arm_id=arm.id,
+        inputs=inputs,
+        phase="queued",
+        progress=0.0,
+        owner=runner.owner,
+        heartbeat=time.time(),
+    )
+    session.add(task)
+    session.commit()
+    runner.submit(task.id)
+    return task
+
+
+@router.get("", response_model=Page[TaskRead], dependencies=[ReadAccess, Runner])
+def list_tasks(
+    session: SessionDep,
+    page: PageDep,
+    arm_id: Annotated[int | None, Query(ge=1, le=MAX_ID)] = None,
+    status: Annotated[TaskStatus | None, Query()] = None,
+):
+    """Return a page of tasks, newest first, optionally of one arm or one status."""
+    stmt = select(Task).order_by(Task.id.desc())
+    if arm_id is not None:
+        stmt = stmt.where(Task.arm_id == arm_id)
+    if status is not None:
+        stmt = stmt.where(Task.status == status)
+    return paginate(session, stmt, page)
+
+
+@router.get("/{task_id}", response_model=TaskRead, dependencies=[ReadAccess, Runner])
+def get_task(task_id: TaskId, session: SessionDep):
+    """Return a task: its status, phase, progress, and its result (episode by episode)."""
+    return get_or_404(session, Task, task_id, "task")

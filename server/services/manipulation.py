@@ -1,0 +1,523 @@
+"""Mobile manipulation in the service: arms from the registry as core's kinematic models,
+hand-eye calibration runs (on the twin, or from uploaded pose pairs), and fetch tasks run on
+the twin in background threads with their phase and result stored as they go.
+
+The twin's simulated eye-in-hand camera sits where core.manipulation's default manipulator
+mounts it; that true mount only renders (or projects) what the camera sees and scores the
+results, as in core.sim.manipulation_scenarios: no estimate reads it.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
+from typing import Any
+
+import numpy as np
+from sqlalchemy import and_, or_, update
+from sqlalchemy.orm import Session, sessionmaker
+
+from core.errors import IntspaceError, InvalidInput
+from core.manipulation import (
+    METHODS,
+    DegenerateMotions,
+    DHArm,
+    MobileManipulator,
+    calibrate_hand_eye,
+    default_manipulator,
+    pose_error,
+)
+from core.manipulation.hand_eye import check_motions, relative_motions
+from core.sim.manipulation_scenarios import (
+    GRASP_PHASES,
+    GraspEpisode,
+    grasp_episode,
+    hand_eye_views,
+)
+from server.db.base import utcnow
+from server.db.models import Task
+from server.services.runs import worker_id
+
+log = logging.getLogger(__name__)
+
+Progress = Callable[[str, float], None]
+Problem = tuple[str, str]  # (field, reason)
+
+# --------------------------------------------------------------------------------------------
+# Arms
+
+
+def arm_values(arm: Any) -> dict[str, Any]:
+    """Return an arm row's kinematic fields as stored (JSON-ready): dh, limits, tool, home,
+    T_robot_arm, T_ee_camera."""
+    return {
+        key: getattr(arm, key)
+        for key in ("dh", "limits", "tool", "home", "T_robot_arm", "T_ee_camera")
+    }
+
+
+def dh_arm(values: dict[str, Any], name: str = "arm") -> DHArm:
+    """Return core's DHArm of stored arm fields (raises InvalidInput when they do not make
+    one)."""
+    dh = values["dh"]
+    return DHArm(
+        name=name,
+        a=np.asarray(dh["a"], dtype=float),
+        d=np.asarray(dh["d"], dtype=float),
+        alpha=np.asarray(dh["alpha"], dtype=float),
+        offset=np.asarray(dh.get("offset", [0.0] * 6), dtype=float),
+        limits=np.asarray(values["limits"], dtype=float),
+        tool=np.asarray(values["tool"], dtype=float),
+        home=np.asarray(values["home"], dtype=float),
+    )
+
+
+def arm_model_problem(values: dict[str, Any]) -> Problem | None:
+    """Return (field, reason) when stored arm fields do not form a usable arm (the home
+    configuration outside the limits, or anything core refuses), None when they do."""
+    home = np.asarray(values["home"], dtype=float)
+    limits = np.asarray(values["limits"], dtype=float)
+    outside = np.flatnonzero((home < limits[:, 0]) | (home > limits[:, 1]))
+    if outside.size:
+        j = int(outside[0])
+        return (
+            f"home.{j}",
+            f"joint {j + 1}'s home value {home[j]:g} rad is outside its limits "
+            f"[{limits[j, 0]:g}, {limits[j, 1]:g}]; the numerical IK starts from home",
+        )
+    try:
+        dh_arm(values)
+    except InvalidInput as exc:
+        return ("dh", str(exc))
+    return None
+
+
+def closed_form(values: dict[str, Any]) -> bool:
+    """Return whether the stored arm has the Puma-type closed-form inverse kinematics."""
+    return dh_arm(values).has_closed_form
+
+
+def twin_manipulator(values: dict[str, Any]) -> MobileManipulator:
+    """Return the registry arm as the twin simulates it: its geometry and mount, with the
+    eye-in-hand camera where the twin's camera truly is (for rendering and scoring only)."""
+    return MobileManipulator(
+        arm=dh_arm(values),
+        T_base_arm=np.asarray(values["T_robot_arm"], dtype=float),
+        T_ee_camera=default_manipulator().T_ee_camera,
+    )
+
+
+# --------------------------------------------------------------------------------------------
+# Hand-eye runs
+
+
+def pose_pairs_problem(
+    T_base_ee: Sequence[Any],
+    T_cam_target: Sequence[Any],
+    image_points: Sequence[Any] | None,
+    object_points: Sequence[Any] | None,
+) -> Problem | None:
+    """Return (field, reason) when uploaded pose pairs cannot be calibrated (unequal counts,
+    a degenerate motion set, pixels that do not match the views), None when they can."""
+    n = len(T_base_ee)
+    if len(T_cam_target) != n:
+        return (
+            "T_cam_target",
+            f"{len(T_cam_target)} target poses for {n} end-effector poses; give one of each "
+            "per view",
+        )
+    try:
+        A, _ = relative_motions(
+            np.asarray(T_base_ee, dtype=float), np.asarray(T_cam_target, dtype=float)
+        )
+        check_motions(A)
+    except DegenerateMotions as exc:
+        return ("T_base_ee", f"degenerate motions: {exc}")
+    if (image_points is None) != (object_points is None):
+        return (
+            "image_points" if image_points is None else "object_points",
+            "refinement needs both object_points and image_points (and K); give both or none",
+        )
+    if image_points is not None and object_points is not None:
+        if len(image_points) != n:
+            return ("image_points", f"{len(image_points)} views of pixels for {n} pose pairs")
+        m = len(object_points)
+        for i, view in enumerate(image_points):
+            if len(view) != m:
+                return (
+                    f"image_points.{i}",
+                    f"{len(view)} pixels for {m} object points; give every target point's "
+                    "pixel in every view",
+                )
+    return None
+
+
+def _method_row(name: str, X: np.ndarray, truth: np.ndarray, rs: float, ts: float) -> dict:
+    dp, dr = pose_error(X, truth)
+    return {
+        "method": name,
+        "rotation_error_deg": math.degrees(float(dr)),
+        "translation_error_mm": 1e3 * float(dp),
+        "rotation_std_deg": rs,
+        "translation_std_mm": 1e3 * ts,
+    }
+
+
+def calibrate_hand_eye_run(
+    inputs: dict[str, Any], options: dict[str, Any], progress: Progress
+) -> dict[str, Any]:
+    """Return the stored result of a hand-eye run (raising core's typed errors on bad data).
+
+    inputs: arm_id, arm (its stored fields at submission), source, and for source "poses" the
+    pose lists with optional object_points, image_points, K, dist. options: method, refine,
+    and for the twin views, sigma_px, rendered, seed."""
+    method = options["method"]
+    extra: dict[str, Any] = {}
+    if inputs["source"] == "twin":
+        mm = twin_manipulator(inputs["arm"])
+        seed = options["seed"]
+        progress(f"simulating {options['views']} eye-in-hand views", 0.05)
+        views = hand_eye_views(
+            np.random.default_rng(seed),
+            views=options["views"],
+            sigma_px=options["sigma_px"],
+            rendered=options["rendered"],
+            manipulator=mm,
+        )
+        E, C = views.T_base_ee, views.T_cam_target
+        P, uv, K, dist = views.object_points, views.image_points, views.K, views.dist
+        extra = {"seed": seed, "sigma_px": options["sigma_px"], "rendered": options["rendered"]}
+    else:
+        E = np.asarray(inputs["T_base_ee"], dtype=float)
+        C = np.asarray(inputs["T_cam_target"], dtype=float)
+        P = inputs.get("object_points")
+        uv = inputs.get("image_points")
+        K = inputs.get("K")
+        dist = inputs.get("dist")
+    progress("calibrating", 0.8)
+    refine = bool(options["refine"]) and uv is not None
+    result = calibrate_hand_eye(
+        E,
+        C,
+        method=method,
+        object_points=P if refine else None,
+        image_points=uv if refine else None,
+        K=K if refine else None,
+        dist=dist if refine else None,
+    )
+    out: dict[str, Any] = {
+        "kind": "hand-eye",
+        "arm_id": inputs["arm_id"],
+        "source": inputs["source"],
+        "method": result.method,
+        "X": result.X.tolist(),
+        "covariance": result.covariance.tolist(),
+        "rotation_std_deg": result.rotation_std_deg,
+        "translation_std_m": result.translation_std_m,
+        "views": int(E.shape[0]),
+        "motions": result.motions,
+        "rotation_residuals_deg": result.rotation_residuals_deg.tolist(),
+        "translation_residuals_m": result.translation_residuals_m.tolist(),
+        "refined": result.refined,
+        "rms_px": result.rms_px,
+        "per_view_rms_px": (
+            None if result.per_view_rms_px is None else result.per_view_rms_px.tolist()
+        ),
+        "iterations": result.iterations,
+        "T_base_target": result.T_base_target.tolist(),
+        **extra,
+    }
+    if inputs["source"] == "twin":
+        # Scoring only: every method on the same views, and this result, against the truth.
+        truth = views.true_X
+        rows = []
+        for m in METHODS:
+            r = calibrate_hand_eye(E, C, method=m)
+            rows.append(_method_row(m, r.X, truth, r.rotation_std_deg, r.translation_std_m))
+        out["methods"] = rows
+        out["truth"] = _method_row(
+            result.method, result.X, truth, result.rotation_std_deg, result.translation_std_m
+        )
+    progress("done", 1.0)
+    return out
+
+
+# --------------------------------------------------------------------------------------------
+# Fetch tasks
+
+PHASES = GRASP_PHASES  # approach, switch, look then move, grasp, lift and carry
+
+
+def episode_phases(episode: GraspEpisode) -> list[dict[str, Any]]:
+    """Return the phases an episode went through, [{name, ok}], the failed one last (the
+    phase core.sim's grasp episode records it failed in)."""
+    if episode.success:
+        return [{"name": p, "ok": True} for p in PHASES]
+    k = PHASES.index(episode.phase)
+    return [{"name": p, "ok": i < k} for i, p in enumerate(PHASES[: k + 1])]
+
+
+def _finite(x: float) -> float | None:
+    return None if not math.isfinite(x) else float(x)
+
+
+def episode_record(episode: GraspEpisode) -> dict[str, Any]:
+    """Return an episode as stored: outcome, phases, final errors and diagnostics."""
+    return {
+        "success": episode.success,
+        "phases": episode_phases(episode),
+        "position_error_mm": _finite(episode.position_error_mm),
+        "rotation_error_deg": _finite(episode.rotation_error_deg),
+        "time_s": episode.time_s,
+        "visible_fraction": episode.visible_fraction,
+        "switches": episode.switches,
+        "looks": episode.looks,
+        "reason": episode.reason,
+    }
+
+
+def fetch_summary(
+    records: list[dict[str, Any]], planned: int, hand_eye: dict[str, Any], seed: int
+) -> dict[str, Any]:
+    """Return the stored result of a fetch task from its episodes so far: success rate, medians
+    over successes of the final errors, median time, failure reasons with counts."""
+    good = [r for r in records if r["success"]]
+    failures: dict[str, int] = {}
+    for r in records:
+        if not r["success"]:
+            failures[r["reason"]] = failures.get(r["reason"], 0) + 1
+
+    def median(values: list[float]) -> float | None:
+        return float(np.median(values)) if values else None
+
+    pos = median([r["position_error_mm"] / 1e3 for r in good])
+    return {
+        "episodes": len(records),
+        "planned": planned,
+        "successes": len(good),
+        "success_rate": len(good) / len(records) if records else None,
+        "position_error_m": pos,
+        "rotation_error_deg": median([r["rotation_error_deg"] for r in good]),
+        "time_s": median([r["time_s"] for r in records]),
+        "failures": failures,
+        "hand_eye": hand_eye,
+        "seed": seed,
+        "per_episode": records,
+    }
+
+
+class TaskCancelled(Exception):
+    """The task's process is stopping: it ends at the next safe point as interrupted."""
+
+
+def run_fetch(
+    inputs: dict[str, Any],
+    report: Callable[[str, float, dict[str, Any] | None], None],
+) -> dict[str, Any]:
+    """Run a fetch task and return its result; `report(phase, fraction, partial result)` is
+    called as each episode enters each of its phases ("episode 2 of 5: look then move", the
+    controller's own calls) and with the result so far after each episode.
+
+    The episodes and the hand-eye calibration (when the arm has none applied) draw from one
+    generator seeded by inputs["seed"], in the order of `intspace sim run grasp`: with the
+    twin's arm and no applied hand-eye, a task's episodes are that scenario's."""
+    seed = int(inputs["seed"])
+    planned = int(inputs["episodes"])
+    sigma = float(inputs["sigma_px"])
+    rng = np.random.default_rng(seed)
+    mm = twin_manipulator(inputs["arm"])
+    applied = inputs["arm"].get("T_ee_camera")
+    if applied is not None:
+        X = np.asarray(applied, dtype=float)
+        source = "arm"
+    else:
+        report("calibrating the eye-in-hand camera", 0.0, None)
+        v = hand_eye_views(rng, views=15, sigma_px=sigma, manipulator=mm)
+        X = calibrate_hand_eye(
+            v.T_base_ee,
+            v.T_cam_target,
+            object_points=v.object_points,
+            image_points=v.image_points,
+            K=v.K,
+            dist=v.dist,
+        ).X
+        source = "calibrated"
+    dp, dr = pose_error(X, mm.T_ee_camera)  # scoring only
+    hand_eye = {
+        "source": source,
+        "rotation_error_deg": math.degrees(float(dr)),
+        "translation_error_mm": 1e3 * float(dp),
+    }
+    records: list[dict[str, Any]] = []
+    for k in range(planned):
+
+        def entered(name: str, k: int = k) -> None:
+            fraction = (k + PHASES.index(name) / len(PHASES)) / planned
+            # The result so far goes with the next episode's first phase.
+            partial = None
+            if name == PHASES[0] and records:
+                partial = fetch_summary(records, planned, hand_eye, seed)
+            report(f"episode {k + 1} of {planned}: {name}", fraction, partial)
+
+        episode = grasp_episode(rng, mm, X, sigma_px=sigma, on_phase=entered)
+        records.append(episode_record(episode))
+    return fetch_summary(records, planned, hand_eye, seed)
+
+
+_LIVE = ("queued", "running")
+
+
+def expire_stale_tasks(session: Session, stale_s: float) -> int:
+    """Mark interrupted the queued or running tasks whose process has shown no sign of life
+    for `stale_s` seconds (it stopped or died); return how many."""
+    now = time.time()
+    result = session.execute(
+        update(Task)
+        .where(
+            Task.status.in_(_LIVE),
+            or_(Task.heartbeat.is_(None), Task.heartbeat < now - stale_s),
+        )
+        .values(
+            status="interrupted",
+            error="the process running it stopped before it finished",
+            finished_at=utcnow(),
+        )
+        .execution_options(synchronize_session=False)
+    )
+    session.commit()
+    return int(result.rowcount or 0)
+
+
+class TaskRunner:
+    """Runs tasks in background threads of the API process (`workers` at a time; the others
+    wait queued). A heartbeat thread renews the `heartbeat` of the tasks it holds every
+    `heartbeat_s` and marks interrupted those of any process silent for `stale_s`."""
+
+    def __init__(
+        self,
+        factory: sessionmaker[Session],
+        workers: int = 1,
+        *,
+        heartbeat_s: float = 5.0,
+        stale_s: float = 60.0,
+    ) -> None:
+        self.factory = factory
+        self.owner = worker_id()
+        self.stale_s = stale_s
+        self._heartbeat_s = heartbeat_s
+        self._pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="task")
+        self._held: dict[int, threading.Event] = {}
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        with factory() as session:
+            expire_stale_tasks(session, stale_s)
+        self._beat = threading.Thread(target=self._heartbeat, name="tasks-heartbeat", daemon=True)
+        self._beat.start()
+
+    def submit(self, task_id: int) -> None:
+        """Run committed task `task_id` when a worker thread is free."""
+        cancel = threading.Event()
+        with self._lock:
+            self._held[task_id] = cancel
+        self._pool.submit(self._run, task_id, cancel)
+
+    def _mine(self, task_id: int) -> Any:
+        return and_(Task.id == task_id, Task.owner == self.owner, Task.status.in_(_LIVE))
+
+    def _write(self, task_id: int, **values: Any) -> bool:
+        with self.factory() as session:
+            result = session.execute(
+                update(Task)
+                .where(self._mine(task_id))
+                .values(heartbeat=time.time(), updated_at=utcnow(), **values)
+                .execution_options(synchronize_session=False)
+            )
+            session.commit()
+        return result.rowcount == 1
+
+    def _run(self, task_id: int, cancel: threading.Event) -> None:
+        try:
+            with self.factory() as session:
+                task = session.get(Task, task_id)
+                inputs = dict(task.inputs) if task is not None else None
+            if inputs is None or cancel.is_set():
+                return
+            if not self._write(task_id, status="running", started_at=utcnow(), progress=0.0):
+                return
+
+            def report(phase: str, fraction: float, partial: dict[str, Any] | None) -> None:
+                if cancel.is_set():
+                    raise TaskCancelled
+                values: dict[str, Any] = {"phase": phase[:80], "progress": fraction}
+                if partial is not None:
+                    values["result"] = partial
+                if not self._write(task_id, **values):
+                    raise TaskCancelled
+
+            outcome: dict[str, Any]
+            try:
+                result = run_fetch(inputs, report)
+                outcome = {"status": "succeeded", "result": result, "phase": "done"}
+                outcome["progress"] = 1.0
+            except TaskCancelled:
+                outcome = {"status": "interrupted", "error": "the service stopped during it"}
+            except IntspaceError as exc:
+                outcome = {"status": "failed", "error": f"{type(exc).__name__}: {exc}"}
+            except Exception as exc:
+                log.exception("task %d crashed", task_id)
+                outcome = {"status": "failed", "error": f"internal error: {exc!r}"}
+            self._write(task_id, finished_at=utcnow(), **outcome)
+        except Exception:
+            log.exception("task %d could not be run", task_id)
+        finally:
+            with self._lock:
+                self._held.pop(task_id, None)
+
+    def _heartbeat(self) -> None:
+        while not self._stop.wait(self._heartbeat_s):
+            try:
+                with self._lock:
+                    held = list(self._held)
+                with self.factory() as session:
+                    if held:
+                        session.execute(
+                            update(Task)
+                            .where(
+                                Task.id.in_(held), Task.owner == self.owner, Task.status.in_(_LIVE)
+                            )
+                            .values(heartbeat=time.time())
+                            .execution_options(synchronize_session=False)
+                        )
+                        session.commit()
+                    expire_stale_tasks(session, self.stale_s)
+            except Exception:  # the database may be away for a while: retry at the next beat
+                log.exception("renewing task heartbeats failed")
+
+    def shutdown(self) -> int:
+        """Stop: the running tasks end at their next phase, and every task this process held
+        is marked interrupted; return how many."""
+        self._stop.set()
+        with self._lock:
+            held = dict(self._held)
+        for cancel in held.values():
+            cancel.set()
+        self._pool.shutdown(wait=False, cancel_futures=True)
+        if not held:
+            return 0
+        with self.factory() as session:
+            result = session.execute(
+                update(Task)
+                .where(Task.id.in_(list(held)), Task.owner == self.owner, Task.status.in_(_LIVE))
+                .values(
+                    status="interrupted",
+                    error="the service stopped during it",
+                    finished_at=utcnow(),
+                )
+                .execution_options(synchronize_session=False)
+            )
+            session.commit()
+        return int(result.rowcount or 0)

@@ -1,0 +1,496 @@
+// Navigation: the floor plan paths are planned on (rooms, walls, furniture); click a start and
+// a goal to plan a path (POST /paths), drawn by the chosen projector; follow it on the twin
+// (POST /paths/{id}/follow) and watch, live, its status, the robot and the spot moving on the
+// plan and the tracking error over time (uPlot), from the series GET /paths/{id} returns.
+
+import { api, list } from "../api.js";
+import { centroid } from "../plot.js";
+import { fmt, h, infoBox, mount, panel, s, statusBadge, toastError } from "../ui.js";
+
+const W = 900; // SVG user units across; the height follows the plan's aspect
+const POLL_MS = 500; // GET /paths/{id} while its follow task runs
+const LAWS = [
+  ["state_feedback", "State-error feedback"],
+  ["adaptive", "Adaptive compensation"],
+  ["proportional", "Proportional (baseline)"],
+];
+
+let uplotLoading = null;
+
+/** Load the vendored uPlot (web/vendor/uplot) once; resolve to its constructor. */
+function loadUplot() {
+  if (window.uPlot) return Promise.resolve(window.uPlot);
+  if (!uplotLoading) {
+    uplotLoading = new Promise((resolve, reject) => {
+      const css = document.createElement("link");
+      css.rel = "stylesheet";
+      css.href = "vendor/uplot/uPlot.min.css";
+      document.head.append(css);
+      const script = document.createElement("script");
+      script.src = "vendor/uplot/uPlot.iife.min.js";
+      script.onload = () => resolve(window.uPlot);
+      script.onerror = () => {
+        uplotLoading = null;
+        reject(new Error("the plotting library (vendor/uplot) did not load"));
+      };
+      document.head.append(script);
+    });
+  }
+  return uplotLoading;
+}
+
+/** The world -> SVG mapping of the plan: world X right, Y up; SVG y down. */
+function planTransform(points) {
+  const xs = points.map((p) => p[0]);
+  const ys = points.map((p) => p[1]);
+  const x0 = Math.min(...xs) - 0.3;
+  const x1 = Math.max(...xs) + 0.3;
+  const y0 = Math.min(...ys) - 0.3;
+  const y1 = Math.max(...ys) + 0.3;
+  const pad = 16;
+  const height = Math.round(Math.min(Math.max(((y1 - y0) / (x1 - x0)) * W, 320), 760));
+  const scale = Math.min((W - 2 * pad) / (x1 - x0), (height - 2 * pad) / (y1 - y0));
+  const ox = (W - scale * (x1 - x0)) / 2;
+  const oy = (height - scale * (y1 - y0)) / 2;
+  return {
+    W,
+    H: height,
+    scale,
+    X: (x) => ox + (x - x0) * scale,
+    Y: (y) => height - oy - (y - y0) * scale,
+    toWorld: (u, v) => [x0 + (u - ox) / scale, y0 + (height - oy - v) / scale],
+    json: { x0, y0, ox, oy, scale, height },
+  };
+}
+
+const pointsAttr = (pts, X, Y) => pts.map((p) => `${X(p[0]).toFixed(1)},${Y(p[1]).toFixed(1)}`).join(" ");
+
+function metricsTable(result) {
+  const row = (label, value, testid) =>
+    h("tr", null, h("th", null, label), h("td", { class: "mono", testid }, value));
+  const mm = (v) => (v === null || v === undefined ? "–" : `${fmt(v * 1000, 1)} mm`);
+  return h(
+    "table",
+    { class: "nav-metrics", testid: "follow-metrics" },
+    h(
+      "tbody",
+      null,
+      row("RMS error", mm(result.rms_m), "follow-rms"),
+      row("Max error", mm(result.max_m)),
+      row("Steady (straight stretches)", mm(result.steady_m)),
+      row("Finished drawing at", result.finish_s === null ? "never" : `${fmt(result.finish_s, 1)} s`),
+      row("Spot lost", String(result.lost_events)),
+      row("Drawing error (max)", mm(result.drawing_error_max_m)),
+    ),
+  );
+}
+
+export async function renderNavigation(main) {
+  const spaces = await list("/spaces", { limit: 200 });
+  if (!spaces.items.length) {
+    mount(main, infoBox("No space yet: register a space and its rooms first.", "nav-empty"));
+    return null;
+  }
+  let spaceId = spaces.items[0].id;
+  let plan = null;
+  let projectors = [];
+  let start = null;
+  let goal = null;
+  let path = null;
+  let timer = null;
+  let chart = null;
+  let chartKey = null;
+  let alive = true;
+
+  const spaceSelect = h(
+    "select",
+    { testid: "nav-space", "aria-label": "Space" },
+    spaces.items.map((sp) => h("option", { value: sp.id }, sp.name)),
+  );
+  const projectorSelect = h("select", { testid: "nav-projector", "aria-label": "Projector" });
+  const lawSelect = h(
+    "select",
+    { testid: "nav-law", "aria-label": "Control law" },
+    LAWS.map(([v, label]) => h("option", { value: v }, label)),
+  );
+  const followButton = h(
+    "button",
+    { class: "btn primary", type: "button", testid: "nav-follow", disabled: true },
+    "Follow on the twin",
+  );
+  const hint = h("p", { class: "small muted", testid: "nav-hint" }, "Click the start on the plan.");
+  const summary = h("div", { testid: "nav-summary" });
+  const followBox = h("div", { testid: "nav-follow-box" });
+  const chartBox = h("div", { class: "nav-chart", testid: "nav-error-plot" });
+  const svgBox = h("div", { class: "nav-map" });
+  const planBadge = h("span", { class: "badge", testid: "nav-floor-plan" });
+
+  let tf = null;
+  let gPath = null;
+  let gRun = null;
+  let gMarks = null;
+
+  const drawMarks = () => {
+    if (!gMarks) return;
+    gMarks.replaceChildren();
+    for (const [p, cls, label] of [
+      [start, "nav-start", "start"],
+      [goal, "nav-goal", "goal"],
+    ]) {
+      if (!p) continue;
+      gMarks.append(
+        s("circle", { class: cls, cx: tf.X(p[0]), cy: tf.Y(p[1]), r: 7, testid: `nav-${label}` }),
+      );
+    }
+  };
+
+  // The follow run so far on the plan: the robot's trail, the robot (its base radius, a tick
+  // for its heading) and the laser spot, at the series' last sample.
+  const drawRun = (series) => {
+    if (!gRun) return;
+    gRun.replaceChildren();
+    if (!series || !series.t || !series.t.length || !series.x) return;
+    const { X, Y } = tf;
+    const k = series.t.length - 1;
+    const trail = series.x.map((x, i) => [x, series.y[i]]);
+    gRun.append(
+      s("polyline", {
+        points: pointsAttr(trail, X, Y),
+        fill: "none",
+        stroke: "#16a34a",
+        "stroke-width": 1.5,
+        "stroke-dasharray": "4 3",
+        testid: "nav-trail",
+        "data-points": trail.length,
+      }),
+    );
+    const [x, y, th] = [series.x[k], series.y[k], series.theta[k]];
+    const r = Math.max(4, (path && path.robot_radius_m ? path.robot_radius_m : 0.2) * tf.scale);
+    gRun.append(
+      s(
+        "g",
+        {
+          testid: "nav-robot",
+          "data-x": x,
+          "data-y": y,
+          "data-theta": th,
+          "data-t": series.t[k],
+        },
+        s("circle", {
+          cx: X(x),
+          cy: Y(y),
+          r,
+          fill: "rgba(22, 163, 74, 0.25)",
+          stroke: "#16a34a",
+          "stroke-width": 2,
+        }),
+        s("line", {
+          x1: X(x),
+          y1: Y(y),
+          x2: X(x) + r * Math.cos(th),
+          y2: Y(y) - r * Math.sin(th),
+          stroke: "#16a34a",
+          "stroke-width": 2,
+        }),
+        s("title", null, `robot at ${series.t[k].toFixed(1)} s`),
+      ),
+      s("circle", {
+        cx: X(series.spot_x[k]),
+        cy: Y(series.spot_y[k]),
+        r: 5,
+        fill: "#dc2626",
+        stroke: "#fff",
+        "stroke-width": 1.5,
+        testid: "nav-spot",
+        "data-x": series.spot_x[k],
+        "data-y": series.spot_y[k],
+      }),
+    );
+  };
+
+  const drawPath = () => {
+    if (!gPath) return;
+    gPath.replaceChildren();
+    if (gRun) gRun.replaceChildren();
+    if (!path) return;
+    if (path.trajectory) {
+      gPath.append(
+        s("polyline", {
+          class: "nav-spot-path",
+          points: pointsAttr(path.trajectory.spot, tf.X, tf.Y),
+        }),
+      );
+    }
+    gPath.append(
+      s("polyline", {
+        class: "nav-path",
+        points: pointsAttr(path.points, tf.X, tf.Y),
+        testid: "nav-path",
+        "data-points": path.points.length,
+      }),
+    );
+  };
+
+  const drawPlan = () => {
+    const extent = plan.rooms.flatMap((r) => r.polygon);
+    tf = planTransform(extent.length ? extent : [[0, 0], [5, 4]]);
+    const { X, Y } = tf;
+    const svg = s("svg", {
+      class: "plot floormap nav-plan",
+      viewBox: `0 0 ${tf.W} ${tf.H}`,
+      role: "img",
+      "aria-label": "Floor plan: click a start, then a goal",
+      testid: "nav-map",
+      "data-transform": JSON.stringify(tf.json),
+    });
+    const gRooms = s("g");
+    const gObstacles = s("g");
+    gPath = s("g");
+    gRun = s("g");
+    gMarks = s("g");
+    svg.append(gRooms, gObstacles, gPath, gRun, gMarks);
+    for (const room of plan.rooms) {
+      gRooms.append(s("polygon", { class: "room", points: pointsAttr(room.polygon, X, Y) }));
+      const [cx, cy] = centroid(room.polygon);
+      gRooms.append(
+        s("text", { class: "room-label", x: X(cx), y: Y(cy), "text-anchor": "middle" }, room.name),
+      );
+    }
+    for (const w of plan.walls) {
+      gObstacles.append(
+        s("line", {
+          class: "nav-wall",
+          x1: X(w.start[0]),
+          y1: Y(w.start[1]),
+          x2: X(w.end[0]),
+          y2: Y(w.end[1]),
+          "stroke-width": Math.max(2, w.thickness * tf.scale),
+        }),
+      );
+    }
+    for (const f of plan.furniture) {
+      gObstacles.append(
+        s("polygon", { class: "nav-furniture", points: pointsAttr(f.footprint, X, Y) }, s("title", null, f.name)),
+      );
+    }
+    svg.addEventListener("click", (ev) => {
+      const m = svg.getScreenCTM();
+      if (!m) return;
+      const p = new DOMPoint(ev.clientX, ev.clientY).matrixTransform(m.inverse());
+      const w = tf.toWorld(p.x, p.y);
+      if (!start || goal) {
+        start = w;
+        goal = null;
+        path = null;
+        stopPolling();
+        followButton.disabled = true;
+        mount(summary);
+        mount(followBox);
+        hint.textContent = `Start (${fmt(w[0], 2)}, ${fmt(w[1], 2)}) m; click the goal.`;
+        drawPath();
+        drawMarks();
+        return;
+      }
+      goal = w;
+      drawMarks();
+      planPath();
+    });
+    mount(svgBox, svg);
+    drawPath();
+    drawMarks();
+  };
+
+  const stopPolling = () => {
+    if (timer) clearTimeout(timer);
+    timer = null;
+  };
+
+  const showFollow = async (follow) => {
+    const progress =
+      follow.status === "running" && follow.progress !== null
+        ? h("span", { class: "small muted", testid: "follow-progress" }, ` ${fmt(100 * follow.progress, 0)} %`)
+        : null;
+    mount(
+      followBox,
+      h(
+        "p",
+        null,
+        "Follow task: ",
+        statusBadge(follow.status, "follow-status"),
+        follow.law ? h("span", { class: "small muted" }, ` ${follow.law}, seed ${follow.seed}`) : null,
+        progress,
+      ),
+      follow.error ? h("p", { class: "small badge bad", testid: "follow-error" }, follow.error) : null,
+      follow.result ? metricsTable(follow.result) : null,
+    );
+    drawRun(follow.series);
+    if (follow.series && follow.series.t.length) {
+      try {
+        const uPlot = await loadUplot();
+        if (!alive) return;
+        const data = [follow.series.t, follow.series.error_m.map((e) => e * 1000)];
+        // One chart per run, fed the growing series while it runs.
+        const key = `${path ? path.id : ""}:${follow.law}:${follow.started_at}`;
+        if (chart && chartKey === key) {
+          chart.setData(data);
+        } else {
+          if (chart) chart.destroy();
+          chartBox.replaceChildren();
+          const width = Math.max(320, Math.min(chartBox.clientWidth || 860, 1000));
+          chart = new uPlot(
+            {
+              width,
+              height: 260,
+              title: `Tracking error, ${follow.law}`,
+              scales: { x: { time: false } },
+              axes: [{ label: "time (s)" }, { label: "error (mm)" }],
+              series: [{ label: "t (s)" }, { label: "error (mm)", stroke: "#2563eb", width: 1.5 }],
+            },
+            data,
+            chartBox,
+          );
+          chartKey = key;
+        }
+        chartBox.dataset.points = String(follow.series.t.length);
+        chartBox.dataset.status = follow.status;
+      } catch (err) {
+        mount(chartBox, h("p", { class: "small badge bad" }, err.message));
+      }
+    }
+  };
+
+  const poll = async () => {
+    if (!path || !alive) return;
+    try {
+      const fresh = await api(`/paths/${path.id}`);
+      if (!alive || !path || fresh.id !== path.id) return;
+      path = fresh;
+      await showFollow(fresh.follow);
+      followButton.disabled = fresh.follow.status === "running" || !fresh.trajectory;
+      if (fresh.follow.status === "running") timer = setTimeout(poll, POLL_MS);
+    } catch (err) {
+      toastError(err);
+    }
+  };
+
+  const planPath = async () => {
+    const body = { space_id: spaceId, start, goal };
+    if (projectorSelect.value) body.projector_id = Number(projectorSelect.value);
+    hint.textContent = "Planning…";
+    try {
+      path = await api("/paths", { method: "POST", json: body });
+    } catch (err) {
+      path = null;
+      hint.textContent = "Click a new start.";
+      mount(summary, h("p", { class: "small badge bad", testid: "nav-error" }, err.detail || err.message));
+      drawPath();
+      return;
+    }
+    hint.textContent = "Click a new start to plan another path.";
+    const traj = path.trajectory;
+    mount(
+      summary,
+      h(
+        "p",
+        null,
+        "Path ",
+        h("span", { class: "mono", testid: "nav-path-id" }, `#${path.id}`),
+        ": ",
+        h("strong", { testid: "nav-length" }, `${fmt(path.length_m, 2)} m`),
+        ` through ${path.points.length - 2} bend(s)`,
+        traj
+          ? h(
+              "span",
+              { testid: "nav-duration" },
+              `; the projector draws it in ${fmt(traj.duration_s, 1)} s at ${fmt(path.spot_speed_mps, 2)} m/s`,
+            )
+          : h("span", { class: "small muted" }, "; no projector chosen, nothing to follow"),
+        ".",
+      ),
+    );
+    followButton.disabled = !traj;
+    mount(followBox);
+    drawPath();
+  };
+
+  followButton.addEventListener("click", async () => {
+    if (!path) return;
+    followButton.disabled = true;
+    try {
+      path = await api(`/paths/${path.id}/follow`, { method: "POST", json: { law: lawSelect.value } });
+      await showFollow(path.follow);
+      stopPolling();
+      timer = setTimeout(poll, POLL_MS);
+    } catch (err) {
+      followButton.disabled = false;
+      toastError(err);
+    }
+  });
+
+  const loadSpace = async () => {
+    stopPolling();
+    start = goal = path = null;
+    mount(summary);
+    mount(followBox);
+    followButton.disabled = true;
+    const [drawing, pj] = await Promise.all([
+      api(`/paths/floor-plan?space_id=${spaceId}`),
+      list(`/projectors?space_id=${spaceId}`, { limit: 200 }),
+    ]);
+    plan = drawing;
+    planBadge.textContent = `Floor plan: ${plan.floor_plan}`;
+    projectors = pj.items;
+    projectorSelect.replaceChildren(
+      h("option", { value: "" }, "No projector"),
+      ...projectors.map((p) =>
+        h(
+          "option",
+          { value: p.id, disabled: !p.T_world_projector },
+          p.T_world_projector ? p.name : `${p.name} (uncalibrated)`,
+        ),
+      ),
+    );
+    const usable = projectors.find((p) => p.T_world_projector);
+    if (usable) projectorSelect.value = String(usable.id);
+    hint.textContent = "Click the start on the plan.";
+    drawPlan();
+  };
+  spaceSelect.addEventListener("change", () => {
+    spaceId = Number(spaceSelect.value);
+    loadSpace().catch(toastError);
+  });
+  await loadSpace();
+
+  mount(
+    main,
+    panel(
+      "Plan",
+      "Click a start, then a goal: the path keeps the robot's radius plus 5 cm from walls and " +
+        "furniture; with a projector, the service also plans the beam's joint trajectory.",
+      h(
+        "div",
+        { class: "nav-toolbar" },
+        h("label", null, "Space ", spaceSelect),
+        h("label", null, "Projector ", projectorSelect),
+        planBadge,
+      ),
+      svgBox,
+      hint,
+      summary,
+    ),
+    panel(
+      "Follow",
+      "The twin's robot follows the projected spot with its floor camera (15 Hz, 100 ms " +
+        "latency); the error is the distance from its control point to the spot. While it " +
+        "runs, the robot (green, with its trail) and the spot (red) move on the plan.",
+      h("div", { class: "nav-toolbar" }, h("label", null, "Law ", lawSelect), followButton),
+      followBox,
+      chartBox,
+    ),
+  );
+  return () => {
+    alive = false;
+    stopPolling();
+    if (chart) chart.destroy();
+  };
+}
