@@ -332,6 +332,13 @@ class LiveTargets:
         with self._lock:
             return next((v for v in self._targets.values() if v.label == label), None)
 
+    def latest(self, label: str) -> tuple[str, float, list[float]] | None:
+        """Return the (state, t, xy) of the live target called `label`, read together (the
+        trackers update it meanwhile), None when there is none."""
+        with self._lock:
+            v = next((v for v in self._targets.values() if v.label == label), None)
+            return None if v is None else (v.state, v.t, list(v.xy))
+
     def live_labels(self, space_id: int | None) -> set[str]:
         """Return the labels senders gave the live targets of a space."""
         with self._lock:

@@ -456,14 +456,19 @@ class Twin:
                 (self._epoch + self.sim_time, self.sim_time, state.robot.x, state.robot.y)
             )
         robot = self.scene.robot
-        live = self._targets.get(robot.name) if robot is not None else None
-        # The robot's target at its latest update, scored once per update.
-        if live is None or live.state != "confirmed" or live.t <= self._scored_until:
+        # The robot's target at its latest update, scored once per update; its time and
+        # position are read together, since the tracker updates them meanwhile.
+        latest = self._targets.latest(robot.name) if robot is not None else None
+        if latest is None:
             return
-        self._scored_until = live.t
-        truth = self.truth_at(np.array([live.t]))
+        state, t, xy = latest
+        if state != "confirmed" or t <= self._scored_until:
+            return
+        truth = self.truth_at(np.array([t]))
+        # An update the truth's history does not reach yet is scored at the next step.
         if truth is not None and np.all(np.isfinite(truth)):
-            self.errors.append(float(np.linalg.norm(np.asarray(live.xy) - truth[0])))
+            self._scored_until = t
+            self.errors.append(float(np.linalg.norm(np.asarray(xy) - truth[0])))
 
     def sim_time_at(self, stamps: np.ndarray) -> np.ndarray:
         """Return the twin's simulated times (N,) of capture times `stamps` (N,) Unix seconds
