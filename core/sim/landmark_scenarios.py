@@ -1,11 +1,18 @@
-"""`landmark-pose`: the landmark detector on rendered views of the robot's head camera, beside
-the anchors on the same images.
+"""The landmark scenarios of the robot's head camera (spec 04 on the twin).
+
+* `landmark-pose`: the landmark detector on rendered views, beside the anchors on the same
+  images (below).
+* `landmark-reading`: a landmark located and read by position-based visual servoing from
+  random start poses in the home (`landmark_reading`, `HeadRobot.read`).
+* `landmark-survey`: the robot tours the home, reads every landmark it can and builds the
+  semantic and navigation maps (`landmark_survey`).
 
 The head camera (spec 07: on the pan-tilt unit at about 1.1 m, 640x480) is the scene robot's
-onboard camera when the scene gives one, else `HEAD_CAMERA` (600 px focal length, 56 deg
-horizontal field, barrel distortion). The detector never sees the true intrinsics: the camera is
-first calibrated (core.calibration.calibrate_camera, Zhang) from `CALIBRATION_VIEWS` rendered
-views of a 9x6 chessboard, with the same sensor noise, and every detection uses that K and dist.
+head camera (or its onboard camera) when the scene gives one, else `HEAD_CAMERA` (600 px focal
+length, 56 deg horizontal field, barrel distortion). The detector never sees the true
+intrinsics: the camera is first calibrated (core.calibration.calibrate_camera, Zhang) from
+`CALIBRATION_VIEWS` rendered views of a 9x6 chessboard, with the same sensor noise, and every
+detection uses that K and dist.
 
 Views: for each kind (object mark 10 cm, signpost 20 cm) and each 10-degree obliquity bin of
 0-70 deg, `views_per_bin` location views at 0.5-5 m (log-uniform) and as many reading views at the
@@ -25,11 +32,25 @@ by cv2.aruco and cv2.solvePnP(SOLVEPNP_IPPE_SQUARE) with the same calibration. T
 figures are also given over the location views within each kind's required range (3 m for
 object marks, 5 m for signposts): spec 04's "no pose flip at the 95th percentile" is judged
 there (`goals["no_flip_at_p95"]`).
+
+Reading and surveying: the robot (HeadRobot) is a unicycle base with wheel slip and odometry
+(core.sim.motion) and its head camera on the pan-tilt unit; frames come every FRAME_DT, rendered
+from the true pose with the scene's landmarks (core.sim.render.landmarks, walls and furniture
+hiding them) and detected with the calibrated K, dist; every estimate lives in the odometry
+frame. PBVS: the task function e = (t - t*, theta u) is the landmark's estimated pose against
+the reading pose T* (the camera on the mark's horizontal normal at the distance where a module
+spans READ_MODULE_PX pixels, looking at its centre); since the base is nonholonomic and the head
+keeps the mark in view, the base is driven to the floor pose under T* by the polar
+pose-regulation law (Astolfi 1999) and the head's pan and tilt aim at the mark; the estimate is
+refreshed every frame, and reading stops when the symbol decodes. The survey maps what it reads
+on the odometry, corrected whenever a signpost (whose payload carries its world pose) is read
+within RELOCALISE_M.
 """
 
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
+from itertools import combinations
 from typing import Any
 
 import cv2
@@ -42,9 +63,14 @@ from core.calibration.detect import Chessboard, board_object_points
 from core.errors import IntspaceError, InvalidInput
 from core.geometry.camera import undistort_points
 from core.geometry.rotations import rotvec_to_matrix
-from core.landmarks.artwork import make_artwork
-from core.landmarks.detect import detect_landmarks
-from core.landmarks.payload import ObjectMark, Signpost
+from core.landmarks.artwork import make_artwork, pattern_layout
+from core.landmarks.detect import LandmarkDetection, detect_landmarks
+from core.landmarks.maps import NavigationMap, NoRoute, SemanticMap, detection_in_world
+from core.landmarks.payload import ObjectMark, PayloadError, Signpost, decode_payload
+from core.localization.occluders import line_of_sight
+from core.sim._geometry import quaternion_to_matrix
+from core.sim.motion import Patrol, Pose2D, UnicycleBase
+from core.sim.occluders import scene_occluders
 from core.sim.render import SensorNoise
 from core.sim.render.landmarks import (
     LandmarkCamera,
@@ -52,9 +78,11 @@ from core.sim.render.landmarks import (
     Texture,
     artwork_texture,
     render_landmarks,
+    render_scene_landmarks,
+    scene_landmarks,
     tag_texture,
 )
-from core.sim.scene import Scene
+from core.sim.scene import CameraMount, HeadCamera, Scene, default_scene
 
 Array = NDArray[np.float64]
 
@@ -133,13 +161,20 @@ class LandmarkPoseResult:
 
 
 def head_camera(scene: Scene | None) -> tuple[LandmarkCamera, str]:
-    """Return the true head camera: the scene robot's onboard camera, else HEAD_CAMERA."""
-    mount = None if scene is None or scene.robot is None else scene.robot.onboard_camera
+    """Return the true head camera: the scene robot's head camera, else its onboard camera,
+    else HEAD_CAMERA."""
+    robot = None if scene is None else scene.robot
+    mount: HeadCamera | CameraMount | None = None
+    source = "scene robot"
+    if robot is not None:
+        mount = robot.head_camera
+        if mount is None:
+            mount, source = robot.onboard_camera, "scene robot's onboard camera"
     if mount is None:
         return HEAD_CAMERA, "default head camera (600 px, 640x480)"
     K = np.array(mount.intrinsics.matrix(), dtype=np.float64)
     w, h = mount.resolution
-    return LandmarkCamera(K, np.array(mount.distortion.opencv()), int(w), int(h)), "scene robot"
+    return LandmarkCamera(K, np.array(mount.distortion.opencv()), int(w), int(h)), source
 
 
 def _board_texture() -> Texture:
@@ -488,3 +523,813 @@ def _goals(
         if "_normal_error_deg_p95_worst_bin_within_" in k and "tag" not in k
     )
     return g
+
+
+# --------------------------------------------------------------------------------------------
+# The head on its pan-tilt unit, and reading a landmark by PBVS
+
+# Camera axes at pan = tilt = 0 in the robot frame: z forward (+x), x right (-y), y down (-z).
+_R_ROBOT_CAM0 = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+FRAME_DT = 0.2  # s: the head camera's frame period while reading and surveying
+BASE_DT = 0.05  # s: the base's simulation step
+# QR modules the controller assumes before a symbol is read (version 5: 37 modules, payloads
+# up to 84 bytes at level M); the reading distance puts such a module on READ_MODULE_PX pixels.
+READ_MODULES = 37
+READ_MODULE_PX = 3.3
+MIN_STANDOFF = 0.22  # m: camera-to-face horizontal distance at the reading pose, at least
+# Polar pose-regulation gains (Astolfi 1999; Siegwart & Nourbakhsh, Introduction to
+# Autonomous Mobile Robots, sec. 3.6.2.4): k_rho > 0, k_beta < 0, k_alpha > k_rho for local
+# exponential stability, and k_alpha + 5/3 k_beta - 2/pi k_rho > 0 (here 0.27) for strong
+# stability (no cusp towards the goal).
+K_RHO, K_ALPHA, K_BETA = 0.4, 1.2, -0.4
+SEARCH_TILT = 0.05  # rad: the head's tilt while searching (marks at 0.8-1.5 m, head at 1.1 m)
+# Tilts of successive search sweeps (rad): level, then up for marks near and above the head.
+SEARCH_TILTS = (SEARCH_TILT, -0.3)
+MATCH_RADIUS = 0.5  # m: a detection within this of the estimate is the tracked landmark
+READ_TIMEOUT_S = 60.0
+RELOCALISE_M = 1.5  # m: a signpost read from nearer than this corrects the odometry
+RELOCALISE_GATE = (1.0, 0.35)  # m, rad: larger corrections are outliers
+
+
+def _rz(a: float) -> Array:
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def _ry(a: float) -> Array:
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
+def robot_head_pose(head: HeadCamera, pan: float, tilt: float) -> Array:
+    """Return T_robot_cam (4, 4) of the head camera at joint angles pan, tilt (radians)."""
+    T = np.eye(4)
+    T[:3, :3] = _rz(pan) @ _ry(tilt) @ _R_ROBOT_CAM0
+    T[:3, 3] = head.position
+    return T
+
+
+def floor_pose(x: float, y: float, yaw: float) -> Array:
+    """Return T_world_robot (4, 4) of a floor pose (x, y metres, yaw radians)."""
+    T = np.eye(4)
+    T[:3, :3] = _rz(yaw)
+    T[:3, 3] = (x, y, 0.0)
+    return T
+
+
+def _wrap(a: float) -> float:
+    return float((a + np.pi) % (2 * np.pi) - np.pi)
+
+
+def reading_standoff(kind: str, focal_px: float, dz: float) -> float:
+    """Return the reading pose's horizontal distance d (m) from the camera to a vertical face
+    whose centre lies dz metres below the camera: the farthest d at which a nominal module
+    (READ_MODULES across the symbol) spans READ_MODULE_PX along the foreshortened axis,
+    f m d / (d^2 + dz^2) = px (a quadratic in d), else d = |dz| (45 deg, where that span
+    peaks); at least MIN_STANDOFF."""
+    a = focal_px * pattern_layout(kind, SIZES[kind]).qr_side / READ_MODULES
+    disc = a**2 - 4 * READ_MODULE_PX**2 * dz**2
+    d = (a + np.sqrt(disc)) / (2 * READ_MODULE_PX) if disc >= 0 else abs(dz)
+    return float(max(d, MIN_STANDOFF))
+
+
+def polar_command(robot: Array, goal: Array) -> tuple[float, float, float]:
+    """Return (v, omega, rho) of the polar pose-regulation law driving a unicycle at robot
+    (x, y, yaw) to goal (x, y, yaw): rho, alpha, beta as in Siegwart & Nourbakhsh eq. 3.56
+    (the goal frame's origin and heading), reversing when the goal lies behind."""
+    dx, dy = goal[0] - robot[0], goal[1] - robot[1]
+    rho = float(np.hypot(dx, dy))
+    alpha = _wrap(np.arctan2(dy, dx) - robot[2])
+    direction = 1.0
+    if abs(alpha) > np.pi / 2:  # drive backwards: the same law with the heading reversed
+        direction = -1.0
+        alpha = _wrap(alpha + np.pi)
+    beta = _wrap(goal[2] - robot[2] - alpha)
+    v = direction * K_RHO * rho
+    omega = K_ALPHA * alpha + K_BETA * beta
+    return v, omega, rho
+
+
+@dataclass
+class _Track:
+    """The tracked landmark in the odometry frame: T_odom_mark, its kind, last seen time."""
+
+    T: Array
+    kind: str
+    seen: float
+
+
+@dataclass(frozen=True)
+class ReadOutcome:
+    """One PBVS reading: whether the symbol was read, when (s after the start), the decoded
+    detection (None when unread) with the camera pose it was seen from (odometry frame), the
+    frames processed, the final task error |t - t*| (m) and angle (deg) from the estimate."""
+
+    read: bool
+    time: float
+    detection: LandmarkDetection | None
+    T_odom_cam: Array | None
+    frames: int
+    final_translation_error: float | None
+    final_rotation_error_deg: float | None
+
+
+class HeadRobot:
+    """The robot of the landmark scenarios: a unicycle base (true pose, odometry), the head's
+    pan-tilt joints (rate limited) and its camera rendered from the true pose; the estimators
+    see only the images (through the calibrated K, dist) and the odometry."""
+
+    def __init__(
+        self,
+        scene: Scene,
+        K: Array,
+        dist: Array,
+        *,
+        start: Array | None = None,
+        rng: np.random.Generator,
+        only: int | None = None,
+    ) -> None:
+        if scene.robot is None or scene.robot.head_camera is None:
+            raise InvalidInput("the landmark scenarios need a robot with a head_camera")
+        self.scene = scene
+        self.robot = scene.robot
+        self.head: HeadCamera = scene.robot.head_camera
+        self.camera, _ = head_camera(scene)
+        self.K, self.dist = K, dist
+        s = Pose2D(*(self.robot.start if start is None else start))
+        self.base = UnicycleBase(self.robot.limits, self.robot.slip, s, dt=BASE_DT, rng=rng)
+        self.rng = rng
+        self.pan = 0.0
+        self.tilt = 0.0
+        self.landmarks = scene_landmarks(scene)
+        self.occluders = scene_occluders(scene)
+        self.only = only
+        self.seen: set[int] = set()  # landmarks drawn whole in some frame (for scoring)
+        self.collided = False  # the true base touched a wall or furniture (for scoring)
+        # The odometry frame in the world: identity at the start (the known start pose),
+        # corrected when a signpost is read (relocalise).
+        self.T_world_odom = np.eye(4)
+        self.frames = 0
+
+    @property
+    def time(self) -> float:
+        """Return the simulated time, s."""
+        return self.base.clock.time
+
+    def odom(self) -> Array:
+        """Return the odometry pose (x, y, yaw)."""
+        return self.base.state.odometry.as_array()
+
+    def T_odom_cam(self) -> Array:
+        """Return the head camera's pose in the odometry frame (4, 4)."""
+        o = self.odom()
+        return floor_pose(*o) @ robot_head_pose(self.head, self.pan, self.tilt)
+
+    def aim(self, pan: float, tilt: float, dt: float) -> None:
+        """Move the joints towards (pan, tilt) within their limits and rate for dt seconds."""
+        step = self.head.max_rate * dt
+        lo, hi = self.head.pan_limits
+        self.pan += float(np.clip(np.clip(pan, lo, hi) - self.pan, -step, step))
+        lo, hi = self.head.tilt_limits
+        self.tilt += float(np.clip(np.clip(tilt, lo, hi) - self.tilt, -step, step))
+
+    def look(self) -> list[LandmarkDetection]:
+        """Return the detections in the head camera's frame rendered now (true pose)."""
+        p = self.base.state.pose
+        T_world_cam = floor_pose(p.x, p.y, p.yaw) @ robot_head_pose(self.head, self.pan, self.tilt)
+        marks = self.landmarks if self.only is None else [self.landmarks[self.only]]
+        view, idx = render_scene_landmarks(
+            self.camera,
+            T_world_cam,
+            marks,
+            self.occluders,
+            noise=NOISE,
+            rng=int(self.rng.integers(2**31)),
+        )
+        self.seen.update(idx if self.only is None else [self.only for _ in idx])
+        self.frames += 1
+        up = T_world_cam[:3, :3].T @ np.array([0.0, 0.0, 1.0])  # gravity: a level base
+        return detect_landmarks(
+            view.image,
+            self.K,
+            self.dist,
+            frame_size=SIZES["object"],
+            ring_size=SIZES["signpost"],
+            up=up,
+        )
+
+    def drive(self, v: float, omega: float, dt: float) -> None:
+        """Command the base (v m/s, omega rad/s) for dt seconds."""
+        for _ in range(max(1, round(dt / BASE_DT))):
+            self.base.step(v, omega)
+            self.collided = self.collided or self.collides()
+
+    def collides(self) -> bool:
+        """Return whether the true base overlaps a wall or a piece of furniture (scoring)."""
+        p = self.base.state.pose
+        return _clearance(self, np.array([p.x, p.y])) < 0.0
+
+    def relocalise(self, det: LandmarkDetection, T_odom_cam: Array) -> bool:
+        """Correct T_world_odom from a signpost read within RELOCALISE_M with its rotation
+        fixed by the symbol (its payload carries its world pose): T_world_cam = T_world_mark
+        T_cam_mark^-1, kept planar (x, y, yaw). A correction larger than RELOCALISE_GATE (m,
+        rad) is refused as an outlier. Return whether it was applied."""
+        rec = det.record
+        if not isinstance(rec, Signpost) or not det.orientation_known:
+            return False
+        if float(np.linalg.norm(det.position)) > RELOCALISE_M:
+            return False
+        T_world_mark = np.eye(4)
+        T_world_mark[:3, :3] = quaternion_to_matrix(rec.pose[3:])
+        T_world_mark[:3, 3] = rec.pose[:3]
+        M = T_world_mark @ np.linalg.inv(det.T_cam_mark) @ np.linalg.inv(T_odom_cam)
+        new = floor_pose(M[0, 3], M[1, 3], float(np.arctan2(M[1, 0], M[0, 0])))
+        D = new @ np.linalg.inv(self.T_world_odom)
+        at = D @ np.append(T_odom_cam[:3, 3], 1.0) - np.append(T_odom_cam[:3, 3], 1.0)
+        dist_gate, angle_gate = RELOCALISE_GATE
+        if np.hypot(at[0], at[1]) > dist_gate or abs(np.arctan2(D[1, 0], D[0, 0])) > angle_gate:
+            return False
+        self.T_world_odom = new
+        return True
+
+    def locate(self, det: LandmarkDetection) -> Array:
+        """Return T_odom_mark (4, 4) of a detection in the current frame."""
+        return self.T_odom_cam() @ det.T_cam_mark
+
+    def read(self, track: _Track | None, timeout: float = READ_TIMEOUT_S) -> ReadOutcome:
+        """Return the outcome of reading a landmark by PBVS (spec 04 sec. 5).
+
+        Without a track the head first sweeps its pan range with the base still
+        (SEARCH_TILTS); the first located landmark (the nearest) is tracked, and never
+        exchanged for another. Every frame: re-estimate T_odom_mark from the detection
+        nearest the track (within MATCH_RADIUS), else keep it (the odometry moves the robot
+        under it); the reading pose puts the camera on the mark's horizontal normal at the
+        distance where a nominal module spans READ_MODULE_PX pixels (reading_standoff); the
+        base is driven there by the polar law, the head aims at the mark. Stops when the
+        tracked landmark is decoded, or at `timeout`.
+        """
+        t0 = self.time
+        frames0 = self.frames
+        f = float((self.K[0, 0] + self.K[1, 1]) / 2)
+        sweep = self.head.pan_limits[1]
+        sweeps = 0
+        if track is not None:  # a landmark located earlier: lost only if unseen from now on
+            track = _Track(track.T, track.kind, self.time)
+        while self.time - t0 < timeout:
+            dets = self.look()
+            if track is None:
+                located = sorted(dets, key=lambda d: float(np.linalg.norm(d.position)))
+                if located:
+                    track = _Track(self.locate(located[0]), located[0].kind, self.time)
+                else:
+                    # Sweep the pan range end to end (0.4 rad a frame, under half the field),
+                    # looking level and then up in turn (a signpost near and above the head).
+                    if abs(self.pan - sweep) < 1e-9:
+                        sweep = -sweep
+                        sweeps += 1
+                    self.aim(sweep, SEARCH_TILTS[sweeps % 2], FRAME_DT)
+                    self.drive(0.0, 0.0, FRAME_DT)
+                    continue
+            else:
+                best = None
+                for d in dets:
+                    if d.kind != track.kind:
+                        continue
+                    e = float(np.linalg.norm(self.locate(d)[:3, 3] - track.T[:3, 3]))
+                    if e < MATCH_RADIUS and (best is None or e < best[0]):
+                        best = (e, d)
+                if best is not None:
+                    track = _Track(self.locate(best[1]), track.kind, self.time)
+                    if best[1].record is not None:
+                        err = self._task_error(track, f)
+                        seen_from = self.T_odom_cam()
+                        self.drive(0.0, 0.0, FRAME_DT)  # brake
+                        return ReadOutcome(
+                            True, self.time - t0, best[1], seen_from, self.frames - frames0, *err
+                        )
+            self._servo(track, f)
+        final: tuple[float | None, float | None] = (None, None)
+        if track is not None:
+            final = self._task_error(track, f)
+        return ReadOutcome(False, self.time - t0, None, None, self.frames - frames0, *final)
+
+    def _goal(self, track: _Track, f: float) -> tuple[Array, Array]:
+        """Return the base's reading pose (x, y, yaw) and the camera's (3,) in the odom frame."""
+        m = track.T[:3, 3]
+        n = track.T[:3, 2].copy()
+        n[2] = 0.0
+        nn = float(np.linalg.norm(n))
+        if nn < 0.3:  # a mark facing up or down: approach from where the robot stands
+            n = np.append(self.odom()[:2] - m[:2], 0.0)
+            nn = float(np.linalg.norm(n))
+        n /= nn
+        d_h = reading_standoff(track.kind, f, float(self.head.position[2] - m[2]))
+        cam = m + n * d_h
+        cam[2] = self.head.position[2]
+        base = m[:2] + n[:2] * (d_h + self.head.position[0])
+        return np.array([base[0], base[1], np.arctan2(-n[1], -n[0])]), cam
+
+    def _servo(self, track: _Track, f: float) -> None:
+        goal, _ = self._goal(track, f)
+        o = self.odom()
+        v, omega, rho = polar_command(o, goal)
+        if rho < 0.02 and abs(_wrap(goal[2] - o[2])) < 0.03:
+            v, omega = 0.0, 0.0  # at the reading pose: wait for a read
+        # Aim the head at the mark from where the base will be after this frame.
+        m_r = np.linalg.inv(floor_pose(*o)) @ np.append(track.T[:3, 3], 1.0)
+        rel = m_r[:3] - np.asarray(self.head.position)
+        pan = float(np.arctan2(rel[1], rel[0]) - omega * FRAME_DT)
+        tilt = float(np.arctan2(-rel[2], np.hypot(rel[0], rel[1])))
+        self.aim(pan, tilt, FRAME_DT)
+        self.drive(v, omega, FRAME_DT)
+
+    def _task_error(self, track: _Track, f: float) -> tuple[float, float]:
+        """Return |t - t*| (m) and theta (deg) of e = (t - t*, theta u) from the estimate:
+        T* puts the camera at the reading pose looking at the mark's centre."""
+        _, cam = self._goal(track, f)
+        T_cam_mark = np.linalg.inv(self.T_odom_cam()) @ track.T
+        z = track.T[:3, 3] - cam
+        z /= np.linalg.norm(z)
+        x = np.cross(z, [0.0, 0.0, 1.0])
+        x /= np.linalg.norm(x)
+        R_star = np.column_stack([x, np.cross(z, x), z])  # camera at the reading pose, no roll
+        T_star = np.eye(4)
+        T_star[:3, :3], T_star[:3, 3] = R_star, cam
+        T_star_mark = np.linalg.inv(T_star) @ track.T
+        dt = float(np.linalg.norm(T_cam_mark[:3, 3] - T_star_mark[:3, 3]))
+        dR = T_cam_mark[:3, :3] @ T_star_mark[:3, :3].T
+        ang = float(np.degrees(np.arccos(np.clip((np.trace(dR) - 1) / 2, -1.0, 1.0))))
+        return dt, ang
+
+
+@dataclass(frozen=True)
+class ReadingTrial:
+    """One `landmark-reading` trial: the landmark (scene name, kind), the true start (x, y,
+    yaw), its distance (m) and bearing off the mark's normal (deg), whether it was read (the
+    right landmark, within the time limit, without touching a wall or furniture), the time to
+    read (s, None when unread), the frames, the final task error, whether the base collided."""
+
+    landmark: str
+    kind: str
+    start: tuple[float, float, float]
+    distance: float
+    bearing_deg: float
+    read: bool
+    time_to_read: float | None
+    frames: int
+    final_translation_error: float | None
+    final_rotation_error_deg: float | None
+    collided: bool
+
+
+@dataclass(frozen=True)
+class LandmarkReadingResult:
+    """Metrics of `landmark-reading`: success rate (%) over the trials, times to read (median,
+    95th percentile, max, s), per kind, the collisions, the landmarks for which some draw found
+    no start (another landmark was drawn instead), the goal (spec 04: >= 95 % within 60 s),
+    the head camera's calibration RMS (px) and every trial."""
+
+    scenario: str
+    seed: int
+    trials: int
+    success_pct: float
+    time_to_read_median: float | None
+    time_to_read_p95: float | None
+    time_to_read_max: float | None
+    success_pct_by_kind: dict[str, float | None]
+    collisions: int
+    landmarks_without_start: tuple[str, ...]
+    calibration_rms_px: float
+    goals: dict[str, Any]
+    runs: tuple[ReadingTrial, ...]
+
+    def to_dict(self) -> dict[str, Any]:
+        """Return the record as JSON-ready values."""
+        return asdict(self)
+
+
+START_DISTANCE = {"object": (0.8, 2.5), "signpost": (0.8, 4.0)}  # m, horizontal, from the mark
+START_BEARING_DEG = 60.0  # start within this of the mark's normal
+START_CLEARANCE = 0.1  # m between the base and any wall or furniture at the start
+
+
+def _calibrated(scene: Scene, rng: np.random.Generator, views: int) -> tuple[Array, Array, float]:
+    cam, _ = head_camera(scene)
+    return calibrate_head_camera(cam, rng, views)
+
+
+def _start_pose(
+    robot: HeadRobot, k: int, rng: np.random.Generator
+) -> tuple[Array, float, float] | None:
+    """Return a random free start (x, y, yaw) in front of landmark k with its distance and
+    bearing, the mark in the head's line of sight (None if 200 draws find none)."""
+    lm = robot.landmarks[k]
+    m = lm.T_world_mark[:3, 3]
+    n = lm.T_world_mark[:3, 2].copy()
+    n[2] = 0.0
+    n /= np.linalg.norm(n)
+    lo, hi = START_DISTANCE[lm.kind]
+    head = np.asarray(robot.head.position)
+    for _ in range(200):
+        r = rng.uniform(lo, hi)
+        b = np.radians(rng.uniform(-START_BEARING_DEG, START_BEARING_DEG))
+        p = m[:2] + r * (_rz(b)[:2, :2] @ n[:2])
+        to_mark = np.arctan2(m[1] - p[1], m[0] - p[0])
+        yaw = _wrap(to_mark + rng.uniform(-np.pi / 2, np.pi / 2))
+        if _clearance(robot, p) < START_CLEARANCE or not _inside(robot.scene, p):
+            continue
+        eye = floor_pose(p[0], p[1], yaw) @ np.append(head, 1.0)
+        if not line_of_sight(eye[None, :3], m[None], robot.occluders)[0, 0]:
+            continue
+        # PBVS is a local law: the corridor the base sweeps towards the mark must be free.
+        goal = m[:2] + n[:2] * 0.45
+        u = (goal - p) / max(float(np.linalg.norm(goal - p)), 1e-9)
+        side = np.array([-u[1], u[0]]) * robot.robot.base_radius
+        ends = [(p + o, goal + o) for o in (side, -side, 0 * side)]
+        z = robot.robot.base_height / 2
+        if not all(
+            line_of_sight(np.append(a, z)[None], np.append(b, z)[None], robot.occluders)[0, 0]
+            for a, b in ends
+        ):
+            continue
+        return np.array([p[0], p[1], yaw]), float(r), float(np.degrees(b))
+    return None
+
+
+def _clearance(robot: HeadRobot, p: Array) -> float:
+    """Return the gap (m) between the base at p (x, y) and the nearest low wall or furniture."""
+    occ = robot.occluders
+    low = occ.z[:, 0] < robot.robot.base_height
+    d = np.asarray(p[:2]) - occ.centre
+    c, s = np.cos(occ.yaw), np.sin(occ.yaw)
+    local = np.abs(np.stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]], 1))
+    out = np.linalg.norm(np.maximum(local - occ.half_size, 0.0), axis=1)
+    return float(np.min(np.where(low, out, np.inf))) - robot.robot.base_radius
+
+
+def _inside(scene: Scene, p: Array) -> bool:
+    return any(
+        cv2.pointPolygonTest(np.asarray(r.polygon, np.float32), (float(p[0]), float(p[1])), False)
+        > 0
+        for r in scene.rooms
+    )
+
+
+def landmark_reading(
+    scene: Scene | None = None,
+    seed: int = 0,
+    *,
+    trials: int = 100,
+    calibration_views: int = CALIBRATION_VIEWS,
+    timeout: float = READ_TIMEOUT_S,
+) -> LandmarkReadingResult:
+    """Return the metrics of `landmark-reading`: PBVS reading from `trials` random starts.
+
+    Each trial picks one of the scene's landmarks at random (only it is drawn, so the robot
+    cannot lock onto another) and a free start 0.8-2.5 m (object marks) or 0.8-4 m (signposts)
+    from it (another landmark when 200 draws find none), within 60 deg of its normal, with
+    the mark in the head's line of sight, a free corridor for the base towards it (PBVS is a
+    local law; planning around furniture is spec 03's) and the robot turned up to 90 deg away
+    from it (the head searches first). The robot reads it with HeadRobot.read (calibrated
+    head camera, odometry only); a trial succeeds when the decoded record is the landmark's
+    own, within `timeout` simulated seconds, and the base never touched a wall or furniture
+    (scored on the true pose).
+    """
+    if trials < 1 or calibration_views < 3 or not timeout > 0:
+        raise InvalidInput(
+            "landmark-reading needs trials >= 1, calibration_views >= 3 and timeout > 0"
+        )
+    sc = scene if scene is not None else default_scene()
+    rng = np.random.default_rng(seed)
+    K, dist, rms = _calibrated(sc, rng, calibration_views)
+    robot = HeadRobot(sc, K, dist, rng=rng)
+    if not robot.landmarks:
+        raise InvalidInput(f"scene {sc.name!r} has no landmarks to read")
+    runs = []
+    no_start: set[str] = set()
+    for _ in range(trials):
+        drawn = None
+        for _ in range(10 * len(robot.landmarks)):
+            k = int(rng.integers(len(robot.landmarks)))
+            drawn = _start_pose(robot, k, rng)
+            if drawn is not None:
+                break
+            no_start.add(robot.landmarks[k].name)
+        if drawn is None:
+            raise InvalidInput(f"no free start in front of any landmark of scene {sc.name!r}")
+        start, r, b = drawn
+        robot = HeadRobot(sc, K, dist, start=start, rng=rng, only=k)
+        res = robot.read(None, timeout)
+        collided = robot.collided
+        lm = robot.landmarks[k]
+        right = res.read and res.detection is not None and res.detection.text == lm.text
+        runs.append(
+            ReadingTrial(
+                landmark=lm.name,
+                kind=lm.kind,
+                start=(float(start[0]), float(start[1]), float(start[2])),
+                distance=r,
+                bearing_deg=b,
+                read=bool(right and not collided),
+                time_to_read=float(res.time) if right else None,
+                frames=res.frames,
+                final_translation_error=res.final_translation_error,
+                final_rotation_error_deg=res.final_rotation_error_deg,
+                collided=collided,
+            )
+        )
+    times = [t.time_to_read for t in runs if t.read and t.time_to_read is not None]
+    ok = sum(t.read for t in runs)
+    by_kind: dict[str, float | None] = {}
+    for kind in ("object", "signpost"):
+        mine = [t for t in runs if t.kind == kind]
+        by_kind[kind] = _pct(sum(t.read for t in mine), len(mine))
+    success = 100.0 * ok / len(runs)
+    return LandmarkReadingResult(
+        scenario="landmark-reading",
+        seed=seed,
+        trials=trials,
+        success_pct=success,
+        time_to_read_median=_percentile(times, 50),
+        time_to_read_p95=_percentile(times, 95),
+        time_to_read_max=max(times) if times else None,
+        success_pct_by_kind=by_kind,
+        collisions=sum(t.collided for t in runs),
+        landmarks_without_start=tuple(sorted(no_start)),
+        calibration_rms_px=float(rms),
+        goals={"success_pct_min": 95.0, "within_s": timeout, "met": success >= 95.0},
+        runs=tuple(runs),
+    )
+
+
+# --------------------------------------------------------------------------------------------
+# The survey: drive the home, read every landmark, build both maps
+
+# The default home's survey tour (x, y metres): straight legs through free floor and the doors,
+# living room, kitchen, bedroom; the head sweeps at every stop.
+DEFAULT_TOUR = (
+    (1.0, 1.2),
+    (2.5, 2.2),
+    (3.3, 4.6),
+    (3.0, 3.5),
+    (0.8, 3.2),
+    (3.8, 1.45),
+    (5.2, 1.45),
+    (5.2, 1.0),
+    (7.3, 1.05),
+    (7.3, 2.5),
+    (6.55, 2.55),
+    (6.55, 3.45),
+    (7.3, 3.45),
+    (5.2, 3.5),
+    (5.2, 4.4),
+)
+SWEEP_PANS = tuple(float(a) for a in np.linspace(-2.8, 2.8, 15))
+SURVEY_READ_TIMEOUT_S = 40.0
+SEPARATE_M = 0.45  # m: a located landmark nearer than this to a known one is that one
+MATCH_TRUTH_M = 0.5  # m: scoring: a map entry this near its landmark (and of its id) is right
+
+
+@dataclass(frozen=True)
+class SurveyRoute:
+    """A route of the navigation map between two rooms: the places, their rooms, length m
+    (None and `error` when there is none)."""
+
+    from_room: str
+    to_room: str
+    places: tuple[int, ...] | None
+    rooms: tuple[str, ...] | None
+    length_m: float | None
+    error: str | None = None
+
+
+@dataclass(frozen=True)
+class LandmarkSurveyResult:
+    """Metrics of `landmark-survey`: object marks found / present / seen in the drive (drawn
+    whole in at least one head-camera frame), signpost places found / present / seen, the
+    semantic map's mean and max position error against the twin (m), false entries (an id no
+    landmark carries, or more than MATCH_TRUTH_M from its landmark) and duplicates (two entries
+    of one landmark), landmarks seen but not read, the reads attempted by PBVS and their
+    successes, the drive's time (s) and frames, the odometry's final drift (m), routes between
+    every pair of rooms, and both maps (GeoJSON-like)."""
+
+    scenario: str
+    seed: int
+    objects_present: int
+    objects_seen: int
+    objects_found: int
+    places_present: int
+    places_seen: int
+    places_found: int
+    position_error_mean_m: float | None
+    position_error_max_m: float | None
+    false_entries: int
+    duplicate_entries: int
+    seen_not_read: tuple[str, ...]
+    reads_attempted: int
+    reads_succeeded: int
+    time_s: float
+    frames: int
+    odometry_drift_m: float
+    calibration_rms_px: float
+    routes: tuple[SurveyRoute, ...]
+    goals: dict[str, Any]
+    semantic_map: dict[str, Any]
+    navigation_map: dict[str, Any]
+
+    def to_dict(self) -> dict[str, Any]:
+        """Return the record as JSON-ready values."""
+        return asdict(self)
+
+
+class _Survey:
+    """The survey's state: the robot, both maps and the places where unread landmarks were
+    located (odometry frame)."""
+
+    def __init__(self, robot: HeadRobot) -> None:
+        self.robot = robot
+        self.semantic = SemanticMap()
+        self.navigation = NavigationMap()
+        self.tried: list[Array] = []
+        self.attempts = 0
+        self.successes = 0
+
+    def known(self, p_odom: Array) -> bool:
+        """Return whether a located position (3,) in the odometry frame is a landmark already
+        mapped or tried."""
+        p = (self.robot.T_world_odom @ np.append(p_odom, 1.0))[:3]
+        near = [o.position for o in self.semantic.objects]
+        near += [np.asarray(self.navigation.graph.nodes[k]["xyz"]) for k in self.navigation.graph]
+        near += self.tried
+        return any(float(np.linalg.norm(p - q)) < SEPARATE_M for q in near)
+
+    def record(self, det: LandmarkDetection, T_odom_cam: Array) -> None:
+        """Put a decoded detection in its map (the odometry frame is the world's estimate)."""
+        rec = det.record
+        if isinstance(rec, ObjectMark):
+            T, C = detection_in_world(det, self.robot.T_world_odom @ T_odom_cam)
+            self.semantic.observe(rec, T, C, self.robot.time)
+        elif isinstance(rec, Signpost):
+            self.navigation.observe(rec)
+            self.robot.relocalise(det, T_odom_cam)
+
+    def sweep(self) -> list[_Track]:
+        """Sweep the head over SWEEP_PANS; map what is read; return the unread, unknown
+        landmarks located (nearest first)."""
+        r = self.robot
+        todo: list[tuple[float, _Track]] = []
+        for pan in SWEEP_PANS:
+            while abs(r.pan - pan) > 1e-9 or abs(r.tilt - SEARCH_TILT) > 1e-9:
+                r.aim(pan, SEARCH_TILT, FRAME_DT)
+                r.drive(0.0, 0.0, FRAME_DT)
+            for d in r.look():
+                T = r.locate(d)
+                if d.record is not None:
+                    self.record(d, r.T_odom_cam())
+                    continue
+                if not self.known(T[:3, 3]) and not any(
+                    float(np.linalg.norm(T[:3, 3] - t.T[:3, 3])) < SEPARATE_M for _, t in todo
+                ):
+                    dist = float(np.linalg.norm(d.position))
+                    todo.append((dist, _Track(T, d.kind, r.time)))
+            r.drive(0.0, 0.0, FRAME_DT)
+        todo.sort(key=lambda x: x[0])
+        return [t for _, t in todo if not self.known(t.T[:3, 3])]
+
+    def go(self, target: Array) -> None:
+        """Drive the base to a floor point (x, y), world frame, by the patrol law on the
+        odometry (corrected by T_world_odom)."""
+        r = self.robot
+        assert r.scene.robot is not None
+        goal = np.linalg.inv(r.T_world_odom) @ np.array([target[0], target[1], 0.0, 1.0])
+        patrol = Patrol([goal[:2]], r.scene.robot.limits, loop=False, tolerance=0.05)
+        for _ in range(int(120 / BASE_DT)):
+            if patrol.done:
+                break
+            r.drive(*patrol.command(r.base.state.odometry), BASE_DT)
+        r.drive(0.0, 0.0, 0.5)
+
+
+def landmark_survey(
+    scene: Scene | None = None,
+    seed: int = 0,
+    *,
+    tour: tuple[tuple[float, float], ...] | None = None,
+    calibration_views: int = CALIBRATION_VIEWS,
+) -> LandmarkSurveyResult:
+    """Return the metrics of `landmark-survey`: the robot drives `tour` (default: DEFAULT_TOUR
+    on the default home, else the robot's patrol), sweeps its head at every stop, maps every
+    landmark it reads, and reads by PBVS (HeadRobot.read, up to SURVEY_READ_TIMEOUT_S) every
+    landmark it located but could not read, coming back to the stop afterwards. Poses come
+    from the odometry (started at the robot's known start pose) and the calibrated head
+    camera; the twin's truth only scores the maps."""
+    if calibration_views < 3:
+        raise InvalidInput("landmark-survey needs calibration_views >= 3")
+    sc = scene if scene is not None else default_scene()
+    if tour is None:
+        if scene is None:
+            tour = DEFAULT_TOUR
+        elif sc.robot is not None and sc.robot.patrol:
+            tour = tuple((float(x), float(y)) for x, y in sc.robot.patrol)
+        else:
+            raise InvalidInput("landmark-survey needs a tour or a robot with patrol waypoints")
+    stops = np.asarray(tour, dtype=np.float64)
+    if stops.ndim != 2 or stops.shape[1] != 2 or len(stops) < 1:
+        raise InvalidInput(f"tour must be (x, y) points, got shape {stops.shape}")
+    rng = np.random.default_rng(seed)
+    K, dist, rms = _calibrated(sc, rng, calibration_views)
+    robot = HeadRobot(sc, K, dist, rng=rng)
+    survey = _Survey(robot)
+    for stop in stops:
+        survey.go(stop)
+        for track in survey.sweep():
+            if survey.known(track.T[:3, 3]):
+                continue  # read meanwhile, from another reading pose
+            survey.attempts += 1
+            out = robot.read(track, SURVEY_READ_TIMEOUT_S)
+            if out.read and out.detection is not None and out.T_odom_cam is not None:
+                survey.successes += 1
+                survey.record(out.detection, out.T_odom_cam)
+            else:
+                survey.tried.append((robot.T_world_odom @ track.T[:, 3])[:3])
+            survey.go(stop)
+    return _score_survey(sc, survey, seed, rms)
+
+
+def _score_survey(sc: Scene, survey: _Survey, seed: int, rms: float) -> LandmarkSurveyResult:
+    robot = survey.robot
+    marks = robot.landmarks
+    ids: dict[int, int] = {}
+    for k, lm in enumerate(marks):
+        try:
+            ids[decode_payload(lm.text).id] = k
+        except PayloadError:
+            continue
+    errors: list[float] = []
+    false = 0
+    hits: dict[int, int] = {}
+    for obj in survey.semantic.objects:
+        j = ids.get(obj.id)
+        if j is None or marks[j].kind != "object":
+            false += 1
+            continue
+        k = j
+        e = float(np.linalg.norm(obj.position - marks[k].T_world_mark[:3, 3]))
+        if e > MATCH_TRUTH_M:
+            false += 1
+            continue
+        errors.append(e)
+        hits[k] = hits.get(k, 0) + 1
+    graph = survey.navigation.graph
+    for place in graph.nodes:
+        j = ids.get(int(place))
+        if j is None or marks[j].kind != "signpost":
+            false += 1
+            continue
+        hits[j] = hits.get(j, 0) + 1
+    duplicates = sum(n - 1 for n in hits.values())
+    kinds = [lm.kind for lm in marks]
+    seen = robot.seen
+    rooms = [r.name for r in sc.rooms]
+    routes = []
+    for a, b in combinations(rooms, 2):
+        try:
+            rt = survey.navigation.route(a, b)
+            routes.append(SurveyRoute(a, b, rt.places, rt.rooms, rt.length_m))
+        except NoRoute as exc:
+            routes.append(SurveyRoute(a, b, None, None, None, str(exc)))
+    true = robot.base.state.pose
+    odo = robot.base.state.odometry
+    seen_not_read = tuple(sorted(marks[k].name for k in seen if k not in hits))
+    n_obj = sum(1 for k in hits if kinds[k] == "object")
+    n_place = sum(1 for k in hits if kinds[k] == "signpost")
+    goals = {
+        "every_seen_landmark_mapped": not seen_not_read,
+        "no_false_or_duplicate_entries": false == 0 and duplicates == 0,
+        "route_between_every_pair_of_rooms": all(r.places is not None for r in routes),
+    }
+    return LandmarkSurveyResult(
+        scenario="landmark-survey",
+        seed=seed,
+        objects_present=kinds.count("object"),
+        objects_seen=sum(1 for k in seen if kinds[k] == "object"),
+        objects_found=n_obj,
+        places_present=kinds.count("signpost"),
+        places_seen=sum(1 for k in seen if kinds[k] == "signpost"),
+        places_found=n_place,
+        position_error_mean_m=float(np.mean(errors)) if errors else None,
+        position_error_max_m=max(errors) if errors else None,
+        false_entries=false,
+        duplicate_entries=duplicates,
+        seen_not_read=seen_not_read,
+        reads_attempted=survey.attempts,
+        reads_succeeded=survey.successes,
+        time_s=robot.time,
+        frames=robot.frames,
+        odometry_drift_m=float(np.hypot(true.x - odo.x, true.y - odo.y)),
+        calibration_rms_px=float(rms),
+        routes=tuple(routes),
+        goals=goals,
+        semantic_map=survey.semantic.to_dict(),
+        navigation_map=survey.navigation.to_dict(),
+    )

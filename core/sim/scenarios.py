@@ -9,7 +9,8 @@
 * `path-following`, `projector-calibration`: the projector drawing a planned path that the
   robot follows by three control laws, and the projector's mount calibrated from spots seen by
   the ceiling cameras (core.sim.navigation_scenarios).
-* `landmark-pose`: object marks and signposts located and read by the robot's head camera
+* `landmark-pose`, `landmark-reading`, `landmark-survey`: object marks and signposts located
+  and read by the robot's head camera, reading by PBVS, and the survey that builds the maps
   (core.sim.landmark_scenarios).
 * `hand-eye`, `grasp`: the eye-in-hand camera's hand-eye calibration by every method and the
   reprojection refinement, and randomised fetches by the switching grasp controller
@@ -26,7 +27,14 @@ import math
 from collections.abc import Callable
 
 from core.errors import InvalidInput
-from core.sim.landmark_scenarios import LandmarkPoseResult, landmark_pose
+from core.sim.landmark_scenarios import (
+    LandmarkPoseResult,
+    LandmarkReadingResult,
+    LandmarkSurveyResult,
+    landmark_pose,
+    landmark_reading,
+    landmark_survey,
+)
 from core.sim.localization_scenarios import localization, localization_images
 from core.sim.manipulation_scenarios import grasp, hand_eye
 from core.sim.navigation_scenarios import (
@@ -59,6 +67,8 @@ __all__ = [
     "AccuracyRow",
     "CameraCalibrationError",
     "LandmarkPoseResult",
+    "LandmarkReadingResult",
+    "LandmarkSurveyResult",
     "LocalizationResult",
     "MarkerDrive",
     "NetworkCalibrationResult",
@@ -72,6 +82,8 @@ __all__ = [
     "board_mounting",
     "calibration_errors",
     "landmark_pose",
+    "landmark_reading",
+    "landmark_survey",
     "localization",
     "localization_images",
     "network_calibration",
@@ -93,6 +105,8 @@ SCENARIOS: dict[str, Callable[..., ScenarioResult]] = {
     "path-following": path_following,
     "projector-calibration": projector_calibration,
     "landmark-pose": landmark_pose,
+    "landmark-reading": landmark_reading,
+    "landmark-survey": landmark_survey,
     "hand-eye": hand_eye,
     "grasp": grasp,
 }
@@ -115,6 +129,10 @@ DESCRIPTIONS: dict[str, str] = {
     "ceiling cameras' images and located with their network calibration",
     "landmark-pose": "object marks and signposts located and read by the robot's head camera "
     "at 0.5-5 m and 0-70 deg, beside zxing-cpp, cv2.QRCodeDetector and an AprilTag (IPPE)",
+    "landmark-reading": "a landmark read by position-based visual servoing (head search, "
+    "polar pose-regulation law, re-estimated every frame) from 100 random start poses",
+    "landmark-survey": "the robot tours the home, reads every landmark it locates (by PBVS "
+    "when needed) and builds the semantic and navigation maps on its odometry",
     "hand-eye": "hand-eye calibration of the eye-in-hand camera: every method and the "
     "reprojection refinement on 15 rendered views of a table chessboard (detected, +0.5 px)",
     "grasp": "100 randomised fetches of a marked box on the dining table by the switching "

@@ -266,6 +266,29 @@ class CameraMount(_Model):
     distortion: Distortion = Distortion()
 
 
+class HeadCamera(_Model):
+    """The robot's head camera on a pan-tilt unit (parameters only): the joints' centre at
+    `position` (x, y, z metres in the robot frame); at pan = tilt = 0 the optical axis looks
+    along the robot's +x with image up towards +z; pan turns about the robot's z (positive to
+    the left), then tilt about the panned y axis (positive down); limits in radians, rate in
+    rad/s; the camera's resolution (width, height), intrinsics and distortion."""
+
+    position: Vec3 = (0.1, 0.0, 1.1)
+    pan_limits: Interval = (-2.8, 2.8)
+    tilt_limits: Interval = (-1.0, 1.0)
+    max_rate: Positive = 2.0
+    resolution: Size2 = (640, 480)
+    intrinsics: Intrinsics
+    distortion: Distortion = Distortion()
+
+    @model_validator(mode="after")
+    def _ordered(self) -> HeadCamera:
+        for label, (lo, hi) in (("pan_limits", self.pan_limits), ("tilt_limits", self.tilt_limits)):
+            if not lo < hi:
+                raise ValueError(f"{label} must be (lower, upper) with lower < upper")
+        return self
+
+
 class MotionLimits(_Model):
     """Limits of the unicycle base: |v| <= max_speed (m/s), |omega| <= max_turn_rate (rad/s),
     |dv/dt| <= max_acceleration (m/s^2), |domega/dt| <= max_angular_acceleration (rad/s^2)."""
@@ -291,7 +314,8 @@ class SlipNoise(_Model):
 
 class Robot(_Model):
     """The mobile robot: a cylinder base (radius, height metres), limits, noise, its top marker,
-    an optional chessboard, an optional onboard camera, and its start pose (x, y, yaw)."""
+    an optional chessboard, an optional onboard (floor) camera, an optional head camera on a
+    pan-tilt unit, and its start pose (x, y, yaw)."""
 
     name: Name
     base_radius: Positive = 0.2
@@ -303,6 +327,7 @@ class Robot(_Model):
     marker: TopMarker | None = TopMarker()
     board: Board | None = None
     onboard_camera: CameraMount | None = None
+    head_camera: HeadCamera | None = None
     start: Vec3 = (1.0, 1.0, 0.0)
     patrol: list[Vec2] = Field(default_factory=list)
 

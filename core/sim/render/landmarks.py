@@ -24,8 +24,12 @@ from core._validate import as_matrix
 from core.errors import InvalidInput
 from core.geometry.camera import as_distortion, project_points, undistort_points
 from core.geometry.rotations import matrix_to_rotvec
-from core.landmarks.artwork import Artwork, to_png_image
+from core.landmarks.artwork import Artwork, make_artwork, to_png_image
+from core.landmarks.payload import PayloadError, decode_payload
+from core.localization.occluders import Occluders, line_of_sight
+from core.sim._geometry import pose_matrix
 from core.sim.render._camera import SensorNoise
+from core.sim.scene import Scene
 
 Array = NDArray[np.float64]
 Image = NDArray[Any]
@@ -224,13 +228,23 @@ def render_landmarks(
         span = max(np.linalg.norm(uv[:, 1] - uv[:, 0]), np.linalg.norm(uv[:, 3] - uv[:, 0]), 1.0)
         level = int(np.clip(np.floor(np.log2(max(w0, h0) / span)), 0, len(tex.pyramid) - 1))
         img = tex.pyramid[level]
-        H = G @ tex.plane_map(level)
-        warped = cv2.warpPerspective(
-            img, H, (cw * _SS, ch * _SS), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT
-        ).astype(np.float32)
-        ones = np.ones(img.shape[:2], np.float32)
-        alpha = cv2.warpPerspective(ones, H, (cw * _SS, ch * _SS), flags=cv2.INTER_LINEAR)
-        big = big * (1 - alpha[..., None]) + warped
+        # Warp and composite within the page's bounding box only (the same pixels as a
+        # full-canvas warp, H shifted by the box's corner).
+        x0, y0 = (max(int(np.floor(uv[k].min())) - 2, 0) for k in (0, 1))
+        x1 = min(int(np.ceil(uv[0].max())) + 3, cw * _SS)
+        y1 = min(int(np.ceil(uv[1].max())) + 3, ch * _SS)
+        if x1 > x0 and y1 > y0:
+            shift = np.array([[1.0, 0.0, -x0], [0.0, 1.0, -y0], [0.0, 0.0, 1.0]])
+            H = shift @ G @ tex.plane_map(level)
+            box = (x1 - x0, y1 - y0)
+            warped = cv2.warpPerspective(
+                img, H, box, flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT
+            ).astype(np.float32)
+            ones = np.ones(img.shape[:2], np.float32)
+            alpha = cv2.warpPerspective(ones, H, box, flags=cv2.INTER_LINEAR)
+            roi = big[y0:y1, x0:x1]
+            roi *= 1 - alpha[..., None]
+            roi += warped
         truths.append(_truth(camera, T, size, module))
     ideal = cv2.resize(big, (cw, ch), interpolation=cv2.INTER_AREA)
     img = cv2.remap(ideal, mx, my, cv2.INTER_LINEAR)
@@ -241,7 +255,7 @@ def render_landmarks(
         gain = noise.gain * (1.0 + noise.gain_jitter * float(gen.standard_normal()))
         img = img * max(gain, 0.0)
         if noise.sigma > 0:
-            img = img + gen.normal(0.0, noise.sigma, img.shape).astype(np.float32)
+            img = img + noise.sigma * gen.standard_normal(img.shape, dtype=np.float32)
     out = np.clip(np.rint(img), 0, 255).astype(np.uint8)
     return LandmarkView(image=out, truth=tuple(truths))
 
@@ -267,3 +281,133 @@ def _truth(cam: LandmarkCamera, T: Array, size: float, module: float | None) -> 
         distance=float(np.linalg.norm(t)),
         obliquity_deg=obl,
     )
+
+
+@dataclass(frozen=True, eq=False)
+class SceneLandmark:
+    """A scene's landmark ready to render: name; kind "object" or "signpost"; T_world_mark
+    (4, 4) (mark frame: x right, y up on the print, z out of the face); size metres (frame side
+    or outer ring diameter); module metres (one QR module); text (the payload); texture."""
+
+    name: str
+    kind: str
+    T_world_mark: Array = field(repr=False)
+    size: float
+    module: float
+    text: str
+    texture: Texture = field(repr=False)
+
+
+# Texels per metre of a scene landmark's texture: a 1.7 mm QR module spans 5 texels, finer than
+# a canvas pixel down to 0.2 m at 600 px focal length (supersampled twice).
+TEXTURE_PPM = 3000.0
+
+_SCENE_LANDMARKS: dict[int, tuple[Scene, tuple[SceneLandmark, ...]]] = {}
+
+
+def scene_landmarks(scene: Scene) -> tuple[SceneLandmark, ...]:
+    """Return the landmarks of a core.sim Scene with their artwork textures (cached per scene).
+
+    A payload that decodes is drawn from its record (label "#id name"); any other text (a
+    foreign QR code) is drawn as given with the landmark's name as label.
+    """
+    hit = _SCENE_LANDMARKS.get(id(scene))
+    if hit is not None and hit[0] is scene:
+        return hit[1]
+    out = []
+    for lm in scene.landmarks:
+        kind = "object" if lm.kind == "object_mark" else "signpost"
+        try:
+            art = make_artwork(decode_payload(lm.payload), size=lm.size)
+        except PayloadError:
+            art = make_artwork(lm.payload or lm.name, kind, lm.size, label=lm.name)
+        if art.kind != kind:
+            raise InvalidInput(
+                f"landmark {lm.name!r} is a {lm.kind} but its payload is a {art.kind}'s"
+            )
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = pose_matrix(lm.pose)
+        out.append(
+            SceneLandmark(
+                name=lm.name,
+                kind=kind,
+                T_world_mark=T,
+                size=float(lm.size),
+                module=art.module_mm / 1000.0,
+                text=art.text,
+                texture=artwork_texture(art, TEXTURE_PPM),
+            )
+        )
+    res = tuple(out)
+    if len(_SCENE_LANDMARKS) > 4:
+        _SCENE_LANDMARKS.clear()
+    _SCENE_LANDMARKS[id(scene)] = (scene, res)
+    return res
+
+
+def visible_landmarks(
+    camera: LandmarkCamera,
+    T_world_cam: Array,
+    landmarks: Sequence[SceneLandmark],
+    occluders: Occluders | None = None,
+    *,
+    margin_px: float = 2.0,
+) -> list[int]:
+    """Return the indices of the landmarks a camera at T_world_cam (4, 4) sees whole: the
+    printed face towards the camera, every corner of the pattern's square at least 10 cm in
+    front, inside the image by `margin_px`, and (with `occluders`, a
+    core.localization.occluders.Occluders) not hidden by a wall or a piece of furniture."""
+    Twc = as_matrix(T_world_cam, (4, 4), "T_world_cam")
+    Tcw = np.linalg.inv(Twc)
+    keep = []
+    for k, lm in enumerate(landmarks):
+        T = Tcw @ lm.T_world_mark
+        if float(T[:3, 2] @ T[:3, 3]) >= 0:  # the face looks away from the camera
+            continue
+        h = lm.size / 2
+        sq = np.array([[-h, -h, 0], [h, -h, 0], [h, h, 0], [-h, h, 0], [0, 0, 0]])
+        Xc = sq @ T[:3, :3].T + T[:3, 3]
+        if np.any(Xc[:, 2] < 0.1):
+            continue
+        px = project_points(
+            sq, matrix_to_rotvec(T[:3, :3]), T[:3, 3], camera.K, camera.dist, jacobians=False
+        ).points
+        m = margin_px
+        if np.any(px < m) or np.any(px[:, 0] > camera.width - 1 - m):
+            continue
+        if np.any(px[:, 1] > camera.height - 1 - m):
+            continue
+        if occluders is not None:
+            Xw = sq @ lm.T_world_mark[:3, :3].T + lm.T_world_mark[:3, 3]
+            if not np.all(line_of_sight(Twc[None, :3, 3], Xw, occluders)):
+                continue
+        keep.append(k)
+    return keep
+
+
+def render_scene_landmarks(
+    camera: LandmarkCamera,
+    T_world_cam: Array,
+    landmarks: Sequence[SceneLandmark],
+    occluders: Occluders | None = None,
+    *,
+    noise: SensorNoise | None = None,
+    rng: np.random.Generator | int | None = None,
+) -> tuple[LandmarkView, list[int]]:
+    """Return the view of a camera at T_world_cam (4, 4) of the landmarks it sees whole
+    (visible_landmarks), drawn far to near over a random wall, and their indices in
+    `landmarks` (the order of the view's truth)."""
+    Tcw = np.linalg.inv(as_matrix(T_world_cam, (4, 4), "T_world_cam"))
+    idx = visible_landmarks(camera, T_world_cam, landmarks, occluders)
+    dist = [float(np.linalg.norm((Tcw @ landmarks[k].T_world_mark)[:3, 3])) for k in idx]
+    idx = [idx[j] for j in np.argsort(dist)[::-1]]
+    placements = [
+        (
+            landmarks[k].texture,
+            Tcw @ landmarks[k].T_world_mark,
+            landmarks[k].size,
+            landmarks[k].module,
+        )
+        for k in idx
+    ]
+    return render_landmarks(camera, placements, noise=noise, rng=rng), idx

@@ -1,13 +1,23 @@
-"""`landmark-pose` on a small study: a calibrated head camera, one obliquity bin, both kinds."""
+"""The landmark scenarios on small studies: `landmark-pose` (a calibrated head camera, one
+obliquity bin, both kinds), the head's kinematics and the polar law, `landmark-reading` and
+`landmark-survey`."""
 
 from __future__ import annotations
 
 import json
 
+import numpy as np
 import pytest
 
 from core.errors import InvalidInput
-from core.sim.landmark_scenarios import landmark_pose
+from core.sim.landmark_scenarios import (
+    landmark_pose,
+    landmark_reading,
+    landmark_survey,
+    polar_command,
+    robot_head_pose,
+)
+from core.sim.scene import default_scene, load_scene
 
 
 def test_landmark_pose_small_study() -> None:
@@ -31,3 +41,73 @@ def test_landmark_pose_small_study() -> None:
             assert b["decoded_pct"] >= b["zxing_raw_pct"]
     with pytest.raises(InvalidInput):
         landmark_pose(None, 0, views_per_bin=0)
+
+
+def test_head_pose_axes() -> None:
+    """At pan = tilt = 0 the head looks along the robot's +x with image up = +z; pan turns it
+    to the left, tilt down; the optical centre sits at the mount's position."""
+    head = default_scene().robot.head_camera  # type: ignore[union-attr]
+    assert head is not None
+    T = robot_head_pose(head, 0.0, 0.0)
+    np.testing.assert_allclose(T[:3, 2], [1, 0, 0], atol=1e-12)
+    np.testing.assert_allclose(T[:3, 1], [0, 0, -1], atol=1e-12)  # image y down = world -z
+    np.testing.assert_allclose(T[:3, 3], head.position)
+    np.testing.assert_allclose(robot_head_pose(head, np.pi / 2, 0.0)[:3, 2], [0, 1, 0], atol=1e-12)
+    look = robot_head_pose(head, 0.0, 0.3)[:3, 2]
+    np.testing.assert_allclose(look, [np.cos(0.3), 0, -np.sin(0.3)], atol=1e-12)
+
+
+@pytest.mark.parametrize(
+    "start", [(-1.0, 0.5, 0.0), (-0.6, -1.2, 2.0), (1.0, 1.0, np.pi), (0.3, -0.2, -1.5)]
+)
+def test_polar_law_reaches_the_goal_pose(start: tuple[float, float, float]) -> None:
+    """The polar pose-regulation law on an ideal unicycle: to within 2 cm and 2 deg of the goal
+    (0, 0, 0) in 40 s from ahead, behind and beside it (Astolfi's law converges exponentially;
+    with K_RHO = 0.4 the distance falls by e every 2.5 s)."""
+    x, y, th = start
+    dt = 0.01
+    for _ in range(4000):
+        v, w, _ = polar_command(np.array([x, y, th]), np.zeros(3))
+        x += v * np.cos(th) * dt
+        y += v * np.sin(th) * dt
+        th = (th + w * dt + np.pi) % (2 * np.pi) - np.pi
+    assert np.hypot(x, y) < 0.02
+    assert abs(th) < np.radians(2.0)
+
+
+def test_landmark_reading_few_trials() -> None:
+    """PBVS reading from three random starts in the default home (the CLI runs 100)."""
+    r = landmark_reading(None, 5, trials=3, calibration_views=6)
+    d = r.to_dict()
+    json.dumps(d)
+    assert d["scenario"] == "landmark-reading" and len(d["runs"]) == 3
+    # Spec 04: >= 95 % within 60 s; three trials can show one failure at most at that rate
+    # only with probability 0.7 %, so two of three is the bound this size can hold.
+    assert sum(t["read"] for t in d["runs"]) >= 2
+    for t in d["runs"]:
+        if t["read"]:
+            assert 0 < t["time_to_read"] <= 60.0
+            assert not t["collided"]
+    with pytest.raises(InvalidInput):
+        landmark_reading(None, 0, trials=0)
+
+
+def test_landmark_survey_small_home() -> None:
+    """The survey on the default home keeping two kitchen landmarks (an object mark and a
+    signpost) and one stop: both read and mapped, no false or duplicate entry."""
+    home = default_scene().model_dump(mode="python")
+    home["landmarks"] = [m for m in home["landmarks"] if m["name"] in ("kettle", "signpost_22")]
+    home["robot"]["start"] = (5.2, 1.45, 0.0)
+    scene = load_scene(home)
+    r = landmark_survey(scene, 1, tour=((5.2, 1.45),), calibration_views=6)
+    d = r.to_dict()
+    json.dumps(d)
+    assert (d["objects_present"], d["objects_seen"], d["objects_found"]) == (1, 1, 1)
+    assert (d["places_present"], d["places_seen"], d["places_found"]) == (1, 1, 1)
+    assert d["false_entries"] == 0 and d["duplicate_entries"] == 0
+    assert not d["seen_not_read"]
+    # Read from under 1 m (pose error ~1 % of distance) on odometry that drove a few metres
+    # from the known start (slip 1 cm per sqrt(m)): a few centimetres.
+    assert d["position_error_mean_m"] < 0.05
+    # One room has a place: no route to the others, reported, not raised.
+    assert all(rt["places"] is None and rt["error"] for rt in d["routes"])

@@ -3,6 +3,8 @@ length only), walkers' pauses, and the MOT scoring against an independent count.
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 
@@ -107,5 +109,5 @@ def test_nobody_stands_where_another_walks():
             clear = w.radius + other.radius + 0.2
             path = np.asarray(other.waypoints, dtype=np.float64)
             for p in stands:
-                gap = min(_segment_distance(p, a, b) for a, b in zip(path[:-1], path[1:]))
+                gap = min(_segment_distance(p, a, b) for a, b in itertools.pairwise(path))
                 assert gap >= clear, (w.name, p.tolist(), other.name, gap)
