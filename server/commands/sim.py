@@ -107,6 +107,16 @@ def _print_summary(data: dict[str, Any]) -> None:
         for r in data["rejected"]:
             print(f"  {r['name']}: not calibrated: {r['reason']}")
         return
+    if "samples" not in data or "rmse_m" not in data:
+        # Any other scenario: its top-level figures, one per line (lists and tables: --json).
+        for key, value in data.items():
+            if key in ("scenario", "seed"):
+                continue
+            if isinstance(value, bool | str) or value is None:
+                print(f"  {key}: {value}")
+            elif isinstance(value, int | float):
+                print(f"  {key}: {value:.6g}")
+        return
     print(f"  samples {data['samples']}, sigma {data['sigma_px']:.3f} px")
     if data.get("measured_sigma_px") is not None:
         print(f"  measured detection error (RMS per axis) {data['measured_sigma_px']:.3f} px")
