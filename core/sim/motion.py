@@ -11,7 +11,6 @@ So the odometry is a sensor of its own whose drift has the statistics configured
 
 from __future__ import annotations
 
-import itertools
 import math
 from dataclasses import dataclass
 
@@ -19,6 +18,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from core.errors import InvalidInput
+from core.sim.crowd import crowd_of, script_positions
 from core.sim.scene import MotionLimits, Robot, Scene, SlipNoise, Walker
 
 Array = NDArray[np.float64]
@@ -250,42 +250,17 @@ def simulate_patrol(
 
 
 def walker_positions(walker: Walker, times: ArrayLike) -> Array:
-    """Return the walker's floor positions (N, 2) metres at `times` (N,) seconds.
-
-    It walks its waypoint polyline at constant speed from the first waypoint; with `loop` it
-    returns along the closing segment and goes round again, otherwise it turns back at the ends.
-    Reaching waypoint i it stands still for `pauses[i]` seconds (the first waypoint's pause
-    comes at the end of each round, so the walk starts at once).
-    """
-    t = np.atleast_1d(np.asarray(times, dtype=np.float64))
-    w = np.asarray(walker.waypoints, dtype=np.float64)
-    n = len(w)
-    pauses = np.asarray(walker.pauses if walker.pauses else [0.0] * n, dtype=np.float64)
-    order = [*range(n), 0] if walker.loop else [*range(n), *range(n - 2, -1, -1)]
-    # Key frames of one round: (time, position), a pause being two key frames at one place.
-    key_t = [0.0]
-    key_p = [w[order[0]]]
-    for a, b in itertools.pairwise(order):
-        key_t.append(key_t[-1] + float(np.linalg.norm(w[b] - w[a])) / walker.speed)
-        key_p.append(w[b])
-        if pauses[b] > 0:
-            key_t.append(key_t[-1] + float(pauses[b]))
-            key_p.append(w[b])
-    kt = np.asarray(key_t)
-    kp = np.asarray(key_p)
-    if kt[-1] <= 0:
-        return np.repeat(w[:1], len(t), axis=0)
-    s = np.mod(t, kt[-1])
-    return np.stack([np.interp(s, kt, kp[:, 0]), np.interp(s, kt, kp[:, 1])], axis=1)
+    """Return the walker's floor positions (N, 2) metres at `times` (N,) seconds when it walks
+    alone (its script: `core.sim.crowd.script_positions`). With others, ask their `Crowd`."""
+    return script_positions(walker, times)
 
 
 def world_state(scene: Scene, time: float, robot: Pose2D | None = None) -> WorldState:
-    """Return the scene's WorldState at `time` s: walkers on their scripts; the robot at
-    `robot` or, if None, at its start pose (None when the scene has no robot)."""
+    """Return the scene's WorldState at `time` s: walkers on their scripts, giving way to each
+    other (`core.sim.crowd`); the robot at `robot` or, if None, at its start pose (None when
+    the scene has no robot)."""
     pose = robot
     if pose is None and scene.robot is not None:
         pose = Pose2D(*scene.robot.start)
-    people = tuple(
-        (float(p[0]), float(p[1])) for p in (walker_positions(w, [time])[0] for w in scene.people)
-    )
+    people = tuple((float(x), float(y)) for x, y in crowd_of(scene.people).positions([time])[0])
     return WorldState(time=float(time), robot=pose, people=people)

@@ -10,6 +10,7 @@ import pytest
 
 from core.errors import InvalidInput
 from core.localization.tracking import TrackerConfig
+from core.sim import crowd
 from core.sim import tracking_scenarios as ts
 from core.sim.motion import walker_positions
 from core.sim.scene import Walker
@@ -96,18 +97,45 @@ def _segment_distance(p, a, b):
 
 
 def test_nobody_stands_where_another_walks():
-    # The twin's walkers pass through each other and people do not: a person standing within
-    # two body radii (plus 0.2 m to step round) of another's path would be walked through,
-    # which no camera of a real home sees. Paths may cross; standing places stay clear.
+    # People give way to each other (core.sim.crowd) by waiting or stepping back along their
+    # own path. A person who stands or turns round within reach of another's path could not
+    # get out of the way there and would be walked through, which no camera of a real home
+    # sees. Paths may cross; standing and turning places stay clear by the crowd's comfort
+    # distance (surface to surface).
     scene = ts.tracking_scene()
     for w in scene.people:
-        stands = [np.asarray(p) for p, pause in zip(w.waypoints, w.pauses, strict=True) if pause]
+        ends = [0, len(w.waypoints) - 1] if not w.loop else []
+        stands = [
+            np.asarray(p)
+            for i, (p, pause) in enumerate(zip(w.waypoints, w.pauses, strict=True))
+            if pause or i in ends
+        ]
         assert stands, w.name
         for other in scene.people:
             if other is w:
                 continue
-            clear = w.radius + other.radius + 0.2
+            clear = w.radius + other.radius + crowd.COMFORT_M
             path = np.asarray(other.waypoints, dtype=np.float64)
             for p in stands:
                 gap = min(_segment_distance(p, a, b) for a, b in itertools.pairwise(path))
                 assert gap >= clear, (w.name, p.tolist(), other.name, gap)
+
+
+def test_the_scenario_walkers_cross_without_touching():
+    # Alone, the walker's and the resident's scripts bring them within a few centimetres of
+    # each other at the living-room crossing; as a crowd, nobody comes closer than two body
+    # radii plus the contact margin, and the walk never falls back on passing through.
+    scene = ts.tracking_scene()
+    t = np.arange(0.0, 300.0, 0.1)
+    alone = np.stack([walker_positions(w, t) for w in scene.people], axis=1)
+    walk = crowd.Crowd(scene.people)
+    xy = walk.positions(t)
+    r = np.array([w.radius for w in scene.people])
+    for i, j in itertools.combinations(range(len(r)), 2):
+        d = np.linalg.norm(xy[:, i] - xy[:, j], axis=1)
+        assert d.min() >= r[i] + r[j] + crowd.CONTACT_M - 1e-9, (i, j, d.min())
+    d_alone = np.linalg.norm(alone[:, 0] - alone[:, 1], axis=1)
+    assert d_alone.min() < r[0] + r[1]  # the scripts alone do collide: the test can fail
+    assert walk.overlap_s == 0.0
+    # The first walker has right of way: it follows its script (to rounding).
+    np.testing.assert_allclose(xy[:, 0], alone[:, 0], rtol=0, atol=1e-12)
