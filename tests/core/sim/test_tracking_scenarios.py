@@ -30,6 +30,7 @@ def test_tracking_async_meets_spec_08(seed):
         "miss": 0.05,
         "clutter_per_frame": 0.3,
         "height_m": 1.0,
+        "people_overlap_s": 0.0,  # nobody walks through anybody
     }
     assert r.idf1 >= 0.95 and r.mota >= 0.95, r
     # At most one switch per walker per ten minutes.
