@@ -276,7 +276,7 @@ def apply_calibration_run(run_id: RunId, session: SessionDep, scene: SceneDep):
     if run.kind == "hand-eye":
         return apply_hand_eye_run(run, session)
     if run.kind == "projector":
-        return apply_projector_run(run, session)
+        return apply_projector_run(run, session, scene)
     if run.kind == "network":
         return _apply_network(run, session, scene)
     if run.camera_id is None:

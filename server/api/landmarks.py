@@ -16,7 +16,7 @@ from core.errors import InvalidInput
 from core.landmarks import detect_landmarks
 from core.landmarks.artwork import to_pdf, to_png, to_svg
 from server.api._crud import apply_changes, check_references, get_or_404, paginate
-from server.api.deps import PageDep, ReadAccess, SessionDep, SettingsDep, WriteAccess
+from server.api.deps import PageDep, ReadAccess, SceneDep, SessionDep, SettingsDep, WriteAccess
 from server.api.errors import PROBLEM_RESPONSES, FieldProblem
 from server.api.limits import check_image_size
 from server.db.models import Camera, Landmark, Space
@@ -56,12 +56,13 @@ def list_landmarks(
     status_code=status.HTTP_201_CREATED,
     dependencies=[WriteAccess],
 )
-def create_landmark(body: LandmarkCreate, session: SessionDep):
+def create_landmark(body: LandmarkCreate, session: SessionDep, scene: SceneDep):
     """Create a landmark."""
     check_references(session, {"space_id": (Space, body.space_id)})
     landmark = Landmark(**body.model_dump())
     session.add(landmark)
     session.commit()
+    scene.landmarks_changed(session)
     return landmark
 
 
@@ -72,21 +73,25 @@ def get_landmark(landmark_id: LandmarkId, session: SessionDep):
 
 
 @router.patch("/{landmark_id}", response_model=LandmarkRead, dependencies=[WriteAccess])
-def update_landmark(landmark_id: LandmarkId, body: LandmarkUpdate, session: SessionDep):
+def update_landmark(
+    landmark_id: LandmarkId, body: LandmarkUpdate, session: SessionDep, scene: SceneDep
+):
     """Change the fields given (null clears an optional one)."""
     landmark = get_or_404(session, Landmark, landmark_id, "landmark")
     changes = body.model_dump(exclude_unset=True)
     check_references(session, {"space_id": (Space, changes.get("space_id"))})
     apply_changes(landmark, changes)
     session.commit()
+    scene.landmarks_changed(session)
     return landmark
 
 
 @router.delete("/{landmark_id}", status_code=status.HTTP_204_NO_CONTENT, dependencies=[WriteAccess])
-def delete_landmark(landmark_id: LandmarkId, session: SessionDep) -> None:
+def delete_landmark(landmark_id: LandmarkId, session: SessionDep, scene: SceneDep) -> None:
     """Delete a landmark."""
     session.delete(get_or_404(session, Landmark, landmark_id, "landmark"))
     session.commit()
+    scene.landmarks_changed(session)
 
 
 def _artwork(session, landmark_id: int):

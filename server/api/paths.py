@@ -35,6 +35,7 @@ from server.schemas.paths import (
 )
 from server.services import paths as service
 from server.services.floor_plan import twin_scene_of
+from server.services.scene_sync import SceneSync
 
 log = logging.getLogger(__name__)
 
@@ -248,12 +249,18 @@ def projector_run(body: ProjectorRunCreate, session: Session, request: Request) 
         raise _refused(exc) from exc
 
 
-def apply_projector_run(run: CalibrationRun, session: Session) -> Projector:
-    """Apply a succeeded projector run: the projector's pose, with an entry in its history."""
+def apply_projector_run(
+    run: CalibrationRun, session: Session, scene: SceneSync | None = None
+) -> Projector:
+    """Apply a succeeded projector run: the projector's pose, with an entry in its history;
+    the 3D scene (when given) then draws the projector and its beam from the new pose."""
     try:
-        return service.apply_projector_run(session, run)
+        projector = service.apply_projector_run(session, run)
     except service.PathProblem as exc:
         raise _refused(exc, "path") from exc
+    if scene is not None:
+        scene.projector_changed(projector)
+    return projector
 
 
 @router.get(

@@ -12,7 +12,7 @@ from sqlalchemy.orm import Session
 
 from core.errors import InvalidInput
 from core.landmarks import NoRoute, PayloadError
-from server.api.deps import ReadAccess, SessionDep, WriteAccess
+from server.api.deps import ReadAccess, SceneDep, SessionDep, WriteAccess
 from server.api.errors import PROBLEM_RESPONSES, FieldProblem
 from server.db.models import Camera, Space
 from server.schemas.common import MAX_ID
@@ -106,7 +106,7 @@ def get_route(
 
 
 @router.post("/observations", response_model=MapUpdate, dependencies=[WriteAccess])
-def post_map_observations(body: MapObservations, session: SessionDep):
+def post_map_observations(body: MapObservations, session: SessionDep, scene: SceneDep):
     """Enter read landmarks into the space's maps: object marks into the semantic map (the
     pose in the world from T_cam_mark and the camera's pose; a mark read again fuses into its
     entry, never a second one), signposts into the navigation map (a place at the pose its
@@ -143,7 +143,7 @@ def post_map_observations(body: MapObservations, session: SessionDep):
         except InvalidInput as exc:
             raise FieldProblem(422, where, str(exc)) from None
     try:
-        return observe(session, sid, parsed)
+        update = observe(session, sid, parsed)
     except InvalidInput as exc:
         session.rollback()
         raise FieldProblem(422, "observations", str(exc)) from None
@@ -153,3 +153,5 @@ def post_map_observations(body: MapObservations, session: SessionDep):
             status.HTTP_409_CONFLICT,
             detail="another request entered the same landmark at the same time; send again",
         ) from None
+    scene.maps_changed(session)
+    return update

@@ -32,6 +32,7 @@ from server.scene._agents import (
     parse_covariance,
     parse_track,
 )
+from server.scene._arm import ArmLayer
 from server.scene._geometry import (
     Frustum,
     Pose,
@@ -41,6 +42,7 @@ from server.scene._geometry import (
     pose_from_transform,
     triangulate_polygon,
 )
+from server.scene._landmarks import LandmarkLayer
 from server.scene._navigation import ProjectorView, parse_path, parse_projector
 
 log = logging.getLogger(__name__)
@@ -152,7 +154,7 @@ def _parse_rooms(rooms: Sequence[Mapping[str, Any]]) -> list[RoomView]:
     return out
 
 
-class SceneService:
+class SceneService(ArmLayer, LandmarkLayer):
     """A viser server drawing the space; every public method is thread-safe and non-blocking.
 
     State given before `start()` is kept and drawn when the server starts. Updates are applied
@@ -208,6 +210,8 @@ class SceneService:
         self._drawn_tracks: dict[str, np.ndarray] = {}
         self._drawn_path = np.zeros((0, 2))
         self._drawn_projector: ProjectorView | None = None
+        self._init_arms()
+        self._init_landmarks()
         self._shown_images: dict[int, np.ndarray] = {}  # RGB, downscaled, as on the frusta
         self._camera_picker: Any = None  # the GUI dropdown, once started
         self.share_requests_refused = 0  # viewers' share-URL requests refused so far
@@ -240,6 +244,8 @@ class SceneService:
                 self._dirty_tracks = set(self._tracks)
                 self._dirty_images = set(self._images)
                 self._dirty_navigation = True
+                self._restart_arms()
+                self._restart_landmarks()
                 self._drawn_cameras = {}
                 self._drawn_agents = {}
                 self._drawn_tracks = {}
@@ -481,6 +487,8 @@ class SceneService:
             or self._dirty_tracks
             or self._dirty_images
             or self._dirty_navigation
+            or self._arms_dirty()
+            or self._landmarks_dirty()
         )
 
     # -- what is drawn -----------------------------------------------------------------------
@@ -591,11 +599,15 @@ class SceneService:
                 self._dirty_agents, self._dirty_tracks, self._dirty_images = set(), set(), set()
                 navigation = (self._path, self._projector) if self._dirty_navigation else None
                 self._dirty_navigation = False
+                arms = self._take_arms()
+                landmark_layers = self._take_landmarks()
                 self._busy = True
             try:
                 self._draw_images(images)  # before the cameras, which may be redrawn with them
                 self._draw(dirty, floor_dirty, cameras, rooms)
                 self._draw_agents(moved)
+                self._draw_arms(*arms)
+                self._draw_landmark_layers(*landmark_layers)
                 self._draw_tracks(tracks)
                 if navigation is not None:
                     self._draw_navigation(*navigation)

@@ -1,0 +1,300 @@
+"""Arms on the robots in the live scene: each link frame of the Denavit-Hartenberg chain at
+the arm's joint values, the links between them and the gripper.
+
+An arm is drawn inside its robot's agent frame (`/agents/<agent>/arm-<id>`), so it rides
+along when the robot moves; the frames come from core.manipulation's forward kinematics
+(`DHArm.frames`), never recomputed here. A joint update moves the eight frames and redraws
+the link poly-line: a few small messages, fine at the ~10 Hz a task reports.
+
+`ArmLayer` is the part of SceneService that holds and draws arms; it uses the service's lock
+(`_cond`) and viser server (`_server`).
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Mapping
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from core.errors import IntspaceError, InvalidInput
+from core.manipulation import DHArm
+from server.scene._agents import agent_id
+from server.scene._geometry import Pose, pose_from_transform
+
+Array = NDArray[np.float64]
+
+_COLOR_LINK = (71, 85, 105)
+_COLOR_GRIPPER = (30, 41, 59)
+# Frames drawn: the arm's base (0), the six links' (1-6, 6 = flange), the end effector (7).
+FRAME_NAMES = ("base", "link1", "link2", "link3", "link4", "link5", "flange", "ee")
+# Finger length when the tool puts the end effector at the flange (no length to draw from).
+_MIN_FINGER = 0.04
+
+
+@dataclass(frozen=True)
+class ArmSpec:
+    """An arm as asked for: its id (scene key), the agent it is mounted on, name, kinematic
+    model, mount T_agent_arm (4, 4) and joint values q (6,) rad."""
+
+    id: str
+    agent: str
+    name: str
+    model: DHArm
+    T_agent_arm: Array
+    q: Array
+
+    def frames(self) -> Array:
+        """Return the drawn frames T_arm_i (8, 4, 4): arm base, links 1-6, end effector."""
+        return self.model.frames(self.q)
+
+
+@dataclass(frozen=True)
+class ArmView:
+    """How one arm is drawn: its node (child of its agent's), the mount pose and the eight
+    frames' poses (relative to the mount: `frames[i]` = T_arm_i of FK at `q`)."""
+
+    id: str
+    agent: str
+    name: str
+    node: str
+    q: tuple[float, ...]
+    mount: Pose
+    frames: tuple[Pose, ...]
+
+
+def _matrix(value: Any, shape: tuple[int, ...], name: str) -> Array:
+    try:
+        a = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise InvalidInput(f"an arm's {name} must be numeric: {exc}") from None
+    if a.shape != shape or not np.all(np.isfinite(a)):
+        raise InvalidInput(f"an arm's {name} must be finite of shape {shape}, got {a.shape}")
+    return a
+
+
+def parse_arm(arm: Mapping[str, Any]) -> ArmSpec:
+    """Return the checked arm {"id", "agent", "name", "dh": {"a", "d", "alpha", "offset"?},
+    "limits", "tool", "home", "T_robot_arm", "q"? (default: home)}; raise InvalidInput naming
+    what is wrong (an unknown field shape, a pose that is not rigid, q outside the limits)."""
+    if not isinstance(arm, Mapping):
+        raise InvalidInput(f"an arm must be a mapping, got {type(arm).__name__}")
+    ident = agent_id(arm.get("id"))
+    agent = agent_id(arm.get("agent"))
+    dh = arm.get("dh")
+    if not isinstance(dh, Mapping):
+        raise InvalidInput(f"arm {ident!r}: 'dh' must be a mapping of a, d, alpha, offset")
+    try:
+        model = DHArm(
+            name=str(arm.get("name") or f"arm {ident}"),
+            a=_matrix(dh.get("a"), (6,), "dh.a"),
+            d=_matrix(dh.get("d"), (6,), "dh.d"),
+            alpha=_matrix(dh.get("alpha"), (6,), "dh.alpha"),
+            offset=_matrix(dh.get("offset", [0.0] * 6), (6,), "dh.offset"),
+            limits=_matrix(arm.get("limits"), (6, 2), "limits"),
+            tool=_matrix(arm.get("tool"), (4, 4), "tool"),
+            home=_matrix(arm.get("home"), (6,), "home"),
+        )
+    except IntspaceError as exc:
+        raise InvalidInput(f"arm {ident!r}: {exc}") from None
+    mount = _matrix(arm.get("T_robot_arm"), (4, 4), "T_robot_arm")
+    pose_from_transform(mount, f"arm {ident!r} T_robot_arm")  # rigid, or InvalidInput
+    q = model.home if arm.get("q") is None else check_joints(model, arm["q"], ident)
+    return ArmSpec(ident, agent, model.name, model, mount, q)
+
+
+def check_joints(model: DHArm, q: Any, ident: str) -> Array:
+    """Return joint values q as a (6,) array; raise InvalidInput unless they are finite and
+    within the arm's limits (1e-9 rad of slack for values that went through JSON)."""
+    a = _matrix(q, (6,), "q")
+    if not bool(model.within_limits(a, tol=1e-9)):
+        raise InvalidInput(
+            f"arm {ident!r}: joint values {np.round(a, 4).tolist()} are outside its limits "
+            f"{np.round(model.limits, 4).tolist()}"
+        )
+    return a
+
+
+class ArmLayer:
+    """The arms of SceneService: thread-safe state changes, drawing on the scene's worker."""
+
+    _cond: threading.Condition
+    _server: Any
+    _drawn_agents: dict[str, Any]
+
+    def _init_arms(self) -> None:
+        self._arm_specs: dict[str, ArmSpec] = {}
+        # Arm ids to draw, and "agent/id" keys of arms to take off an agent.
+        self._dirty_arms: set[str] = set()
+        self._drawn_arms: dict[str, ArmView] = {}
+        self._drawn_arm_specs: dict[str, ArmSpec] = {}  # worker thread only
+
+    def _restart_arms(self) -> None:
+        """Under _cond, when the server (re)starts: everything is to be drawn again."""
+        self._dirty_arms = set(self._arm_specs)
+        self._drawn_arms = {}
+        self._drawn_arm_specs = {}
+
+    def _arms_dirty(self) -> bool:
+        return bool(self._dirty_arms)
+
+    def _take_arms(self) -> tuple[set[str], dict[str, ArmSpec]]:
+        """Under _cond: the arms changed since the last call, and every arm's spec."""
+        dirty, self._dirty_arms = self._dirty_arms, set()
+        return dirty, dict(self._arm_specs)
+
+    # -- state changes (any thread) ----------------------------------------------------------
+
+    def set_arm(self, arm: Mapping[str, Any]) -> None:
+        """Add or redraw an arm on a robot: {"id", "agent" (the robot's agent id), "name",
+        "dh", "limits", "tool", "home", "T_robot_arm", "q"} with the fields of an arm of the
+        registry (metres, radians; q defaults to home). Its links, frames and gripper are
+        drawn inside the agent's frame once the agent is drawn. Raises InvalidInput (nothing
+        changes) for a malformed model, a mount that is not rigid, or q outside the limits."""
+        spec = parse_arm(arm)
+        with self._cond:
+            old = self._arm_specs.get(spec.id)
+            if old is not None and old.agent != spec.agent:
+                self._dirty_arms.add(f"{old.agent}/{spec.id}")  # off the old robot
+            self._arm_specs[spec.id] = spec
+            self._dirty_arms.add(spec.id)
+            self._cond.notify_all()
+
+    def set_arm_joints(self, id: str, q: Any) -> None:
+        """Move an arm's joints to q (6,) rad. Raises InvalidInput for an arm not in the scene
+        or joint values outside its limits."""
+        ident = agent_id(id)
+        with self._cond:
+            spec = self._arm_specs.get(ident)
+        if spec is None:
+            raise InvalidInput(f"no arm {ident!r} in the scene; add it with set_arm first")
+        joints = check_joints(spec.model, q, ident)
+        with self._cond:
+            current = self._arm_specs.get(ident)
+            if current is not None:
+                self._arm_specs[ident] = replace(current, q=joints)
+                self._dirty_arms.add(ident)
+                self._cond.notify_all()
+
+    def remove_arm(self, id: str) -> None:
+        """Remove an arm from the scene (nothing happens if it is not there)."""
+        ident = agent_id(id)
+        with self._cond:
+            spec = self._arm_specs.pop(ident, None)
+            if spec is not None:
+                self._dirty_arms.add(f"{spec.agent}/{ident}")
+                self._cond.notify_all()
+
+    def arms(self) -> dict[str, ArmView]:
+        """Return the arms as currently drawn, by id (an arm whose robot is not drawn yet is
+        not: it appears with its robot)."""
+        with self._cond:
+            return dict(self._drawn_arms)
+
+    # -- drawing (worker thread) -------------------------------------------------------------
+
+    def _draw_arms(self, dirty: set[str], specs: dict[str, ArmSpec]) -> None:
+        """Draw the arms changed, and those whose robot was drawn again (redrawing an agent
+        removes its children); an arm whose robot is not drawn waits for it."""
+        server = self._server
+        if server is None:
+            return
+        with self._cond:
+            drawn = dict(self._drawn_arms)
+            agents = set(self._drawn_agents)
+        with server.atomic():
+            for key in sorted(k for k in dirty if "/" in k):
+                agent, ident = key.split("/", 1)
+                if ident not in specs or specs[ident].agent != agent:
+                    server.scene.remove_by_name(f"/agents/{agent}/arm-{ident}")
+                    if ident in drawn and drawn[ident].agent == agent:
+                        drawn.pop(ident)
+                        self._drawn_arm_specs.pop(ident, None)
+            for ident, spec in sorted(specs.items()):
+                node = f"/agents/{spec.agent}/arm-{ident}"
+                if spec.agent not in agents:
+                    drawn.pop(ident, None)
+                    self._drawn_arm_specs.pop(ident, None)
+                    continue
+                root = server.scene.get_handle_by_name(node)
+                if root is not None and ident not in dirty:
+                    continue
+                old = self._drawn_arm_specs.get(ident)
+                joints_only = (
+                    root is not None
+                    and old is not None
+                    and old.model is spec.model
+                    and old.T_agent_arm is spec.T_agent_arm
+                )
+                drawn[ident] = self._draw_arm(server, spec, node, joints_only=joints_only)
+                self._drawn_arm_specs[ident] = spec
+        with self._cond:
+            self._drawn_arms = drawn
+
+    def _draw_arm(self, server: Any, spec: ArmSpec, node: str, *, joints_only: bool) -> ArmView:
+        frames = spec.frames()
+        poses = tuple(pose_from_transform(T, f"arm {spec.id} frame") for T in frames)
+        mount = pose_from_transform(spec.T_agent_arm, f"arm {spec.id} T_robot_arm")
+        names = [f"{node}/{name}" for name in FRAME_NAMES]
+        if joints_only:
+            for name, pose in zip(names, poses, strict=True):
+                handle = server.scene.get_handle_by_name(name)
+                handle.position = pose.position
+                handle.wxyz = pose.wxyz
+        else:
+            server.scene.remove_by_name(node)
+            server.scene.add_frame(node, wxyz=mount.wxyz, position=mount.position, show_axes=False)
+            for i, (name, pose) in enumerate(zip(names, poses, strict=True)):
+                server.scene.add_frame(
+                    name,
+                    wxyz=pose.wxyz,
+                    position=pose.position,
+                    show_axes=i in (0, len(names) - 1),  # the mount and the end effector
+                    axes_length=0.08,
+                    axes_radius=0.006,
+                )
+            self._draw_gripper(server, spec, names[-1])
+            server.scene.add_label(
+                f"{node}/label", spec.name, position=(0.0, 0.0, -0.05), font_screen_scale=0.7
+            )
+        # The links: straight segments between consecutive frame origins, drawn thick.
+        origins = frames[:, :3, 3]
+        server.scene.add_line_segments(
+            f"{node}/links",
+            points=np.stack([origins[:-1], origins[1:]], axis=1),
+            colors=_COLOR_LINK,
+            thickness=7.0,
+            thickness_units="screen",
+        )
+        return ArmView(
+            id=spec.id,
+            agent=spec.agent,
+            name=spec.name,
+            node=node,
+            q=tuple(float(v) for v in spec.q),
+            mount=mount,
+            frames=poses,
+        )
+
+    @staticmethod
+    def _draw_gripper(server: Any, spec: ArmSpec, ee_node: str) -> None:
+        """Two fingers from the flange to the end effector (the fingertips' centre) and the
+        palm across them at the flange, in the end effector's frame."""
+        length = max(float(np.linalg.norm(spec.model.tool[:3, 3])), _MIN_FINGER)
+        gap = 0.06
+        for side, y in (("left", gap / 2), ("right", -gap / 2)):
+            server.scene.add_box(
+                f"{ee_node}/finger_{side}",
+                color=_COLOR_GRIPPER,
+                dimensions=(0.015, 0.01, length),
+                position=(0.0, y, -length / 2),
+            )
+        server.scene.add_box(
+            f"{ee_node}/palm",
+            color=_COLOR_GRIPPER,
+            dimensions=(0.03, gap + 0.01, 0.015),
+            position=(0.0, 0.0, -length),
+        )

@@ -1,0 +1,121 @@
+"""The arm on the robot in the live scene: its link frames are core.manipulation's forward
+kinematics at the joint values given, inside the robot's agent frame; against a real viser
+server on a free loopback port."""
+
+from __future__ import annotations
+
+import socket
+
+import numpy as np
+import pytest
+
+from core.errors import InvalidInput
+from core.manipulation import default_arm
+from server.scene import SceneService
+from server.scene._arm import FRAME_NAMES
+from server.scene._geometry import matrix_from_quaternion
+from server.schemas.manipulation import TWIN_ARM
+
+# Poses go through float64 end to end (matrix -> quaternion -> matrix keeps ~1e-15); 1e-9
+# still catches a float32 step, a wrong frame order or a missing DH offset.
+POSE_TOL = 1e-9
+MOUNT = [[1.0, 0.0, 0.0, 0.05], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.80], [0, 0, 0, 1.0]]
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture
+def scene():
+    service = SceneService("127.0.0.1", free_port())
+    service.start()
+    yield service
+    service.stop()
+
+
+def _arm(q=None, **extra):
+    return {"id": "7", "agent": "robot", "name": "puma", **TWIN_ARM, "T_robot_arm": MOUNT,
+            "q": q, **extra}  # fmt: skip
+
+
+def _pose(handle) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3] = matrix_from_quaternion(handle.wxyz)
+    T[:3, 3] = handle.position
+    return T
+
+
+def _assert_frames_are_fk(scene, q) -> None:
+    find = scene.server.scene.get_handle_by_name
+    node = "/agents/robot/arm-7"
+    np.testing.assert_allclose(_pose(find(node)), MOUNT, atol=POSE_TOL)
+    # The reference: the twin's arm (the same DH numbers TWIN_ARM carries) from core.
+    expected = default_arm().frames(q)
+    for i, name in enumerate(FRAME_NAMES):
+        np.testing.assert_allclose(_pose(find(f"{node}/{name}")), expected[i], atol=POSE_TOL)
+    np.testing.assert_allclose(_pose(find(f"{node}/ee")), default_arm().fk(q), atol=POSE_TOL)
+    # The links join consecutive frame origins (float32 in viser).
+    links = find(f"{node}/links").points
+    np.testing.assert_allclose(links[:, 0], expected[:-1, :3, 3], atol=1e-6)
+    np.testing.assert_allclose(links[:, 1], expected[1:, :3, 3], atol=1e-6)
+    view = scene.arms()["7"]
+    np.testing.assert_allclose(view.q, q, atol=0.0)
+
+
+def test_arm_frames_are_forward_kinematics_on_the_robot_and_follow_joint_updates(scene):
+    scene.upsert_agent({"id": "robot", "kind": "robot", "x": 2.0, "y": 1.0, "theta": 0.4})
+    scene.set_arm(_arm())  # no q: the home pose
+    assert scene.flush()
+    home = np.asarray(TWIN_ARM["home"])
+    _assert_frames_are_fk(scene, home)
+    find = scene.server.scene.get_handle_by_name
+    assert find("/agents/robot/arm-7/ee/finger_left") is not None  # the gripper
+
+    # A joint update (as a fetch task reports them) moves the frames to FK at the new q.
+    rng = np.random.default_rng(3)
+    lim = default_arm().limits
+    for _ in range(3):
+        q = rng.uniform(lim[:, 0], lim[:, 1])
+        scene.set_arm_joints("7", q)
+        assert scene.flush()
+        _assert_frames_are_fk(scene, q)
+
+    # The robot drives on: the arm rides in its frame, untouched.
+    scene.upsert_agent({"id": "robot", "kind": "robot", "x": 3.0, "y": 1.5, "theta": -1.0})
+    assert scene.flush()
+    _assert_frames_are_fk(scene, q)
+    # The robot redrawn (a new size) drops its children; the arm is drawn again on it.
+    scene.upsert_agent({"id": "robot", "kind": "robot", "x": 3.0, "y": 1.5, "radius": 0.25})
+    assert scene.flush()
+    _assert_frames_are_fk(scene, q)
+
+    scene.remove_arm("7")
+    assert scene.flush()
+    assert find("/agents/robot/arm-7") is None and scene.arms() == {}
+
+
+def test_arm_waits_for_its_robot_and_bad_arms_are_refused(scene):
+    scene.set_arm(_arm())
+    assert scene.flush()
+    assert scene.arms() == {}  # no robot agent drawn yet
+    scene.upsert_agent({"id": "robot", "kind": "robot", "x": 0.0, "y": 0.0})
+    assert scene.flush()
+    _assert_frames_are_fk(scene, np.asarray(TWIN_ARM["home"]))
+
+    lim = default_arm().limits
+    outside = lim[:, 1] + 0.1
+    with pytest.raises(InvalidInput, match="outside its limits"):
+        scene.set_arm_joints("7", outside)
+    with pytest.raises(InvalidInput, match="no arm"):
+        scene.set_arm_joints("8", TWIN_ARM["home"])
+    skew = np.array(MOUNT)
+    skew[0, 1] = 0.3
+    with pytest.raises(InvalidInput, match="T_robot_arm"):
+        scene.set_arm(_arm(T_robot_arm=skew.tolist()))
+    with pytest.raises(InvalidInput, match=r"dh\.a"):
+        scene.set_arm(_arm(dh={"a": [0.1] * 5, "d": [0] * 6, "alpha": [0] * 6}))
+    assert scene.flush()
+    _assert_frames_are_fk(scene, np.asarray(TWIN_ARM["home"]))  # nothing changed
