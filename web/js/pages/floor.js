@@ -2,13 +2,13 @@
 // the robot and people (2-sigma covariance ellipses, tracks) and the digital twin's controls.
 
 import { api, list } from "../api.js";
-import { centroid } from "../plot.js";
+import { drawRooms, eventToWorld, planTransform } from "../floorplan.js";
 import { fmt, h, infoBox, mount, panel, s, toastError } from "../ui.js";
 
 const POLL_MS = 500; // GET /targets when the WebSocket stream is unavailable
 const TWIN_MS = 1000;
 const TRACK_POINTS = 400; // newest points kept per target in the page
-const W = 900; // SVG user units across; the height follows the plan's aspect
+const W = 900; // SVG user units across; the height follows the plan's aspect, at least 360
 const MIN_ELLIPSE_PX = 16; // ellipses smaller than this are scaled up (and the scale noted)
 const SCALES = [1, 2, 5, 10, 20, 50, 100, 200, 500, 1000];
 // Viridis (matplotlib), dark to bright; the accuracy map runs bright (precise) to dark.
@@ -58,30 +58,6 @@ function trackPoints(body) {
 
 function targetsOf(body) {
   return Array.isArray(body) ? body : body?.items || body?.targets || [];
-}
-
-/** The world -> SVG mapping of the plan: world X right, Y up; SVG y down. */
-function planTransform(points) {
-  const xs = points.map((p) => p[0]);
-  const ys = points.map((p) => p[1]);
-  const x0 = Math.min(...xs) - 0.3;
-  const x1 = Math.max(...xs) + 0.3;
-  const y0 = Math.min(...ys) - 0.3;
-  const y1 = Math.max(...ys) + 0.3;
-  const pad = 16;
-  const height = Math.round(Math.min(Math.max(((y1 - y0) / (x1 - x0)) * W, 360), 760));
-  const scale = Math.min((W - 2 * pad) / (x1 - x0), (height - 2 * pad) / (y1 - y0));
-  const ox = (W - scale * (x1 - x0)) / 2;
-  const oy = (height - scale * (y1 - y0)) / 2;
-  return {
-    W,
-    H: height,
-    scale,
-    X: (x) => ox + (x - x0) * scale,
-    Y: (y) => height - oy - (y - y0) * scale,
-    toWorld: (u, v) => [x0 + (u - ox) / scale, y0 + (height - oy - v) / scale],
-    json: { x0, y0, ox, oy, scale, height },
-  };
 }
 
 /** Paint the coverage grid as an image: one pixel per cell, row 0 at the largest y. */
@@ -193,7 +169,7 @@ export async function renderFloor(main) {
   if (cov) extent.push([cov.x[0], cov.y[0]], [cov.x.at(-1), cov.y.at(-1)]);
   for (const t of targetsOf(targets0.value)) if (t.xy) extent.push(t.xy);
   if (!extent.length) extent.push([0, 0], [5, 4]);
-  const tf = planTransform(extent);
+  const tf = planTransform(extent, { width: W, minHeight: 360 });
   const { X, Y } = tf;
 
   // -- the drawing ---------------------------------------------------------------------------
@@ -215,20 +191,7 @@ export async function renderFloor(main) {
   const gTargets = s("g");
   svg.append(gHeat, gRooms, gCams, gHistory, gTracks, gTruth, gEllipses, gTargets);
 
-  for (const room of rooms.items) {
-    const poly = room.polygon || [];
-    if (poly.length < 3) continue;
-    gRooms.append(
-      s("polygon", {
-        class: "room",
-        points: poly.map((p) => `${X(p[0])},${Y(p[1])}`).join(" "),
-      }),
-    );
-    const [cx, cy] = centroid(poly);
-    gRooms.append(
-      s("text", { class: "room-label", x: X(cx), y: Y(cy), "text-anchor": "middle" }, room.name),
-    );
-  }
+  drawRooms(gRooms, rooms.items, tf);
   for (const c of cams) {
     const T = c.T_world_camera;
     const [px, py] = [X(T[0][3]), Y(T[1][3])];
@@ -338,10 +301,9 @@ export async function renderFloor(main) {
       ` ${fmt(100 * f2, 0)} % by two or more cameras.`;
     drawHeat();
     svg.addEventListener("mousemove", (ev) => {
-      const m = svg.getScreenCTM();
-      if (!m) return;
-      const p = new DOMPoint(ev.clientX, ev.clientY).matrixTransform(m.inverse());
-      const [wx, wy] = tf.toWorld(p.x, p.y);
+      const w = eventToWorld(svg, tf, ev);
+      if (!w) return;
+      const [wx, wy] = w;
       const dx = cov.x[1] - cov.x[0] || 0.1;
       const dy = cov.y[1] - cov.y[0] || 0.1;
       const ix = Math.round((wx - cov.x[0]) / dx);

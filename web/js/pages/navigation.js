@@ -4,11 +4,12 @@
 // plan and the tracking error over time (uPlot), from the series GET /paths/{id} returns.
 
 import { api, list } from "../api.js";
-import { centroid } from "../plot.js";
-import { fmt, h, infoBox, mount, panel, s, statusBadge, toastError } from "../ui.js";
+import { drawRooms, eventToWorld, planTransform, pointsAttr } from "../floorplan.js";
+import { fmt, h, infoBox, mount, panel, s, statusBadge, toast, toastError } from "../ui.js";
 
-const W = 900; // SVG user units across; the height follows the plan's aspect
-const POLL_MS = 500; // GET /paths/{id} while its follow task runs
+const W = 900; // SVG user units across; the height follows the plan's aspect, at least 320
+const POLL_MS = 500; // GET /paths/{id} while its follow task runs; GET a calibration run
+const TERMINAL = new Set(["succeeded", "failed", "interrupted"]);
 const LAWS = [
   ["state_feedback", "State-error feedback"],
   ["adaptive", "Adaptive compensation"],
@@ -39,32 +40,6 @@ function loadUplot() {
   return uplotLoading;
 }
 
-/** The world -> SVG mapping of the plan: world X right, Y up; SVG y down. */
-function planTransform(points) {
-  const xs = points.map((p) => p[0]);
-  const ys = points.map((p) => p[1]);
-  const x0 = Math.min(...xs) - 0.3;
-  const x1 = Math.max(...xs) + 0.3;
-  const y0 = Math.min(...ys) - 0.3;
-  const y1 = Math.max(...ys) + 0.3;
-  const pad = 16;
-  const height = Math.round(Math.min(Math.max(((y1 - y0) / (x1 - x0)) * W, 320), 760));
-  const scale = Math.min((W - 2 * pad) / (x1 - x0), (height - 2 * pad) / (y1 - y0));
-  const ox = (W - scale * (x1 - x0)) / 2;
-  const oy = (height - scale * (y1 - y0)) / 2;
-  return {
-    W,
-    H: height,
-    scale,
-    X: (x) => ox + (x - x0) * scale,
-    Y: (y) => height - oy - (y - y0) * scale,
-    toWorld: (u, v) => [x0 + (u - ox) / scale, y0 + (height - oy - v) / scale],
-    json: { x0, y0, ox, oy, scale, height },
-  };
-}
-
-const pointsAttr = (pts, X, Y) => pts.map((p) => `${X(p[0]).toFixed(1)},${Y(p[1]).toFixed(1)}`).join(" ");
-
 function metricsTable(result) {
   const row = (label, value, testid) =>
     h("tr", null, h("th", null, label), h("td", { class: "mono", testid }, value));
@@ -81,6 +56,41 @@ function metricsTable(result) {
       row("Finished drawing at", result.finish_s === null ? "never" : `${fmt(result.finish_s, 1)} s`),
       row("Spot lost", String(result.lost_events)),
       row("Drawing error (max)", mm(result.drawing_error_max_m)),
+    ),
+  );
+}
+
+/** What a finished projector calibration run found: its fit, and (the twin's own check) its
+ * errors against the twin's true mount. */
+function calibrationFacts(result) {
+  const row = (label, value, testid) =>
+    h("tr", null, h("th", null, label), h("td", { class: "mono", testid }, value));
+  const e = result.twin_errors;
+  return h(
+    "table",
+    { class: "nav-metrics", testid: "calib-result" },
+    h(
+      "tbody",
+      null,
+      row("Spots", String(result.spots), "calib-spots"),
+      row("RMS floor error", `${fmt(result.rms_m * 1000, 1)} mm`, "calib-rms"),
+      row("Tilt offset", `${fmt((result.tilt_offset_rad * 180) / Math.PI, 3)}°`),
+      row(
+        "Mount position",
+        result.T_world_projector.slice(0, 3).map((r) => fmt(r[3], 3)).join(", ") + " m",
+        "calib-position",
+      ),
+      row(
+        "Uncertainty (one std)",
+        `${fmt(result.position_std_m * 1000, 1)} mm, ${fmt(result.rotation_std_deg, 3)}°`,
+      ),
+      e
+        ? row(
+            "Against the twin",
+            `${fmt(e.position_m * 1000, 1)} mm, ${fmt(e.rotation_deg, 3)}°`,
+            "calib-twin-errors",
+          )
+        : null,
     ),
   );
 }
@@ -108,6 +118,15 @@ export async function renderNavigation(main) {
     spaces.items.map((sp) => h("option", { value: sp.id }, sp.name)),
   );
   const projectorSelect = h("select", { testid: "nav-projector", "aria-label": "Projector" });
+  const calProjector = h("select", { testid: "calib-projector", "aria-label": "Projector to calibrate" });
+  const calImages = h("input", { type: "checkbox", testid: "calib-images", checked: true });
+  const calButton = h(
+    "button",
+    { class: "btn", type: "button", testid: "calib-start", disabled: true },
+    "Calibrate projector",
+  );
+  const calBox = h("div", { testid: "calib-box", "aria-live": "polite" });
+  let calTimer = null;
   const lawSelect = h(
     "select",
     { testid: "nav-law", "aria-label": "Control law" },
@@ -233,7 +252,7 @@ export async function renderNavigation(main) {
 
   const drawPlan = () => {
     const extent = plan.rooms.flatMap((r) => r.polygon);
-    tf = planTransform(extent.length ? extent : [[0, 0], [5, 4]]);
+    tf = planTransform(extent.length ? extent : [[0, 0], [5, 4]], { width: W, minHeight: 320 });
     const { X, Y } = tf;
     const svg = s("svg", {
       class: "plot floormap nav-plan",
@@ -249,13 +268,7 @@ export async function renderNavigation(main) {
     gRun = s("g");
     gMarks = s("g");
     svg.append(gRooms, gObstacles, gPath, gRun, gMarks);
-    for (const room of plan.rooms) {
-      gRooms.append(s("polygon", { class: "room", points: pointsAttr(room.polygon, X, Y) }));
-      const [cx, cy] = centroid(room.polygon);
-      gRooms.append(
-        s("text", { class: "room-label", x: X(cx), y: Y(cy), "text-anchor": "middle" }, room.name),
-      );
-    }
+    drawRooms(gRooms, plan.rooms, tf);
     for (const w of plan.walls) {
       gObstacles.append(
         s("line", {
@@ -274,10 +287,8 @@ export async function renderNavigation(main) {
       );
     }
     svg.addEventListener("click", (ev) => {
-      const m = svg.getScreenCTM();
-      if (!m) return;
-      const p = new DOMPoint(ev.clientX, ev.clientY).matrixTransform(m.inverse());
-      const w = tf.toWorld(p.x, p.y);
+      const w = eventToWorld(svg, tf, ev);
+      if (!w) return;
       if (!start || goal) {
         start = w;
         goal = null;
@@ -439,7 +450,20 @@ export async function renderNavigation(main) {
     ]);
     plan = drawing;
     planBadge.textContent = `Floor plan: ${plan.floor_plan}`;
-    projectors = pj.items;
+    fillProjectors(pj.items);
+    const usable = projectors.find((p) => p.T_world_projector);
+    if (usable) projectorSelect.value = String(usable.id);
+    if (projectors.length) calProjector.value = String((usable || projectors[0]).id);
+    mount(calBox);
+    hint.textContent = "Click the start on the plan.";
+    drawPlan();
+  };
+
+  // The space's projectors: those with a mount pose plan paths; any of them can be calibrated.
+  function fillProjectors(items) {
+    projectors = items;
+    const planning = projectorSelect.value;
+    const calibrating = calProjector.value;
     projectorSelect.replaceChildren(
       h("option", { value: "" }, "No projector"),
       ...projectors.map((p) =>
@@ -450,11 +474,103 @@ export async function renderNavigation(main) {
         ),
       ),
     );
-    const usable = projectors.find((p) => p.T_world_projector);
-    if (usable) projectorSelect.value = String(usable.id);
-    hint.textContent = "Click the start on the plan.";
-    drawPlan();
+    calProjector.replaceChildren(
+      ...projectors.map((p) =>
+        h("option", { value: p.id }, p.T_world_projector ? p.name : `${p.name} (uncalibrated)`),
+      ),
+    );
+    if (projectors.some((p) => String(p.id) === planning && p.T_world_projector))
+      projectorSelect.value = planning;
+    if (projectors.some((p) => String(p.id) === calibrating)) calProjector.value = calibrating;
+    calButton.disabled = !projectors.length;
+  }
+
+  // Projector calibration on the twin: a run of kind "projector" (POST /calibration-runs),
+  // polled until it ends; a succeeded run can be applied here (POST .../apply), which gives
+  // the projector its new mount for the paths planned next and in the 3D scene.
+  const showRun = (run) => {
+    const p = run.progress;
+    const pct = p ? Math.round(100 * p.fraction) : 0;
+    const applyButton =
+      run.status === "succeeded" && run.result
+        ? h(
+            "button",
+            {
+              class: "btn primary",
+              type: "button",
+              testid: "calib-apply",
+              onClick: async (ev) => {
+                const btn = ev.currentTarget;
+                btn.disabled = true;
+                try {
+                  const applied = await api(`/calibration-runs/${run.id}/apply`, { method: "POST" });
+                  btn.textContent = "Applied";
+                  toast(`Calibration applied to projector ${applied.name}`);
+                  const pj = await list(`/projectors?space_id=${spaceId}`, { limit: 200 });
+                  if (!alive) return;
+                  fillProjectors(pj.items);
+                  if (!projectorSelect.value) projectorSelect.value = String(applied.id);
+                  calBox.dataset.applied = String(run.id);
+                } catch (err) {
+                  btn.disabled = false;
+                  toastError(err);
+                }
+              },
+            },
+            `Apply to ${projectors.find((p) => p.id === run.result.projector_id)?.name ?? `projector #${run.result.projector_id}`}`,
+          )
+        : null;
+    mount(
+      calBox,
+      h(
+        "p",
+        null,
+        "Run ",
+        h("a", { href: `#/calibration/runs/${run.id}`, class: "mono", testid: "calib-run" }, `#${run.id}`),
+        ": ",
+        statusBadge(run.status, "calib-status"),
+        run.status === "running" && p
+          ? h("span", { class: "small muted", testid: "calib-progress" }, ` ${p.stage}: ${pct} %`)
+          : null,
+      ),
+      run.error ? h("p", { class: "small badge bad", testid: "calib-error" }, run.error) : null,
+      run.status === "succeeded" && run.result ? calibrationFacts(run.result) : null,
+      applyButton ? h("div", { class: "form-actions" }, applyButton) : null,
+    );
   };
+
+  const pollRun = async (id) => {
+    try {
+      const run = await api(`/calibration-runs/${id}`);
+      if (!alive) return;
+      showRun(run);
+      if (!TERMINAL.has(run.status)) calTimer = setTimeout(() => pollRun(id), POLL_MS);
+      else calButton.disabled = false;
+    } catch (err) {
+      if (!alive) return;
+      toastError(err);
+      // Keep trying while the service is unreachable; a 4xx will not change.
+      if (!(err.status >= 400 && err.status < 500)) calTimer = setTimeout(() => pollRun(id), POLL_MS * 4);
+      else calButton.disabled = false;
+    }
+  };
+
+  calButton.addEventListener("click", async () => {
+    if (!calProjector.value) return;
+    calButton.disabled = true;
+    if (calTimer) clearTimeout(calTimer);
+    try {
+      const run = await api("/calibration-runs", {
+        method: "POST",
+        json: { kind: "projector", projector_id: Number(calProjector.value), images: calImages.checked },
+      });
+      showRun(run);
+      calTimer = setTimeout(() => pollRun(run.id), POLL_MS);
+    } catch (err) {
+      calButton.disabled = false;
+      mount(calBox, h("p", { class: "small badge bad", testid: "calib-error" }, err.detail || err.message));
+    }
+  });
   spaceSelect.addEventListener("change", () => {
     spaceId = Number(spaceSelect.value);
     loadSpace().catch(toastError);
@@ -479,6 +595,20 @@ export async function renderNavigation(main) {
       summary,
     ),
     panel(
+      "Projector calibration",
+      "The twin's projector points its beam at spots over the floor; the space's calibrated " +
+        "ceiling cameras locate each spot and the projector's mount is fitted to them. Apply " +
+        "the result to plan with the new mount.",
+      h(
+        "div",
+        { class: "nav-toolbar" },
+        h("label", null, "Projector ", calProjector),
+        h("label", null, calImages, " Detect the spots in rendered images (about 10 s)"),
+        calButton,
+      ),
+      calBox,
+    ),
+    panel(
       "Follow",
       "The twin's robot follows the projected spot with its floor camera (15 Hz, 100 ms " +
         "latency); the error is the distance from its control point to the spot. While it " +
@@ -491,6 +621,7 @@ export async function renderNavigation(main) {
   return () => {
     alive = false;
     stopPolling();
+    if (calTimer) clearTimeout(calTimer);
     if (chart) chart.destroy();
   };
 }
