@@ -1,16 +1,13 @@
 """Targets in camera images: the robot's coloured top marker and people (02 §2).
 
 Robot marker. The image is segmented in HSV (hue within `hue_tolerance` of the marker's hue,
-saturation and value above their floors) and the connected blobs are tried from the largest to
-the smallest: the first whose area, position, fill (no hole), solidity and elliptic outline are
-those of a disc's image is the marker, so a larger red thing (a signpost's rings on a wall, a
-ring being no disc) cannot hide it. Its centre is the centroid of a *soft* membership weight
-over a window around the blob: each pixel's colour is projected on the axis from the local
-background colour (median of a ring around the blob) to the marker colour (median of the blob's
-core), w = clip(<c - bg, fg - bg> / |fg - bg|^2, 0, 1). On an anti-aliased edge a pixel's
-colour is the area-weighted mix of disc and background, so w is the covered fraction and the
-weighted centroid is the area centroid to sub-pixel accuracy, where a binary mask would quantise
-it to the pixel grid.
+saturation and value above their floors), the largest connected blob is kept, and its centre is
+the centroid of a *soft* membership weight over a window around the blob: each pixel's colour is
+projected on the axis from the local background colour (median of a ring around the blob) to the
+marker colour (median of the blob's core), w = clip(<c - bg, fg - bg> / |fg - bg|^2, 0, 1). On an
+anti-aliased edge a pixel's colour is the area-weighted mix of disc and background, so w is the
+covered fraction and the weighted centroid is the area centroid to sub-pixel accuracy, where a
+binary mask would quantise it to the pixel grid.
 
 Its covariance is the first-order propagation of the weights' noise: with c = sum w_i x_i / W,
 dc/dw_i = (x_i - c) / W, so cov(c) = s_w^2 sum_i (x_i - c)(x_i - c)^T / W^2, s_w the standard
@@ -61,10 +58,8 @@ class MarkerDetectorConfig:
     of hue (0..180 OpenCV scale, i.e. 2 degrees per unit) either side; min_saturation,
     min_value: 0..255 floors; min_area, max_area: blob area bounds in pixels; min_solidity:
     blob area / convex hull area, rejecting blobs cut by an occluder into odd shapes;
-    min_fill: blob area / the area inside its outer contour, rejecting blobs with a hole (a
-    ring's image: a signpost's red rings seen from the ceiling fill 0.61-0.65 of their
-    outline); min_ellipse_overlap: intersection over union of the blob with the ellipse of its
-    second moments (a disc's image is an ellipse; one cut by an occluder's straight edge is not);
+    min_ellipse_overlap: intersection over union of the blob with the ellipse of its second
+    moments (a disc's image is an ellipse; one cut by an occluder's straight edge is not);
     border: blobs closer than this many pixels to the image edge are rejected (cut by the edge);
     pixel_sigma: when given (pixels), the centroid covariance is sigma^2 I instead of the one
     propagated from the image noise; min_sigma: a floor (pixels) on the propagated standard
@@ -78,7 +73,6 @@ class MarkerDetectorConfig:
     min_area: int = 12
     max_area: int = 20000
     min_solidity: float = 0.85
-    min_fill: float = 0.9
     min_ellipse_overlap: float = 0.7
     border: int = 2
     pixel_sigma: float | None = None
@@ -93,9 +87,6 @@ class MarkerDetectorConfig:
             raise InvalidInput("pixel_sigma must be > 0 pixels when given")
         if not 0 < self.min_area <= self.max_area:
             raise InvalidInput("need 0 < min_area <= max_area")
-        for name in ("min_solidity", "min_fill", "min_ellipse_overlap"):
-            if not 0.0 <= getattr(self, name) <= 1.0:
-                raise InvalidInput(f"{name} must lie in [0, 1], got {getattr(self, name)}")
 
 
 @dataclass(frozen=True)
@@ -169,10 +160,8 @@ def detect_marker(
 ) -> MarkerDetection | None:
     """Return the marker's sub-pixel centre and covariance in a BGR image (H, W, 3), or None.
 
-    The blobs of the marker's colour are tried from the largest to the smallest; the first that
-    passes the area, border, fill, solidity and ellipse tests (`MarkerDetectorConfig`) is the
-    marker (module docstring for the method). None when no blob passes. Raises InvalidInput for
-    an image that is not (H, W, 3) uint8.
+    None when no blob passes the colour, area, solidity and border tests (module docstring for
+    the method). Raises InvalidInput for an image that is not (H, W, 3) uint8.
     """
     cfg = config or MarkerDetectorConfig()
     img = np.asarray(image)
@@ -184,56 +173,28 @@ def detect_marker(
     if n <= 1:
         return None
     areas = stats[1:, cv2.CC_STAT_AREA]
-    x0s, y0s = stats[1:, cv2.CC_STAT_LEFT], stats[1:, cv2.CC_STAT_TOP]
-    x1s = x0s + stats[1:, cv2.CC_STAT_WIDTH]
-    y1s = y0s + stats[1:, cv2.CC_STAT_HEIGHT]
-    ok = (areas >= cfg.min_area) & (areas <= cfg.max_area)
-    ok &= (x0s >= cfg.border) & (y0s >= cfg.border)
-    ok &= (x1s <= w - cfg.border) & (y1s <= h - cfg.border)
-    for i in np.flatnonzero(ok)[np.argsort(-areas[ok], kind="stable")]:
-        found = _marker_at(img, labels, int(i) + 1, stats[int(i) + 1], cfg)
-        if found is not None:
-            return found
-    return None
-
-
-def _disc_like(blob: NDArray[np.uint8], area: int, cfg: MarkerDetectorConfig) -> bool:
-    """Return whether a blob (a window holding it with a margin, values 0/1) of `area` pixels
-    has the shape of a disc's image: no hole, convex, elliptic."""
+    k = int(np.argmax(areas)) + 1
+    area = int(stats[k, cv2.CC_STAT_AREA])
+    if not cfg.min_area <= area <= cfg.max_area:
+        return None
+    x0, y0 = int(stats[k, cv2.CC_STAT_LEFT]), int(stats[k, cv2.CC_STAT_TOP])
+    bw, bh = int(stats[k, cv2.CC_STAT_WIDTH]), int(stats[k, cv2.CC_STAT_HEIGHT])
+    if x0 < cfg.border or y0 < cfg.border or x0 + bw > w - cfg.border or y0 + bh > h - cfg.border:
+        return None
+    blob = (labels == k).astype(np.uint8)
     contours, _ = cv2.findContours(blob, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-    outer = max(contours, key=cv2.contourArea)
-    filled = np.zeros_like(blob)
-    cv2.drawContours(filled, [outer], -1, 1, -1)
-    if area < cfg.min_fill * np.count_nonzero(filled):
-        return False
-    hull = cv2.contourArea(cv2.convexHull(outer))
+    hull = cv2.contourArea(cv2.convexHull(max(contours, key=cv2.contourArea)))
     if hull <= 0 or area / hull < cfg.min_solidity:
-        return False
-    bx, by, bw, bh = cv2.boundingRect(outer)
-    return _ellipse_overlap(blob, bx, by, bw, bh) >= cfg.min_ellipse_overlap
+        return None
+    if _ellipse_overlap(blob, x0, y0, bw, bh) < cfg.min_ellipse_overlap:
+        return None
 
-
-def _marker_at(
-    img: Image,
-    labels: NDArray[Any],
-    k: int,
-    stat: NDArray[Any],
-    cfg: MarkerDetectorConfig,
-) -> MarkerDetection | None:
-    """Return the marker found at blob `k` of `labels` (its stats row `stat`), or None when
-    the blob is not a disc's image or its soft centroid is undefined."""
-    h, w = img.shape[:2]
-    x0, y0 = int(stat[cv2.CC_STAT_LEFT]), int(stat[cv2.CC_STAT_TOP])
-    bw, bh = int(stat[cv2.CC_STAT_WIDTH]), int(stat[cv2.CC_STAT_HEIGHT])
-    area = int(stat[cv2.CC_STAT_AREA])
     # A window holding the blob, its soft edge (4 px) and a background ring (4 px more).
     pad = 9
     xa, ya = max(x0 - pad, 0), max(y0 - pad, 0)
     xb, yb = min(x0 + bw + pad, w), min(y0 + bh + pad, h)
-    core_m = (labels[ya:yb, xa:xb] == k).astype(np.uint8)
-    if not _disc_like(core_m, area, cfg):
-        return None
     win = img[ya:yb, xa:xb].astype(np.float64)
+    core_m = blob[ya:yb, xa:xb]
     k3 = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (3, 3))
     k5 = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5))
     inner = cv2.erode(core_m, k3).astype(bool)
