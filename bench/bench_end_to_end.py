@@ -25,10 +25,19 @@ Scoring, from outside the service, by its public API only:
   against the pose of that step; points of steps the polling missed are not scored (counted).
 * Latency: a WebSocket client on /ws/targets notes when each positions message arrives; the
   capture-to-WebSocket latency of a frame stamped T (X-Timestamp, Unix seconds on the
-  service's clock, which is this machine's) is the arrival of the first message whose
-  newest observation time is >= T, minus T, for every robot track point's T. It includes
-  the twin's rendering of the cameras before it, the tracker's reorder window
-  (INTSPACE_TRACKER_LATENCY_S, 0.15 s by default) and the stream's rate limit (10 Hz).
+  service's clock, which is this machine's) is the arrival of the first message whose robot
+  target's own time (`t`, its last update's observation time) is >= T, minus T, for every
+  robot track point's T. The twin stamps an instant when all its cameras' frames exist (so
+  its rendering is not counted); the latency holds the node's reading, decoding, detecting
+  and posting (or the twin's detecting, in process), the wait in the tracker's reorder buffer
+  for the instant's last camera frame (each camera posts every frame, empty ones too; the
+  window INTSPACE_TRACKER_LATENCY_S is the longest wait), the tracker's update and the
+  stream's slot (at most 30 messages a second).
+* Where it goes: the tracker and the node report the delays of their stages when they stop
+  (capture to arrival at the service, reorder wait, tracker update; for the node, capture to
+  its reception of the frame, waiting for the detector, decoding and detecting, capture to
+  the service's answer); they are printed per path. The service prints them only when its
+  log shows INFO messages.
 
 Prints per path the robot's RMSE, the twin's own in-service figure where it has one (its
 labelled robot, the in-process path only), the points scored and the share of the window's
@@ -233,8 +242,9 @@ class TruthPoller:
 
 
 class PositionsListener:
-    """A /ws/targets client in a thread: the arrival time (this machine's clock) and the newest
-    observation time of every positions message that holds a robot target."""
+    """A /ws/targets client in a thread: the arrival time (this machine's clock) and the robot
+    target's observation time (its own `t`, the newest when several) of every positions
+    message that holds a robot target."""
 
     def __init__(self, service: Service) -> None:
         url = service.api.replace("http://", "ws://") + "/ws/targets"
@@ -248,20 +258,25 @@ class PositionsListener:
             for raw in self._ws:
                 arrived = time.time()
                 message = json.loads(raw)
-                robots = [t for t in message.get("targets", []) if t["kind"] == "robot"]
-                if robots and message.get("t") is not None:
-                    self.messages.append((arrived, float(message["t"])))
+                robots = [
+                    float(t["t"])
+                    for t in message.get("targets", [])
+                    if t["kind"] == "robot" and t.get("t") is not None
+                ]
+                if robots:
+                    self.messages.append((arrived, max(robots)))
         except Exception:  # the socket closes when the listener or the service stops
             return
 
     def latency(self, stamps: NDArray[np.float64]) -> NDArray[np.float64]:
         """Return, per capture time in `stamps` (N,), the delay until the first message that
-        holds an observation at least that recent (NaN when none came)."""
+        holds the robot updated by an observation at least that recent (NaN when none
+        came)."""
         got = np.array(self.messages, dtype=np.float64).reshape(-1, 2)
         if got.shape[0] == 0:
             return np.full(stamps.shape, np.nan)
-        # The newest observation time only grows, except when a target ends; a running maximum
-        # makes "the first message at least as recent" a sorted search.
+        # The robot's observation time only grows, except when its target ends; a running
+        # maximum makes "the first message at least as recent" a sorted search.
         newest = np.maximum.accumulate(got[:, 1])
         i = np.searchsorted(newest, stamps, side="left")
         ok = i < got.shape[0]
@@ -306,6 +321,9 @@ class PathRun:
     healthy_s: float  # wall time from start to the service's first healthy answer
     first_robot_s: float  # ... to the first WebSocket message holding a robot
     seconds: float  # wall time of the run
+    # Where the delay goes: the stages' p50/p95 as the service's tracker and the node report
+    # them when they stop (server.services.tracking.FrameDelays, server.node.runner).
+    stages: tuple[str, ...] = ()
 
     @property
     def rmse_m(self) -> float:
@@ -381,8 +399,22 @@ def _stop_node(node: subprocess.Popen) -> None:
 
 def _node_counts(log: str) -> tuple[int | None, int | None]:
     """Return (detections posted, camera frames too late to be tracked) from a node's log."""
-    match = re.search(r"posted (\d+) detection\(s\); (\d+) camera frame\(s\) came too late", log)
+    match = re.search(
+        r"posted (\d+) detection\(s\) and \d+ empty frame\(s\); (\d+) camera frame\(s\) "
+        r"came too late",
+        log,
+    )
     return (int(match[1]), int(match[2])) if match else (None, None)
+
+
+def _stage_lines(log: str, *prefixes: str) -> list[str]:
+    """Return the delays of the pipeline's stages that a log reports (lines after a prefix)."""
+    out = []
+    for line in log.splitlines():
+        for prefix in prefixes:
+            if prefix in line:
+                out.append(prefix + line.split(prefix, 1)[1])
+    return out
 
 
 def run_path(
@@ -448,13 +480,21 @@ def run_path(
         matched = np.isfinite(sim_of)
         scored = matched & (sim_of >= window.start) & (sim_of <= window.end)
         step_sim = truth.steps()[0]
+        latency = listener.latency(points[scored, 0])
+        listener.close()
+        listener = None
+        service.stop()  # the tracker reports its stages' delays as it stops
+        logs = (folder / "serve.log").read_text()
+        if node is not None:
+            logs += (folder / "node.log").read_text()
+        stages = _stage_lines(logs, "tracker: ", "frames: ", "uploads: ")
         return PathRun(
             detection=detection,
             window=(window.start, window.end),
             steps=int(np.count_nonzero((step_sim >= window.start) & (step_sim <= window.end))),
             sim=sim_of[scored],
             errors=np.linalg.norm(points[scored, 1:3] - true_xy[scored], axis=1),
-            latency=listener.latency(points[scored, 0]),
+            latency=latency,
             unmatched=int(np.count_nonzero(~matched & (points[:, 0] <= truth.rows[-1][1]))),
             twin_rmse_m=twin_rmse,
             cameras=cameras,
@@ -463,6 +503,7 @@ def run_path(
             healthy_s=healthy_s,
             first_robot_s=first_robot_s,
             seconds=time.monotonic() - began,
+            stages=tuple(stages),
         )
     except BaseException:
         window.abort.set()
@@ -482,10 +523,12 @@ def compare(
     start: float = WINDOW_START_S,
     seed: int = 0,
     tracker_latency_s: float | None = None,
+    timeout_s: float | None = None,
 ) -> tuple[PathRun, PathRun]:
     """Return the node's path and the in-process path, run side by side (the same machine
     load) and scored over the same window of simulated time, [start, start + seconds];
-    `tracker_latency_s` sets both services' INTSPACE_TRACKER_LATENCY_S (None: the default)."""
+    `tracker_latency_s` sets both services' INTSPACE_TRACKER_LATENCY_S (None: the default),
+    `timeout_s` the wall time a path may take to reach the window's end (None: run_path's)."""
     window = Window(start, seconds)
     with ThreadPoolExecutor(max_workers=2) as pool:
         runs = [
@@ -496,6 +539,7 @@ def compare(
                 window,
                 seed=seed,
                 tracker_latency_s=tracker_latency_s,
+                timeout_s=timeout_s,
             )
             for detection in ("external", "internal")
         ]
@@ -523,6 +567,7 @@ def describe(run: PathRun) -> str:
             f"  node: {run.posted} detections posted, {run.late_frames} camera frames refused by "
             "the tracker as later than its reorder window"
         )
+    lines += [f"  {line}" for line in run.stages]
     for name, health in run.cameras.items():
         lines.append(
             f"  node camera {name}: {health['status']}, {health['fps']:.1f} frames/s read, "
@@ -542,10 +587,21 @@ def main(argv: list[str] | None = None) -> int:
         metavar="S",
         help="INTSPACE_TRACKER_LATENCY_S of both services (default: the service's default)",
     )
+    parser.add_argument(
+        "--timeout",
+        type=float,
+        metavar="S",
+        help="wall seconds a path may take to reach the window's end (default: 120 + 5 x its "
+        "end; a loaded machine runs the twin slower than real time)",
+    )
     args = parser.parse_args(argv)
     with tempfile.TemporaryDirectory(prefix="intspace-e2e-") as tmp:
         external, internal = compare(
-            Path(tmp), seconds=args.seconds, seed=args.seed, tracker_latency_s=args.tracker_latency
+            Path(tmp),
+            seconds=args.seconds,
+            seed=args.seed,
+            tracker_latency_s=args.tracker_latency,
+            timeout_s=args.timeout,
         )
     window = "default" if args.tracker_latency is None else f"{args.tracker_latency:g} s"
     print(f"tracker reorder window (INTSPACE_TRACKER_LATENCY_S): {window}, seed {args.seed}")

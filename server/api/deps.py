@@ -217,8 +217,10 @@ async def _body_camera_ids(request: Request) -> set[int] | None:
     shape (its validation refuses it)."""
     try:
         body: Any = await request.json()
-        return {int(o["camera_id"]) for o in body["observations"]}
-    except (ValueError, TypeError, KeyError):
+        return {int(o["camera_id"]) for o in body.get("observations", ())} | {
+            int(f["camera_id"]) for f in body.get("empty_frames", ())
+        }
+    except (ValueError, TypeError, KeyError, AttributeError):
         return None
 
 

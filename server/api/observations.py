@@ -3,13 +3,18 @@
 POST /observations takes the detections of any cameras (spec 08: unlabelled, several per camera
 frame, each with its kind where the sender knows it). They are committed to the detections
 table before the answer, then queued for the tracker of the cameras' space
-(server.services.tracking), which makes and follows the targets. Detections that carry a
+(server.services.tracking), which makes and follows the targets. A batch may also list camera
+frames in which nothing was detected (`empty_frames`: camera and capture time); they are not
+stored, but reach the tracker, which then knows it need not wait for those cameras' frames up
+to those times, so the tracks follow with the delay of the slowest camera instead of the
+tracker's whole reorder window. Detections that carry a
 `target` label are also located at once by maximum likelihood on the plane, per (target, t),
 and returned, as before the tracker existed.
 """
 
 from __future__ import annotations
 
+import time
 from typing import Annotated
 
 import numpy as np
@@ -18,10 +23,11 @@ from fastapi.responses import JSONResponse
 from sqlalchemy import select
 
 from core.localization import PointStatus, locate_ml
-from server.api.deps import SessionDep, WriteAccess
+from server.api.deps import SessionDep, require_write
 from server.api.errors import PROBLEM_RESPONSES, FieldProblem
 from server.db.models import Camera
-from server.schemas.localization import ObservationBatch, PositionBatch
+from server.schemas.localization import EmptyFrame, Observation, ObservationBatch, PositionBatch
+from server.services.auth import Principal
 from server.services.targets import LiveTargets
 from server.services.tracking import DetectionIn, TrackingService
 from server.services.twin import registry_cameras
@@ -34,6 +40,8 @@ router = APIRouter(tags=["localization"], responses=PROBLEM_RESPONSES)
 MAX_LIVE_LABELS = 256
 # How long a silent labelled target stays live (core TrackerConfig.labelled_end_after), s.
 LABEL_RETIRES_AFTER_S = 60
+# The answer's header giving the service's time (Unix seconds) when it answered.
+SERVER_TIME_HEADER = "X-Server-Time"
 
 _STATUS = {
     PointStatus.OK: "ok",
@@ -48,14 +56,11 @@ async def get_tracking(request: Request) -> TrackingService | None:
     return getattr(request.app.state, "tracking", None)
 
 
-@router.post(
-    "/observations",
-    response_model=PositionBatch,
-    dependencies=[WriteAccess],
-)
+@router.post("/observations", response_model=PositionBatch)
 def post_observations(
     body: ObservationBatch,
     session: SessionDep,
+    who: Annotated[Principal | None, Depends(require_write)],
     tracking: Annotated[TrackingService | None, Depends(get_tracking)],
     live: Annotated[LiveTargets | None, Depends(get_live_targets)],
 ):
@@ -63,9 +68,12 @@ def post_observations(
     were stored and queued, and the floor position of each labelled (target, t): its
     detections from every camera fused by maximum likelihood on the plane Z = height
     (core.localization.locate_ml). Every camera must have intrinsics and a pose; a camera may
-    see a labelled (target, t) once; unlabelled detections may be many per camera frame."""
+    see a labelled (target, t) once; unlabelled detections may be many per camera frame. An
+    empty frame (camera, t) says the camera saw nothing at t: the same camera and time must
+    not also have detections in the batch, nor be listed twice."""
     obs = body.observations
-    camera_ids = sorted({o.camera_id for o in obs})
+    empty = body.empty_frames
+    camera_ids = sorted({o.camera_id for o in obs} | {f.camera_id for f in empty})
     cameras, refused = registry_cameras(session, camera_ids)
     for index, o in enumerate(obs):
         if o.camera_id in refused:
@@ -74,6 +82,7 @@ def post_observations(
                 f"observations.{index}.camera_id",
                 f"{refused[o.camera_id]}; calibrate and pose it before sending its detections",
             )
+    _check_empty_frames(obs, empty, refused, who)
     space_of = _spaces(session, camera_ids)
     if live is not None:
         _check_labels(obs, space_of, live)
@@ -92,16 +101,59 @@ def post_observations(
         for o in obs
     ]
     if tracking is not None:
-        result = tracking.ingest(session, detections, space_of)
+        marks = [(f.camera_id, f.t) for f in empty]
+        result = tracking.ingest(session, detections, space_of, empty=marks)
         stored, frames, late = result.stored, result.frames, result.late
     else:  # pragma: no cover - the app always has its tracking service once started
         stored, frames, late = 0, 0, 0
-    return JSONResponse({"stored": stored, "frames": frames, "late": late, "positions": positions})
+    body = {"stored": stored, "frames": frames, "late": late, "positions": positions}
+    # The service's clock to the microsecond: a camera node measures its clock offset by it
+    # (the Date header has whole seconds, refreshed late when the service is loaded).
+    return JSONResponse(body, headers={SERVER_TIME_HEADER: f"{time.time():.6f}"})
 
 
 async def get_live_targets(request: Request) -> LiveTargets | None:
     """Return the live targets of every space (None before the app started)."""
     return getattr(request.app.state, "targets", None)
+
+
+def _check_empty_frames(
+    obs: list[Observation],
+    empty: list[EmptyFrame],
+    refused: dict[int, str],
+    who: Principal | None,
+) -> None:
+    """Refuse empty frames of unusable cameras, of cameras an ingest token does not speak for
+    (403), listed twice, or of a camera and time that also has detections in the batch."""
+    seen: set[tuple[int, float]] = set()
+    detected = {(o.camera_id, o.t) for o in obs}
+    for index, f in enumerate(empty):
+        where = f"empty_frames.{index}"
+        if who is not None and not who.speaks_for(f.camera_id):
+            raise HTTPException(
+                status.HTTP_403_FORBIDDEN,
+                detail=f"this ingest token speaks for cameras {sorted(who.camera_ids or ())} "
+                f"only, not {f.camera_id} ({where})",
+            )
+        if f.camera_id in refused:
+            raise FieldProblem(
+                422,
+                f"{where}.camera_id",
+                f"{refused[f.camera_id]}; calibrate and pose it before sending its frames",
+            )
+        key = (f.camera_id, f.t)
+        if key in detected:
+            raise FieldProblem(
+                422,
+                where,
+                f"camera {f.camera_id} has detections at t = {f.t} in this batch: a frame is "
+                "either empty or has detections; drop it from empty_frames",
+            )
+        if key in seen:
+            raise FieldProblem(
+                422, where, f"camera {f.camera_id} at t = {f.t} is listed twice in empty_frames"
+            )
+        seen.add(key)
 
 
 def _check_labels(obs, space_of: dict[int, int | None], live: LiveTargets) -> None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import email.utils
 import logging
+import math
 import threading
 import time
 from collections import deque
@@ -12,7 +13,7 @@ from typing import Any
 
 import httpx
 
-from server.node.clock import ClockOffset
+from server.node.clock import ClockOffset, StageDelays
 
 log = logging.getLogger("intspace.node")
 
@@ -20,6 +21,17 @@ log = logging.getLogger("intspace.node")
 _BATCH = 500
 # How long (s) an upload waits after the service failed before it tries again, at most.
 _RETRY_MAX_S = 2.0
+# The key marking a queued item as a frame without detections (never sent as such).
+_EMPTY = "_empty"
+
+
+def _seconds(text: str | None) -> float | None:
+    """Return a header's Unix seconds, None when absent or not a finite number."""
+    try:
+        value = float(text) if text else None
+    except ValueError:
+        return None
+    return value if value is not None and math.isfinite(value) else None
 
 
 class NodeError(Exception):
@@ -34,6 +46,9 @@ class ServiceClient:
         self.api = api.rstrip("/")
         self.clock = ClockOffset()
         self._clock_lock = threading.Lock()
+        # Whether an answer gave the service's time exactly: then whole-second Dates, which a
+        # loaded service refreshes late, no longer count.
+        self._precise = False
         self._http = httpx.Client(timeout=timeout, headers={"Authorization": f"Bearer {token}"})
 
     def close(self) -> None:
@@ -41,12 +56,20 @@ class ServiceClient:
         self._http.close()
 
     def request(self, method: str, path: str, **kwargs: Any) -> httpx.Response:
-        """Send a request to `api + path`; measure the clock offset from its Date header."""
+        """Send a request to `api + path`; measure the clock offset from its X-Server-Time
+        header (POST /observations), else from its Date header."""
         sent = time.time()
         response = self._http.request(method, self.api + path, **kwargs)
         received = time.time()
+        precise = _seconds(response.headers.get("x-server-time"))
+        if precise is not None:
+            # POST /observations says the service's time to the microsecond.
+            with self._clock_lock:
+                self._precise = True
+                self.clock.add(sent, received, precise, precise)
+            return response
         date = response.headers.get("date")
-        if date:
+        if date and not self._precise:
             try:
                 service = email.utils.parsedate_to_datetime(date).timestamp()
             except (TypeError, ValueError):
@@ -127,8 +150,10 @@ class ServiceClient:
 
 
 class Uploader:
-    """Posts detections in small batches from a thread; keeps at most `capacity` while the
-    service is unreachable, dropping the oldest (counted in `dropped`)."""
+    """Posts detections, and the camera frames in which nothing was detected, in small batches
+    from a thread, in the order they were processed; keeps at most `capacity` while the
+    service is unreachable, dropping the oldest (detections counted in `dropped`, empty frames
+    in `dropped_empty`)."""
 
     def __init__(self, client: ServiceClient, capacity: int = 20_000) -> None:
         self._client = client
@@ -137,8 +162,12 @@ class Uploader:
         self._cond = threading.Condition()
         self._stop = False
         self.dropped = 0
+        self.dropped_empty = 0
         self.rejected = 0
         self.posted = 0
+        self.posted_empty = 0
+        # Per camera frame posted: from its capture to the service's answer (s).
+        self.delays = StageDelays(("capture to posted",))
         # Camera frames the service stored but could not track: they came after the tracker's
         # latency window (the node or the network too slow for INTSPACE_TRACKER_LATENCY_S).
         self.late = 0
@@ -165,16 +194,28 @@ class Uploader:
             return
         with self._cond:
             self._queue.extend(observations)
-            over = len(self._queue) - self._capacity
-            if over > 0:
-                for _ in range(over):
-                    self._queue.popleft()
-                self.dropped += over
+            self._drop_over()
             self._cond.notify_all()
+
+    def push_empty(self, camera_id: int, t: float) -> None:
+        """Queue a frame of camera `camera_id` captured at `t` (service clock) in which nothing
+        was detected: the service's tracker then need not wait for that camera up to t."""
+        with self._cond:
+            self._queue.append({_EMPTY: True, "camera_id": int(camera_id), "t": float(t)})
+            self._drop_over()
+            self._cond.notify_all()
+
+    def _drop_over(self) -> None:
+        """Drop the oldest queued items beyond the capacity, counted. Call with the lock held."""
+        for _ in range(max(0, len(self._queue) - self._capacity)):
+            if _EMPTY in self._queue.popleft():
+                self.dropped_empty += 1
+            else:
+                self.dropped += 1
 
     @property
     def pending(self) -> int:
-        """Return how many detections wait to be posted."""
+        """Return how many detections and empty frames wait to be posted."""
         with self._cond:
             return len(self._queue)
 
@@ -194,17 +235,19 @@ class Uploader:
                     continue
                 # Back in front, in order; the capacity still holds (oldest dropped).
                 self._queue.extendleft(reversed(batch))
-                over = len(self._queue) - self._capacity
-                for _ in range(max(0, over)):
-                    self._queue.popleft()
-                self.dropped += max(0, over)
+                self._drop_over()
                 self._cond.wait(wait)
                 wait = min(2 * wait, _RETRY_MAX_S)
 
     def _post(self, batch: list[dict[str, Any]]) -> bool:
         """Post a batch; return False when it should be retried (service unreachable)."""
+        observations = [o for o in batch if _EMPTY not in o]
+        empty = [{"camera_id": o["camera_id"], "t": o["t"]} for o in batch if _EMPTY in o]
+        body: dict[str, Any] = {"observations": observations}
+        if empty:
+            body["empty_frames"] = empty
         try:
-            response = self._client.request("POST", "/observations", json={"observations": batch})
+            response = self._client.request("POST", "/observations", json=body)
         except httpx.TransportError as exc:
             self._down(f"cannot reach the service ({type(exc).__name__}); buffering")
             return False
@@ -220,10 +263,19 @@ class Uploader:
             self._down_since = None
         if response.status_code != 200:
             # Bad input is not retried: the same batch would be refused again.
-            self.rejected += len(batch)
-            log.error("the service refused %d detection(s): %s", len(batch), response.text[:300])
+            self.rejected += len(observations)
+            log.error(
+                "the service refused %d detection(s) and %d empty frame(s): %s",
+                len(observations),
+                len(empty),
+                response.text[:300],
+            )
             return True
-        self.posted += len(batch)
+        self.posted += len(observations)
+        self.posted_empty += len(empty)
+        answered = time.time() + self._client.offset
+        for _, t in {(o["camera_id"], o["t"]) for o in batch}:
+            self.delays.add(answered - t)
         try:
             self.late += int(response.json().get("late", 0))
         except (ValueError, AttributeError):

@@ -19,6 +19,7 @@ from core.localization import NetworkCamera
 from core.localization.detect import MarkerDetectorConfig, PersonDetector
 from core.localization.detections import FrameDetection, detect_frame
 from server.node.client import NodeError, ServiceClient, Uploader
+from server.node.clock import StageDelays
 from server.node.config import CameraConfig, NodeConfig
 from server.node.masks import apply_mask, polygon_mask
 from server.node.sources import MjpegHttpSource, OpenCvSource, Source
@@ -102,6 +103,9 @@ class Node:
         self._threads: list[threading.Thread] = []
         # A server.node.record.Recorder (--record DIR): keeps each processed frame.
         self.recorder: Any = None
+        # Per processed frame: capture to its arrival here (the stream), waiting for the
+        # detector, decoding and detecting (s). The uploader has the rest, to the service.
+        self.delays = StageDelays(("capture to received", "waiting", "decode and detect"))
 
     def prepare(self) -> None:
         """Fetch each camera's registry row and calibration. Raises NodeError for an unknown
@@ -160,10 +164,22 @@ class Node:
             self.uploader.stop()
             self._heartbeat()
             log.info(
-                "posted %d detection(s); %d camera frame(s) came too late to be tracked",
+                "posted %d detection(s) and %d empty frame(s); %d camera frame(s) came too late "
+                "to be tracked",
                 self.uploader.posted,
+                self.uploader.posted_empty,
                 self.uploader.late,
             )
+            if len(self.delays):
+                # The capture times are the service's clock; the node's own are corrected by
+                # the offset it measured, whose uncertainty bounds these delays' accuracy.
+                log.info(
+                    "frames: %s (clock offset %+.3f s, known to +-%.3f s)",
+                    self.delays.describe(),
+                    self.client.offset,
+                    self.client.clock.uncertainty,
+                )
+                log.info("uploads: %s", self.uploader.delays.describe())
             if self.uploader.dropped:
                 log.warning(
                     "%d detection(s) dropped while the service was unreachable",
@@ -184,6 +200,7 @@ class Node:
                 if run.source.frames.closed:
                     return
                 continue
+            taken = time.time()
             image: Any = frame.image
             if image is None and frame.jpeg is not None:
                 image = cv2.imdecode(np.frombuffer(frame.jpeg, np.uint8), cv2.IMREAD_COLOR)
@@ -212,7 +229,15 @@ class Node:
             )
             obs = [observation(run.camera_id, t, d) for d in found]
             kept = [o for o in obs if o is not None]
-            self.uploader.push(kept)
+            if found:
+                self.uploader.push(kept)
+            else:
+                # Nothing seen is news too: the tracker need not wait for this camera up to t.
+                self.uploader.push_empty(run.camera_id, t)
+            pushed = time.time()
+            self.delays.add(
+                frame.received + self.client.offset - t, taken - frame.received, pushed - taken
+            )
             if self.recorder is not None:
                 self.recorder.write(run.config.name, frame, t, kept)
             run.detected += 1

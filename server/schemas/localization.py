@@ -47,8 +47,32 @@ class Observation(Schema):
         return self
 
 
+class EmptyFrame(Schema):
+    """A camera frame in which the sender detected nothing: the camera and its capture time
+    (Unix seconds on the service's clock). It tells the space's tracker that the camera looked
+    at that time, so the tracker need not wait for that camera's frames up to it."""
+
+    camera_id: Id
+    t: Finite
+
+
 class ObservationBatch(Schema):
-    observations: Annotated[list[Observation], Field(min_length=1, max_length=MAX_OBSERVATIONS)]
+    observations: Annotated[list[Observation], Field(max_length=MAX_OBSERVATIONS)] = Field(
+        default_factory=list
+    )
+    empty_frames: Annotated[
+        list[EmptyFrame],
+        Field(
+            max_length=MAX_OBSERVATIONS,
+            description="Camera frames (camera_id, t) processed with no detection.",
+        ),
+    ] = Field(default_factory=list)
+
+    @model_validator(mode="after")
+    def _something(self) -> ObservationBatch:
+        if not self.observations and not self.empty_frames:
+            raise ValueError("a batch needs observations, empty_frames or both; it has neither")
+        return self
 
 
 class Position(ReadSchema):
@@ -63,7 +87,9 @@ class Position(ReadSchema):
 
 class PositionBatch(ReadSchema):
     stored: int = Field(description="Detections committed to the database.")
-    frames: int = Field(description="Camera frames (camera, time) queued for the tracker.")
+    frames: int = Field(
+        description="Camera frames (camera, time) queued for the tracker, empty ones included."
+    )
     late: int = Field(
         description="Frames older than what the space's tracker already processed: stored, "
         "not tracked."

@@ -21,6 +21,7 @@ import logging
 import threading
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -101,10 +102,28 @@ class LiveTargets:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._last_retention = 0.0
+        self._watchers: list[Callable[[], None]] = []
         self.version = 0
         # Set when other processes follow this one's targets: changes wait in the outbox.
         self.publishing = False
         self._outbox: dict[tuple[int | None, int], LiveTarget] = {}
+
+    @property
+    def version(self) -> int:
+        """A number that grows with every change of the live targets."""
+        return self._version
+
+    @version.setter
+    def version(self, value: int) -> None:
+        self._version = value
+        for notify in list(self._watchers):
+            notify()
+
+    def watch(self, notify: Callable[[], None]) -> Callable[[], None]:
+        """Call `notify()` after every change (in the changing thread, with the store locked:
+        it must return at once, e.g. wake an event loop); return what stops it."""
+        self._watchers.append(notify)
+        return lambda: self._watchers.remove(notify)
 
     # -- from the trackers -----------------------------------------------------------------------
 

@@ -2,18 +2,21 @@
 
 `ingest` stores a batch of detections (the detections table, committed before it returns) and
 queues them, one camera frame (camera, capture time) at a time, for the tracker of the
-cameras' space. A background thread releases the queued frames in time order once they are
-`latency` seconds old (so that cameras whose batches arrive out of step still reach the tracker
-in order), feeds them to core.localization.tracking.Tracker, and hands its reports to the live
-targets store. It also moves each tracker's clock on when no frame comes, so silent tracks
-coast and end on time. The association and filtering are all in core; this module only moves
-frames and results.
+cameras' space, with the frames in which the senders detected nothing (not stored). A
+background thread releases the queued frames in time order once they are `latency` seconds
+old, or sooner once every camera heard from has delivered frames as recent (so that cameras
+whose batches arrive out of step still reach the tracker in order), feeds them to
+core.localization.tracking.Tracker, and hands its reports to the live targets store. It keeps
+the delays of the frames' stages (`delays`) and logs them when it stops. It also moves each
+tracker's clock on when no frame comes, so silent tracks coast and end on time. The
+association and filtering are all in core; this module only moves frames and results.
 
 Several processes on one PostgreSQL database (`shared_database_url`): each space's tracker runs
 in the one process that holds the space's advisory lock (server.services.ownership). A process
-that stores detections of a space it does not track tells the others which rows it stored
-(LISTEN/NOTIFY, server.services.fanout); the owner reads those rows by id and feeds them to its
-tracker, and sends every target change to the others, whose live targets show it. The processes
+that stores detections of a space it does not track tells the others which rows it stored,
+and the camera frames it took in which nothing was detected (LISTEN/NOTIFY,
+server.services.fanout); the owner reads those rows by id and feeds them to its tracker, and
+sends every target change to the others, whose live targets show it. The processes
 try for free locks every `_OWNERSHIP_POLL_S`; one that gets a space (its owner died, and
 PostgreSQL freed the lock with its connection) restores the space's tracks from what it last
 heard of them (or, failing that, from the stored targets), keeping their ids
@@ -49,6 +52,7 @@ from core.localization.tracking import (
     TrackState,
 )
 from server.db.models import Camera, Detection, Target
+from server.node.clock import StageDelays
 from server.services.fanout import Fanout
 from server.services.ownership import SpaceLocks
 from server.services.targets import LIVE, LiveTarget, LiveTargets
@@ -112,6 +116,20 @@ class IngestResult:
     stored: int
     frames: int
     late: int
+
+
+class FrameDelays(StageDelays):
+    """The delays (s) of the camera frames a tracker processed, the newest `keep`: from capture
+    to arrival at the service (the sender's detection and upload, or the twin's rendering and
+    detection), arrival to release by the reorder buffer, and release to the end of the
+    tracker's update and the live targets' change."""
+
+    def __init__(self, keep: int = 20_000) -> None:
+        super().__init__(("capture to arrival", "reorder wait", "tracker update"), keep)
+
+    def frame(self, t: float, arrived: float, released: float, done: float) -> None:
+        """Record one frame captured at t, arrived, released and processed at those times."""
+        self.add(arrived - t, max(0.0, released - arrived), done - released)
 
 
 def empty_frame(camera_id: int, t: float) -> CameraFrame:
@@ -223,9 +241,12 @@ class TrackingService:
         self._thread: threading.Thread | None = None
         self.frames_processed = 0
         self.errors = 0
+        self.delays = FrameDelays()
         self._fanout: Fanout | None = None
         self._locks: SpaceLocks | None = None
-        self._notified: list[tuple[int | None, list[list[int]]]] = []
+        # (space, [[first id, last id] of stored detections, or {"c": camera, "t": time} of
+        # an empty frame, ...]) that other processes took for a space tracked here.
+        self._notified: list[tuple[int | None, list[Any]]] = []
         self._notified_lock = threading.Lock()
         # Held while spaces are taken over or given up; the spaces tried for at least once.
         self._ownership_lock = threading.RLock()
@@ -243,12 +264,20 @@ class TrackingService:
     # -- ingest ------------------------------------------------------------------------------
 
     def ingest(
-        self, session: Session, detections: Sequence[DetectionIn], space_of: dict[int, int | None]
+        self,
+        session: Session,
+        detections: Sequence[DetectionIn],
+        space_of: dict[int, int | None],
+        *,
+        empty: Sequence[tuple[int, float]] = (),
     ) -> IngestResult:
         """Store `detections` (committed when this returns) and queue them for the trackers
-        of their cameras' spaces (`space_of`: camera id -> space id)."""
+        of their cameras' spaces (`space_of`: camera id -> space id), with the camera frames
+        `empty` ((camera id, capture time) pairs) in which nothing was detected: those are not
+        stored, they only tell the trackers that the cameras looked at those times."""
+        blank = [empty_frame(int(c), float(t)) for c, t in empty]
         if not detections:
-            return IngestResult(0, 0, 0)
+            return IngestResult(0, len(blank), self.submit(blank, space_of) if blank else 0)
         rows = [
             {
                 "space_id": space_of.get(d.camera_id),
@@ -274,6 +303,8 @@ class TrackingService:
             session.execute(Detection.__table__.insert(), rows)
         session.commit()
         frames = camera_frames(detections, ids)
+        if blank:
+            frames = sorted(frames + blank, key=lambda f: (f.t, f.camera_id))
         late = self.submit(frames, space_of)
         return IngestResult(len(detections), len(frames), late)
 
@@ -282,7 +313,7 @@ class TrackingService:
         than what the tracker already processed)."""
         late = 0
         arrived = self._clock()
-        elsewhere: dict[int | None, list[int]] = {}
+        elsewhere: dict[int | None, list[Any]] = {}
         if self._locks is not None:
             # A space never tried for is tried for at once: its first frames need not wait
             # for the next poll.
@@ -293,15 +324,19 @@ class TrackingService:
                 space_id = space_of.get(f.camera_id)
                 space = self._space(space_id)
                 if space is None:
-                    elsewhere.setdefault(space_id, []).extend(f.ids)
+                    # Stored detections travel by their rows' ids, an empty frame as itself.
+                    mark = f.ids if f.ids or f.pixels.shape[0] else [{"c": f.camera_id, "t": f.t}]
+                    elsewhere.setdefault(space_id, []).extend(mark)
                 elif space.fresh(f.ids) and not space.buffer.push(
-                    f.t, f, source=f.camera_id, arrived=arrived
+                    f.t, (f, arrived), source=f.camera_id, arrived=arrived
                 ):
                     late += 1
         self._wake.set()
         if self._fanout is not None:
-            for space_id, ids in elsewhere.items():
-                self._fanout.publish(DETECTIONS_CHANNEL, {"space": space_id}, _id_runs(ids))
+            for space_id, items in elsewhere.items():
+                ids = [i for i in items if not isinstance(i, dict)]
+                marks = [i for i in items if isinstance(i, dict)]
+                self._fanout.publish(DETECTIONS_CHANNEL, {"space": space_id}, _id_runs(ids) + marks)
         return late
 
     def _space(self, space_id: int | None) -> _SpaceTracker | None:
@@ -408,6 +443,8 @@ class TrackingService:
         if self._thread is not None:
             self._thread.join(timeout=10)
             self._thread = None
+            if len(self.delays):
+                log.info("tracker: %s", self.delays.describe())
         if self._locks is not None:
             self._publish_changes()
             self._locks.close()
@@ -451,13 +488,14 @@ class TrackingService:
                 for space in spaces
                 if len(space.buffer) or space.tracker.time is not None
             ]
+        released = self._clock()
         done = 0
         for space, frames in ready:
             self._load_cameras(space)
             with space.lock:
-                for _, frame in frames:
-                    assert isinstance(frame, CameraFrame)
+                for _, (frame, arrived) in frames:
                     self._feed(space, frame)
+                    self.delays.frame(frame.t, arrived, released, self._clock())
                     done += 1
                 horizon = space.buffer.released
                 t = space.tracker.time
@@ -560,7 +598,8 @@ class TrackingService:
         self._live.apply_remote(items)
 
     def _on_detections(self, message: dict[str, Any]) -> None:
-        """Queue the ids of detections another process stored (listener thread)."""
+        """Queue the ids of detections another process stored, and the empty frames it
+        took (listener thread)."""
         with self._notified_lock:
             self._notified.append((message.get("space"), list(message.get("items", ()))))
         self._wake.set()
@@ -581,21 +620,27 @@ class TrackingService:
             self._fanout.publish(TARGETS_CHANNEL, {"space": space_id, "live": True}, ids or [0])
 
     def _read_notified(self) -> None:
-        """Feed the notified detections of the spaces tracked here to their trackers."""
+        """Feed the notified detections and empty frames of the spaces tracked here to their
+        trackers, in time order."""
         with self._notified_lock:
             batch, self._notified = self._notified, []
         if not batch:
             return
-        runs_of: dict[int | None, list[list[int]]] = {}
+        runs_of: dict[int | None, list[Any]] = {}
         with self._lock:
-            for space_id, runs in batch:
+            for space_id, items in batch:
                 if space_id in self._spaces:
-                    runs_of.setdefault(space_id, []).extend(runs)
-        for space_id, runs in runs_of.items():
+                    runs_of.setdefault(space_id, []).extend(items)
+        for space_id, items in runs_of.items():
+            runs = [i for i in items if not isinstance(i, dict)]
+            frames = [empty_frame(int(i["c"]), float(i["t"])) for i in items if isinstance(i, dict)]
             for start in range(0, len(runs), _RUNS_PER_QUERY):
                 part = runs[start : start + _RUNS_PER_QUERY]
                 cond = or_(*(Detection.id.between(int(lo), int(hi)) for lo, hi in part))
-                self._submit_stored(space_id, cond)
+                frames += self._stored_frames(space_id, cond)
+            frames.sort(key=lambda f: (f.t, f.camera_id))
+            if frames:
+                self.submit(frames, {f.camera_id: space_id for f in frames})
 
     def _catch_up(self) -> None:
         """Read again the detections of the spaces tracked here that their trackers have not
@@ -612,12 +657,21 @@ class TrackingService:
     ) -> int:
         """Read stored detections of a space (conditions) and queue them for its tracker;
         return how many were read."""
+        frames = self._stored_frames(space_id, *conditions, limit=limit)
+        if frames:
+            self.submit(frames, {f.camera_id: space_id for f in frames})
+        return sum(len(f.ids) for f in frames)
+
+    def _stored_frames(
+        self, space_id: int | None, *conditions: Any, limit: int | None = None
+    ) -> list[CameraFrame]:
+        """Return the stored detections of a space (conditions) as camera frames."""
         same = Detection.space_id.is_(None) if space_id is None else Detection.space_id == space_id
         stmt = select(Detection).where(same, *conditions).order_by(Detection.t, Detection.id)
         with self._factory() as session:
             rows = session.scalars(stmt.limit(limit) if limit else stmt).all()
         if not rows:
-            return 0
+            return []
         detections = [
             DetectionIn(
                 camera_id=r.camera_id,
@@ -630,9 +684,7 @@ class TrackingService:
             )
             for r in rows
         ]
-        frames = camera_frames(detections, [r.id for r in rows])
-        self.submit(frames, {d.camera_id: space_id for d in detections})
-        return len(rows)
+        return camera_frames(detections, [r.id for r in rows])
 
     def _poll_ownership(self) -> None:
         """Try for the free spaces' locks; take over those acquired, let go of those lost."""

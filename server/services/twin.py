@@ -33,7 +33,7 @@ from core.sim.motion import Patrol
 from core.sim.occluders import scene_occluders
 from core.sim.render import camera_model, renderer_for
 from server.db.models import Camera, CameraCalibration, Robot, Room, Space
-from server.services.tracking import DetectionIn, empty_frame
+from server.services.tracking import DetectionIn
 
 if TYPE_CHECKING:
     from server.services.scene_sync import SceneSync
@@ -237,6 +237,7 @@ class Twin:
         self._base = UnicycleBase.from_robot(robot, dt=_BASE_DT, rng=self._seed) if robot else None
         self._patrol = Patrol(robot.patrol, robot.limits) if robot and robot.patrol else None
         self.sim_time = 0.0
+        self._pose = self._base.state.pose if self._base is not None else None
         self._epoch = self._clock()
         self.errors = deque(maxlen=_ERRORS_KEPT)
         # (capture time, sim time, robot x, robot y) of recent frames, for scoring only.
@@ -311,7 +312,7 @@ class Twin:
     def state(self) -> dict[str, Any]:
         """Return the twin's state: running, paused, sim time, robot pose, people, rate."""
         with self._lock:
-            pose = self._base.state.pose if self._base is not None else None
+            pose = self._pose  # the published instant's, read with its sim_time
             people = list(world_state(self.scene, self.sim_time).people)
             errors = np.array(list(self.errors)[-200:])
             return {
@@ -375,44 +376,53 @@ class Twin:
                 for _ in range(max(1, round(period / _BASE_DT))):
                     cmd = self._patrol.command(self._base.state.pose) if self._patrol else (0, 0)
                     self._base.step(*cmd)
-                self.sim_time = self._base.state.time
+                t = self._base.state.time
             else:
-                self.sim_time += period
-            t = self.sim_time
-            # The twin's clock maps to the service's: a frame is stamped with its capture time.
-            # When rendering falls behind real time the mapping slips, never the stamps' order.
-            now = self._clock()
-            if self._epoch + t < now:
-                self._epoch = now - t
-            stamp = self._epoch + t
+                t = self.sim_time + period
             state = world_state(
                 self.scene, t, self._base.state.pose if self._base is not None else None
             )
-            rng = self._rng
-        # Rendered and published camera by camera, outside the lock, so a stream or a frame
-        # request gets each frame as soon as it exists.
+            rng, base = self._rng, self._base
+        # Every camera's frame of the instant is rendered first, outside the lock; then the
+        # instant is published (GET /twin, the streams) and its frames stamped at once, as a
+        # synchronised camera network delivers its frames: the twin's clock maps to the
+        # service's so that instant t happens when its frames exist. Rendering them is the
+        # cost of simulating a home, not a delay of its cameras. Each instant is stamped when it
+        # is published, so the stamps keep their order.
+        rendered = [
+            (spec.name, camera_id, self._renderer.render(spec.name, state, rng=rng).image)
+            for spec in self.scene.cameras
+            if (camera_id := self.camera_ids.get(spec.name)) is not None
+        ]
+        with self._lock:
+            if self._paused.is_set() or self._base is not base or self.sim_time > t:
+                return  # paused or reset while rendering: the instant never happened
+            self.sim_time = t
+            self._pose = state.robot
+            self._epoch = self._clock() - t
+            stamp = self._epoch + t
+            frames = {cid: CameraFrame(cid, name, stamp, image) for name, cid, image in rendered}
+            self._frames.update(frames)
         robot = self.scene.robot
         marker_height = robot.marker.height if robot is not None and robot.marker else 0.0
-        frames: dict[int, CameraFrame] = {}
         network = self._network()
-        for spec in self.scene.cameras:
-            camera_id = self.camera_ids.get(spec.name)
-            if camera_id is None:
-                continue
-            frame = self._renderer.render(spec.name, state, rng=rng)
-            cf = CameraFrame(camera_id, spec.name, stamp, frame.image)
+        detections: list[DetectionIn] = []
+        empty: list[tuple[int, float]] = []
+        for shown in list(frames.values()):
+            camera_id = shown.camera_id
+            # Published again with its detections once they are known.
+            cf = CameraFrame(camera_id, shown.name, stamp, shown.image)
             found = (
                 detect_frame(
-                    frame.image,
+                    cf.image,
                     marker=self._marker_cfg,
                     marker_height=marker_height,
-                    people=self._detectors.get(spec.name),
+                    people=self._detectors.get(cf.name),
                     camera=network.get(camera_id),
                 )
                 if self.detect
                 else []
             )
-            detections = []
             for d in found:
                 cf.detections.append(d.to_dict())
                 # The marker's colour is this robot's own: its detection names the robot.
@@ -431,16 +441,19 @@ class Twin:
                         label=label,
                     )
                 )
+            if not found:
+                # A frame in which nothing was found still tells the tracker that this camera
+                # looked at that time: its reorder window need not wait for it.
+                empty.append((camera_id, stamp))
             frames[camera_id] = cf
             with self._lock:
                 self._frames[camera_id] = cf
-            if self._tracking is not None and detections:
-                with self._factory() as session:
-                    self._tracking.ingest(session, detections, {camera_id: self.space_id})
-            elif self._tracking is not None and self.detect:
-                # A frame in which nothing was found still tells the tracker that this camera
-                # looked at that time: its reorder window need not wait for it.
-                self._tracking.submit([empty_frame(camera_id, stamp)], {camera_id: self.space_id})
+        if self._tracking is not None and self.detect:
+            # The instant's frames in one transaction: the tracker takes them together anyway,
+            # once the last camera's has come.
+            with self._factory() as session:
+                space_of = dict.fromkeys(frames, self.space_id)
+                self._tracking.ingest(session, detections, space_of, empty=empty)
         with self._lock:
             self.steps += 1
         self._score_robot(state)

@@ -239,3 +239,199 @@ def test_targets_live_by_default_newest_first_and_tracks_page_back(client, admin
     whole = client.get(f"/api/v1/targets/{target['id']}/track", headers=admin).json()["points"]
     assert recent[0]["target_id"] == target["id"]
     assert [p[0] for p in recent[0]["points"]] == [p["t"] for p in whole]
+
+
+# -- frames in which nothing was detected -------------------------------------------------------
+
+
+class _Clock:
+    """The service's clock, moved by the test."""
+
+    def __init__(self, t: float) -> None:
+        self.t = t
+
+    def __call__(self) -> float:
+        return self.t
+
+
+def _processed(tracking, frames: int, timeout: float = 5.0) -> bool:
+    """Wait until the tracker thread has processed `frames` frames; return whether it did."""
+    deadline = time.monotonic() + timeout
+    while tracking.frames_processed < frames:
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.005)
+    return True
+
+
+@pytest.mark.parametrize("database_url", ["sqlite"], indirect=True)
+def test_empty_frames_release_the_other_cameras_frames_at_once(client, admin):
+    """A camera that saw nothing says so: the tracker need not wait its reorder window (1 s by
+    default) for that camera before taking the other cameras' frames of the same time."""
+    cameras = _cameras()[:2]
+    a, b = _register(client, admin, cameras)
+    tracking = client.app.state.tracking
+    assert tracking.latency == 1.0  # the default window; the clock below never reaches it
+    T = float(np.ceil(time.time())) + 10.0
+    clock = _Clock(T)
+    tracking._clock = clock
+    X = np.array([[2.0, 1.5, 0.0]])
+    px = cameras[0].project(X)[0].tolist()
+
+    def post(body: dict) -> dict:
+        response = client.post("/api/v1/observations", json=body, headers=admin)
+        assert response.status_code == 200, response.text
+        return response.json()
+
+    base = tracking.frames_processed
+    # Both cameras heard from at T - 0.5: camera a saw the cup, camera b nothing.
+    first = post(
+        {
+            "observations": [{"camera_id": a, "t": T - 0.5, "pixel": px, "target": "cup"}],
+            "empty_frames": [{"camera_id": b, "t": T - 0.5}],
+        }
+    )
+    assert (first["stored"], first["frames"], first["late"]) == (1, 2, 0)
+    assert _processed(tracking, base + 2)
+    # Camera a's next frame waits for camera b, which may still send a frame as old ...
+    post({"observations": [{"camera_id": a, "t": T - 0.1, "pixel": px, "target": "cup"}]})
+    time.sleep(0.3)  # the tracker thread wakes every 20 ms; the service's clock stands still
+    assert tracking.frames_processed == base + 2
+    # ... until camera b says it saw nothing then: both are taken at once, well inside the
+    # window (the clock has not moved: the release is the watermark's, not the window's end).
+    empty = post({"empty_frames": [{"camera_id": b, "t": T - 0.1}]})
+    assert (empty["stored"], empty["frames"], empty["late"], empty["positions"]) == (0, 1, 0, [])
+    assert _processed(tracking, base + 4)
+    state, t, xy = client.app.state.targets.latest("cup")
+    assert state == "confirmed"
+    assert t == T - 0.1 and np.linalg.norm(np.array(xy) - [2.0, 1.5]) < 1e-3
+    # The stream says each target's own time.
+    with client.websocket_connect("/api/v1/ws/targets", headers=admin) as ws:
+        message = ws.receive_json()
+    (target,) = message["targets"]
+    assert target["t"] == message["t"] == T - 0.1 and target["label"] == "cup"
+    # An empty frame older than what the tracker took is late, as a detection would be.
+    assert post({"empty_frames": [{"camera_id": b, "t": T - 0.2}]})["late"] == 1
+    assert client.get("/api/v1/targets?state=all", headers=admin).json()["total"] <= 1
+
+
+@pytest.mark.parametrize("database_url", ["sqlite"], indirect=True)
+def test_empty_frames_are_validated_like_detections(client, admin):
+    cameras = _cameras()[:2]
+    a, b = _register(client, admin, cameras)
+    bare = client.post(
+        "/api/v1/cameras", json={"name": "bare", "width": 640, "height": 480}, headers=admin
+    ).json()["id"]
+    px = cameras[0].project(np.array([[2.0, 1.5, 0.0]]))[0].tolist()
+    now = time.time()
+    cases = [
+        ({"empty_frames": []}, 422, None),
+        ({"empty_frames": [{"camera_id": a}]}, 422, None),
+        ({"empty_frames": [{"camera_id": a, "t": "nan"}]}, 422, None),
+        ({"empty_frames": [{"camera_id": 0, "t": now}]}, 422, None),
+        ({"empty_frames": [{"camera_id": a, "t": now, "pixel": [1, 2]}]}, 422, None),
+        ({"empty_frames": [{"camera_id": 999, "t": now}]}, 422, "empty_frames.0.camera_id"),
+        ({"empty_frames": [{"camera_id": bare, "t": now}]}, 422, "empty_frames.0.camera_id"),
+        (
+            {"empty_frames": [{"camera_id": a, "t": now}, {"camera_id": a, "t": now}]},
+            422,
+            "empty_frames.1",
+        ),
+        (
+            {
+                "observations": [{"camera_id": a, "t": now, "pixel": px}],
+                "empty_frames": [{"camera_id": b, "t": now}, {"camera_id": a, "t": now}],
+            },
+            422,
+            "empty_frames.1",
+        ),
+    ]
+    for body, code, field in cases:
+        response = client.post("/api/v1/observations", json=body, headers=admin)
+        assert response.status_code == code, (body, response.text)
+        assert response.headers["content-type"] == "application/problem+json"
+        if field is not None:
+            assert response.json()["errors"][0]["field"] == field, response.text
+    # Nothing of the refused batches reached the tracker or the database.
+    assert client.app.state.tracking.frames_processed == 0
+    # An ingest token speaks for its own cameras' empty frames only.
+    token = client.post(
+        "/api/v1/tokens",
+        json={"name": "node", "scopes": ["ingest"], "camera_ids": [a]},
+        headers=admin,
+    ).json()["token"]
+    node = {"Authorization": f"Bearer {token}"}
+    mine = {"observations": [], "empty_frames": [{"camera_id": a, "t": now}]}
+    assert client.post("/api/v1/observations", json=mine, headers=node).status_code == 200
+    other = {"observations": [], "empty_frames": [{"camera_id": b, "t": now}]}
+    response = client.post("/api/v1/observations", json=other, headers=node)
+    assert response.status_code == 403
+    assert f"not {b}" in response.json()["detail"], response.text
+
+
+def test_empty_frames_travel_to_the_process_that_tracks_their_space():
+    """Where another process tracks the space, stored detections travel as their rows' ids
+    and an empty frame as itself (camera, time), on the same channel and in one message."""
+    from server.services.tracking import (
+        DETECTIONS_CHANNEL,
+        CameraFrame,
+        TrackingService,
+        empty_frame,
+    )
+
+    class Locks:  # no space's lock is ever free: another process tracks them all
+        def poll(self, spaces):
+            return set(), set()
+
+    class Fanout:
+        def __init__(self) -> None:
+            self.sent: list = []
+
+        def publish(self, channel, base, items) -> int:
+            self.sent.append((channel, base, list(items)))
+            return 1
+
+    service = TrackingService(None, None)  # type: ignore[arg-type]
+    service._locks, service._fanout = Locks(), Fanout()  # type: ignore[assignment]
+    seen = CameraFrame(
+        3,
+        12.5,
+        np.zeros((2, 2)),
+        np.tile(np.eye(2), (2, 1, 1)),
+        np.zeros(2),
+        ["person", "person"],
+        [None, None],
+        ids=(7, 8),
+    )
+    late = service.submit([seen, empty_frame(4, 12.5)], {3: 1, 4: 1})
+    assert late == 0
+    assert service._fanout.sent == [
+        (DETECTIONS_CHANNEL, {"space": 1}, [[7, 8], {"c": 4, "t": 12.5}])
+    ]
+
+
+@pytest.mark.parametrize("database_url", ["sqlite"], indirect=True)
+def test_a_notified_empty_frame_moves_the_tracker_on(client, admin):
+    """The tracking process takes an empty frame another process received (its notification)
+    as if it had been posted to it."""
+    cameras = _cameras()[:2]
+    a, b = _register(client, admin, cameras)
+    tracking = client.app.state.tracking
+    T = float(np.ceil(time.time())) + 10.0
+    tracking._clock = _Clock(T)
+    px = cameras[0].project(np.array([[2.0, 1.5, 0.0]]))[0].tolist()
+    base = tracking.frames_processed
+    body = {
+        "observations": [{"camera_id": a, "t": T - 0.5, "pixel": px, "target": "cup"}],
+        "empty_frames": [{"camera_id": b, "t": T - 0.5}],
+    }
+    assert client.post("/api/v1/observations", json=body, headers=admin).status_code == 200
+    assert _processed(tracking, base + 2)
+    body = {"observations": [{"camera_id": a, "t": T - 0.1, "pixel": px, "target": "cup"}]}
+    assert client.post("/api/v1/observations", json=body, headers=admin).status_code == 200
+    time.sleep(0.2)
+    assert tracking.frames_processed == base + 2  # camera a's frame waits for camera b
+    tracking._on_detections({"space": None, "items": [{"c": b, "t": T - 0.1}]})
+    tracking._read_notified()
+    assert _processed(tracking, base + 4)
+    assert client.app.state.targets.latest("cup")[1] == T - 0.1

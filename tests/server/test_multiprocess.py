@@ -313,7 +313,8 @@ def test_processes_share_live_targets_and_survive_a_kill(database_url, tmp_path)
             f"p95 {np.percentile(to_owner, 95) * 1e3:.0f} ms, max {to_owner.max() * 1e3:.0f} "
             f"ms; post->own WS p50 {np.median(same_process) * 1e3:.0f} ms"
         )
-        # Posts every 50 ms for 1.5 s, streamed at 10 Hz: at most 15 messages each way.
+        # Posts every 50 ms for 1.5 s: about 30 updates, of which the streams (at most 30
+        # messages a second) carry at least a quarter each way.
         assert to_other.size >= 7 and to_owner.size >= 7
         assert np.percentile(to_other, 95) <= 0.2 and np.percentile(to_owner, 95) <= 0.2
         # One body, one target, the same in every process's list.

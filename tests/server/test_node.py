@@ -518,3 +518,91 @@ def test_config_file_is_validated_with_the_field_named():
         load_config("cameras:\n  - {name: a, source: 0}\n  - {name: a, source: 1}\n")
     with pytest.raises(InvalidInput, match="token"):
         load_config("token: secret\ncameras:\n  - {name: a, source: 0}\n")
+
+
+# -- uploads ------------------------------------------------------------------------------------
+
+
+class _FakeService:
+    """Stands for ServiceClient: keeps each POST /observations body; answers `status`."""
+
+    def __init__(self, status: int = 200) -> None:
+        self.bodies: list[dict] = []
+        self.status = status
+        self.offset = 0.0
+        self.posted = threading.Event()
+
+    def request(self, method: str, path: str, **kwargs) -> httpx.Response:
+        assert (method, path) == ("POST", "/observations")
+        self.bodies.append(kwargs["json"])
+        self.posted.set()
+        return httpx.Response(self.status, json={"late": 0})
+
+
+def test_uploader_posts_frames_without_detections_in_order_with_the_detections():
+    from server.node.client import Uploader
+
+    service = _FakeService()
+    uploader = Uploader(service, capacity=5)  # type: ignore[arg-type]
+    seen = {"camera_id": 1, "t": 10.0, "pixel": [1.0, 2.0], "cov": [[1, 0], [0, 1]]}
+    # Queued before the thread starts: one batch, in the order the frames were processed.
+    uploader.push([seen])
+    uploader.push_empty(2, 10.0)
+    uploader.push_empty(1, 10.1)
+    uploader.start()
+    uploader.stop()
+    (body,) = service.bodies
+    assert body["observations"] == [seen]
+    assert body["empty_frames"] == [{"camera_id": 2, "t": 10.0}, {"camera_id": 1, "t": 10.1}]
+    assert (uploader.posted, uploader.posted_empty, uploader.dropped) == (1, 2, 0)
+    assert len(uploader.delays) == 3  # one capture-to-posted delay per camera frame
+    # Over the capacity the oldest go first, each counted as what it was.
+    full = Uploader(service, capacity=2)  # type: ignore[arg-type]
+    full.push_empty(2, 11.0)
+    full.push([dict(seen, t=11.0)])
+    full.push_empty(2, 11.1)
+    full.push_empty(2, 11.2)
+    assert (full.dropped_empty, full.dropped, full.pending) == (1, 1, 2)
+    # A batch of empty frames alone still names its (empty) observations: an ingest token's
+    # check reads the cameras of `observations`.
+    service.bodies.clear()
+    full.start()
+    full.stop()
+    assert service.bodies == [
+        {
+            "observations": [],
+            "empty_frames": [{"camera_id": 2, "t": 11.1}, {"camera_id": 2, "t": 11.2}],
+        }
+    ]
+
+
+def test_client_measures_its_clock_offset_from_the_service_time_header():
+    """A loaded service refreshes its whole-second Date late (its event loop ticks late), which
+    biases an offset measured from Dates; POST /observations gives its time exactly."""
+    import email.utils
+
+    from server.node.client import ServiceClient
+
+    stale = 1.7  # s: a Date refreshed this late lies outside the [D, D + 2) it is assumed in
+
+    def answer(request: httpx.Request) -> httpx.Response:
+        now = time.time()
+        headers = {"Date": email.utils.formatdate(np.floor(now - stale), usegmt=True)}
+        if request.url.path.endswith("/observations"):
+            headers["X-Server-Time"] = f"{now:.6f}"
+        return httpx.Response(200, json={"late": 0}, headers=headers)
+
+    client = ServiceClient("http://service/api/v1", "token")
+    client._http = httpx.Client(transport=httpx.MockTransport(answer))
+    for _ in range(40):  # Date only: the estimate leans on the stale Dates
+        client.request("GET", "/cameras/1")
+        time.sleep(0.025)
+    dated = client.offset
+    for _ in range(5):
+        client.request("POST", "/observations", json={})
+    # The same clock serves both here: the true offset is 0. Each exact answer bounds it by
+    # its round trip (well under 50 ms in process); the Dates no longer count.
+    assert abs(client.offset) <= client.clock.uncertainty < 0.05, (client.offset, dated)
+    client.request("GET", "/cameras/1")
+    assert abs(client.offset) < 0.05
+    client.close()

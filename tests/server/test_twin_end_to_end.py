@@ -53,8 +53,8 @@ def test_node_path_tracks_the_robot_as_well_as_the_in_process_path(tmp_path):
     # Spec 08: the node's path (JPEG at quality 85, the stream, the node's clock) within 1.2x.
     assert both.external_rmse_m <= 1.2 * both.internal_rmse_m, report
     # Every scored point reached the WebSocket, within the reorder window plus a second: the
-    # rest is the twin's rendering, the stream, the node, the POST and the stream's 10 Hz
-    # limit, about 0.1 s on a quiet machine and up to 0.55 s measured at a load of 13 on two
+    # rest is the stream, the node's decoding and detection, the POST, the tracker and the
+    # WebSocket (at most 30 messages a second), up to 0.55 s measured at a load of 13 on two
     # cores; a node that queued frames instead of keeping the newest would drift further
     # behind with every frame. Spec 08's 200 ms p95 needs a window far below this one: the
     # bench reports it, this test does not assert it.
