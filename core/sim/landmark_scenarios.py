@@ -42,13 +42,20 @@ the reading pose T* (the camera on the mark's horizontal normal at the distance 
 spans READ_MODULE_PX pixels, looking at its centre); since the base is nonholonomic and the head
 keeps the mark in view, the base is driven to the floor pose under T* by the polar
 pose-regulation law (Astolfi 1999) and the head's pan and tilt aim at the mark; the estimate is
-refreshed every frame, and reading stops when the symbol decodes. The survey maps what it reads
-on the odometry, corrected whenever a signpost (whose payload carries its world pose) is read
-within RELOCALISE_M.
+refreshed every frame, and reading stops when the symbol decodes. The base gets there without
+touching furniture the way a robot with a map would: the floor plan (walls, doors, furniture
+footprints; a prior, like the installer's plan) is its occupancy grid (core.navigation,
+inflated by the base radius and PLAN_MARGIN); a route planned on it leads to a hand-over point
+on the mark's estimated normal, APPROACH_M behind the reading pose, re-planned when the
+estimate moves by REPLAN_M; from there the polar law drives straight in. The survey maps what
+it reads on the odometry, corrected whenever a signpost (whose payload carries its world pose)
+is read within RELOCALISE_M, each correction spread back over the reads since the previous one
+(_Survey).
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from itertools import combinations
 from typing import Any
@@ -68,8 +75,16 @@ from core.landmarks.detect import LandmarkDetection, detect_landmarks
 from core.landmarks.maps import NavigationMap, NoRoute, SemanticMap, detection_in_world
 from core.landmarks.payload import ObjectMark, PayloadError, Signpost, decode_payload
 from core.localization.occluders import line_of_sight
+from core.navigation import (
+    BlockedEndpoint,
+    OccupancyGrid,
+    occupancy_grid,
+    plan_path,
+    segment_is_free,
+)
+from core.navigation import NoRoute as NoPath
 from core.sim._geometry import quaternion_to_matrix
-from core.sim.motion import Patrol, Pose2D, UnicycleBase
+from core.sim.motion import Pose2D, UnicycleBase
 from core.sim.occluders import scene_occluders
 from core.sim.render import SensorNoise
 from core.sim.render.landmarks import (
@@ -549,6 +564,24 @@ MATCH_RADIUS = 0.5  # m: a detection within this of the estimate is the tracked 
 READ_TIMEOUT_S = 60.0
 RELOCALISE_M = 1.5  # m: a signpost read from nearer than this corrects the odometry
 RELOCALISE_GATE = (1.0, 0.35)  # m, rad: larger corrections are outliers
+RELOCALISE_CHI2 = 11.34  # chi-square, 3 degrees of freedom, 99 %: the fix's consistency gate
+# The approach: a collision-free route on the floor plan (walls and furniture footprints
+# inflated by the base radius and PLAN_MARGIN; core.navigation) to the hand-over point,
+# APPROACH_M behind the estimated reading pose on the mark's normal; there the base turns to
+# face the mark and the PBVS law drives the last, straight stretch.
+PLAN_RESOLUTION = 0.05  # m: the occupancy grid's cell
+PLAN_MARGIN = 0.05  # m beyond the base radius where the base may stand (reading poses)
+# m beyond the base radius along routes: the pose estimate drifts by several centimetres
+# between two signposts (10 cm measured in the survey), so routes keep off obstacles by more
+# where the floor allows (where it does not, routes fall back to PLAN_MARGIN).
+TRANSIT_MARGIN = 0.15
+APPROACH_M = 0.4  # m: the hand-over point's distance behind the reading pose, at most
+REPLAN_M = 0.15  # m: the reading pose's estimate moving more than this re-plans the route
+REPLAN_RAD = 0.3  # rad: likewise for its heading
+WAYPOINT_M = 0.05  # m: a route point counts as reached within this
+TURN_IN_PLACE_RAD = 0.35  # rad: larger heading errors turn the base on the spot
+FACE_RAD = 0.05  # rad: heading error at the hand-over point below which PBVS takes over
+FOLLOW_GAIN = 2.0  # 1/s: turn rate per radian of heading error while following the route
 
 
 def _rz(a: float) -> Array:
@@ -619,6 +652,20 @@ class _Track:
     seen: float
 
 
+@dataclass
+class _Approach:
+    """A planned approach, odometry frame: `target` the reading pose (x, y, yaw) it was planned
+    for, `offset` (2,) from the estimated reading pose to the free one the route leads to
+    (zero unless the estimate fell in an obstacle's margin), `route` (N, 2) ending at the
+    hand-over point, the next route point's index, and whether PBVS drives now (`final`)."""
+
+    target: Array
+    offset: Array
+    route: Array
+    index: int = 1
+    final: bool = False
+
+
 @dataclass(frozen=True)
 class ReadOutcome:
     """One PBVS reading: whether the symbol was read, when (s after the start), the decoded
@@ -670,6 +717,19 @@ class HeadRobot:
         # corrected when a signpost is read (relocalise).
         self.T_world_odom = np.eye(4)
         self.frames = 0
+        self.drift_clock = 0.0  # metres driven plus radians turned, on the odometry
+        # The pose estimate's covariance (x, y, yaw) at the last fix (the start is known) and
+        # the drift clock then (relocalise).
+        self.P = np.zeros((3, 3))
+        self.fix_clock = 0.0
+        # The floor plan (walls, doors, furniture footprints) is the robot's map, a prior.
+        self.grid: OccupancyGrid = occupancy_grid(
+            scene, self.robot.base_radius + PLAN_MARGIN, PLAN_RESOLUTION
+        )
+        self.transit: OccupancyGrid = occupancy_grid(
+            scene, self.robot.base_radius + TRANSIT_MARGIN, PLAN_RESOLUTION
+        )
+        self.approach: _Approach | None = None
 
     @property
     def time(self) -> float:
@@ -721,7 +781,14 @@ class HeadRobot:
     def drive(self, v: float, omega: float, dt: float) -> None:
         """Command the base (v m/s, omega rad/s) for dt seconds."""
         for _ in range(max(1, round(dt / BASE_DT))):
+            before = self.base.state.odometry
             self.base.step(v, omega)
+            after = self.base.state.odometry
+            # The odometry's drift grows with the distance driven and the angle turned (the
+            # slip model's variances are linear in both): the clock the survey spreads a
+            # relocalisation's correction along.
+            self.drift_clock += float(np.hypot(after.x - before.x, after.y - before.y))
+            self.drift_clock += abs(_wrap(after.yaw - before.yaw))
             self.collided = self.collided or self.collides()
 
     def collides(self) -> bool:
@@ -731,9 +798,15 @@ class HeadRobot:
 
     def relocalise(self, det: LandmarkDetection, T_odom_cam: Array) -> bool:
         """Correct T_world_odom from a signpost read within RELOCALISE_M with its rotation
-        fixed by the symbol (its payload carries its world pose): T_world_cam = T_world_mark
-        T_cam_mark^-1, kept planar (x, y, yaw). A correction larger than RELOCALISE_GATE (m,
-        rad) is refused as an outlier. Return whether it was applied."""
+        fixed by the symbol (its payload carries its world pose): the fix T_world_cam =
+        T_world_mark T_cam_mark^-1, kept planar (camera x, y and yaw), with its covariance
+        from the detection's (first order), is fused with the odometry's estimate by a Kalman
+        update. The odometry's covariance grows from the last fix by the slip model (variances
+        linear in the drift clock; the position's also by the heading's, integrated); a
+        ring's yaw is its weakest direction (degrees), so the odometry keeps weight there. A
+        correction larger than RELOCALISE_GATE (m, rad), or whose innovation fails the
+        chi-square test against the summed covariances (RELOCALISE_CHI2), is refused as an
+        outlier. Return whether it was applied."""
         rec = det.record
         if not isinstance(rec, Signpost) or not det.orientation_known:
             return False
@@ -742,14 +815,48 @@ class HeadRobot:
         T_world_mark = np.eye(4)
         T_world_mark[:3, :3] = quaternion_to_matrix(rec.pose[3:])
         T_world_mark[:3, 3] = rec.pose[:3]
-        M = T_world_mark @ np.linalg.inv(det.T_cam_mark) @ np.linalg.inv(T_odom_cam)
+        T_wc = T_world_mark @ np.linalg.inv(det.T_cam_mark)
+        M = T_wc @ np.linalg.inv(T_odom_cam)
+        W = self.T_world_odom
         new = floor_pose(M[0, 3], M[1, 3], float(np.arctan2(M[1, 0], M[0, 0])))
-        D = new @ np.linalg.inv(self.T_world_odom)
+        D = new @ np.linalg.inv(W)
         at = D @ np.append(T_odom_cam[:3, 3], 1.0) - np.append(T_odom_cam[:3, 3], 1.0)
         dist_gate, angle_gate = RELOCALISE_GATE
         if np.hypot(at[0], at[1]) > dist_gate or abs(np.arctan2(D[1, 0], D[0, 0])) > angle_gate:
             return False
-        self.T_world_odom = new
+        # The fix's covariance: camera position c = -R^T t in the mark frame and the camera's
+        # yaw, to first order in (rotation vector, translation) of T_cam_mark.
+        R_cm, t = det.T_cam_mark[:3, :3], det.T_cam_mark[:3, 3]
+        tx = np.array([[0.0, -t[2], t[1]], [t[2], 0.0, -t[0]], [-t[1], t[0], 0.0]])
+        J = np.zeros((3, 6))
+        J[:2] = (T_world_mark[:3, :3] @ np.hstack([-R_cm.T @ tx, -R_cm.T]))[:2]
+        J[2, :3] = -T_wc[2, :3]
+        R_fix = J @ det.cov @ J.T
+        # The odometry's covariance since the last fix (slip model, drift clock d).
+        slip = self.robot.slip
+        d = self.drift_clock - self.fix_clock
+        q_h = max(slip.heading_per_sqrt_m, slip.heading_per_sqrt_rad) ** 2
+        q_p = max(slip.distance_per_sqrt_m, slip.lateral_per_sqrt_m) ** 2
+        P = self.P.copy()
+        P[2, 2] += q_h * d
+        P[:2, :2] += np.eye(2) * (q_p * d + self.P[2, 2] * d**2 + q_h * d**3 / 3.0)
+        c_odom = np.append(T_odom_cam[:2, 3], 0.0)
+        est = np.append((W @ np.append(T_odom_cam[:3, 3], 1.0))[:2], np.arctan2(W[1, 0], W[0, 0]))
+        fix = np.array([T_wc[0, 3], T_wc[1, 3], np.arctan2(M[1, 0], M[0, 0])])
+        nu = fix - est
+        nu[2] = _wrap(nu[2])
+        S = P + R_fix
+        # A fix that disagrees with the odometry beyond its covariance (the rings' other pose,
+        # whose yaw the wide RELOCALISE_GATE still lets through) is an outlier.
+        if float(nu @ np.linalg.solve(S, nu)) > RELOCALISE_CHI2:
+            return False
+        K = P @ np.linalg.inv(S)
+        x = est + K @ nu
+        self.P = (np.eye(3) - K) @ P
+        self.fix_clock = self.drift_clock
+        W_new = floor_pose(0.0, 0.0, float(x[2]))
+        W_new[:2, 3] = x[:2] - W_new[:2, :2] @ c_odom[:2]
+        self.T_world_odom = W_new
         return True
 
     def locate(self, det: LandmarkDetection) -> Array:
@@ -765,9 +872,12 @@ class HeadRobot:
         nearest the track (within MATCH_RADIUS), else keep it (the odometry moves the robot
         under it); the reading pose puts the camera on the mark's horizontal normal at the
         distance where a nominal module spans READ_MODULE_PX pixels (reading_standoff); the
-        base is driven there by the polar law, the head aims at the mark. Stops when the
+        base follows a route planned on the floor plan to a point on that normal behind it
+        (`_plan_approach`, re-planned when the estimate moves), turns to face the mark, and
+        the polar law drives it in; the head aims at the mark throughout. Stops when the
         tracked landmark is decoded, or at `timeout`.
         """
+        self.approach = None
         t0 = self.time
         frames0 = self.frames
         f = float((self.K[0, 0] + self.K[1, 1]) / 2)
@@ -830,18 +940,182 @@ class HeadRobot:
         return np.array([base[0], base[1], np.arctan2(-n[1], -n[0])]), cam
 
     def _servo(self, track: _Track, f: float) -> None:
+        """Run one frame of the approach: the route while it lasts, then the polar law; the
+        base's controller runs every BASE_DT on the odometry, the head aims at the mark."""
         goal, _ = self._goal(track, f)
-        o = self.odom()
-        v, omega, rho = polar_command(o, goal)
-        if rho < 0.02 and abs(_wrap(goal[2] - o[2])) < 0.03:
-            v, omega = 0.0, 0.0  # at the reading pose: wait for a read
+        ap = self.approach
+        if ap is None or (
+            np.hypot(*(goal[:2] - ap.target[:2])) > REPLAN_M
+            or abs(_wrap(goal[2] - ap.target[2])) > REPLAN_RAD
+        ):
+            ap = self.approach = self._plan_approach(goal)
+        final = goal.copy()
+        if ap is not None:
+            final[:2] += ap.offset
+
+        def command() -> tuple[float, float]:
+            if ap is not None and not ap.final:
+                return self._follow(ap, final[2])
+            o = self.odom()
+            v, omega, rho = polar_command(o, final)
+            if rho < 0.02 and abs(_wrap(final[2] - o[2])) < 0.03:
+                return 0.0, 0.0  # at the reading pose: wait for a read
+            return v, omega
+
+        v, omega = command()
         # Aim the head at the mark from where the base will be after this frame.
+        o = self.odom()
         m_r = np.linalg.inv(floor_pose(*o)) @ np.append(track.T[:3, 3], 1.0)
         rel = m_r[:3] - np.asarray(self.head.position)
         pan = float(np.arctan2(rel[1], rel[0]) - omega * FRAME_DT)
         tilt = float(np.arctan2(-rel[2], np.hypot(rel[0], rel[1])))
         self.aim(pan, tilt, FRAME_DT)
-        self.drive(v, omega, FRAME_DT)
+        for k in range(max(1, round(FRAME_DT / BASE_DT))):
+            if k:
+                v, omega = command()
+            self.drive(v, omega, BASE_DT)
+
+    def _free(self, p: Array, grid: OccupancyGrid | None = None) -> bool:
+        """Return whether the world point p (x, y) lies in a free cell of `grid` (default: the
+        grid of where the base may stand)."""
+        g = self.grid if grid is None else grid
+        j = int(np.floor((p[0] - g.origin[0]) / g.resolution))
+        i = int(np.floor((p[1] - g.origin[1]) / g.resolution))
+        rows, cols = g.free.shape
+        return bool(0 <= i < rows and 0 <= j < cols and g.free[i, j])
+
+    def _sees(self, a: Array, b: Array) -> bool:
+        """Return whether the straight segment a -> b (world x, y) stays in free cells."""
+        o = np.asarray(self.grid.origin)
+        r = self.grid.resolution
+        return segment_is_free(self.grid.free, (a - o) / r, (b - o) / r)
+
+    @staticmethod
+    def _nearest_free(g: OccupancyGrid, p: Array, within: float = 0.5) -> Array | None:
+        """Return the centre of the free cell of `g` nearest the world point p (x, y) within
+        `within` metres, or None."""
+        c = g.centres()[g.free]
+        if len(c) == 0:
+            return None
+        d = np.linalg.norm(c - p, axis=1)
+        k = int(np.argmin(d))
+        return c[k] if d[k] <= within else None
+
+    def _route_on(self, g: OccupancyGrid, a: Array, b: Array) -> Array | None:
+        """Return the route (N, 2) from a to b on grid g, with straight legs from a to g's
+        nearest free cell and from g's nearest free cell to b when they lie in its margin
+        (None when there is no route or those legs cross where the base may not stand)."""
+        s = a if self._free(a, g) else self._nearest_free(g, a)
+        t = b if self._free(b, g) else self._nearest_free(g, b)
+        if s is None or t is None:
+            return None
+        try:
+            route = plan_path(g.free, s, t, resolution=g.resolution, origin=g.origin)
+        except (BlockedEndpoint, NoPath):
+            return None
+        if s is not a:
+            # Out of the margin to its nearest free cell (short; checked on the floor where
+            # the base may stand, unless it already stands in that margin too).
+            if self._free(a) and not self._sees(a, s):
+                return None
+            route = np.vstack([a, route])
+        if t is not b:
+            if not self._sees(t, b):
+                return None
+            route = np.vstack([route, b])
+        return route
+
+    def plan_route(self, target_world: Array) -> Array | None:
+        """Return a collision-free route (N, 2), world (x, y), from the base's estimated
+        position (odometry through T_world_odom) to `target_world`: on the grid inflated by
+        TRANSIT_MARGIN where the floor allows, else on the one inflated by PLAN_MARGIN (legs
+        in and out of a grid's margin straight; `_route_on`), or None when there is none."""
+        W = self.T_world_odom
+        o = self.odom()
+        here = (W @ np.array([o[0], o[1], 0.0, 1.0]))[:2]
+        goal = np.asarray(target_world, dtype=np.float64)
+        if not self._free(goal):
+            near = self._nearest_free(self.grid, goal)
+            if near is None:
+                return None
+            goal = near
+        route = self._route_on(self.transit, here, goal)
+        return route if route is not None else self._route_on(self.grid, here, goal)
+
+    def _plan_approach(self, goal: Array) -> _Approach | None:
+        """Return the approach to the reading pose `goal` (x, y, yaw; odometry frame): the
+        free pose nearest it on the mark's normal (the pose itself, unless the estimate put it
+        within an obstacle's margin), the hand-over point up to APPROACH_M behind it with a
+        free straight run in, and the route there; None when no free pose or route exists
+        (the polar law then drives alone)."""
+        W = self.T_world_odom
+        out_w = W[:2, :2] @ -np.array([np.cos(goal[2]), np.sin(goal[2])])  # away from the mark
+        g_w = (W @ np.array([goal[0], goal[1], 0.0, 1.0]))[:2]
+        steps = np.arange(0.0, 0.5 + 1e-9, PLAN_RESOLUTION)
+        shift = next((s for s in steps if self._free(g_w + out_w * s)), None)
+        if shift is None:
+            return None
+        g_w = g_w + out_w * shift
+        hand = next(
+            (
+                g_w + out_w * s
+                for s in np.arange(APPROACH_M, -1e-9, -PLAN_RESOLUTION)
+                if self._free(g_w + out_w * s) and self._sees(g_w + out_w * s, g_w)
+            ),
+            g_w,
+        )
+        route = self.plan_route(hand)
+        if route is None:
+            return None
+        W_inv = np.linalg.inv(W)
+        route_odom = route @ W_inv[:2, :2].T + W_inv[:2, 3]
+        offset = W_inv[:2, :2] @ (out_w * shift)
+        return _Approach(goal.copy(), offset, route_odom)
+
+    def _follow(self, ap: _Approach, heading: float) -> tuple[float, float]:
+        """Return (v, omega) following the route on the odometry: turn on the spot towards
+        the next route point when off by more than TURN_IN_PLACE_RAD, else drive at it,
+        braking to stop there; at the route's end turn to `heading`, then hand over to PBVS."""
+        o = self.odom()
+        route = ap.route
+        while ap.index < len(route) and np.hypot(*(route[ap.index] - o[:2])) < WAYPOINT_M:
+            ap.index += 1
+        if ap.index >= len(route):
+            err = _wrap(heading - o[2])
+            if abs(err) < FACE_RAD:
+                ap.final = True
+                return 0.0, 0.0
+            return 0.0, FOLLOW_GAIN * err
+        d = route[ap.index] - o[:2]
+        err = _wrap(float(np.arctan2(d[1], d[0])) - o[2])
+        if abs(err) > TURN_IN_PLACE_RAD:
+            return 0.0, FOLLOW_GAIN * err
+        lim = self.robot.limits
+        # Brake in time for the turn at the next point: v <= sqrt(2 (a / 2) d).
+        v = min(lim.max_speed, float(np.sqrt(lim.max_acceleration * np.hypot(*d))))
+        return v * float(np.cos(err)), FOLLOW_GAIN * err
+
+    def go_to(self, target_world: Array, timeout: float = 120.0) -> bool:
+        """Drive the base to the world point (x, y) along a route planned on the floor plan
+        (straight when none exists); return whether it arrived within `timeout` s."""
+        route = self.plan_route(np.asarray(target_world, dtype=np.float64))
+        W_inv = np.linalg.inv(self.T_world_odom)
+        if route is None:
+            route = np.asarray([target_world], dtype=np.float64)
+        route_odom = route @ W_inv[:2, :2].T + W_inv[:2, 3]
+        ap = _Approach(np.zeros(3), np.zeros(2), route_odom, index=0)
+        t0 = self.time
+        while self.time - t0 < timeout:
+            o = self.odom()
+            while ap.index < len(route_odom) and (
+                np.hypot(*(route_odom[ap.index] - o[:2])) < WAYPOINT_M
+            ):
+                ap.index += 1
+            if ap.index >= len(route_odom):
+                self.drive(0.0, 0.0, 0.5)
+                return True
+            self.drive(*self._follow(ap, o[2]), BASE_DT)
+        return False
 
     def _task_error(self, track: _Track, f: float) -> tuple[float, float]:
         """Return |t - t*| (m) and theta (deg) of e = (t - t*, theta u) from the estimate:
@@ -941,17 +1215,6 @@ def _start_pose(
         eye = floor_pose(p[0], p[1], yaw) @ np.append(head, 1.0)
         if not line_of_sight(eye[None, :3], m[None], robot.occluders)[0, 0]:
             continue
-        # PBVS is a local law: the corridor the base sweeps towards the mark must be free.
-        goal = m[:2] + n[:2] * 0.45
-        u = (goal - p) / max(float(np.linalg.norm(goal - p)), 1e-9)
-        side = np.array([-u[1], u[0]]) * robot.robot.base_radius
-        ends = [(p + o, goal + o) for o in (side, -side, 0 * side)]
-        z = robot.robot.base_height / 2
-        if not all(
-            line_of_sight(np.append(a, z)[None], np.append(b, z)[None], robot.occluders)[0, 0]
-            for a, b in ends
-        ):
-            continue
         return np.array([p[0], p[1], yaw]), float(r), float(np.degrees(b))
     return None
 
@@ -988,12 +1251,12 @@ def landmark_reading(
     Each trial picks one of the scene's landmarks at random (only it is drawn, so the robot
     cannot lock onto another) and a free start 0.8-2.5 m (object marks) or 0.8-4 m (signposts)
     from it (another landmark when 200 draws find none), within 60 deg of its normal, with
-    the mark in the head's line of sight, a free corridor for the base towards it (PBVS is a
-    local law; planning around furniture is spec 03's) and the robot turned up to 90 deg away
-    from it (the head searches first). The robot reads it with HeadRobot.read (calibrated
-    head camera, odometry only); a trial succeeds when the decoded record is the landmark's
-    own, within `timeout` simulated seconds, and the base never touched a wall or furniture
-    (scored on the true pose).
+    the mark in the head's line of sight (furniture may stand between the base and the
+    reading pose: the approach is planned on the floor plan) and the robot turned up to 90
+    deg away from it (the head searches first). The robot reads it with HeadRobot.read
+    (calibrated head camera, odometry from the known start, the floor plan as its map); a
+    trial succeeds when the decoded record is the landmark's own, within `timeout` simulated
+    seconds, and the base never touched a wall or furniture (scored on the true pose).
     """
     if trials < 1 or calibration_views < 3 or not timeout > 0:
         raise InvalidInput(
@@ -1110,8 +1373,10 @@ class LandmarkSurveyResult:
     semantic map's mean and max position error against the twin (m), false entries (an id no
     landmark carries, or more than MATCH_TRUTH_M from its landmark) and duplicates (two entries
     of one landmark), landmarks seen but not read, the reads attempted by PBVS and their
-    successes, the drive's time (s) and frames, the odometry's final drift (m), routes between
-    every pair of rooms, and both maps (GeoJSON-like)."""
+    successes, the drive's time (s), whether it finished the tour (not cut short by a
+    duration) and whether the base ever touched a wall or furniture (scored on the true pose),
+    its frames, the odometry's final drift (m), routes between every pair of rooms, and both
+    maps (GeoJSON-like)."""
 
     scenario: str
     seed: int
@@ -1129,6 +1394,8 @@ class LandmarkSurveyResult:
     reads_attempted: int
     reads_succeeded: int
     time_s: float
+    completed: bool
+    collided: bool
     frames: int
     odometry_drift_m: float
     calibration_rms_px: float
@@ -1142,17 +1409,112 @@ class LandmarkSurveyResult:
         return asdict(self)
 
 
+def _se2_log(D: Array) -> Array:
+    """Return (theta, u) (3,) of a planar rigid transform D (4, 4): D = exp(theta, u)."""
+    th = float(np.arctan2(D[1, 0], D[0, 0]))
+    V = _se2_V(th)
+    return np.array([th, *np.linalg.solve(V, D[:2, 3])])
+
+
+def _se2_V(th: float) -> Array:
+    if abs(th) < 1e-9:
+        return np.eye(2)
+    a, b = np.sin(th) / th, (1.0 - np.cos(th)) / th
+    return np.array([[a, -b], [b, a]])
+
+
+def _se2_exp(x: Array) -> Array:
+    """Return the planar rigid transform (4, 4) exp(theta, u) of x = (theta, u)."""
+    T = floor_pose(0.0, 0.0, float(x[0]))
+    T[:2, 3] = _se2_V(float(x[0])) @ x[1:]
+    return T
+
+
+@dataclass(frozen=True)
+class SurveyRead:
+    """An object mark or signpost the survey read, as it enters the maps: the record, the
+    mark's world pose T_world_mark (4, 4) with the (6, 6) covariance of (rotation
+    perturbation, position) (the detection's, the camera pose held exact), the simulated time
+    of the read (s) and the camera-to-mark distance (m)."""
+
+    record: ObjectMark | Signpost
+    T_world_mark: Array
+    cov: Array
+    time: float
+    distance: float
+
+
+@dataclass
+class _Read:
+    """An object mark read, kept on the odometry: the detection, the camera pose it was seen
+    from (odometry frame), the time, the drift clock, and the relocalisations before it."""
+
+    det: LandmarkDetection
+    T_odom_cam: Array
+    time: float
+    clock: float
+    fixes: int
+    W: Array
+
+
 class _Survey:
     """The survey's state: the robot, both maps and the places where unread landmarks were
-    located (odometry frame)."""
+    located (odometry frame).
 
-    def __init__(self, robot: HeadRobot) -> None:
+    Object marks are mapped through the robot's pose estimate, the odometry corrected at each
+    signpost read (HeadRobot.relocalise). The odometry drifts between two corrections; when
+    the second comes, its correction D is spread back along the reads made since the first,
+    in proportion to the drift clock (metres driven plus radians turned, the slip model's
+    variance being linear in both): a read at a fraction lam of the way gets exp(lam log D),
+    the Brownian-bridge estimate of the drift it was made with. The semantic map is rebuilt
+    from the reads so corrected; reads reach `on_read` once the correction after them is
+    known (or at the end of the survey)."""
+
+    def __init__(
+        self, robot: HeadRobot, on_read: Callable[[SurveyRead], None] | None = None
+    ) -> None:
         self.robot = robot
         self.semantic = SemanticMap()
         self.navigation = NavigationMap()
         self.tried: list[Array] = []
         self.attempts = 0
         self.successes = 0
+        self.reads: list[_Read] = []
+        self.fixes: list[tuple[float, Array, Array]] = []  # (clock, W before, W after)
+        self.emitted = 0
+        self.on_read = on_read
+
+    def _world(self, read: _Read) -> Array:
+        """Return T_world_odom at a read: its estimate then, with the next relocalisation's
+        correction spread back to it (class docstring)."""
+        if read.fixes >= len(self.fixes):
+            return read.W
+        clock, W_old, W_new = self.fixes[read.fixes]
+        prev = self.fixes[read.fixes - 1][0] if read.fixes else 0.0
+        lam = float(np.clip((read.clock - prev) / max(clock - prev, 1e-9), 0.0, 1.0))
+        D = W_new @ np.linalg.inv(W_old)
+        return _se2_exp(lam * _se2_log(D)) @ read.W
+
+    def _entry(self, read: _Read) -> SurveyRead:
+        T, C = detection_in_world(read.det, self._world(read) @ read.T_odom_cam)
+        assert read.det.record is not None
+        return SurveyRead(
+            read.det.record, T, C, read.time, float(np.linalg.norm(read.det.position))
+        )
+
+    def _rebuild(self) -> None:
+        self.semantic = SemanticMap()
+        for read in self.reads:
+            e = self._entry(read)
+            assert isinstance(e.record, ObjectMark)
+            self.semantic.observe(e.record, e.T_world_mark, e.cov, e.time)
+
+    def flush(self) -> None:
+        """Hand the reads whose pose is settled (or all, at the end) to `on_read`."""
+        if self.on_read is not None:
+            for read in self.reads[self.emitted :]:
+                self.on_read(self._entry(read))
+        self.emitted = len(self.reads)
 
     def known(self, p_odom: Array) -> bool:
         """Return whether a located position (3,) in the odometry frame is a landmark already
@@ -1164,14 +1526,25 @@ class _Survey:
         return any(float(np.linalg.norm(p - q)) < SEPARATE_M for q in near)
 
     def record(self, det: LandmarkDetection, T_odom_cam: Array) -> None:
-        """Put a decoded detection in its map (the odometry frame is the world's estimate)."""
+        """Put a decoded detection in its map (class docstring); a signpost read near enough
+        also corrects the odometry."""
+        r = self.robot
         rec = det.record
         if isinstance(rec, ObjectMark):
-            T, C = detection_in_world(det, self.robot.T_world_odom @ T_odom_cam)
-            self.semantic.observe(rec, T, C, self.robot.time)
+            read = _Read(det, T_odom_cam, r.time, r.drift_clock, len(self.fixes), r.T_world_odom)
+            self.reads.append(read)
+            e = self._entry(read)
+            self.semantic.observe(rec, e.T_world_mark, e.cov, e.time)
         elif isinstance(rec, Signpost):
             self.navigation.observe(rec)
-            self.robot.relocalise(det, T_odom_cam)
+            W = r.T_world_odom
+            if self.on_read is not None:
+                T, C = detection_in_world(det, W @ T_odom_cam)
+                self.on_read(SurveyRead(rec, T, C, r.time, float(np.linalg.norm(det.position))))
+            if r.relocalise(det, T_odom_cam):
+                self.fixes.append((r.drift_clock, W, r.T_world_odom))
+                self._rebuild()
+                self.flush()
 
     def sweep(self) -> list[_Track]:
         """Sweep the head over SWEEP_PANS; map what is read; return the unread, unknown
@@ -1196,18 +1569,12 @@ class _Survey:
         todo.sort(key=lambda x: x[0])
         return [t for _, t in todo if not self.known(t.T[:3, 3])]
 
-    def go(self, target: Array) -> None:
-        """Drive the base to a floor point (x, y), world frame, by the patrol law on the
-        odometry (corrected by T_world_odom)."""
-        r = self.robot
-        assert r.scene.robot is not None
-        goal = np.linalg.inv(r.T_world_odom) @ np.array([target[0], target[1], 0.0, 1.0])
-        patrol = Patrol([goal[:2]], r.scene.robot.limits, loop=False, tolerance=0.05)
-        for _ in range(int(120 / BASE_DT)):
-            if patrol.done:
-                break
-            r.drive(*patrol.command(r.base.state.odometry), BASE_DT)
-        r.drive(0.0, 0.0, 0.5)
+    def go(self, target: Array, timeout: float = 120.0) -> None:
+        """Drive the base to a floor point (x, y), world frame, along a route planned on the
+        floor plan (HeadRobot.go_to) on the odometry (corrected by T_world_odom), for at most
+        `timeout` s."""
+        if timeout > 0:
+            self.robot.go_to(np.asarray(target, dtype=np.float64), timeout)
 
 
 def landmark_survey(
@@ -1216,15 +1583,26 @@ def landmark_survey(
     *,
     tour: tuple[tuple[float, float], ...] | None = None,
     calibration_views: int = CALIBRATION_VIEWS,
+    duration_s: float | None = None,
+    on_progress: Callable[[str, float], None] | None = None,
+    on_read: Callable[[SurveyRead], None] | None = None,
 ) -> LandmarkSurveyResult:
     """Return the metrics of `landmark-survey`: the robot drives `tour` (default: DEFAULT_TOUR
-    on the default home, else the robot's patrol), sweeps its head at every stop, maps every
-    landmark it reads, and reads by PBVS (HeadRobot.read, up to SURVEY_READ_TIMEOUT_S) every
-    landmark it located but could not read, coming back to the stop afterwards. Poses come
-    from the odometry (started at the robot's known start pose) and the calibrated head
-    camera; the twin's truth only scores the maps."""
+    on the default home, else the robot's patrol) along routes planned on the floor plan,
+    sweeps its head at every stop, maps every landmark it reads, and reads by PBVS
+    (HeadRobot.read, up to SURVEY_READ_TIMEOUT_S) every landmark it located but could not
+    read, coming back to the stop afterwards. Poses come from the odometry (started at the
+    robot's known start pose, corrected at signposts, _Survey) and the calibrated head camera;
+    the twin's truth only scores the maps.
+
+    duration_s: stop after this much simulated time (the tour cut short); on_progress(phase,
+    fraction) is called as the survey goes from stop to stop and read to read; on_read gets
+    every read as it enters the maps (object marks once their pose is settled, _Survey).
+    """
     if calibration_views < 3:
         raise InvalidInput("landmark-survey needs calibration_views >= 3")
+    if duration_s is not None and not (np.isfinite(duration_s) and duration_s > 0):
+        raise InvalidInput(f"duration_s must be a positive number of seconds, got {duration_s}")
     sc = scene if scene is not None else default_scene()
     if tour is None:
         if scene is None:
@@ -1239,24 +1617,49 @@ def landmark_survey(
     rng = np.random.default_rng(seed)
     K, dist, rms = _calibrated(sc, rng, calibration_views)
     robot = HeadRobot(sc, K, dist, rng=rng)
-    survey = _Survey(robot)
-    for stop in stops:
-        survey.go(stop)
-        for track in survey.sweep():
+    survey = _Survey(robot, on_read)
+    end = np.inf if duration_s is None else float(duration_s)
+    n = len(stops)
+
+    def progress(k: int, what: str) -> None:
+        if on_progress is not None:
+            done = max(k / n, min(robot.time / end, 1.0))
+            on_progress(f"stop {k + 1} of {n}: {what}", float(done))
+
+    completed = True
+    for k, stop in enumerate(stops):
+        if robot.time >= end:
+            completed = False
+            break
+        progress(k, "driving")
+        survey.go(stop, min(120.0, end - robot.time))
+        if robot.time >= end:
+            completed = False
+            break
+        progress(k, "sweeping the head")
+        tracks = survey.sweep()
+        for j, track in enumerate(tracks):
             if survey.known(track.T[:3, 3]):
                 continue  # read meanwhile, from another reading pose
+            left = end - robot.time
+            if left <= 0:
+                break
+            progress(k, f"reading landmark {j + 1} of {len(tracks)} located")
             survey.attempts += 1
-            out = robot.read(track, SURVEY_READ_TIMEOUT_S)
+            out = robot.read(track, min(SURVEY_READ_TIMEOUT_S, left))
             if out.read and out.detection is not None and out.T_odom_cam is not None:
                 survey.successes += 1
                 survey.record(out.detection, out.T_odom_cam)
             else:
                 survey.tried.append((robot.T_world_odom @ track.T[:, 3])[:3])
-            survey.go(stop)
-    return _score_survey(sc, survey, seed, rms)
+            survey.go(stop, min(120.0, end - robot.time))
+    survey.flush()
+    return _score_survey(sc, survey, seed, rms, completed and robot.time < end)
 
 
-def _score_survey(sc: Scene, survey: _Survey, seed: int, rms: float) -> LandmarkSurveyResult:
+def _score_survey(
+    sc: Scene, survey: _Survey, seed: int, rms: float, completed: bool
+) -> LandmarkSurveyResult:
     robot = survey.robot
     marks = robot.landmarks
     ids: dict[int, int] = {}
@@ -1307,6 +1710,7 @@ def _score_survey(sc: Scene, survey: _Survey, seed: int, rms: float) -> Landmark
         "every_seen_landmark_mapped": not seen_not_read,
         "no_false_or_duplicate_entries": false == 0 and duplicates == 0,
         "route_between_every_pair_of_rooms": all(r.places is not None for r in routes),
+        "no_collision": not robot.collided,
     }
     return LandmarkSurveyResult(
         scenario="landmark-survey",
@@ -1325,6 +1729,8 @@ def _score_survey(sc: Scene, survey: _Survey, seed: int, rms: float) -> Landmark
         reads_attempted=survey.attempts,
         reads_succeeded=survey.successes,
         time_s=robot.time,
+        completed=completed,
+        collided=robot.collided,
         frames=robot.frames,
         odometry_drift_m=float(np.hypot(true.x - odo.x, true.y - odo.y)),
         calibration_rms_px=float(rms),

@@ -334,6 +334,7 @@ __all__ = [
     "HandEyeResult",
     "HandEyeViews",
     "board_on_table",
+    "fetch_problem",
     "grasp",
     "grasp_episode",
     "hand_eye",
@@ -473,6 +474,47 @@ def _drive(
     return poses
 
 
+def _base_candidates(T_world_mark: Array) -> Array:
+    """Return the base poses (n, 3) a fetch may stand at for a mark: in the corridor between
+    the kitchen counter and the dining table, beside the mark, facing the table (+y)."""
+    return np.array(
+        [
+            [T_world_mark[0, 3] + dx, y, math.pi / 2 + dth]
+            for dx in np.linspace(-0.3, 0.3, 7)
+            for y in np.linspace(*_CORRIDOR_Y, 3)
+            for dth in (-0.4, -0.2, 0.0, 0.2, 0.4)
+        ]
+    )
+
+
+# A mark the controller grasps faces up: its normal within this of the world's +Z.
+_MAX_MARK_TILT = math.radians(20.0)
+
+
+def fetch_problem(mm: MobileManipulator, T_world_mark: Array) -> str | None:
+    """Return why the fetch of a box whose mark is at `T_world_mark` (4, 4; the semantic map's
+    pose) cannot start, or None: the controller grasps a box from above by the mark on its
+    top, so the mark must face up (within 20 deg), and a base pose in the kitchen corridor
+    must reach its pre-grasp pose within the arm's limits."""
+    T = np.asarray(T_world_mark, dtype=np.float64)
+    tilt = math.acos(float(np.clip(T[2, 2], -1.0, 1.0)))
+    if tilt > _MAX_MARK_TILT:
+        return (
+            f"its mark faces {math.degrees(tilt):.0f} deg away from up; the grasp controller "
+            "takes a box by the mark on its top (within 20 deg of level)"
+        )
+    cands = _base_candidates(T)
+    try:
+        mm.place_base(T @ _pre_grasp(), cands[len(cands) // 2], candidates=cands)
+    except InvalidInput:
+        x, y, z = (float(v) for v in T[:3, 3])
+        return (
+            f"no base pose in the kitchen corridor (y {_CORRIDOR_Y[0]}-{_CORRIDOR_Y[1]} m) "
+            f"reaches its pre-grasp pose over ({x:.2f}, {y:.2f}, {z:.2f}) m"
+        )
+    return None
+
+
 def _look_posture(mm: MobileManipulator) -> Array:
     """Joint values holding the camera 0.45 m above the shoulder, looking ahead and 35 degrees
     down: the posture the approach starts its gaze from."""
@@ -497,8 +539,18 @@ def grasp_episode(
     dt: float = 0.1,
     max_looks: int = 6,
     on_phase: Callable[[str], None] | None = None,
+    T_world_prior: Array | None = None,
+    on_joints: Callable[[Array], None] | None = None,
 ) -> GraspEpisode:
     """Run one randomised fetch and return its metrics (see `grasp`).
+
+    `T_world_prior` (4, 4), when given, is the mark's pose as the semantic map holds it: the
+    episode fetches the box there, and the twin puts its true box off that pose by the prior's
+    errors (N(0, prior_sigma_m^2) per floor axis, N(0, prior_sigma_rad^2) in yaw; the map's
+    height kept). Without it the box is placed at random on the dining table and the prior
+    drawn around it. `on_joints(q)`, when given, is called with the arm's joint values (6,)
+    each time the arm moves: every control step of the approach, each look, the grasp, the
+    lift.
 
     `on_phase(name)`, when given, is called as the episode enters each of GRASP_PHASES, in
     order: "approach" (base placement, driving with the gaze constraint, the first look over
@@ -518,13 +570,21 @@ def grasp_episode(
             on_phase(name)
 
     enter("approach")
-    xy = np.array([rng.uniform(5.95, 6.65), rng.uniform(1.60, 1.72)])
-    T_mark = _mark_pose(xy, rng.uniform(-math.pi, math.pi))
+    if T_world_prior is None:
+        xy = np.array([rng.uniform(5.95, 6.65), rng.uniform(1.60, 1.72)])
+        T_mark = _mark_pose(xy, rng.uniform(-math.pi, math.pi))
+        # The prior: the mark's pose as the semantic map holds it.
+        yaw_err = float(rng.normal(0.0, prior_sigma_rad))
+        T_prior = _mark_pose(xy + rng.normal(0.0, prior_sigma_m, 2), 0.0)
+        T_prior[:3, :3] = T_mark[:3, :3] @ _mark_pose(np.zeros(2), yaw_err)[:3, :3]
+    else:
+        T_prior = np.array(T_world_prior, dtype=np.float64)
+        # The twin's box, where the map is wrong by the prior's errors.
+        yaw_err = float(rng.normal(0.0, prior_sigma_rad))
+        T_mark = _mark_pose(T_prior[:2, 3] + rng.normal(0.0, prior_sigma_m, 2), 0.0)
+        T_mark[:3, :3] = T_prior[:3, :3] @ _mark_pose(np.zeros(2), yaw_err)[:3, :3]
+        T_mark[2, 3] = T_prior[2, 3]
     eye = _Eye(T_mark, sigma_px, rng)
-    # The prior: the mark's pose as the semantic map holds it.
-    yaw_err = float(rng.normal(0.0, prior_sigma_rad))
-    T_prior = _mark_pose(xy + rng.normal(0.0, prior_sigma_m, 2), 0.0)
-    T_prior[:3, :3] = T_mark[:3, :3] @ _mark_pose(np.zeros(2), yaw_err)[:3, :3]
     start = np.array([rng.uniform(5.0, 7.4), rng.uniform(*_CORRIDOR_Y), rng.uniform(-3.1, 3.1)])
     # The robot's own estimate of its start pose (its localisation), 3 cm / 0.03 rad off; it
     # then knows its motion by odometry (exact here: the drive has no wheel slip).
@@ -536,19 +596,15 @@ def grasp_episode(
         return GraspEpisode(False, math.nan, math.nan, t, vis, sw, looks, reason, phase)
 
     # Base placement for the prior's pre-grasp pose, from the corridor.
-    cands = np.array(
-        [
-            [T_prior[0, 3] + dx, y, math.pi / 2 + dth]
-            for dx in np.linspace(-0.3, 0.3, 7)
-            for y in np.linspace(*_CORRIDOR_Y, 3)
-            for dth in (-0.4, -0.2, 0.0, 0.2, 0.4)
-        ]
-    )
     try:
-        place = mm.place_base(T_prior @ _pre_grasp(), start_est, candidates=cands)
+        place = mm.place_base(
+            T_prior @ _pre_grasp(), start_est, candidates=_base_candidates(T_prior)
+        )
     except InvalidInput:
         return fail("no base placement", 0.0, 0, 0)
     q = _look_posture(mm)
+    if on_joints is not None:
+        on_joints(q)
     switch = ModeSwitch()
     seen = steps = 0
     mark_est = T_prior[:3, 3].copy()  # the mark's position as the robot believes it
@@ -577,6 +633,8 @@ def grasp_episode(
         # Joint position control with rate limits: 1 rad/s per joint.
         step = gaze_step(mm.arm, q, T_ee_cam, ray)
         q = np.clip(q + np.clip(step, -dt, dt), mm.arm.limits[:, 0], mm.arm.limits[:, 1])
+        if on_joints is not None:
+            on_joints(q)
 
     for base_est in _drive(start_est, place.base, dt):
         t += dt
@@ -597,6 +655,8 @@ def grasp_episode(
 
     def move_to(T_arm_ee: Array, q0: Array) -> Array | None:
         r = mm.arm.ik(T_arm_ee, q0=q0)
+        if r.success and on_joints is not None:
+            on_joints(r.q)
         return r.q if r.success else None
 
     # The approach ends with the camera brought over the believed mark: the first look, from

@@ -8,7 +8,7 @@ import threading
 import time
 from typing import Annotated
 
-from fastapi import APIRouter, Depends, HTTPException, Path, Query, Request, status
+from fastapi import APIRouter, Body, Depends, HTTPException, Path, Query, Request, status
 from sqlalchemy import select
 
 from server.api._crud import check_references, get_or_404, paginate
@@ -16,8 +16,15 @@ from server.api.deps import PageDep, ReadAccess, SessionDep, WriteAccess
 from server.api.errors import PROBLEM_RESPONSES, FieldProblem
 from server.db.models import Arm, Task
 from server.schemas.common import MAX_ID, Page
-from server.schemas.manipulation import FetchTaskCreate, TaskRead, TaskStatus
-from server.services.manipulation import TaskRunner, arm_values, closed_form
+from server.schemas.manipulation import FetchTaskCreate, TaskStatus
+from server.services.manipulation import (
+    FetchRefused,
+    TaskRunner,
+    arm_values,
+    closed_form,
+    fetch_target,
+)
+from server.services.survey import AnyTaskRead, SurveyTaskCreate, TwinTaskRunner, survey_task
 
 router = APIRouter(prefix="/tasks", tags=["tasks"], responses=PROBLEM_RESPONSES)
 TaskId = Annotated[int, Path(ge=1, le=MAX_ID)]
@@ -30,7 +37,8 @@ def get_task_runner(request: Request) -> TaskRunner:
     with _runner_lock:
         runner = getattr(state, "task_runner", None)
         if runner is None:
-            runner = TaskRunner(state.session_factory)
+            twin = getattr(state, "twin", None)
+            runner = TwinTaskRunner(state.session_factory, scene=state.scene_sync, twin=twin)
             state.task_runner = runner
     return runner
 
@@ -40,18 +48,31 @@ RunnerDep = Annotated[TaskRunner, Depends(get_task_runner)]
 Runner = Depends(get_task_runner)
 
 
+TaskCreate = Annotated[FetchTaskCreate | SurveyTaskCreate, Body(discriminator="kind")]
+
+
 @router.post(
-    "", response_model=TaskRead, status_code=status.HTTP_202_ACCEPTED, dependencies=[WriteAccess]
+    "", response_model=AnyTaskRead, status_code=status.HTTP_202_ACCEPTED, dependencies=[WriteAccess]
 )
-def create_task(body: FetchTaskCreate, session: SessionDep, request: Request, runner: RunnerDep):
+def create_task(body: TaskCreate, session: SessionDep, request: Request, runner: RunnerDep):
     """Start a task on the twin; poll GET /tasks/{id} for its phase, progress and result.
-    Kind "fetch": the arm fetches a marked box from the dining table, `episodes` times."""
-    if getattr(request.app.state, "twin", None) is None:
+    Kind "fetch": the arm fetches a marked box from the dining table, `episodes` times; with
+    `object` (an id or name of the twin's semantic map), the box at the pose the map holds:
+    404 when the map has no such object, 409 when two have that name or the arm cannot fetch
+    it from there.
+    Kind "survey": the robot tours the home, reads the landmarks and fills the twin space's
+    semantic and navigation maps (GET /maps/semantic) as it reads them."""
+    twin = getattr(request.app.state, "twin", None)
+    if twin is None or twin.space_id is None:
         raise HTTPException(
             status.HTTP_409_CONFLICT,
-            detail="a fetch runs on the digital twin; start the service with "
+            detail=f"a {body.kind} runs on the digital twin; start the service with "
             "INTSPACE_SIMULATION=true",
         )
+    if isinstance(body, SurveyTaskCreate):
+        task = survey_task(session, body, runner.owner)
+        runner.submit(task.id)
+        return task
     check_references(session, {"arm_id": (Arm, body.arm_id)})
     arm = session.get(Arm, body.arm_id)
     assert arm is not None
@@ -67,6 +88,11 @@ def create_task(body: FetchTaskCreate, session: SessionDep, request: Request, ru
     if inputs["seed"] is None:
         inputs["seed"] = secrets.randbelow(2**31)
     inputs["arm"] = values
+    if body.object is not None:
+        try:
+            inputs["object"] = fetch_target(session, twin.space_id, body.object, values)
+        except FetchRefused as exc:
+            raise FieldProblem(exc.status, exc.field, str(exc)) from exc
     task = Task(
         kind=body.kind,
         status="queued",
@@ -83,7 +109,7 @@ def create_task(body: FetchTaskCreate, session: SessionDep, request: Request, ru
     return task
 
 
-@router.get("", response_model=Page[TaskRead], dependencies=[ReadAccess, Runner])
+@router.get("", response_model=Page[AnyTaskRead], dependencies=[ReadAccess, Runner])
 def list_tasks(
     session: SessionDep,
     page: PageDep,
@@ -99,7 +125,7 @@ def list_tasks(
     return paginate(session, stmt, page)
 
 
-@router.get("/{task_id}", response_model=TaskRead, dependencies=[ReadAccess, Runner])
+@router.get("/{task_id}", response_model=AnyTaskRead, dependencies=[ReadAccess, Runner])
 def get_task(task_id: TaskId, session: SessionDep):
     """Return a task: its status, phase, progress, and its result (episode by episode)."""
     return get_or_404(session, Task, task_id, "task")

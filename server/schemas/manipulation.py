@@ -267,6 +267,12 @@ class FetchTaskCreate(Schema):
 
     kind: Literal["fetch"]
     arm_id: Id
+    object: Id | Annotated[str, Field(min_length=1, max_length=200)] | None = Field(
+        None,
+        description="An object of the twin's semantic map (GET /maps/semantic), by its id or "
+        "its name: the box is fetched at the pose the map holds. Absent: a box placed at "
+        "random on the dining table.",
+    )
     episodes: int = Field(1, ge=1, le=100, description="Fetches to run (about 0.5 s each).")
     sigma_px: float = Field(0.5, ge=0, le=5, allow_inf_nan=False, description="Pixel noise.")
     seed: int | None = Field(None, ge=0, le=2**31 - 1, description="Drawn when absent.")

@@ -15,10 +15,10 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from sqlalchemy import and_, or_, update
+from sqlalchemy import and_, or_, select, update
 from sqlalchemy.orm import Session, sessionmaker
 
 from core.errors import IntspaceError, InvalidInput
@@ -35,12 +35,16 @@ from core.manipulation.hand_eye import check_motions, relative_motions
 from core.sim.manipulation_scenarios import (
     GRASP_PHASES,
     GraspEpisode,
+    fetch_problem,
     grasp_episode,
     hand_eye_views,
 )
 from server.db.base import utcnow
-from server.db.models import Task
+from server.db.models import Arm, SemanticObject, Task
 from server.services.runs import worker_id
+
+if TYPE_CHECKING:
+    from server.services.scene_sync import SceneSync
 
 log = logging.getLogger(__name__)
 
@@ -310,6 +314,65 @@ def fetch_summary(
     }
 
 
+class FetchRefused(Exception):
+    """A fetch that cannot start: `status` (404: the object is not in the semantic map; 409:
+    its name is ambiguous, or it is out of reach), the request field at fault and the reason."""
+
+    def __init__(self, status: int, field: str, reason: str) -> None:
+        super().__init__(reason)
+        self.status = status
+        self.field = field
+
+
+def fetch_target(
+    session: Session, space_id: int, ref: int | str, values: dict[str, Any]
+) -> dict[str, Any]:
+    """Return the object a fetch takes, as the space's semantic map holds it: {"id" (its mark's
+    id), "name", "class", "T_world_mark"}; `ref` is its id (int) or its name (str, any case).
+    Raises FetchRefused: 404 when the map has no such object, 409 when two have that name or
+    the arm cannot fetch it from there (core.sim.manipulation_scenarios.fetch_problem)."""
+    query = (
+        select(SemanticObject)
+        .where(SemanticObject.space_id == space_id)
+        .order_by(SemanticObject.mark_id)
+    )
+    if isinstance(ref, int):
+        rows = list(session.scalars(query.where(SemanticObject.mark_id == ref)))
+    else:
+        wanted = ref.strip().casefold()
+        rows = [r for r in session.scalars(query) if r.name.casefold() == wanted]
+    if not rows:
+        known = session.execute(
+            select(SemanticObject.mark_id, SemanticObject.name)
+            .where(SemanticObject.space_id == space_id)
+            .order_by(SemanticObject.mark_id)
+        ).all()
+        listing = ", ".join(f"{i} ({n})" for i, n in known) or "none yet"
+        raise FetchRefused(
+            404,
+            "object",
+            f"no object {ref!r} in the semantic map of space {space_id} (objects: {listing}); "
+            "give an id or name from GET /maps/semantic",
+        )
+    if len(rows) > 1:
+        ids = ", ".join(str(r.mark_id) for r in rows)
+        raise FetchRefused(
+            409, "object", f"{len(rows)} objects are called {ref!r} (ids {ids}); give the id"
+        )
+    row = rows[0]
+    problem = fetch_problem(twin_manipulator(values), np.asarray(row.T_world_mark))
+    if problem is not None:
+        raise FetchRefused(
+            409, "object", f"object {row.mark_id} ({row.name}) cannot be fetched: {problem}"
+        )
+    return {
+        "id": row.mark_id,
+        "name": row.name,
+        "class": row.object_class,
+        "T_world_mark": row.T_world_mark,
+    }
+
+
 class TaskCancelled(Exception):
     """The task's process is stopping: it ends at the next safe point as interrupted."""
 
@@ -317,10 +380,13 @@ class TaskCancelled(Exception):
 def run_fetch(
     inputs: dict[str, Any],
     report: Callable[[str, float, dict[str, Any] | None], None],
+    joints: Callable[[np.ndarray], None] | None = None,
 ) -> dict[str, Any]:
     """Run a fetch task and return its result; `report(phase, fraction, partial result)` is
     called as each episode enters each of its phases ("episode 2 of 5: look then move", the
-    controller's own calls) and with the result so far after each episode.
+    controller's own calls) and with the result so far after each episode; `joints(q)` each
+    time the arm moves. With inputs["object"] (fetch_target's), every episode fetches the box
+    at the pose the semantic map holds (the twin's box lies off it by the map's error).
 
     The episodes and the hand-eye calibration (when the arm has none applied) draw from one
     generator seeded by inputs["seed"], in the order of `intspace sim run grasp`: with the
@@ -330,6 +396,7 @@ def run_fetch(
     sigma = float(inputs["sigma_px"])
     rng = np.random.default_rng(seed)
     mm = twin_manipulator(inputs["arm"])
+    target = inputs.get("object")
     applied = inputs["arm"].get("T_ee_camera")
     if applied is not None:
         X = np.asarray(applied, dtype=float)
@@ -363,7 +430,15 @@ def run_fetch(
                 partial = fetch_summary(records, planned, hand_eye, seed)
             report(f"episode {k + 1} of {planned}: {name}", fraction, partial)
 
-        episode = grasp_episode(rng, mm, X, sigma_px=sigma, on_phase=entered)
+        episode = grasp_episode(
+            rng,
+            mm,
+            X,
+            sigma_px=sigma,
+            on_phase=entered,
+            T_world_prior=None if target is None else np.asarray(target["T_world_mark"]),
+            on_joints=joints,
+        )
         records.append(episode_record(episode))
     return fetch_summary(records, planned, hand_eye, seed)
 
@@ -395,7 +470,8 @@ def expire_stale_tasks(session: Session, stale_s: float) -> int:
 class TaskRunner:
     """Runs tasks in background threads of the API process (`workers` at a time; the others
     wait queued). A heartbeat thread renews the `heartbeat` of the tasks it holds every
-    `heartbeat_s` and marks interrupted those of any process silent for `stale_s`."""
+    `heartbeat_s` and marks interrupted those of any process silent for `stale_s`. With the
+    live 3D scene (`scene`), a task's arm is drawn on the robot the scene shows."""
 
     def __init__(
         self,
@@ -404,8 +480,10 @@ class TaskRunner:
         *,
         heartbeat_s: float = 5.0,
         stale_s: float = 60.0,
+        scene: SceneSync | None = None,
     ) -> None:
         self.factory = factory
+        self.scene = scene
         self.owner = worker_id()
         self.stale_s = stale_s
         self._heartbeat_s = heartbeat_s
@@ -444,6 +522,10 @@ class TaskRunner:
             with self.factory() as session:
                 task = session.get(Task, task_id)
                 inputs = dict(task.inputs) if task is not None else None
+                kind = task.kind if task is not None else None
+                arm = None if task is None or task.arm_id is None else session.get(Arm, task.arm_id)
+                if arm is not None and self.scene is not None:
+                    self.scene.arm_changed(arm)  # at home, as the task starts
             if inputs is None or cancel.is_set():
                 return
             if not self._write(task_id, status="running", started_at=utcnow(), progress=0.0):
@@ -460,7 +542,7 @@ class TaskRunner:
 
             outcome: dict[str, Any]
             try:
-                result = run_fetch(inputs, report)
+                result = self._execute(str(kind), inputs, report, arm)
                 outcome = {"status": "succeeded", "result": result, "phase": "done"}
                 outcome["progress"] = 1.0
             except TaskCancelled:
@@ -471,11 +553,40 @@ class TaskRunner:
                 log.exception("task %d crashed", task_id)
                 outcome = {"status": "failed", "error": f"internal error: {exc!r}"}
             self._write(task_id, finished_at=utcnow(), **outcome)
+            if arm is not None and self.scene is not None:
+                self.scene.arm_changed(arm)  # back at home: the arm is idle
         except Exception:
             log.exception("task %d could not be run", task_id)
         finally:
             with self._lock:
                 self._held.pop(task_id, None)
+
+    def _execute(
+        self, kind: str, inputs: dict[str, Any], report: Callable[..., None], arm: Arm | None
+    ) -> dict[str, Any]:
+        """Run one task of `kind` and return its result; a runner that knows more kinds
+        extends this."""
+        if kind != "fetch":
+            raise IntspaceError(f"this service cannot run {kind!r} tasks")
+        return run_fetch(inputs, report, self._arm_motion(arm))
+
+    def _arm_motion(self, arm: Arm | None) -> Callable[[np.ndarray], None] | None:
+        """Return what shows a task's arm moving in the 3D scene: its joints, at most 10
+        times a second (the twin runs the fetch faster than the clock), or None."""
+        scene = self.scene
+        if scene is None or arm is None:
+            return None
+        arm_id = arm.id
+        last = -math.inf
+
+        def show(q: np.ndarray) -> None:
+            nonlocal last
+            now = time.monotonic()
+            if now - last >= 0.1:
+                last = now
+                scene.arm_joints(arm_id, q)
+
+        return show
 
     def _heartbeat(self) -> None:
         while not self._stop.wait(self._heartbeat_s):

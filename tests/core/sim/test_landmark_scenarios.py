@@ -11,10 +11,16 @@ import pytest
 
 from core.errors import InvalidInput
 from core.sim.landmark_scenarios import (
+    HeadRobot,
+    _calibrated,
+    _se2_exp,
+    _se2_log,
+    floor_pose,
     landmark_pose,
     landmark_reading,
     landmark_survey,
     polar_command,
+    reading_standoff,
     robot_head_pose,
 )
 from core.sim.scene import default_scene, load_scene
@@ -106,8 +112,42 @@ def test_landmark_survey_small_home() -> None:
     assert (d["places_present"], d["places_seen"], d["places_found"]) == (1, 1, 1)
     assert d["false_entries"] == 0 and d["duplicate_entries"] == 0
     assert not d["seen_not_read"]
+    assert d["completed"] and not d["collided"]
     # Read from under 1 m (pose error ~1 % of distance) on odometry that drove a few metres
     # from the known start (slip 1 cm per sqrt(m)): a few centimetres.
     assert d["position_error_mean_m"] < 0.05
     # One room has a place: no route to the others, reported, not raised.
     assert all(rt["places"] is None and rt["error"] for rt in d["routes"])
+
+
+def test_reading_plans_around_the_dining_table() -> None:
+    """The fridge's mark read from behind the dining table's corner: the straight way to the
+    reading pose crosses the table (plus the base's radius), so the base follows a route
+    planned on the floor plan to a point on the mark's estimated normal and PBVS drives it in
+    from there: read within 60 s, the true base never touching the table."""
+    scene = default_scene()
+    rng = np.random.default_rng(4)
+    K, dist, _ = _calibrated(scene, rng, 6)
+    marks = HeadRobot(scene, K, dist, rng=rng).landmarks
+    k = next(i for i, m in enumerate(marks) if m.name == "fridge")
+    robot = HeadRobot(scene, K, dist, start=np.array([5.4, 2.6, -0.5]), rng=rng, only=k)
+    m = marks[k].T_world_mark
+    # The reading pose from the true pose (scoring the set-up only): out of sight of the start.
+    d_h = reading_standoff("object", K[0, 0], robot.head.position[2] - m[2, 3])
+    reading = m[:2, 3] + m[:2, 2] * (d_h + robot.head.position[0])
+    assert not robot._sees(np.array([5.4, 2.6]), reading)
+    out = robot.read(None, 60.0)
+    assert out.read and out.detection is not None and out.detection.text == marks[k].text
+    assert not robot.collided
+    assert robot.approach is not None and len(robot.approach.route) > 2  # a bend round the table
+
+
+def test_drift_correction_is_spread_along_the_path() -> None:
+    """A planar correction exp(lam log D): lam = 0 leaves the pose, lam = 1 applies D whole,
+    and two halves make the whole (a one-parameter subgroup)."""
+    D = floor_pose(0.3, -0.2, 0.25)
+    x = _se2_log(D)
+    np.testing.assert_allclose(_se2_exp(x), D, atol=1e-12)
+    np.testing.assert_allclose(_se2_exp(0 * x), np.eye(4), atol=1e-12)
+    half = _se2_exp(0.5 * x)
+    np.testing.assert_allclose(half @ half, D, atol=1e-12)

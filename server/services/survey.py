@@ -1,0 +1,234 @@
+"""Survey tasks on the digital twin: the robot tours the twin's home, reads the landmarks it
+finds and enters them into the space's semantic and navigation maps as it goes.
+
+The tour is core.sim's `landmark-survey` (core.sim.landmark_scenarios.landmark_survey) on the
+twin's scene, from the robot's start pose: routes planned on the floor plan, head sweeps at
+every stop, PBVS reads of the landmarks located but not yet read, the odometry corrected at
+signposts. Every read enters the maps through the same service as POST /maps/observations
+(server.services.landmarks.observe): object marks fused into their entry, signposts as places.
+The task runs in a background thread of the task runner, its phase, progress and result so far
+stored as it goes and read back with GET /tasks/{id}. The twin's true landmark poses only
+score the result (`truth`), as in the scenario.
+"""
+
+from __future__ import annotations
+
+import logging
+import secrets
+import time
+from collections.abc import Callable
+from typing import Any, Literal
+
+from pydantic import Field
+
+from core.errors import IntspaceError
+from core.landmarks.payload import ObjectMark
+from core.sim import Scene, default_scene
+from core.sim.landmark_scenarios import DEFAULT_TOUR, SurveyRead, landmark_survey
+from server.db.models import Task
+from server.schemas.common import ReadSchema, Schema
+from server.schemas.manipulation import FetchResult, TaskRead
+from server.services.landmarks import MapObservation, observe
+from server.services.manipulation import TaskRunner
+
+log = logging.getLogger(__name__)
+
+Report = Callable[[str, float, dict[str, Any] | None], None]
+
+
+class SurveyTaskCreate(Schema):
+    """Survey the twin's home: the robot drives its tour (the home's survey tour, or the
+    robot's patrol waypoints in another scene), reads every landmark it can and writes what it
+    reads into the twin space's semantic and navigation maps (GET /maps/semantic,
+    GET /maps/navigation). A whole tour is about 10 simulated minutes (several minutes of
+    computing); `duration_s` cuts it short."""
+
+    kind: Literal["survey"]
+    duration_s: float | None = Field(
+        None,
+        gt=0,
+        le=3600,
+        allow_inf_nan=False,
+        description="Stop after this many simulated seconds (default: the whole tour).",
+    )
+    seed: int | None = Field(None, ge=0, le=2**31 - 1, description="Drawn when absent.")
+
+
+class SurveyEntry(ReadSchema):
+    """A landmark the survey entered into a map: which map, the mark's id, its name and room,
+    where it was put (x, y, z metres; for a place, the pose its signpost carries) and how
+    many times it was read."""
+
+    map: Literal["semantic", "navigation"]
+    mark_id: int
+    name: str
+    room: str
+    position: list[float]
+    reads: int
+
+
+class SurveyResult(ReadSchema):
+    """What a survey found so far (filled read by read) and, once done, its figures against
+    the twin's truth (`truth`: objects and places present, seen and found, mean and max
+    position error, false and duplicate entries, landmarks seen but not read)."""
+
+    space_id: int
+    seed: int
+    duration_s: float | None
+    entries: list[SurveyEntry]
+    reads: int = Field(description="Reads entered into the maps so far.")
+    time_s: float | None = Field(description="Simulated seconds the survey took (when done).")
+    completed: bool | None = Field(description="Whether it drove the whole tour (when done).")
+    reads_attempted: int | None = None
+    reads_succeeded: int | None = None
+    collided: bool | None = None
+    truth: dict[str, Any] | None = None
+
+
+class AnyTaskRead(TaskRead):
+    """A task as read back: a fetch's result or a survey's."""
+
+    result: FetchResult | SurveyResult | None  # type: ignore[assignment]
+
+
+def survey_tour(scene: Scene) -> tuple[tuple[float, float], ...] | None:
+    """Return the tour for a scene: the default home's survey tour for the default home, else
+    None (the robot's patrol waypoints)."""
+    return DEFAULT_TOUR if scene.name == default_scene().name else None
+
+
+def _entry(read: SurveyRead, reads: int) -> dict[str, Any]:
+    rec = read.record
+    if isinstance(rec, ObjectMark):
+        position = [float(v) for v in read.T_world_mark[:3, 3]]
+        which = "semantic"
+    else:
+        position = [float(v) for v in rec.pose[:3]]
+        which = "navigation"
+    return {
+        "map": which,
+        "mark_id": rec.id,
+        "name": rec.name,
+        "room": rec.room,
+        "position": position,
+        "reads": reads,
+    }
+
+
+def run_survey(
+    inputs: dict[str, Any], scene: Scene, space_id: int, factory: Any, report: Report
+) -> dict[str, Any]:
+    """Run a survey task on `scene` and return its result; every read enters the maps of
+    space `space_id` (a session from `factory` per read) as it is made; `report(phase,
+    fraction, partial result)` is called as the survey goes."""
+    seed = int(inputs["seed"])
+    duration = inputs.get("duration_s")
+    entries: dict[tuple[str, int], dict[str, Any]] = {}
+    count = 0
+
+    def partial() -> dict[str, Any]:
+        return {
+            "space_id": space_id,
+            "seed": seed,
+            "duration_s": duration,
+            "entries": sorted(entries.values(), key=lambda e: (e["map"], e["mark_id"])),
+            "reads": count,
+            "time_s": None,
+            "completed": None,
+        }
+
+    now: dict[str, Any] = {"phase": "starting", "fraction": 0.0}
+
+    def on_progress(what: str, fraction: float) -> None:
+        now.update(phase=what, fraction=fraction)
+        report(what, fraction, partial())
+
+    def on_read(read: SurveyRead) -> None:
+        nonlocal count
+        # Wall-clock time: the maps' `last_seen` is when the service learnt it.
+        obs = MapObservation(read.record, read.T_world_mark, read.cov, time.time())
+        with factory() as session:
+            observe(session, space_id, [obs])
+        count += 1
+        key = ("semantic" if read.record.kind == "object" else "navigation", read.record.id)
+        before = entries.get(key)
+        entries[key] = _entry(read, 1 if before is None else before["reads"] + 1)
+        report(now["phase"], now["fraction"], partial())
+
+    result = landmark_survey(
+        scene,
+        seed,
+        tour=survey_tour(scene),
+        duration_s=duration,
+        on_progress=on_progress,
+        on_read=on_read,
+    )
+    out = partial()
+    out.update(
+        time_s=result.time_s,
+        completed=result.completed,
+        reads_attempted=result.reads_attempted,
+        reads_succeeded=result.reads_succeeded,
+        collided=result.collided,
+        truth={
+            key: getattr(result, key)
+            for key in (
+                "objects_present",
+                "objects_seen",
+                "objects_found",
+                "places_present",
+                "places_seen",
+                "places_found",
+                "position_error_mean_m",
+                "position_error_max_m",
+                "false_entries",
+                "duplicate_entries",
+                "seen_not_read",
+            )
+        },
+    )
+    out["truth"]["seen_not_read"] = list(out["truth"]["seen_not_read"])
+    return out
+
+
+class TwinTaskRunner(TaskRunner):
+    """The task runner of the service: fetch tasks as TaskRunner runs them, and survey tasks
+    (run_survey) on the twin given at construction, with the same status, phase, heartbeat
+    and interruption handling."""
+
+    def __init__(self, factory: Any, *args: Any, twin: Any = None, **kwargs: Any) -> None:
+        super().__init__(factory, *args, **kwargs)
+        self.twin = twin
+
+    def _execute(
+        self, kind: str, inputs: dict[str, Any], report: Callable[..., None], arm: Any
+    ) -> dict[str, Any]:
+        if kind != "survey":
+            return super()._execute(kind, inputs, report, arm)
+        twin = self.twin
+        if twin is None or twin.space_id is None:
+            raise IntspaceError("the twin stopped before the survey could start")
+        result = run_survey(inputs, twin.scene, twin.space_id, self.factory, report)
+        if self.scene is not None:
+            with self.factory() as session:
+                self.scene.maps_changed(session)
+        return result
+
+
+def survey_task(session: Any, body: SurveyTaskCreate, owner: str) -> Task:
+    """Return the queued survey task stored for `body` (the seed drawn when absent)."""
+    inputs = body.model_dump()
+    if inputs["seed"] is None:
+        inputs["seed"] = secrets.randbelow(2**31)
+    task = Task(
+        kind=body.kind,
+        status="queued",
+        inputs=inputs,
+        phase="queued",
+        progress=0.0,
+        owner=owner,
+        heartbeat=time.time(),
+    )
+    session.add(task)
+    session.commit()
+    return task
