@@ -4,9 +4,11 @@ Creates a fresh database on the PostgreSQL server of `--postgres-url` (default:
 INTSPACE_TEST_POSTGRES_URL), migrates it, starts two `intspace serve` processes on free loopback
 ports (no twin, no 3D scene), registers four ceiling cameras, and for `--minutes` runs:
 
-* 4 camera-node clients, one per camera, each posting its camera's frame (unlabelled detections
-  of three walkers, 0.5 px noise, 5 % missed) 10 times a second with its own phase, to the two
-  processes alternately (camera k to process k % 2);
+* 4 camera-node clients, one per camera, each capturing its camera's frame (unlabelled
+  detections of three walkers, 0.5 px noise, 5 % missed) 10 times a second with its own phase
+  and posting what it has queued as `intspace node` does (one request at a time, everything
+  queued since the last), to the two processes alternately (camera k to process k % 2); their
+  line counts frames, each from its capture to the 2xx that stored it;
 * the other clients (46 of 50) reading at `--rate` requests per second each, open loop, half on
   each process: a camera, the camera list, the live targets, a target's track, the spaces;
 * one targets WebSocket per process, counting its messages and how old the newest position in
@@ -194,20 +196,27 @@ async def node_loop(
     results: Results,
     name: str,
 ) -> None:
-    """One camera node: a frame of camera k every 1 / NODE_HZ s with its own phase."""
+    """One camera node, as `intspace node` works: it captures a frame of camera k every
+    1 / NODE_HZ s with its own phase and queues its detections; a poster sends everything
+    queued in one request as soon as the previous one has returned. Each frame's latency runs
+    from its capture to the 2xx that stored it, so a service that cannot keep up shows as a
+    growing latency, and a node that waits on a slow answer still keeps its frame rate."""
     rng = np.random.default_rng(100 + k)
     period = 1.0 / NODE_HZ
-    scheduled = time.perf_counter() + period * (k + 0.5) / 4
-    while time.monotonic() < stop_at:
-        delay = scheduled - time.perf_counter()
-        if delay > 0:
-            await asyncio.sleep(delay)
-        t = time.time() - CAPTURE_DELAY_S
-        X = walkers(t - t0)
-        seen = camera.in_view(X) & (rng.random(3) > 0.05)
-        px = camera.project(X[seen]) + rng.normal(0.0, SIGMA_PX, (int(seen.sum()), 2))
-        body = {
-            "observations": [
+    queue: list[tuple[float, list[dict]]] = []  # (capture perf time, observations)
+    ready = asyncio.Event()
+
+    async def capture() -> None:
+        scheduled = time.perf_counter() + period * (k + 0.5) / 4
+        while time.monotonic() < stop_at:
+            delay = scheduled - time.perf_counter()
+            if delay > 0:
+                await asyncio.sleep(delay)
+            t = time.time() - CAPTURE_DELAY_S
+            X = walkers(t - t0)
+            seen = camera.in_view(X) & (rng.random(3) > 0.05)
+            px = camera.project(X[seen]) + rng.normal(0.0, SIGMA_PX, (int(seen.sum()), 2))
+            observations = [
                 {
                     "camera_id": camera_id,
                     "t": t,
@@ -218,16 +227,33 @@ async def node_loop(
                 }
                 for p in px
             ]
-        }
-        start = scheduled
-        if body["observations"]:
+            if observations:
+                queue.append((scheduled - CAPTURE_DELAY_S, observations))
+                ready.set()
+            scheduled += period
+
+    async def post() -> None:
+        while time.monotonic() < stop_at or queue:
+            if not queue:
+                ready.clear()
+                try:
+                    await asyncio.wait_for(ready.wait(), timeout=0.5)
+                except TimeoutError:
+                    continue
+                continue
+            batch = queue[:]
+            del queue[:]
+            body = {"observations": [o for _, obs in batch for o in obs]}
             try:
                 response = await client.post(f"{base}/observations", json=body)
                 ok, detail = response.status_code == 200, f"{response.status_code}"
             except httpx.HTTPError as exc:
                 ok, detail = False, repr(exc)
-            results.add(name, time.perf_counter() - start, ok, detail)
-        scheduled += period
+            done = time.perf_counter()
+            for captured, _ in batch:
+                results.add(name, done - captured, ok, detail)
+
+    await asyncio.gather(capture(), post())
 
 
 async def reader_loop(

@@ -78,6 +78,22 @@ class _Script:
         return np.stack([x, np.interp(u, self.kt, self.kp[:, 1])], axis=1)
 
 
+class _Path:
+    """A vehicle's planned motion as a script: positions `xy` (M, 2) at times `t` (M,),
+    linear between, held at the ends."""
+
+    def __init__(self, t: Array, xy: Array) -> None:
+        self.kt = np.asarray(t, dtype=np.float64)
+        self.kp = np.asarray(xy, dtype=np.float64)
+        if self.kt.ndim != 1 or self.kp.shape != (len(self.kt), 2) or len(self.kt) < 2:
+            raise InvalidInput("a vehicle's path needs times (M,) and positions (M, 2), M >= 2")
+
+    def at(self, s: Array) -> Array:
+        """Positions (N, 2) at script times `s` (N,)."""
+        x = np.interp(s, self.kt, self.kp[:, 0])
+        return np.stack([x, np.interp(s, self.kt, self.kp[:, 1])], axis=1)
+
+
 def script_positions(walker: Walker, times: ArrayLike) -> Array:
     """Return the walker's floor positions (N, 2) metres at script times `times` (N,) s.
 
@@ -92,7 +108,10 @@ def script_positions(walker: Walker, times: ArrayLike) -> Array:
 
 class Crowd:
     """The scene's walkers stepping together on a grid of `dt` seconds, giving way to each
-    other (see the module's docstring for the rules)."""
+    other (see the module's docstring for the rules). `vehicles` (times (M,), positions (M, 2),
+    radius) are planned motions, a robot's drive, that come first: they have right of way over
+    every walker and stop only for someone in contact ahead; members are vehicles, then
+    walkers, in `positions` and `script_times`."""
 
     def __init__(
         self,
@@ -104,18 +123,26 @@ class Crowd:
         contact_m: float = CONTACT_M,
         max_wait_s: float = MAX_WAIT_S,
         keep_s: float = KEEP_S,
+        vehicles: Sequence[tuple[ArrayLike, ArrayLike, float]] = (),
     ) -> None:
         if not dt > 0 or not horizon_s >= 0 or not keep_s > 0:
             raise InvalidInput(
                 "crowd needs dt > 0, horizon_s >= 0 and keep_s > 0; "
                 f"got {dt}, {horizon_s}, {keep_s}"
             )
-        self._scripts = [_Script(w) for w in walkers]
-        radius = np.array([w.radius for w in walkers], dtype=np.float64)
+        paths: list[_Script | _Path] = [
+            _Path(np.asarray(t), np.asarray(xy)) for t, xy, _ in vehicles
+        ]
+        self._scripts = paths + [_Script(w) for w in walkers]
+        radius = np.array([r for *_, r in vehicles] + [w.radius for w in walkers], dtype=float)
         self._comfort = radius[:, None] + radius[None, :] + comfort_m
         self._contact = radius[:, None] + radius[None, :] + contact_m
         self._touch = radius[:, None] + radius[None, :]
-        self._speed = np.array([w.speed for w in walkers], dtype=np.float64)
+        speed = [
+            float(np.max(np.linalg.norm(np.diff(p.kp, axis=0), axis=1) / np.diff(p.kt)))
+            for p in paths
+        ]
+        self._speed = np.array(speed + [w.speed for w in walkers], dtype=np.float64)
         self._dt = dt
         self._ahead = dt * np.arange(1, max(1, round(horizon_s / dt)) + 1)
         self._max_wait = max(1, round(max_wait_s / dt))
@@ -132,7 +159,7 @@ class Crowd:
         return self._overlap_steps * self._dt
 
     def positions(self, times: ArrayLike) -> Array:
-        """Return every walker's position (N, B, 2) metres at `times` (N,) seconds."""
+        """Return every member's position (N, B, 2) metres at `times` (N,) seconds."""
         t = np.atleast_1d(np.asarray(times, dtype=np.float64))
         if t.ndim != 1 or not np.all(np.isfinite(t)):
             raise InvalidInput("crowd times must be a finite 1-D array of seconds")
@@ -157,6 +184,16 @@ class Crowd:
         self._now: Array = (
             np.stack([sc.at(np.zeros(1))[0] for sc in self._scripts]) if B else np.zeros((0, 2))
         )
+
+    def script_times(self, times: ArrayLike) -> Array:
+        """Return every member's script time (N, B) at clock times `times` (N,): the clock
+        minus the time it has waited (a vehicle's pose at t is its path's at that time)."""
+        t = np.atleast_1d(np.asarray(times, dtype=np.float64))
+        if t.ndim != 1 or not np.all(np.isfinite(t)):
+            raise InvalidInput("crowd times must be a finite 1-D array of seconds")
+        if len(self._scripts) == 0:
+            return np.zeros((len(t), 0))
+        return self._script_times(t)
 
     def _script_times(self, t: Array) -> Array:
         """Script times (N, B) at clock times t: the clock minus the time waited, linear between

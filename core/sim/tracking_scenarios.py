@@ -34,8 +34,8 @@ from core.localization import NetworkCamera, Occluders, line_of_sight
 from core.localization.detect import MarkerDetectorConfig, PersonDetector
 from core.localization.detections import FrameDetection, detect_frame
 from core.localization.tracking import FrameResult, Tracker, TrackerConfig, TrackState
-from core.sim.crowd import crowd_of
-from core.sim.motion import Pose2D, WorldState, simulate_patrol, world_state
+from core.sim.crowd import Crowd, crowd_of
+from core.sim.motion import Pose2D, WorldState, simulate_patrol
 from core.sim.occluders import scene_occluders
 from core.sim.render import Renderer, camera_model, renderer_for
 from core.sim.scene import Scene, Walker, default_scene
@@ -57,16 +57,18 @@ SCORE_HZ = 10.0
 MATCH_DISTANCE_M = 0.5
 POINT_TOLERANCE_S = 0.06
 
-# Two more people of the home for the tracking scenarios: the resident's path crosses the first
-# walker's in the living room, the visitor walks between the bedroom and the kitchen, and both
-# stand still at waypoints. People give way to each other (core.sim.crowd), so nobody stands
-# or turns round where another walks: they could not get out of the way there.
+# Two more people of the home for the tracking scenarios: the resident walks a round that
+# crosses the first walker's path twice and the robot's patrol, the visitor walks between the
+# bedroom and the kitchen, and both stand still at waypoints. People give way to each other and
+# to the robot (core.sim.crowd), so nobody stands or turns round where another walks or the
+# robot drives: they could not get out of the way there.
 EXTRA_WALKERS = (
     Walker(
         name="resident",
-        waypoints=[(2.6, 0.9), (2.6, 3.6), (3.4, 4.8)],
+        waypoints=[(3.4, 4.8), (2.5, 3.6), (2.5, 1.65), (2.9, 1.65), (2.9, 3.6)],
         speed=0.9,
-        pauses=[4.0, 0.0, 7.0],
+        loop=True,
+        pauses=[7.0, 0.0, 0.0, 0.0, 0.0],
         colour=(40, 90, 160),
     ),
     Walker(
@@ -393,6 +395,25 @@ def _walkers_at(scene: Scene, times: Array) -> Array:
     return crowd_of(scene.people).positions(times)
 
 
+def crowd_around(scene: Scene, drive: Array) -> Crowd:
+    """Return the scene's walkers and its robot, which drives `drive` (poses (N, 3) every
+    0.05 s from time 0), as one crowd: the robot first (right of way; it stops only for
+    someone in its way), then the walkers, giving way to it and to each other."""
+    if scene.robot is None:
+        return crowd_of(scene.people)
+    tt = np.arange(len(drive)) * 0.05
+    return Crowd(scene.people, vehicles=[(tt, drive[:, :2], scene.robot.base_radius)])
+
+
+def robot_poses(crowd: Crowd, drive: Array, times: Array) -> Array:
+    """Return the robot's poses (N, 3) at `times` in a crowd_around crowd: its drive's poses
+    at its script times (the drive held while it waits for somebody)."""
+    s = crowd.script_times(times)[:, 0]
+    tt = np.arange(len(drive)) * 0.05
+    yaw = np.unwrap(drive[:, 2])
+    return np.column_stack([np.interp(s, tt, c) for c in (drive[:, 0], drive[:, 1], yaw)])
+
+
 def _overlap(scene: Scene, duration_s: float) -> float:
     # Seconds two bodies overlapped (a script that makes people meet head-on; 0 in the
     # scenarios' homes): reported so a figure never hides people passing through each other.
@@ -505,6 +526,8 @@ def rendered_frames(
     cameras = calibrated.cameras
     duration = 60.0 * minutes
     drive = simulate_patrol(scene.robot, duration + 1.0, dt=0.05, rng=seed)
+    pose = np.asarray(drive.pose)
+    crowd = crowd_around(scene, pose)
     marker = MarkerDetectorConfig(colour=scene.robot.marker.colour)
     people = {c.name: _background(renderer, scene, c.name) for c in scene.cameras}
     period = 1.0 / rate_hz
@@ -516,8 +539,9 @@ def rendered_frames(
     frames = []
     for t, k in schedule:
         spec = scene.cameras[calibrated.index[k]]
-        i = min(round(t / 0.05), len(drive.pose) - 1)
-        state = world_state(scene, t, Pose2D(*drive.pose[i]))
+        where = crowd.positions([t])[0]
+        walkers = tuple((float(x), float(y)) for x, y in where[1:])
+        state = WorldState(t, Pose2D(*robot_poses(crowd, pose, np.array([t]))[0]), walkers)
         image = renderer.render(spec.name, state, rng=rng).image
         found = detect_frame(
             image,
@@ -586,10 +610,11 @@ def track_rendered(
         )
         log.add(result)
         detections += len(found)
-    truth_t, walkers = truth_instants(scene, duration)
-    idx = np.minimum(np.round(truth_t / 0.05).astype(int), len(drive) - 1)
-    robot_xy = drive[idx, :2]
-    truth_xy = np.concatenate([walkers, robot_xy[:, None]], axis=1)
+    crowd = crowd_around(scene, drive)
+    truth_t = np.arange(0.0, duration, 1.0 / SCORE_HZ)
+    bodies = crowd.positions(truth_t)  # the robot, then the walkers
+    walkers = bodies[:, 1:]
+    truth_xy = np.concatenate([walkers, bodies[:, :1]], axis=1)
     # A body no camera can see (out of every view, or behind a wall) is not expected: its
     # middle (a walker's at half height, the robot's marker) seen by no camera.
     heights = np.array([w.height / 2 for w in scene.people] + [scene.robot.marker.height])
@@ -598,10 +623,9 @@ def track_rendered(
     truth_xy = np.where(seen_by[..., None] > 0, truth_xy, np.nan)
 
     def truth_at(times: Array) -> Array:
-        # The drive's poses every 0.05 s, linearly between: the robot's centre at any time.
-        tt = np.arange(len(drive)) * 0.05
-        robot = np.column_stack([np.interp(times, tt, drive[:, c]) for c in (0, 1)])
-        return np.concatenate([_walkers_at(scene, times), robot[:, None]], axis=1)
+        # Every body's centre at any time (the robot's drive held while it waits).
+        at = crowd.positions(times)
+        return np.concatenate([at[:, 1:], at[:, :1]], axis=1)
 
     # Cameras at 5 Hz update a body seen by one camera every 0.2 s: each track answers with
     # its state moved on to the instant, while it is fresh (not yet coasting).
@@ -637,7 +661,7 @@ def track_rendered(
         conditions={
             "rate_hz": rate_hz,
             "noise": 1.0,
-            "people_overlap_s": _overlap(scene, 60.0 * minutes),
+            "people_overlap_s": crowd.overlap_s,
         },
     )
 

@@ -75,3 +75,23 @@ def test_bad_times_and_settings_are_refused():
         Crowd(_crossing()).positions([0.0, float("nan")])
     with pytest.raises(InvalidInput):
         Crowd(_crossing(), dt=0.0)
+
+
+def test_a_vehicle_keeps_its_path_and_walkers_wait_for_it():
+    # A robot driving across a walker's line at the moment the walker would be there: the
+    # robot has right of way and keeps its planned motion exactly; the walker waits for it.
+    t_path = np.arange(0.0, 10.0, 0.05)
+    robot_xy = np.column_stack(
+        [-2.0 + 0.8 * t_path, np.zeros_like(t_path)]
+    )  # crosses (0, 0) at 2.5 s
+    north = Walker(name="north", waypoints=[(0.0, -2.0), (0.0, 2.0)], speed=0.8)
+    walk = Crowd([north], vehicles=[(t_path, robot_xy, 0.25)])
+    t = np.arange(0.0, 9.0, 0.05)
+    xy = walk.positions(t)
+    np.testing.assert_allclose(walk.script_times(t)[:, 0], t, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(xy[:, 0, 0], -2.0 + 0.8 * t, rtol=0, atol=1e-9)
+    gap = np.linalg.norm(xy[:, 0] - xy[:, 1], axis=1)
+    assert gap.min() > 0.45 + CONTACT_M
+    assert walk.overlap_s == 0.0
+    alone = script_positions(north, t)
+    assert np.linalg.norm(alone - robot_xy[: len(t)], axis=1).min() < 0.05  # would collide
