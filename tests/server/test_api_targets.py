@@ -366,7 +366,7 @@ def test_empty_frames_are_validated_like_detections(client, admin):
     other = {"observations": [], "empty_frames": [{"camera_id": b, "t": now}]}
     response = client.post("/api/v1/observations", json=other, headers=node)
     assert response.status_code == 403
-    assert f"not {b}" in response.json()["detail"], response.text
+    assert f"not [{b}]" in response.json()["detail"], response.text
 
 
 def test_empty_frames_travel_to_the_process_that_tracks_their_space():
