@@ -4,14 +4,11 @@ server on a free loopback port."""
 
 from __future__ import annotations
 
-import socket
-
 import numpy as np
 import pytest
 
 from core.errors import InvalidInput
 from core.manipulation import default_arm
-from server.scene import SceneService
 from server.scene._arm import FRAME_NAMES
 from server.scene._geometry import matrix_from_quaternion
 from server.schemas.manipulation import TWIN_ARM
@@ -20,20 +17,6 @@ from server.schemas.manipulation import TWIN_ARM
 # still catches a float32 step, a wrong frame order or a missing DH offset.
 POSE_TOL = 1e-9
 MOUNT = [[1.0, 0.0, 0.0, 0.05], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.80], [0, 0, 0, 1.0]]
-
-
-def free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-@pytest.fixture
-def scene():
-    service = SceneService("127.0.0.1", free_port())
-    service.start()
-    yield service
-    service.stop()
 
 
 def _arm(q=None, **extra):

@@ -4,8 +4,6 @@ refused when malformed."""
 
 from __future__ import annotations
 
-import socket
-
 import numpy as np
 import pytest
 
@@ -13,7 +11,6 @@ from core.errors import InvalidInput
 from core.landmarks import decode_payload
 from core.sim import default_scene
 from core.sim._geometry import pose_matrix
-from server.scene import SceneService
 from server.scene._geometry import matrix_from_quaternion
 from server.services.scene_sync import SceneSync
 
@@ -22,20 +19,6 @@ from server.services.scene_sync import SceneSync
 # float32 in viser: ~1e-7 relative at a few metres.
 POSE_TOL = 1e-9
 POINT_TOL = 1e-5
-
-
-def free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-@pytest.fixture
-def scene():
-    service = SceneService("127.0.0.1", free_port())
-    service.start()
-    yield service
-    service.stop()
 
 
 def _T(pose: object) -> np.ndarray:

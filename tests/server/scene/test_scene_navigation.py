@@ -3,34 +3,17 @@ viser server on a free loopback port."""
 
 from __future__ import annotations
 
-import socket
-
 import numpy as np
 import pytest
 
 from core.errors import InvalidInput
 from core.sim import default_scene
 from core.sim.navigation_scenarios import nominal_projector
-from server.scene import SceneService
 from server.scene._geometry import matrix_from_quaternion
 
 # As in test_scene_service: poses go through float64 end to end (~1e-15); 1e-9 still catches
 # a float32 step or a wrong axis convention.
 POSE_TOL = 1e-9
-
-
-def free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-@pytest.fixture
-def scene():
-    service = SceneService("127.0.0.1", free_port())
-    service.start()
-    yield service
-    service.stop()
 
 
 def test_planned_path_and_projector_are_drawn_where_given(scene):

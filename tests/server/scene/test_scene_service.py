@@ -41,14 +41,6 @@ def random_pose(rng: np.random.Generator) -> np.ndarray:
     return T
 
 
-@pytest.fixture
-def scene():
-    service = SceneService("127.0.0.1", free_port())
-    service.start()
-    yield service
-    service.stop()
-
-
 def camera(cam_id: int, T: np.ndarray | None, K=K_ZHANG, name: str | None = None) -> dict:
     return {
         "id": cam_id,

@@ -3,16 +3,12 @@ calibration moves the projector and its beam; the shown robot's arms are drawn a
 
 from __future__ import annotations
 
-import socket
-
 import numpy as np
-import pytest
 
 from core.manipulation import default_arm
 from core.sim import default_scene
 from core.sim.navigation_scenarios import nominal_projector
 from server.db.models import CalibrationRun
-from server.scene import SceneService
 from server.scene._geometry import matrix_from_quaternion
 from server.schemas.manipulation import TWIN_ARM
 from server.services.scene_sync import ROBOT_AGENT, SceneSync
@@ -21,20 +17,6 @@ from server.services.scene_sync import ROBOT_AGENT, SceneSync
 # float32 (~1e-7 relative at a few metres).
 POSE_TOL = 1e-9
 POINT_TOL = 1e-5
-
-
-def free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-@pytest.fixture
-def scene():
-    service = SceneService("127.0.0.1", free_port())
-    service.start()
-    yield service
-    service.stop()
 
 
 def test_applying_a_projector_run_redraws_the_projector_at_its_new_pose(client, admin, scene):
