@@ -62,6 +62,7 @@ def test_manipulation_page_calibrates_and_fetches(start_service, browser_page: P
         dp, dr = pose_error(np.array(run["result"]["X"]), default_manipulator().T_ee_camera)
         # Spec 05's hand-eye bounds (15 views, 0.5 px): 0.1 deg and 1 mm.
         assert np.degrees(dr) < 0.1 and dp < 1e-3
+        expect(page.get_by_test_id("hand-eye-X").locator("td")).to_have_count(16)
         shown = page.get_by_test_id("hand-eye-X").locator("td").all_inner_texts()
         assert np.allclose(
             [float(v) for v in shown], np.array(run["result"]["X"]).ravel(), atol=5e-5
@@ -97,7 +98,9 @@ def test_manipulation_page_calibrates_and_fetches(start_service, browser_page: P
         # already has records nothing new.
         page.goto(f"{service.base_url}/#/calibration/runs/{run['id']}")
         result = run["result"]
-        shown = page.get_by_test_id("run-hand-eye-X").locator("td").all_inner_texts()
+        cells = page.get_by_test_id("run-hand-eye-X").locator("td")
+        expect(cells).to_have_count(16)  # the page draws the run once it has fetched it
+        shown = cells.all_inner_texts()
         assert np.allclose([float(v) for v in shown], np.array(result["X"]).ravel(), atol=5e-5)
         expect(page.get_by_test_id("run-hand-eye-rotation-std")).to_have_text(
             f"{result['rotation_std_deg']:.4f}°"
@@ -141,6 +144,7 @@ def test_manipulation_page_calibrates_and_fetches(start_service, browser_page: P
         expect(page.get_by_test_id("run-status")).to_have_text("succeeded", timeout=60_000)
         run = service.api("GET", f"/calibration-runs/{run['id']}")
         result = run["result"]
+        expect(page.get_by_test_id("projector-T").locator("td")).to_have_count(16)
         shown = page.get_by_test_id("projector-T").locator("td").all_inner_texts()
         assert np.allclose(
             [float(v) for v in shown], np.array(result["T_world_projector"]).ravel(), atol=5e-5
