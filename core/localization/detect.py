@@ -263,7 +263,9 @@ class BodyModel:
     occlusion_z: the one-sided tests, in standard deviations, that declare foot and head in
     disagreement (one of them hidden) and a side hidden (the blob narrower than the body at its
     range); 2.5 (0.6 % false alarms) because a missed occlusion ruins a fused position while a
-    false alarm only widens one camera's covariance.
+    false alarm only widens one camera's covariance. merged_range: how much farther than its
+    width says a blob with neither end seen may be (two bodies, one behind the other, make one
+    blob about twice as wide as either).
 
     The defaults are an adult's proportions and a real body's departures from a cylinder. The
     twin's walkers are rigid cylinders: for them shape_sigma = lateral_sigma = 0 is the truth
@@ -279,12 +281,15 @@ class BodyModel:
     edge_sigma: float = 0.29
     axis_height: float = 0.0
     occlusion_z: float = 2.5
+    merged_range: float = 2.0
 
     def __post_init__(self) -> None:
         for name in ("radius", "height", "radius_sigma", "edge_sigma", "occlusion_z"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise InvalidInput(f"BodyModel.{name} must be finite and > 0, got {v}")
+        if not (math.isfinite(self.merged_range) and self.merged_range >= 1.0):
+            raise InvalidInput(f"BodyModel.merged_range must be >= 1, got {self.merged_range}")
         for name in ("height_sigma", "shape_sigma", "lateral_sigma"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
@@ -669,6 +674,15 @@ def locate_body_axis(
     dist, radius = float(theta[0]), float(theta[1])
     if not (dist > 0 and radius > 0):
         return None
+    if "foot" not in rows and "head" not in rows:
+        # The width alone placed the body: it holds only for one body. A blob with neither end
+        # seen is as likely two people side by side, one behind the other (their ends fail the
+        # arc tests together), whose width stands for a body up to `merged_range` times as far.
+        # The range then spreads over [D, merged_range D]: its far end lies two standard
+        # deviations out, so the bearing, which stays good, carries the detection.
+        grow = math.sqrt(cov_dr[0, 0] + (0.5 * (mdl.merged_range - 1.0) * dist) ** 2)
+        scale = np.array([grow / math.sqrt(cov_dr[0, 0]), 1.0])
+        cov_dr = cov_dr * np.outer(scale, scale)
 
     # Bearing and its joint covariance with D.
     cov_pd = np.zeros((2, 2))

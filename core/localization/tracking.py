@@ -26,6 +26,11 @@ within `ambiguity`), the detection keeps the track alive but does not move it, f
 `ambiguity_coast` seconds: crossing bodies coast through the crossing on their own velocities
 instead of being pulled onto each other's paths, which is what swaps identities.
 
+A detection whose floor position is uncertain by more than `located_std` (a blob of two
+people one behind the other, placed by its width alone; a head seen past a door jamb) is left
+out: such blobs are also off in bearing, and one of them pulls a track onto the wrong body more
+surely than a short coast loses it.
+
 Association, frame by frame (one camera, one time): the cost of detection j for track i is
 d2 + ln det S, with d2 = nu^T S^-1 nu the squared Mahalanobis distance of the pixel innovation
 nu = u_j - pi_k(x_i) (S = J P J^T + R): the negative log-likelihood up to a constant, so a vague
@@ -136,7 +141,12 @@ class TrackerConfig:
     centimetre or two from where another calibrated camera places them (the network
     calibration's bound within its frame, 1-2 cm and 0.1-0.4 deg per camera); without this
     term two cameras a few milliseconds apart, each sure of its pixel to 0.05 px, would make
-    the filter explain their disagreement by a speed of metres per second.
+    the filter explain their disagreement by a speed of metres per second. located_std (m): an
+    unlabelled detection whose floor position has a standard deviation (larger axis) above it
+    does not say where a body stands (a blob of two people, one behind the other; a head seen
+    past a door jamb): such blobs also come with a biased bearing, so the tracker leaves them out
+    (they neither update nor start a track; their track id is -1) and the tracks coast through
+    them on their own velocities, as through a crossing (0: every detection counts).
     """
 
     q: float = 2.0
@@ -158,6 +168,7 @@ class TrackerConfig:
     max_position_std: float = 2.0
     labelled_end_after: float = 60.0
     camera_error_std: float = 0.02
+    located_std: float = 0.5
 
     def __post_init__(self) -> None:
         for name in (
@@ -175,7 +186,7 @@ class TrackerConfig:
             "labelled_end_after",
         ):
             _positive(name, getattr(self, name))
-        for name in ("min_separation", "camera_error_std"):
+        for name in ("min_separation", "camera_error_std", "located_std"):
             value = getattr(self, name)
             if not isinstance(value, int | float) or not (math.isfinite(value) and value >= 0):
                 raise InvalidInput(f"TrackerConfig.{name} must be >= 0 metres, got {value!r}")
@@ -614,7 +625,17 @@ class Tracker:
         t = _as_time(t)
         cam = self.cameras[camera]
         px, R, h, kind, lab = self._parse(pixels, pixel_cov, heights, kinds, labels, pixel_sigma)
-        R = self._with_camera_error(cam, px, R, h)
+        R, floor_std = self._with_camera_error(cam, px, R, h)
+        n_all = px.shape[0]
+        used = np.flatnonzero(
+            (floor_std <= self.config.located_std)
+            | (self.config.located_std == 0)
+            | np.array([v is not None for v in lab], dtype=bool)
+        )
+        if used.size < n_all:
+            px, R, h = px[used], R[used], h[used]
+            kind = [kind[j] for j in used.tolist()]
+            lab = [lab[j] for j in used.tolist()]
         self._x, self._P = self._predicted(t)
         self._t = t
         n = px.shape[0]
@@ -669,6 +690,11 @@ class Tracker:
         updated = tuple(
             self._snapshot(index[tid], self._x, self._P, t) for tid in touched if tid in index
         )
+        if used.size < n_all:
+            all_ids = np.full(n_all, -1, dtype=np.int64)
+            all_started = np.zeros(n_all, dtype=bool)
+            all_ids[used], all_started[used] = track_ids, started
+            track_ids, started = all_ids, all_started
         return FrameResult(t, camera, track_ids, started, updated, ended, dropped)
 
     def _parse(
@@ -713,22 +739,33 @@ class Tracker:
             raise InvalidInput("a camera frame holds the same label twice")
         return px, R, h, kind, lab
 
-    def _with_camera_error(self, cam: NetworkCamera, px: Array, R: Array, h: Array) -> Array:
+    def _with_camera_error(
+        self, cam: NetworkCamera, px: Array, R: Array, h: Array
+    ) -> tuple[Array, Array]:
         """Return the pixel covariances R (D, 2, 2) plus the camera's calibration error
         (camera_error_std on the floor, through d pixel / d(x, y) where the pixel meets its
-        height's plane)."""
+        height's plane), and each detection's floor position standard deviation from its pixel
+        covariance (larger axis, m; inf where the ray misses its plane)."""
         sigma = self.config.camera_error_std
-        if sigma <= 0 or px.shape[0] == 0:
-            return R
+        floor_std = np.full(px.shape[0], np.inf)
+        if px.shape[0] == 0:
+            return R, floor_std
         out = R.copy()
         for value in np.unique(h):
             sel = np.flatnonzero(h == value)
             try:
-                xy = locate_monocular(cam, px[sel], float(value), pixel_cov=R[sel]).xy
+                est = locate_monocular(cam, px[sel], float(value), pixel_cov=R[sel])
             except InvalidInput:
                 continue  # a ray that misses the plane: the association refuses it anyway
+            xy = est.xy
             # A pixel whose ray misses the plane has no floor point: nothing to add there.
             ok = np.all(np.isfinite(xy), axis=1)
+            C = est.cov
+            half = 0.5 * (C[:, 0, 0] - C[:, 1, 1])
+            worst = 0.5 * (C[:, 0, 0] + C[:, 1, 1]) + np.hypot(half, C[:, 0, 1])
+            floor_std[sel[ok]] = np.sqrt(np.maximum(worst[ok], 0.0))
+            if sigma <= 0:
+                continue
             if not ok.any():
                 continue
             proj = project_plane(cam, xy[ok], float(value), jacobian=True)
@@ -737,7 +774,7 @@ class Tracker:
             add = sigma**2 * (J @ transposed(J))
             good = np.all(np.isfinite(add), axis=(1, 2))
             out[sel[ok][good]] += add[good]
-        return out
+        return out, floor_std
 
     def _project(self, cam: NetworkCamera, h: Array) -> tuple[Array, Array, NDArray[np.bool_]]:
         """Return every track projected at each detection's height: pixels (T, D, 2), the

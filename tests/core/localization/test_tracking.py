@@ -138,6 +138,32 @@ def test_a_coasting_track_is_taken_up_again():
     assert r.track_ids[0] == tid and r.updated[0].state is TrackState.CONFIRMED
 
 
+def test_a_detection_that_cannot_place_a_body_is_left_out():
+    """A blob of two people one behind the other places its body a metre off with a wide
+    covariance: it neither starts a track nor moves one, and its track id is -1."""
+    cams = make_cameras(4)
+    cfg = TrackerConfig()
+    trk = Tracker(cams, cfg)
+    X = np.array([[4.0, 3.0, HEIGHT]])
+    for k in range(20):
+        trk.update(k % 4, 0.025 * k, cams[k % 4].project(X), pixel_sigma=0.5, heights=HEIGHT)
+    (before,) = trk.tracks()
+    # A pixel 1 m off, with a covariance that spreads it over metres of floor (the floor
+    # Jacobian here is 56-160 px/m, so 150 px is 0.9-2.7 m: over located_std).
+    far = cams[1].project(X + np.array([1.0, 0.0, 0.0]))
+    r = trk.update(1, 0.5, far, np.eye(2) * 150.0**2, heights=HEIGHT)
+    assert r.track_ids.tolist() == [-1] and not r.started[0] and r.updated == ()
+    (after,) = trk.tracks()
+    assert after.id == before.id and after.last_seen == before.last_seen
+    # Nothing pulled the track: it is where its own prediction puts it.
+    assert np.linalg.norm(after.xy - X[0, :2]) < 0.05
+    # Alone, such detections never start a track; with located_std = 0 they do.
+    lone = Tracker(cams, cfg)
+    assert lone.update(1, 0.0, far, np.eye(2) * 150.0**2, heights=HEIGHT).track_ids[0] == -1
+    every = Tracker(cams, TrackerConfig(located_std=0.0))
+    assert every.update(1, 0.0, far, np.eye(2) * 150.0**2, heights=HEIGHT).started[0]
+
+
 def test_clutter_alone_never_becomes_a_target():
     """Half a minute of four cameras at 10 Hz with two false detections per frame uniform over
     the image: tracks are born from clutter but none is confirmed."""
