@@ -11,9 +11,10 @@ ports (no twin, no 3D scene), registers four ceiling cameras, and for `--minutes
   line counts frames, each from its capture to the 2xx that stored it;
 * the other clients (46 of 50) reading at `--rate` requests per second each, open loop, half on
   each process: a camera, the camera list, the live targets, a target's track, the spaces;
-* one targets WebSocket per process, counting its messages and how old the newest position in
-  each is (its capture time to the message's arrival: capture -> post -> the owner's tracker
-  -> fan-out -> this process's stream).
+* one targets WebSocket per process, read by a process of its own (as a dashboard is, not by
+  the load generator's busy event loop), counting its messages and how old the newest position
+  in each is (its capture time to the message's arrival: capture -> post -> the owner's
+  tracker -> fan-out -> this process's stream).
 
 A request's latency is measured from its scheduled time (no coordinated omission; see
 bench_api.py). Prints p50 and p99 per endpoint and the errors (non-2xx answers, transport
@@ -29,6 +30,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
+import multiprocessing
 import os
 import signal
 import socket
@@ -39,6 +41,7 @@ import time
 import uuid
 from collections import defaultdict
 from pathlib import Path
+from typing import Any
 
 import httpx
 import numpy as np
@@ -133,6 +136,23 @@ def start_servers(
                 raise RuntimeError("the servers did not answer within 120 s")
             time.sleep(0.2)
     return out
+
+
+def tracker_owners(database_url: str, pids: list[int]) -> list[int]:
+    """Return the indices (in `pids`) of the processes that hold a space's tracker lock
+    (server.services.ownership names its lock connection after its process id)."""
+    from server.services.ownership import APPLICATION_NAME, NAMESPACE
+
+    query = text(
+        "SELECT a.application_name FROM pg_locks l JOIN pg_stat_activity a USING (pid) "
+        "WHERE l.locktype = 'advisory' AND l.classid = :ns AND l.granted "
+        "AND a.datname = current_database()"
+    )
+    engine = create_engine(make_url(database_url))
+    with engine.connect() as connection:
+        names = list(connection.execute(query, {"ns": NAMESPACE}).scalars())
+    engine.dispose()
+    return [i for i, pid in enumerate(pids) if f"{APPLICATION_NAME}:{pid}" in names]
 
 
 def make_cameras() -> list[NetworkCamera]:
@@ -316,6 +336,25 @@ async def stream_loop(base: str, stop_at: float, ages: list[float], counts: list
                 ages.append(time.time() - message["t"])
 
 
+def _streams(bases: list[str], stop_wall: float, out: Any) -> None:
+    """Read the targets WebSocket of every process until the Unix time `stop_wall` (the
+    load's end); put (ages, counts) in `out` (a multiprocessing queue). Run in a process of
+    its own, as a dashboard is: in the load generator's event loop, busy with 50 clients, the
+    stream would be read late and its messages would age in the socket buffers, which is not
+    the service's delay."""
+
+    async def run() -> tuple[list[list[float]], list[int]]:
+        stop_at = time.monotonic() + (stop_wall - time.time())
+        ages: list[list[float]] = [[] for _ in bases]
+        counts = [[0] for _ in bases]
+        await asyncio.gather(
+            *(stream_loop(b, stop_at, ages[i], counts[i]) for i, b in enumerate(bases))
+        )
+        return ages, [c[0] for c in counts]
+
+    out.put(asyncio.run(run()))
+
+
 async def soak(
     bases: list[str], ids: list[int], cameras: list[NetworkCamera], args: argparse.Namespace
 ) -> tuple[Results, list[list[float]], list[int], float]:
@@ -327,8 +366,11 @@ async def soak(
         await asyncio.gather(*(c.get(f"{bases[i % 2]}/health") for i, c in enumerate(pool)))
         t0 = time.time()
         stop_at = time.monotonic() + 60.0 * args.minutes
-        ages: list[list[float]] = [[] for _ in bases]
-        counts = [[0] for _ in bases]
+        context = multiprocessing.get_context("spawn")
+        streamed = context.Queue()
+        stop_wall = time.time() + (stop_at - time.monotonic())
+        streams = context.Process(target=_streams, args=(bases, stop_wall, streamed))
+        streams.start()
         start = time.perf_counter()
         tasks = [
             node_loop(
@@ -357,12 +399,13 @@ async def soak(
             )
             for j in range(readers)
         ]
-        tasks += [stream_loop(b, stop_at, ages[i], counts[i]) for i, b in enumerate(bases)]
         await asyncio.gather(*tasks)
         wall = time.perf_counter() - start
+        ages, counts = await asyncio.to_thread(streamed.get, True, 60.0)
+        await asyncio.to_thread(streams.join, 10.0)
     finally:
         await asyncio.gather(*(c.aclose() for c in pool))
-    return results, ages, [c[0] for c in counts], wall
+    return results, ages, counts, wall
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -395,6 +438,7 @@ def main(argv: list[str] | None = None) -> int:
             )
             results, ages, counts, wall = asyncio.run(soak(bases, ids, cameras, args))
             alive = [p.poll() is None for p, _ in servers]
+            owners = tracker_owners(database_url, [p.pid for p, _ in servers])
     finally:
         for process, _ in servers:
             if process.poll() is None:
@@ -432,6 +476,7 @@ def main(argv: list[str] | None = None) -> int:
             )
         else:
             print(f"targets WebSocket of p{i}: {c} messages, none with a position")
+    print(f"the space's tracker ran in: {', '.join(f'p{i}' for i in owners) or 'no process'}")
     print(f"errors: {total_errors}; processes alive at the end: {alive}")
     for sample in results.error_samples:
         print(f"  {sample}")

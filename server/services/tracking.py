@@ -13,26 +13,38 @@ association and filtering are all in core; this module only moves frames and res
 
 Several processes on one PostgreSQL database (`shared_database_url`): each space's tracker runs
 in the one process that holds the space's advisory lock (server.services.ownership). A process
-that stores detections of a space it does not track tells the others which rows it stored,
-and the camera frames it took in which nothing was detected (LISTEN/NOTIFY,
-server.services.fanout); the owner reads those rows by id and feeds them to its tracker, and
-sends every target change to the others, whose live targets show it. The processes
+that stores detections of a space it does not track sends the others the camera frames it
+took, with their stored rows' ids (LISTEN/NOTIFY, server.services.fanout; a frame too large for
+one notification goes by its rows' ids alone, and is read back); the owner feeds them to its
+tracker without reading the database, and sends every target change to the others, whose live
+targets show it. The processes
 try for free locks every `_OWNERSHIP_POLL_S`; one that gets a space (its owner died, and
 PostgreSQL freed the lock with its connection) restores the space's tracks from what it last
 heard of them (or, failing that, from the stored targets), keeping their ids
 (core Tracker.restore), then replays the space's detections stored since.
+
+On a shared database the core trackers themselves run in a child process of their own
+(`_TrackerHost`), one per service process, which the tracker thread calls with each frame and
+waits on: the tracker's arithmetic (milliseconds of Python and numpy per frame) then no longer
+holds this process's interpreter lock, which its event loop (readers, posts, the WebSocket
+streams) needs at the same time. Everything else (reorder buffers, the clock, publishing,
+ownership) stays here; the child only does what core Tracker does.
 
 Times are Unix seconds on the service's clock.
 """
 
 from __future__ import annotations
 
+import itertools
+import json
 import logging
+import multiprocessing
+import pickle
 import re
 import threading
 import time
 from collections import OrderedDict
-from collections.abc import Sequence
+from collections.abc import Hashable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -53,7 +65,7 @@ from core.localization.tracking import (
 )
 from server.db.models import Camera, Detection, Target
 from server.node.clock import StageDelays
-from server.services.fanout import Fanout
+from server.services.fanout import PAYLOAD_LIMIT, Fanout
 from server.services.ownership import SpaceLocks
 from server.services.targets import LIVE, LiveTarget, LiveTargets
 
@@ -165,6 +177,49 @@ def camera_frames(
     return frames
 
 
+# A camera frame sent to the space's tracker in another process is sent whole when its
+# notification item stays below this many bytes (else by its rows' ids, read back there).
+_FRAME_ITEM_BYTES = PAYLOAD_LIMIT - 200
+
+
+def _frame_item(f: CameraFrame) -> dict[str, Any] | None:
+    """Return a camera frame as a notification item: {"c": camera, "t": time} for an empty
+    frame, with its stored rows' "ids", pixels, covariances (xx, xy, yy), heights, kinds and
+    labels for the others; None when it is too large for one notification."""
+    item: dict[str, Any] = {"c": f.camera_id, "t": f.t}
+    if not f.pixels.shape[0]:
+        return item
+    item.update(
+        ids=list(f.ids),
+        px=f.pixels.tolist(),
+        cov=f.cov.reshape(-1, 4)[:, [0, 1, 3]].tolist(),
+        h=f.heights.tolist(),
+        k=list(f.kinds),
+        l=list(f.labels),
+    )
+    if len(json.dumps(item, separators=(",", ":"))) > _FRAME_ITEM_BYTES:
+        return None
+    return item
+
+
+def _frame_of_item(item: dict[str, Any]) -> CameraFrame:
+    """Return the camera frame of a notification item (`_frame_item`)."""
+    if "px" not in item:
+        return empty_frame(int(item["c"]), float(item["t"]))
+    c = np.asarray(item["cov"], dtype=np.float64).reshape(-1, 3)
+    cov = np.stack([c[:, [0, 1]], c[:, [1, 2]]], axis=1)
+    return CameraFrame(
+        camera_id=int(item["c"]),
+        t=float(item["t"]),
+        pixels=np.asarray(item["px"], dtype=np.float64).reshape(-1, 2),
+        cov=cov,
+        heights=np.asarray(item["h"], dtype=np.float64),
+        kinds=[str(k) for k in item["k"]],
+        labels=[None if v is None else str(v) for v in item["l"]],
+        ids=tuple(int(i) for i in item["ids"]),
+    )
+
+
 def _id_runs(ids: Sequence[int]) -> list[list[int]]:
     """Return the sorted ids as runs [first, last] of consecutive ids."""
     runs: list[list[int]] = []
@@ -176,8 +231,196 @@ def _id_runs(ids: Sequence[int]) -> list[list[int]]:
     return runs
 
 
+# What a tracker in the trackers' process may be asked (core Tracker's methods).
+_TRACKER_CALLS = frozenset({"set_camera", "update", "advance", "shift", "restore", "tracks"})
+
+
+def _serve_trackers(conn: Any) -> None:
+    """Run core trackers for a TrackingService (its trackers' process, `_TrackerHost`): answer
+    each request (key, op, args, kwargs) with (True, value, clock, tracks) of the tracker
+    `key` after it, or (False, exception, None, 0); stop on None or when the parent is gone."""
+    trackers: dict[int, Tracker] = {}
+    while True:
+        try:
+            request = conn.recv()
+        except (EOFError, OSError):
+            return
+        if request is None:
+            return
+        key, op, args, kwargs = request
+        try:
+            value: Any = None
+            if op == "new":
+                trackers[key] = Tracker(*args, **kwargs)
+            elif op == "drop":
+                trackers.pop(key, None)
+            elif op == "occluders":
+                trackers[key].occluders = args[0]
+            elif op in _TRACKER_CALLS:
+                value = getattr(trackers[key], op)(*args, **kwargs)
+            else:
+                raise ValueError(f"unknown tracker call {op!r}")
+            tracker = trackers.get(key)
+            answer = (
+                True,
+                value,
+                None if tracker is None else tracker.time,
+                0 if tracker is None else len(tracker),
+            )
+        except Exception as exc:
+            answer = (False, _portable(exc), None, 0)
+        try:
+            conn.send(answer)
+        except (EOFError, OSError):
+            return
+        except Exception as exc:  # an answer that does not pickle
+            conn.send((False, RuntimeError(f"tracker call {op!r}: {exc}"), None, 0))
+
+
+def _portable(exc: Exception) -> Exception:
+    """Return `exc` if it survives pickling (core's typed errors do), else a RuntimeError that
+    names it."""
+    try:
+        pickle.loads(pickle.dumps(exc))
+    except Exception:
+        return RuntimeError(f"{type(exc).__name__}: {exc}")
+    return exc
+
+
+class TrackerProcessError(RuntimeError):
+    """The trackers' process stopped answering (it died or was stopped)."""
+
+
+class _TrackerHost:
+    """The child process that runs a TrackingService's core trackers (module docstring). It is
+    forked from multiprocessing's fork server, which has this module imported already, so a
+    host starts in milliseconds once the first has. Calls from several threads are served one
+    at a time."""
+
+    def __init__(self) -> None:
+        context = multiprocessing.get_context("forkserver")
+        context.set_forkserver_preload([__name__])
+        conn, child = context.Pipe()
+        self._conn: Any = conn
+        self.process = context.Process(
+            target=_serve_trackers, args=(child,), name="intspace-trackers", daemon=True
+        )
+        self.process.start()
+        child.close()
+        self._lock = threading.Lock()
+        self._keys = itertools.count(1)
+
+    def new_key(self) -> int:
+        """Return a key no tracker of this host has had."""
+        return next(self._keys)
+
+    def call(self, key: int, op: str, *args: Any, **kwargs: Any) -> tuple[Any, float | None, int]:
+        """Run `op` on tracker `key`; return (its value, the tracker's clock, its tracks). The
+        tracker's own errors are raised here; TrackerProcessError when the process is gone."""
+        with self._lock:
+            if self._conn is None:
+                raise TrackerProcessError("the trackers' process was stopped")
+            try:
+                self._conn.send((key, op, args, kwargs))
+                ok, value, clock, n = self._conn.recv()
+            except (EOFError, OSError) as exc:
+                raise TrackerProcessError(
+                    f"the trackers' process (pid {self.process.pid}) stopped answering: {exc!r}"
+                ) from exc
+        if not ok:
+            raise value
+        return value, clock, n
+
+    def close(self) -> None:
+        """Stop the process (its trackers are lost)."""
+        with self._lock:
+            if self._conn is not None:
+                try:
+                    self._conn.send(None)
+                except OSError:
+                    pass
+                self._conn.close()
+                self._conn = None
+        self.process.join(5)
+        if self.process.is_alive():
+            self.process.kill()
+            self.process.join(5)
+
+
+class _RemoteTracker:
+    """A core Tracker run by a `_TrackerHost`: the part of Tracker's interface the service
+    uses, each call a round trip. Its clock and size are those of the last answer (the
+    service's tracker thread is the only one that moves it, under the space's lock)."""
+
+    def __init__(
+        self, host: _TrackerHost, config: TrackerConfig, next_id: int, occluders: Occluders | None
+    ) -> None:
+        self._host = host
+        self._key = host.new_key()
+        self.cameras: dict[Hashable, NetworkCamera] = {}
+        self._occluders = occluders
+        self._time: float | None = None
+        self._n = 0
+        self._call("new", config=config, next_id=next_id, occluders=occluders)
+
+    def _call(self, op: str, *args: Any, **kwargs: Any) -> Any:
+        value, self._time, self._n = self._host.call(self._key, op, *args, **kwargs)
+        return value
+
+    @property
+    def time(self) -> float | None:
+        return self._time
+
+    def __len__(self) -> int:
+        return self._n
+
+    @property
+    def occluders(self) -> Occluders | None:
+        return self._occluders
+
+    @occluders.setter
+    def occluders(self, occluders: Occluders | None) -> None:
+        self._call("occluders", occluders)
+        self._occluders = occluders
+
+    def set_camera(self, key: Hashable, camera: NetworkCamera) -> None:
+        self._call("set_camera", key, camera)
+        self.cameras[key] = camera
+
+    def update(self, camera: Hashable, t: float, *args: Any, **kwargs: Any) -> FrameResult:
+        result: FrameResult = self._call("update", camera, t, *args, **kwargs)
+        return result
+
+    def advance(self, t: float) -> tuple[TrackSnapshot, ...]:
+        ended: tuple[TrackSnapshot, ...] = self._call("advance", t)
+        return ended
+
+    def shift(self, dt: float) -> None:
+        self._call("shift", dt)
+
+    def restore(self, t: float, tracks: Sequence[TrackSnapshot]) -> tuple[TrackSnapshot, ...]:
+        ended: tuple[TrackSnapshot, ...] = self._call("restore", t, list(tracks))
+        return ended
+
+    def tracks(
+        self, t: float | None = None, *, states: Sequence[TrackState] | None = None
+    ) -> tuple[TrackSnapshot, ...]:
+        snaps: tuple[TrackSnapshot, ...] = self._call(
+            "tracks", t, states=None if states is None else tuple(states)
+        )
+        return snaps
+
+    def close(self) -> None:
+        """Forget the tracker in the host (its space was reset or given up)."""
+        try:
+            self._call("drop")
+        except TrackerProcessError:
+            pass
+
+
 class _SpaceTracker:
-    """The tracker of one space, its reorder buffer and its cameras."""
+    """The tracker of one space (here, or in the trackers' process `host`), its reorder buffer
+    and its cameras."""
 
     def __init__(
         self,
@@ -186,9 +429,14 @@ class _SpaceTracker:
         latency: float,
         next_id: int,
         occluders: Occluders | None,
+        host: _TrackerHost | None = None,
     ):
         self.space_id = space_id
-        self.tracker = Tracker(config=config, next_id=next_id, occluders=occluders)
+        self.tracker: Tracker | _RemoteTracker
+        if host is None:
+            self.tracker = Tracker(config=config, next_id=next_id, occluders=occluders)
+        else:
+            self.tracker = _RemoteTracker(host, config, next_id, occluders)
         self.buffer = ReorderBuffer(latency=latency)
         self.cameras_loaded = -float("inf")
         self.refused: dict[int, str] = {}
@@ -198,6 +446,11 @@ class _SpaceTracker:
         # Service time at which the space's world was held still (the twin paused), or None.
         self.held_since: float | None = None
         self.fed: OrderedDict[int, None] = OrderedDict()
+
+    def close(self) -> None:
+        """Let the tracker go (the space was reset or given up)."""
+        if isinstance(self.tracker, _RemoteTracker):
+            self.tracker.close()
 
     def fresh(self, ids: tuple[int, ...]) -> bool:
         """Whether a frame of stored detections `ids` is new to this tracker (and remember it);
@@ -216,7 +469,8 @@ class _SpaceTracker:
 class TrackingService:
     """One tracker per space, fed by `ingest`, run by one background thread. With
     `shared_database_url` (PostgreSQL), the processes sharing that database share the spaces'
-    trackers (module docstring)."""
+    trackers (module docstring). With `separate_process` (by default: on a shared database)
+    the core trackers run in a child process (`_TrackerHost`), started with the first space."""
 
     def __init__(
         self,
@@ -227,8 +481,14 @@ class TrackingService:
         latency: float = 1.0,
         clock: Any = time.time,
         shared_database_url: str | None = None,
+        separate_process: bool | None = None,
     ) -> None:
         self._factory = factory
+        if separate_process is None:
+            separate_process = shared_database_url is not None
+        self.separate_process = bool(separate_process)
+        self._host: _TrackerHost | None = None
+        self._host_lock = threading.Lock()
         self._live = live
         self.config = TrackerConfig() if config is None else config
         self.latency = float(latency)
@@ -324,8 +584,10 @@ class TrackingService:
                 space_id = space_of.get(f.camera_id)
                 space = self._space(space_id)
                 if space is None:
-                    # Stored detections travel by their rows' ids, an empty frame as itself.
-                    mark = f.ids if f.ids or f.pixels.shape[0] else [{"c": f.camera_id, "t": f.t}]
+                    # Frames travel as themselves (with their rows' ids); one too large for a
+                    # notification by its rows' ids, which the space's tracker reads back.
+                    item = _frame_item(f)
+                    mark = [item] if item is not None else list(f.ids)
                     elsewhere.setdefault(space_id, []).extend(mark)
                 elif space.fresh(f.ids) and not space.buffer.push(
                     f.t, (f, arrived), source=f.camera_id, arrived=arrived
@@ -352,7 +614,36 @@ class TrackingService:
         with self._factory() as session:
             next_id = self._live.next_track_id(session, space_id)
         occluders = self._occluders.get(space_id)
-        return _SpaceTracker(space_id, self.config, self.latency, next_id, occluders)
+        host = self._tracker_host() if self.separate_process else None
+        return _SpaceTracker(space_id, self.config, self.latency, next_id, occluders, host)
+
+    def _tracker_host(self) -> _TrackerHost:
+        """Return the trackers' process, started on first use."""
+        with self._host_lock:
+            if self._host is None:
+                self._host = _TrackerHost()
+            return self._host
+
+    def _recover(self) -> None:
+        """The trackers' process died: start another and take the spaces tracked here over
+        again, as from a process that died (their tracks restored from what was last stored,
+        keeping their ids; the detections stored since replayed). Tracks not restored end."""
+        with self._host_lock:
+            host, self._host = self._host, None
+        pid = None if host is None else host.process.pid
+        log.error("the trackers' process (pid %s) died; starting another", pid)
+        if host is not None:
+            host.close()
+        with self._ownership_lock:
+            with self._lock:
+                spaces = dict(self._spaces)
+            for space_id, old in spaces.items():
+                self._take_over(space_id)
+                with self._lock:
+                    new = self._spaces.get(space_id)
+                kept = set() if new is None else set(new.states)
+                for track_id in set(old.states) - kept:
+                    self._live.end(space_id, track_id)
 
     def owns(self, space_id: int | None) -> bool:
         """Whether this process runs the tracker of `space_id`."""
@@ -401,6 +692,7 @@ class TrackingService:
                 if old is not None:
                     for snap in old.tracker.tracks(states=LIVE_STATES):
                         self._live.end(space_id, snap.id)
+                    old.close()
                 self._spaces[space_id] = self._new_space(space_id)
         if elsewhere:
             self._forward(space_id, "reset")
@@ -450,9 +742,20 @@ class TrackingService:
             self._locks.close()
         if self._fanout is not None:
             self._fanout.stop()
+        with self._host_lock:
+            host, self._host = self._host, None
+        if host is not None:
+            host.close()
 
     def _loop(self) -> None:
         last_poll = -float("inf")
+        if self.separate_process:
+            # Started here rather than with the first space: the first frames do not wait
+            # for it (the first host of a process starts the fork server, a second or two).
+            try:
+                self._tracker_host()
+            except Exception:
+                log.exception("the trackers' process did not start; trying with the first space")
         while not self._stop.is_set():
             self._wake.wait(_TICK_S)
             self._wake.clear()
@@ -471,6 +774,12 @@ class TrackingService:
                     self._publish_changes()
                     if beat:
                         self._publish_live()
+            except TrackerProcessError:
+                self.errors += 1
+                try:
+                    self._recover()
+                except Exception:
+                    log.exception("restarting the trackers' process failed; trying again")
             except Exception:
                 self.errors += 1
                 log.exception("tracking failed")
@@ -598,8 +907,8 @@ class TrackingService:
         self._live.apply_remote(items)
 
     def _on_detections(self, message: dict[str, Any]) -> None:
-        """Queue the ids of detections another process stored, and the empty frames it
-        took (listener thread)."""
+        """Queue the camera frames another process took (or the ids of the detections it
+        stored), listener thread."""
         with self._notified_lock:
             self._notified.append((message.get("space"), list(message.get("items", ()))))
         self._wake.set()
@@ -620,8 +929,8 @@ class TrackingService:
             self._fanout.publish(TARGETS_CHANNEL, {"space": space_id, "live": True}, ids or [0])
 
     def _read_notified(self) -> None:
-        """Feed the notified detections and empty frames of the spaces tracked here to their
-        trackers, in time order."""
+        """Feed the notified camera frames (and the detections notified by id, read here)
+        of the spaces tracked here to their trackers, in time order."""
         with self._notified_lock:
             batch, self._notified = self._notified, []
         if not batch:
@@ -633,7 +942,7 @@ class TrackingService:
                     runs_of.setdefault(space_id, []).extend(items)
         for space_id, items in runs_of.items():
             runs = [i for i in items if not isinstance(i, dict)]
-            frames = [empty_frame(int(i["c"]), float(i["t"])) for i in items if isinstance(i, dict)]
+            frames = [_frame_of_item(i) for i in items if isinstance(i, dict)]
             for start in range(0, len(runs), _RUNS_PER_QUERY):
                 part = runs[start : start + _RUNS_PER_QUERY]
                 cond = or_(*(Detection.id.between(int(lo), int(hi)) for lo, hi in part))
@@ -704,7 +1013,9 @@ class TrackingService:
     def _hand_over(self, acquired: set[int | None], lost: set[int | None]) -> None:
         for space_id in lost:
             with self._lock:
-                self._spaces.pop(space_id, None)
+                gone = self._spaces.pop(space_id, None)
+            if gone is not None:
+                gone.close()
             self._live.disown(space_id)
             log.warning("space %s: tracker lock lost; another process takes it over", space_id)
         for space_id in sorted(acquired, key=lambda s: -1 if s is None else s):
@@ -740,6 +1051,7 @@ class TrackingService:
                 restored = list(space.tracker.tracks(states=LIVE_STATES))
             except IntspaceError as exc:
                 log.warning("space %s: its tracks could not be restored: %s", space_id, exc)
+                space.close()
                 space = self._new_space(space_id)
         for v in stored_only:
             if v.track_id in {s.id for s in restored}:

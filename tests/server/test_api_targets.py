@@ -4,6 +4,7 @@ bodies, targets with their life cycle, tracks and the stream."""
 
 from __future__ import annotations
 
+import json
 import time
 
 import numpy as np
@@ -370,12 +371,15 @@ def test_empty_frames_are_validated_like_detections(client, admin):
 
 
 def test_empty_frames_travel_to_the_process_that_tracks_their_space():
-    """Where another process tracks the space, stored detections travel as their rows' ids
-    and an empty frame as itself (camera, time), on the same channel and in one message."""
+    """Where another process tracks the space, a camera frame travels as itself with its
+    stored rows' ids, and an empty frame as (camera, time), on the same channel and in one
+    message; the receiver rebuilds the very frame (no database read); a frame too large for
+    one notification travels by its rows' ids."""
     from server.services.tracking import (
         DETECTIONS_CHANNEL,
         CameraFrame,
         TrackingService,
+        _frame_of_item,
         empty_frame,
     )
 
@@ -393,21 +397,43 @@ def test_empty_frames_travel_to_the_process_that_tracks_their_space():
 
     service = TrackingService(None, None)  # type: ignore[arg-type]
     service._locks, service._fanout = Locks(), Fanout()  # type: ignore[assignment]
+    rng = np.random.default_rng(5)
     seen = CameraFrame(
         3,
-        12.5,
-        np.zeros((2, 2)),
-        np.tile(np.eye(2), (2, 1, 1)),
-        np.zeros(2),
-        ["person", "person"],
-        [None, None],
+        1_700_000_012.123456789,
+        rng.uniform(0.0, 640.0, (2, 2)),
+        np.array([[[0.49, 0.013], [0.013, 0.36]], [[2.25, -0.4], [-0.4, 1.21]]]),
+        np.array([1.0, 0.1]),
+        ["person", "robot"],
+        [None, "r1"],
         ids=(7, 8),
     )
     late = service.submit([seen, empty_frame(4, 12.5)], {3: 1, 4: 1})
     assert late == 0
-    assert service._fanout.sent == [
-        (DETECTIONS_CHANNEL, {"space": 1}, [[7, 8], {"c": 4, "t": 12.5}])
-    ]
+    ((channel, base, items),) = service._fanout.sent
+    assert (channel, base) == (DETECTIONS_CHANNEL, {"space": 1})
+    assert items[1] == {"c": 4, "t": 12.5}
+    # Through JSON, as a notification carries it: every number comes back exactly.
+    got = _frame_of_item(json.loads(json.dumps(items[0])))
+    assert (got.camera_id, got.t, got.ids) == (3, seen.t, (7, 8))
+    assert (got.kinds, got.labels) == (["person", "robot"], [None, "r1"])
+    for name in ("pixels", "cov", "heights"):
+        assert np.array_equal(getattr(got, name), getattr(seen, name)), name
+    assert _frame_of_item(items[1]).pixels.shape == (0, 2)
+    # A frame of 200 detections exceeds a notification: its 200 rows go by their ids.
+    crowd = CameraFrame(
+        3,
+        13.0,
+        rng.uniform(0.0, 640.0, (200, 2)),
+        np.tile(np.eye(2), (200, 1, 1)),
+        np.ones(200),
+        ["person"] * 200,
+        [None] * 200,
+        ids=tuple(range(100, 300)),
+    )
+    service._fanout.sent.clear()
+    assert service.submit([crowd], {3: 1}) == 0
+    assert service._fanout.sent == [(DETECTIONS_CHANNEL, {"space": 1}, [[100, 299]])]
 
 
 @pytest.mark.parametrize("database_url", ["sqlite"], indirect=True)
