@@ -48,14 +48,18 @@ footprints; a prior, like the installer's plan) is its occupancy grid (core.navi
 inflated by the base radius and PLAN_MARGIN); a route planned on it leads to a hand-over point
 on the mark's estimated normal, APPROACH_M behind the reading pose, re-planned when the
 estimate moves by REPLAN_M; from there the polar law drives straight in. The survey maps what
-it reads on the odometry, corrected whenever a signpost (whose payload carries its world pose)
-is read within RELOCALISE_M, each correction spread back over the reads since the previous one
-(_Survey).
+it reads through the robot's pose estimate: the odometry, fused by an extended Kalman filter
+(core.sim.survey_localisation) with the fixes a robot in this home gets without the twin's
+truth: a signpost (whose payload carries its world pose) read within RELOCALISE_M, and, about
+once a second while the base moves, its top marker located by the ceiling cameras of the
+home's installed calibration; each correction is spread back over the reads since the
+previous one (_Survey). Routes are kept on the floor plan's frame and followed through the
+estimate of the moment, so a fix on the way brings the base back onto them.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from itertools import combinations
 from typing import Any
@@ -74,6 +78,7 @@ from core.landmarks.artwork import make_artwork, pattern_layout
 from core.landmarks.detect import LandmarkDetection, detect_landmarks
 from core.landmarks.maps import NavigationMap, NoRoute, SemanticMap, detection_in_world
 from core.landmarks.payload import ObjectMark, PayloadError, Signpost, decode_payload
+from core.localization import NetworkCamera
 from core.localization.occluders import line_of_sight
 from core.navigation import (
     BlockedEndpoint,
@@ -98,6 +103,14 @@ from core.sim.render.landmarks import (
     tag_texture,
 )
 from core.sim.scene import CameraMount, HeadCamera, Scene, default_scene
+from core.sim.survey_localisation import (
+    CEILING_HZ,
+    CEILING_MIN_MOVE_M,
+    CeilingLocaliser,
+    installed_cameras,
+    kalman_update,
+    propagate,
+)
 
 Array = NDArray[np.float64]
 
@@ -654,10 +667,12 @@ class _Track:
 
 @dataclass
 class _Approach:
-    """A planned approach, odometry frame: `target` the reading pose (x, y, yaw) it was planned
-    for, `offset` (2,) from the estimated reading pose to the free one the route leads to
-    (zero unless the estimate fell in an obstacle's margin), `route` (N, 2) ending at the
-    hand-over point, the next route point's index, and whether PBVS drives now (`final`)."""
+    """A planned approach: `target` the reading pose (x, y, yaw; odometry frame) it was
+    planned for, `offset` (2,; odometry frame) from the estimated reading pose to the free one
+    the route leads to (zero unless the estimate fell in an obstacle's margin), `route` (N, 2)
+    ending at the hand-over point, in the world (the floor plan's frame: followed through the
+    pose estimate of the moment, so a fix made on the way moves the base back onto it), the
+    next route point's index, and whether PBVS drives now (`final`)."""
 
     target: Array
     offset: Array
@@ -695,6 +710,7 @@ class HeadRobot:
         start: Array | None = None,
         rng: np.random.Generator,
         only: int | None = None,
+        ceiling: CeilingLocaliser | None = None,
     ) -> None:
         if scene.robot is None or scene.robot.head_camera is None:
             raise InvalidInput("the landmark scenarios need a robot with a head_camera")
@@ -714,14 +730,17 @@ class HeadRobot:
         self.seen: set[int] = set()  # landmarks drawn whole in some frame (for scoring)
         self.collided = False  # the true base touched a wall or furniture (for scoring)
         # The odometry frame in the world: identity at the start (the known start pose),
-        # corrected when a signpost is read (relocalise).
+        # corrected by every fix (a signpost read, relocalise; the ceiling cameras, `ceiling`).
         self.T_world_odom = np.eye(4)
         self.frames = 0
         self.drift_clock = 0.0  # metres driven plus radians turned, on the odometry
-        # The pose estimate's covariance (x, y, yaw) at the last fix (the start is known) and
-        # the drift clock then (relocalise).
+        # The pose estimate's covariance (x, y, yaw), now: zero at the known start, grown by
+        # the odometry's slip and shrunk by fixes (core.sim.survey_localisation).
         self.P = np.zeros((3, 3))
-        self.fix_clock = 0.0
+        # Every correction of T_world_odom: (drift clock, before, after).
+        self.fixes: list[tuple[float, Array, Array]] = []
+        self.ceiling = ceiling
+        self.moved = 0.0  # metres driven since the last ceiling frame
         # The floor plan (walls, doors, furniture footprints) is the robot's map, a prior.
         self.grid: OccupancyGrid = occupancy_grid(
             scene, self.robot.base_radius + PLAN_MARGIN, PLAN_RESOLUTION
@@ -739,6 +758,20 @@ class HeadRobot:
     def odom(self) -> Array:
         """Return the odometry pose (x, y, yaw)."""
         return self.base.state.odometry.as_array()
+
+    def estimate(self) -> Array:
+        """Return the base's estimated pose (x, y, yaw) in the world: T_world_odom o odometry."""
+        o = self.odom()
+        W = self.T_world_odom
+        p = W @ np.array([o[0], o[1], 0.0, 1.0])
+        return np.array([p[0], p[1], _wrap(o[2] + float(np.arctan2(W[1, 0], W[0, 0])))])
+
+    def _correct(self, x: Array, P: Array) -> None:
+        """Make (x, y, yaw) the base's estimated pose now, with covariance P (a fix)."""
+        W = self.T_world_odom
+        self.T_world_odom = floor_pose(*x) @ np.linalg.inv(floor_pose(*self.odom()))
+        self.P = P
+        self.fixes.append((self.drift_clock, W, self.T_world_odom))
 
     def T_odom_cam(self) -> Array:
         """Return the head camera's pose in the odometry frame (4, 4)."""
@@ -779,7 +812,9 @@ class HeadRobot:
         )
 
     def drive(self, v: float, omega: float, dt: float) -> None:
-        """Command the base (v m/s, omega rad/s) for dt seconds."""
+        """Command the base (v m/s, omega rad/s) for dt seconds; the pose estimate's
+        covariance follows the odometry (propagate), and the ceiling cameras fix it about
+        CEILING_HZ times a second while the base moves (when `ceiling` is given)."""
         for _ in range(max(1, round(dt / BASE_DT))):
             before = self.base.state.odometry
             self.base.step(v, omega)
@@ -787,9 +822,22 @@ class HeadRobot:
             # The odometry's drift grows with the distance driven and the angle turned (the
             # slip model's variances are linear in both): the clock the survey spreads a
             # relocalisation's correction along.
-            self.drift_clock += float(np.hypot(after.x - before.x, after.y - before.y))
-            self.drift_clock += abs(_wrap(after.yaw - before.yaw))
+            step = float(np.hypot(after.x - before.x, after.y - before.y))
+            self.drift_clock += step + abs(_wrap(after.yaw - before.yaw))
+            W = self.T_world_odom
+            yaw = before.yaw + float(np.arctan2(W[1, 0], W[0, 0]))
+            self.P = propagate(self.P, yaw, before, after, self.robot.slip)
+            self.moved += step
             self.collided = self.collided or self.collides()
+            c = self.ceiling
+            if c is not None and self.moved >= CEILING_MIN_MOVE_M and c.due(self.time):
+                self.moved = 0.0
+                x = self.estimate()
+                fix = c.observe(self.time, self.base.state.pose, x)
+                if fix is not None:
+                    k = c.update(x, self.P, fix)
+                    if k.accepted:
+                        self._correct(k.x, k.P)
 
     def collides(self) -> bool:
         """Return whether the true base overlaps a wall or a piece of furniture (scoring)."""
@@ -799,14 +847,14 @@ class HeadRobot:
     def relocalise(self, det: LandmarkDetection, T_odom_cam: Array) -> bool:
         """Correct T_world_odom from a signpost read within RELOCALISE_M with its rotation
         fixed by the symbol (its payload carries its world pose): the fix T_world_cam =
-        T_world_mark T_cam_mark^-1, kept planar (camera x, y and yaw), with its covariance
-        from the detection's (first order), is fused with the odometry's estimate by a Kalman
-        update. The odometry's covariance grows from the last fix by the slip model (variances
-        linear in the drift clock; the position's also by the heading's, integrated); a
-        ring's yaw is its weakest direction (degrees), so the odometry keeps weight there. A
-        correction larger than RELOCALISE_GATE (m, rad), or whose innovation fails the
-        chi-square test against the summed covariances (RELOCALISE_CHI2), is refused as an
-        outlier. Return whether it was applied."""
+        T_world_mark T_cam_mark^-1, kept planar (camera x, y and the odometry frame's yaw), with
+        its covariance from the detection's (first order), is fused with the pose estimate by
+        a Kalman update (core.sim.survey_localisation: the state is the base's pose now, the
+        camera a point fixed on it, P the estimate's covariance grown by the odometry's slip
+        since the last fix). A ring's yaw is its weakest direction (degrees), so the estimate
+        keeps weight there. A correction larger than RELOCALISE_GATE (m, rad), or whose
+        innovation fails the chi-square test (RELOCALISE_CHI2), is refused as an outlier.
+        Return whether it was applied."""
         rec = det.record
         if not isinstance(rec, Signpost) or not det.orientation_known:
             return False
@@ -832,31 +880,24 @@ class HeadRobot:
         J[:2] = (T_world_mark[:3, :3] @ np.hstack([-R_cm.T @ tx, -R_cm.T]))[:2]
         J[2, :3] = -T_wc[2, :3]
         R_fix = J @ det.cov @ J.T
-        # The odometry's covariance since the last fix (slip model, drift clock d).
-        slip = self.robot.slip
-        d = self.drift_clock - self.fix_clock
-        q_h = max(slip.heading_per_sqrt_m, slip.heading_per_sqrt_rad) ** 2
-        q_p = max(slip.distance_per_sqrt_m, slip.lateral_per_sqrt_m) ** 2
-        P = self.P.copy()
-        P[2, 2] += q_h * d
-        P[:2, :2] += np.eye(2) * (q_p * d + self.P[2, 2] * d**2 + q_h * d**3 / 3.0)
-        c_odom = np.append(T_odom_cam[:2, 3], 0.0)
-        est = np.append((W @ np.append(T_odom_cam[:3, 3], 1.0))[:2], np.arctan2(W[1, 0], W[0, 0]))
+        # The measurement model: the camera where the fix saw it, c = (x, y) + R(phi) (c_odom
+        # - o), phi = yaw - yaw_odom the odometry frame's heading (the base's estimated pose
+        # x = (x, y, yaw) now, o its odometry now).
+        x = self.estimate()
+        o = self.odom()
+        phi = _wrap(float(x[2] - o[2]))
+        r_w = _rz(phi)[:2, :2] @ (T_odom_cam[:2, 3] - o[:2])
+        H = np.array([[1.0, 0.0, -r_w[1]], [0.0, 1.0, r_w[0]], [0.0, 0.0, 1.0]])
         fix = np.array([T_wc[0, 3], T_wc[1, 3], np.arctan2(M[1, 0], M[0, 0])])
-        nu = fix - est
-        nu[2] = _wrap(nu[2])
-        S = P + R_fix
-        # A fix that disagrees with the odometry beyond its covariance (the rings' other pose,
-        # whose yaw the wide RELOCALISE_GATE still lets through) is an outlier.
-        if float(nu @ np.linalg.solve(S, nu)) > RELOCALISE_CHI2:
+        nu = fix - np.array([x[0] + r_w[0], x[1] + r_w[1], phi])
+        nu[2] = _wrap(float(nu[2]))
+        # A fix that disagrees with the estimate beyond their covariances (the rings' other
+        # pose, whose yaw the wide RELOCALISE_GATE still lets through) is an outlier.
+        k = kalman_update(x, self.P, nu, H, R_fix, RELOCALISE_CHI2)
+        if not k.accepted:
             return False
-        K = P @ np.linalg.inv(S)
-        x = est + K @ nu
-        self.P = (np.eye(3) - K) @ P
-        self.fix_clock = self.drift_clock
-        W_new = floor_pose(0.0, 0.0, float(x[2]))
-        W_new[:2, 3] = x[:2] - W_new[:2, :2] @ c_odom[:2]
-        self.T_world_odom = W_new
+        k.x[2] = _wrap(float(k.x[2]))
+        self._correct(k.x, k.P)
         return True
 
     def locate(self, det: LandmarkDetection) -> Array:
@@ -1067,17 +1108,16 @@ class HeadRobot:
         route = self.plan_route(hand)
         if route is None:
             return None
-        W_inv = np.linalg.inv(W)
-        route_odom = route @ W_inv[:2, :2].T + W_inv[:2, 3]
-        offset = W_inv[:2, :2] @ (out_w * shift)
-        return _Approach(goal.copy(), offset, route_odom)
+        offset = np.linalg.inv(W)[:2, :2] @ (out_w * shift)
+        return _Approach(goal.copy(), offset, route)
 
     def _follow(self, ap: _Approach, heading: float) -> tuple[float, float]:
         """Return (v, omega) following the route on the odometry: turn on the spot towards
         the next route point when off by more than TURN_IN_PLACE_RAD, else drive at it,
         braking to stop there; at the route's end turn to `heading`, then hand over to PBVS."""
         o = self.odom()
-        route = ap.route
+        W_inv = np.linalg.inv(self.T_world_odom)
+        route = ap.route @ W_inv[:2, :2].T + W_inv[:2, 3]  # on the odometry, as now corrected
         while ap.index < len(route) and np.hypot(*(route[ap.index] - o[:2])) < WAYPOINT_M:
             ap.index += 1
         if ap.index >= len(route):
@@ -1099,21 +1139,18 @@ class HeadRobot:
         """Drive the base to the world point (x, y) along a route planned on the floor plan
         (straight when none exists); return whether it arrived within `timeout` s."""
         route = self.plan_route(np.asarray(target_world, dtype=np.float64))
-        W_inv = np.linalg.inv(self.T_world_odom)
         if route is None:
             route = np.asarray([target_world], dtype=np.float64)
-        route_odom = route @ W_inv[:2, :2].T + W_inv[:2, 3]
-        ap = _Approach(np.zeros(3), np.zeros(2), route_odom, index=0)
+        ap = _Approach(np.zeros(3), np.zeros(2), route, index=0)
         t0 = self.time
         while self.time - t0 < timeout:
-            o = self.odom()
-            while ap.index < len(route_odom) and (
-                np.hypot(*(route_odom[ap.index] - o[:2])) < WAYPOINT_M
-            ):
+            here = self.estimate()[:2]
+            while ap.index < len(route) and np.hypot(*(route[ap.index] - here)) < WAYPOINT_M:
                 ap.index += 1
-            if ap.index >= len(route_odom):
+            if ap.index >= len(route):
                 self.drive(0.0, 0.0, 0.5)
                 return True
+            o = self.odom()
             self.drive(*self._follow(ap, o[2]), BASE_DT)
         return False
 
@@ -1349,7 +1386,11 @@ DEFAULT_TOUR = (
 )
 SWEEP_PANS = tuple(float(a) for a in np.linspace(-2.8, 2.8, 15))
 SURVEY_READ_TIMEOUT_S = 40.0
-SEPARATE_M = 0.45  # m: a located landmark nearer than this to a known one is that one
+# Reads tried of one located landmark, at most: a read that failed (a long way round the
+# furniture within the timeout, a view hidden at the reading pose) is tried again when the
+# landmark is located again from a later stop.
+SURVEY_READ_TRIES = 2
+SEPARATE_M = 0.45  # m: a located landmark nearer than this to a known one of its kind is that one
 MATCH_TRUTH_M = 0.5  # m: scoring: a map entry this near its landmark (and of its id) is right
 
 
@@ -1375,8 +1416,9 @@ class LandmarkSurveyResult:
     of one landmark), landmarks seen but not read, the reads attempted by PBVS and their
     successes, the drive's time (s), whether it finished the tour (not cut short by a
     duration) and whether the base ever touched a wall or furniture (scored on the true pose),
-    its frames, the odometry's final drift (m), routes between every pair of rooms, and both
-    maps (GeoJSON-like)."""
+    its frames, the odometry's final drift (m) and the final pose estimate's position error
+    (m), the ceiling fixes (rate, frames rendered, fixes applied and refused, cameras; empty
+    without them), routes between every pair of rooms, and both maps (GeoJSON-like)."""
 
     scenario: str
     seed: int
@@ -1398,6 +1440,8 @@ class LandmarkSurveyResult:
     collided: bool
     frames: int
     odometry_drift_m: float
+    pose_error_m: float
+    ceiling: dict[str, float | int]
     calibration_rms_px: float
     routes: tuple[SurveyRoute, ...]
     goals: dict[str, Any]
@@ -1461,8 +1505,9 @@ class _Survey:
     """The survey's state: the robot, both maps and the places where unread landmarks were
     located (odometry frame).
 
-    Object marks are mapped through the robot's pose estimate, the odometry corrected at each
-    signpost read (HeadRobot.relocalise). The odometry drifts between two corrections; when
+    Object marks are mapped through the robot's pose estimate, the odometry corrected by every
+    fix (a signpost read, HeadRobot.relocalise; the ceiling cameras while the base moves,
+    core.sim.survey_localisation). The odometry drifts between two corrections; when
     the second comes, its correction D is spread back along the reads made since the first,
     in proportion to the drift clock (metres driven plus radians turned, the slip model's
     variance being linear in both): a read at a fraction lam of the way gets exp(lam log D),
@@ -1476,11 +1521,12 @@ class _Survey:
         self.robot = robot
         self.semantic = SemanticMap()
         self.navigation = NavigationMap()
-        self.tried: list[Array] = []
+        self.tried: list[tuple[str, Array]] = []  # (kind, world position) of failed reads
         self.attempts = 0
         self.successes = 0
         self.reads: list[_Read] = []
-        self.fixes: list[tuple[float, Array, Array]] = []  # (clock, W before, W after)
+        self.fixes = robot.fixes  # (clock, W before, W after), HeadRobot._correct
+        self.synced = 0  # the fixes the semantic map has taken in
         self.emitted = 0
         self.on_read = on_read
 
@@ -1509,27 +1555,52 @@ class _Survey:
             assert isinstance(e.record, ObjectMark)
             self.semantic.observe(e.record, e.T_world_mark, e.cov, e.time)
 
-    def flush(self) -> None:
-        """Hand the reads whose pose is settled (or all, at the end) to `on_read`."""
+    def flush(self, settled: bool = True) -> None:
+        """Hand the reads whose pose is settled (a fix came after them), or all (`settled`
+        False, at the end), to `on_read`."""
+        n = len(self.reads)
+        if settled:
+            n = self.emitted
+            while n < len(self.reads) and self.reads[n].fixes < len(self.fixes):
+                n += 1
         if self.on_read is not None:
-            for read in self.reads[self.emitted :]:
+            for read in self.reads[self.emitted : n]:
                 self.on_read(self._entry(read))
-        self.emitted = len(self.reads)
+        self.emitted = n
 
-    def known(self, p_odom: Array) -> bool:
-        """Return whether a located position (3,) in the odometry frame is a landmark already
-        mapped or tried."""
+    def sync(self) -> None:
+        """Rebuild the semantic map when fixes came since it was built, and hand on the reads
+        they settled."""
+        if self.synced < len(self.fixes):
+            self.synced = len(self.fixes)
+            self._rebuild()
+            self.flush()
+
+    def known(self, p_odom: Array, kind: str) -> bool:
+        """Return whether a located position (3,) in the odometry frame is a landmark of its
+        kind ("object" or "signpost", told by the outer pattern) already mapped, or tried
+        SURVEY_READ_TRIES times: an object mark may hang beside a signpost (the default
+        home's clock is 0.41 m from one)."""
+        self.sync()
         p = (self.robot.T_world_odom @ np.append(p_odom, 1.0))[:3]
-        near = [o.position for o in self.semantic.objects]
-        near += [np.asarray(self.navigation.graph.nodes[k]["xyz"]) for k in self.navigation.graph]
-        near += self.tried
-        return any(float(np.linalg.norm(p - q)) < SEPARATE_M for q in near)
+        if kind == "object":
+            near = [o.position for o in self.semantic.objects]
+        else:
+            g = self.navigation.graph
+            near = [np.asarray(g.nodes[k]["xyz"]) for k in g]
+        if any(float(np.linalg.norm(p - q)) < SEPARATE_M for q in near):
+            return True
+        tries = sum(
+            1 for k, q in self.tried if k == kind and float(np.linalg.norm(p - q)) < SEPARATE_M
+        )
+        return tries >= SURVEY_READ_TRIES
 
     def record(self, det: LandmarkDetection, T_odom_cam: Array) -> None:
         """Put a decoded detection in its map (class docstring); a signpost read near enough
         also corrects the odometry."""
         r = self.robot
         rec = det.record
+        self.sync()
         if isinstance(rec, ObjectMark):
             read = _Read(det, T_odom_cam, r.time, r.drift_clock, len(self.fixes), r.T_world_odom)
             self.reads.append(read)
@@ -1542,9 +1613,7 @@ class _Survey:
                 T, C = detection_in_world(det, W @ T_odom_cam)
                 self.on_read(SurveyRead(rec, T, C, r.time, float(np.linalg.norm(det.position))))
             if r.relocalise(det, T_odom_cam):
-                self.fixes.append((r.drift_clock, W, r.T_world_odom))
-                self._rebuild()
-                self.flush()
+                self.sync()
 
     def sweep(self) -> list[_Track]:
         """Sweep the head over SWEEP_PANS; map what is read; return the unread, unknown
@@ -1560,14 +1629,15 @@ class _Survey:
                 if d.record is not None:
                     self.record(d, r.T_odom_cam())
                     continue
-                if not self.known(T[:3, 3]) and not any(
-                    float(np.linalg.norm(T[:3, 3] - t.T[:3, 3])) < SEPARATE_M for _, t in todo
+                if not self.known(T[:3, 3], d.kind) and not any(
+                    t.kind == d.kind and float(np.linalg.norm(T[:3, 3] - t.T[:3, 3])) < SEPARATE_M
+                    for _, t in todo
                 ):
                     dist = float(np.linalg.norm(d.position))
                     todo.append((dist, _Track(T, d.kind, r.time)))
             r.drive(0.0, 0.0, FRAME_DT)
         todo.sort(key=lambda x: x[0])
-        return [t for _, t in todo if not self.known(t.T[:3, 3])]
+        return [t for _, t in todo if not self.known(t.T[:3, 3], t.kind)]
 
     def go(self, target: Array, timeout: float = 120.0) -> None:
         """Drive the base to a floor point (x, y), world frame, along a route planned on the
@@ -1586,14 +1656,21 @@ def landmark_survey(
     duration_s: float | None = None,
     on_progress: Callable[[str, float], None] | None = None,
     on_read: Callable[[SurveyRead], None] | None = None,
+    ceiling_hz: float = CEILING_HZ,
+    cameras: Sequence[NetworkCamera] | None = None,
 ) -> LandmarkSurveyResult:
     """Return the metrics of `landmark-survey`: the robot drives `tour` (default: DEFAULT_TOUR
     on the default home, else the robot's patrol) along routes planned on the floor plan,
     sweeps its head at every stop, maps every landmark it reads, and reads by PBVS
     (HeadRobot.read, up to SURVEY_READ_TIMEOUT_S) every landmark it located but could not
     read, coming back to the stop afterwards. Poses come from the odometry (started at the
-    robot's known start pose, corrected at signposts, _Survey) and the calibrated head camera;
-    the twin's truth only scores the maps.
+    robot's known start pose), corrected at signposts and by the robot's top marker located
+    by the ceiling cameras (core.sim.survey_localisation, _Survey), and the calibrated head
+    camera; the twin's truth only scores the maps.
+
+    ceiling_hz: ceiling frames a second while the base moves (0: no ceiling fixes, the
+    odometry and the signposts alone); cameras: the calibrated ceiling cameras (default: the
+    home's installed calibration, core.sim.installation; never the twin's true cameras).
 
     duration_s: stop after this much simulated time (the tour cut short); on_progress(phase,
     fraction) is called as the survey goes from stop to stop and read to read; on_read gets
@@ -1614,9 +1691,17 @@ def landmark_survey(
     stops = np.asarray(tour, dtype=np.float64)
     if stops.ndim != 2 or stops.shape[1] != 2 or len(stops) < 1:
         raise InvalidInput(f"tour must be (x, y) points, got shape {stops.shape}")
+    if not (np.isfinite(ceiling_hz) and ceiling_hz >= 0):
+        raise InvalidInput(f"ceiling_hz must be a number >= 0, got {ceiling_hz}")
     rng = np.random.default_rng(seed)
     K, dist, rms = _calibrated(sc, rng, calibration_views)
-    robot = HeadRobot(sc, K, dist, rng=rng)
+    ceiling = None
+    if ceiling_hz > 0 and sc.robot is not None and sc.robot.marker is not None:
+        cams = installed_cameras(sc) if cameras is None else list(cameras)
+        ceiling = CeilingLocaliser(
+            sc, cams, rate_hz=ceiling_hz, rng=np.random.default_rng([seed, 1])
+        )
+    robot = HeadRobot(sc, K, dist, rng=rng, ceiling=ceiling)
     survey = _Survey(robot, on_read)
     end = np.inf if duration_s is None else float(duration_s)
     n = len(stops)
@@ -1639,7 +1724,7 @@ def landmark_survey(
         progress(k, "sweeping the head")
         tracks = survey.sweep()
         for j, track in enumerate(tracks):
-            if survey.known(track.T[:3, 3]):
+            if survey.known(track.T[:3, 3], track.kind):
                 continue  # read meanwhile, from another reading pose
             left = end - robot.time
             if left <= 0:
@@ -1651,9 +1736,10 @@ def landmark_survey(
                 survey.successes += 1
                 survey.record(out.detection, out.T_odom_cam)
             else:
-                survey.tried.append((robot.T_world_odom @ track.T[:, 3])[:3])
+                survey.tried.append((track.kind, (robot.T_world_odom @ track.T[:, 3])[:3]))
             survey.go(stop, min(120.0, end - robot.time))
-    survey.flush()
+    survey.sync()
+    survey.flush(settled=False)
     return _score_survey(sc, survey, seed, rms, completed and robot.time < end)
 
 
@@ -1733,6 +1819,8 @@ def _score_survey(
         collided=robot.collided,
         frames=robot.frames,
         odometry_drift_m=float(np.hypot(true.x - odo.x, true.y - odo.y)),
+        pose_error_m=float(np.hypot(*(robot.estimate()[:2] - (true.x, true.y)))),
+        ceiling=robot.ceiling.summary() if robot.ceiling is not None else {},
         calibration_rms_px=float(rms),
         routes=tuple(routes),
         goals=goals,

@@ -132,7 +132,8 @@ DESCRIPTIONS: dict[str, str] = {
     "landmark-reading": "a landmark read by position-based visual servoing (head search, "
     "polar pose-regulation law, re-estimated every frame) from 100 random start poses",
     "landmark-survey": "the robot tours the home, reads every landmark it locates (by PBVS "
-    "when needed) and builds the semantic and navigation maps on its odometry",
+    "when needed) and builds the semantic and navigation maps on its odometry fused with "
+    "signposts and ceiling-camera fixes of its marker",
     "hand-eye": "hand-eye calibration of the eye-in-hand camera: every method and the "
     "reprojection refinement on 15 rendered views of a table chessboard (detected, +0.5 px)",
     "grasp": "100 randomised fetches of a marked box on the dining table by the switching "

@@ -24,6 +24,7 @@ from core.sim.landmark_scenarios import (
     robot_head_pose,
 )
 from core.sim.scene import default_scene, load_scene
+from core.sim.survey_localisation import installed_cameras
 
 
 def test_landmark_pose_small_study() -> None:
@@ -105,7 +106,10 @@ def test_landmark_survey_small_home() -> None:
     home["landmarks"] = [m for m in home["landmarks"] if m["name"] in ("kettle", "signpost_22")]
     home["robot"]["start"] = (5.2, 1.45, 0.0)
     scene = load_scene(home)
-    r = landmark_survey(scene, 1, tour=((5.2, 1.45),), calibration_views=6)
+    # The same ceiling cameras as the default home's (only landmarks were taken down): its
+    # installed calibration.
+    cams = installed_cameras(default_scene())
+    r = landmark_survey(scene, 1, tour=((5.2, 1.45),), calibration_views=6, cameras=cams)
     d = r.to_dict()
     json.dumps(d)
     assert (d["objects_present"], d["objects_seen"], d["objects_found"]) == (1, 1, 1)
@@ -113,6 +117,9 @@ def test_landmark_survey_small_home() -> None:
     assert d["false_entries"] == 0 and d["duplicate_entries"] == 0
     assert not d["seen_not_read"]
     assert d["completed"] and not d["collided"]
+    # The ceiling cameras saw the marker while the base drove to its reading poses, and their
+    # fixes entered the pose estimate.
+    assert d["ceiling"]["cameras"] == 5 and d["ceiling"]["frames"] > 0 and d["ceiling"]["fixes"] > 0
     # Read from under 1 m (pose error ~1 % of distance) on odometry that drove a few metres
     # from the known start (slip 1 cm per sqrt(m)): a few centimetres.
     assert d["position_error_mean_m"] < 0.05
