@@ -16,6 +16,7 @@ import time
 
 import numpy as np
 import pytest
+from test_api_targets import _register
 
 from core.errors import InvalidInput
 from core.localization import NetworkCamera
@@ -136,19 +137,7 @@ class _Clock:
 @pytest.mark.parametrize("database_url", ["sqlite"], indirect=True)
 def test_a_service_whose_trackers_process_dies_goes_on_with_its_tracks(client, admin):
     cameras = _cameras()
-    ids = []
-    for k, cam in enumerate(cameras):
-        body = {
-            "name": f"corner-{k}",
-            "width": 640,
-            "height": 480,
-            "K": K,
-            "dist": DIST,
-            "T_world_camera": cam.T_world_camera.tolist(),
-        }
-        response = client.post("/api/v1/cameras", json=body, headers=admin)
-        assert response.status_code == 201, response.text
-        ids.append(response.json()["id"])
+    ids = _register(client, admin, cameras)
     factory = client.app.state.session_factory
     live = client.app.state.targets
     t0 = float(np.ceil(time.time())) + 1.0
