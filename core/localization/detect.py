@@ -628,7 +628,7 @@ def locate_body_axis(
     # used for the range (by more than occlusion_z: `sides_hidden`). r_side is the radius the
     # sides are judged by (from the ends and the prior, not the width).
     r_side = mdl.radius
-    sides_hidden = False
+    sides_hidden = too_wide = False
     extra: list[_Row] = []
     if both:
         base = _solve_range(list(rows.values())) if len(rows) > 1 else None
@@ -641,7 +641,9 @@ def locate_body_axis(
             sd = math.sqrt(width_row[3] + float(c @ base[1] @ c))
             innov = float(c @ base[0])
             sides_hidden = innov < -z_max * sd
-            usable = innov >= -sd
+            # Wider than one body at the ends' range: the blob holds more than one body.
+            too_wide = innov > z_max * sd
+            usable = -sd <= innov and not too_wide
         if usable:
             extra.append(width_row)
 
@@ -674,12 +676,13 @@ def locate_body_axis(
     dist, radius = float(theta[0]), float(theta[1])
     if not (dist > 0 and radius > 0):
         return None
-    if "foot" not in rows and "head" not in rows:
+    if too_wide or ("foot" not in rows and "head" not in rows):
         # The width alone placed the body: it holds only for one body. A blob with neither end
         # seen is as likely two people side by side, one behind the other (their ends fail the
-        # arc tests together), whose width stands for a body up to `merged_range` times as far.
-        # The range then spreads over [D, merged_range D]: its far end lies two standard
-        # deviations out, so the bearing, which stays good, carries the detection.
+        # arc tests together), whose width stands for a body up to `merged_range` times as far;
+        # a blob wider than one body at the range its ends give holds two, and which body its
+        # end belongs to is unknown. The range then spreads over [D, merged_range D]: its far
+        # end lies two standard deviations out.
         grow = math.sqrt(cov_dr[0, 0] + (0.5 * (mdl.merged_range - 1.0) * dist) ** 2)
         scale = np.array([grow / math.sqrt(cov_dr[0, 0]), 1.0])
         cov_dr = cov_dr * np.outer(scale, scale)
