@@ -328,6 +328,12 @@ def _as_strings(
     return out
 
 
+def _largest_variance(C: Array) -> Array:
+    """Return the larger eigenvalue of each 2 x 2 covariance C (..., 2, 2)."""
+    half = 0.5 * (C[..., 0, 0] - C[..., 1, 1])
+    return 0.5 * (C[..., 0, 0] + C[..., 1, 1]) + np.hypot(half, C[..., 0, 1])
+
+
 def _mahalanobis(nu: Array, S: Array) -> tuple[Array, Array]:
     """Return (nu^T S^-1 nu, ln det S), both (...), for nu (..., 2) and S (..., 2, 2)."""
     S_inv, det = inv2(S)
@@ -760,9 +766,7 @@ class Tracker:
             xy = est.xy
             # A pixel whose ray misses the plane has no floor point: nothing to add there.
             ok = np.all(np.isfinite(xy), axis=1)
-            C = est.cov
-            half = 0.5 * (C[:, 0, 0] - C[:, 1, 1])
-            worst = 0.5 * (C[:, 0, 0] + C[:, 1, 1]) + np.hypot(half, C[:, 0, 1])
+            worst = _largest_variance(est.cov)
             floor_std[sel[ok]] = np.sqrt(np.maximum(worst[ok], 0.0))
             if sigma <= 0:
                 continue
@@ -859,10 +863,7 @@ class Tracker:
     def _vague(self, rows: NDArray[np.intp]) -> NDArray[np.bool_]:
         """Return whether each track's position standard deviation (larger axis) exceeds
         `max_position_std`."""
-        P = self._P[rows, :2, :2]
-        half = 0.5 * (P[:, 0, 0] - P[:, 1, 1])
-        worst = 0.5 * (P[:, 0, 0] + P[:, 1, 1]) + np.hypot(half, P[:, 0, 1])
-        return worst > self.config.max_position_std**2
+        return _largest_variance(self._P[rows, :2, :2]) > self.config.max_position_std**2
 
     def _restart(
         self,
@@ -1010,8 +1011,7 @@ class Tracker:
             if silent > cfg.coast_after:
                 self._states[i] = TrackState.COASTING
             if self._states[i] is TrackState.COASTING:
-                P = self._P[i, :2, :2]
-                worst = 0.5 * (P[0, 0] + P[1, 1]) + math.hypot(0.5 * (P[0, 0] - P[1, 1]), P[0, 1])
+                worst = float(_largest_variance(self._P[i, :2, :2]))
                 if self._labels[i] is not None:
                     # A labelled body is known by its label, not found by its position: its
                     # track waits for the label to come back however vague it has become.
