@@ -1,13 +1,22 @@
 """Targets in camera images: the robot's coloured top marker and people (02 §2).
 
 Robot marker. The image is segmented in HSV (hue within `hue_tolerance` of the marker's hue,
-saturation and value above their floors), the largest connected blob is kept, and its centre is
-the centroid of a *soft* membership weight over a window around the blob: each pixel's colour is
-projected on the axis from the local background colour (median of a ring around the blob) to the
-marker colour (median of the blob's core), w = clip(<c - bg, fg - bg> / |fg - bg|^2, 0, 1). On an
-anti-aliased edge a pixel's colour is the area-weighted mix of disc and background, so w is the
-covered fraction and the weighted centroid is the area centroid to sub-pixel accuracy, where a
-binary mask would quantise it to the pixel grid.
+saturation and value above their floors) and the connected blobs are tried from the largest to
+the smallest: the first whose area, position, fill (no hole), solidity and elliptic outline are
+those of a disc's image is the marker, so a larger red thing (a signpost's rings on a wall, a
+ring being no disc) cannot hide it. Its centre is the centroid of a *soft* membership weight
+over a window around the blob: each pixel's colour is projected on the axis from the local
+background colour (median of a ring around the blob) to the marker colour (median of the blob's
+core), w = clip(<c - bg, fg - bg> / |fg - bg|^2, 0, 1). On an anti-aliased edge a pixel's
+colour is the area-weighted mix of disc and background, so w is the covered fraction and the
+weighted centroid is the area centroid to sub-pixel accuracy, where a binary mask would quantise
+it to the pixel grid.
+
+Given the camera's `background` (its view of the empty home, as the person detector learns it),
+pixels already of the marker's colour there (a signpost's rings, a red cushion), grown by two
+pixels, are not the marker, and a blob whose window reaches them is refused: a person half hiding
+a signpost leaves a small convex red fragment that passes every disc test, and a disc touching a
+static red region cannot be told apart from it.
 
 Its covariance is the first-order propagation of the weights' noise: with c = sum w_i x_i / W,
 dc/dw_i = (x_i - c) / W, so cov(c) = s_w^2 sum_i (x_i - c)(x_i - c)^T / W^2, s_w the standard
@@ -58,8 +67,10 @@ class MarkerDetectorConfig:
     of hue (0..180 OpenCV scale, i.e. 2 degrees per unit) either side; min_saturation,
     min_value: 0..255 floors; min_area, max_area: blob area bounds in pixels; min_solidity:
     blob area / convex hull area, rejecting blobs cut by an occluder into odd shapes;
-    min_ellipse_overlap: intersection over union of the blob with the ellipse of its second
-    moments (a disc's image is an ellipse; one cut by an occluder's straight edge is not);
+    min_fill: blob area / the area inside its outer contour, rejecting blobs with a hole (a
+    ring's image: a signpost's red rings seen from the ceiling fill 0.61-0.65 of their
+    outline); min_ellipse_overlap: intersection over union of the blob with the ellipse of its
+    second moments (a disc's image is an ellipse; one cut by an occluder's straight edge is not);
     border: blobs closer than this many pixels to the image edge are rejected (cut by the edge);
     pixel_sigma: when given (pixels), the centroid covariance is sigma^2 I instead of the one
     propagated from the image noise; min_sigma: a floor (pixels) on the propagated standard
@@ -73,6 +84,7 @@ class MarkerDetectorConfig:
     min_area: int = 12
     max_area: int = 20000
     min_solidity: float = 0.85
+    min_fill: float = 0.9
     min_ellipse_overlap: float = 0.7
     border: int = 2
     pixel_sigma: float | None = None
@@ -87,6 +99,9 @@ class MarkerDetectorConfig:
             raise InvalidInput("pixel_sigma must be > 0 pixels when given")
         if not 0 < self.min_area <= self.max_area:
             raise InvalidInput("need 0 < min_area <= max_area")
+        for name in ("min_solidity", "min_fill", "min_ellipse_overlap"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise InvalidInput(f"{name} must lie in [0, 1], got {getattr(self, name)}")
 
 
 @dataclass(frozen=True)
@@ -156,12 +171,18 @@ def _ellipse_overlap(blob: NDArray[np.uint8], x0: int, y0: int, bw: int, bh: int
 
 
 def detect_marker(
-    image: Image, config: MarkerDetectorConfig | None = None
+    image: Image,
+    config: MarkerDetectorConfig | None = None,
+    *,
+    background: Image | None = None,
 ) -> MarkerDetection | None:
     """Return the marker's sub-pixel centre and covariance in a BGR image (H, W, 3), or None.
 
-    None when no blob passes the colour, area, solidity and border tests (module docstring for
-    the method). Raises InvalidInput for an image that is not (H, W, 3) uint8.
+    The blobs of the marker's colour are tried from the largest to the smallest; the first that
+    passes the area, border, fill, solidity and ellipse tests (`MarkerDetectorConfig`) is the
+    marker (module docstring for the method). `background`: the same camera's view without the
+    robot (BGR, same shape); what is of the marker's colour there is never the marker. None when
+    no blob passes. Raises InvalidInput for an image (or background) that is not (H, W, 3) uint8.
     """
     cfg = config or MarkerDetectorConfig()
     img = np.asarray(image)
@@ -169,37 +190,89 @@ def detect_marker(
         raise InvalidInput(f"image must be (H, W, 3) uint8 BGR, got {img.shape} {img.dtype}")
     h, w = img.shape[:2]
     mask = _hue_mask(cv2.cvtColor(img, cv2.COLOR_BGR2HSV), cfg)
+    static = None
+    if background is not None:
+        static = static_marker_mask(background, cfg)
+        if static.shape != mask.shape:
+            raise InvalidInput(
+                f"background is {static.shape[1]}x{static.shape[0]} px, the image {w}x{h}"
+            )
+        mask[static] = 0
     n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
     if n <= 1:
         return None
     areas = stats[1:, cv2.CC_STAT_AREA]
-    k = int(np.argmax(areas)) + 1
-    area = int(stats[k, cv2.CC_STAT_AREA])
-    if not cfg.min_area <= area <= cfg.max_area:
-        return None
-    x0, y0 = int(stats[k, cv2.CC_STAT_LEFT]), int(stats[k, cv2.CC_STAT_TOP])
-    bw, bh = int(stats[k, cv2.CC_STAT_WIDTH]), int(stats[k, cv2.CC_STAT_HEIGHT])
-    if x0 < cfg.border or y0 < cfg.border or x0 + bw > w - cfg.border or y0 + bh > h - cfg.border:
-        return None
-    blob = (labels == k).astype(np.uint8)
-    contours, _ = cv2.findContours(blob, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-    hull = cv2.contourArea(cv2.convexHull(max(contours, key=cv2.contourArea)))
-    if hull <= 0 or area / hull < cfg.min_solidity:
-        return None
-    if _ellipse_overlap(blob, x0, y0, bw, bh) < cfg.min_ellipse_overlap:
-        return None
+    x0s, y0s = stats[1:, cv2.CC_STAT_LEFT], stats[1:, cv2.CC_STAT_TOP]
+    x1s = x0s + stats[1:, cv2.CC_STAT_WIDTH]
+    y1s = y0s + stats[1:, cv2.CC_STAT_HEIGHT]
+    ok = (areas >= cfg.min_area) & (areas <= cfg.max_area)
+    ok &= (x0s >= cfg.border) & (y0s >= cfg.border)
+    ok &= (x1s <= w - cfg.border) & (y1s <= h - cfg.border)
+    for i in np.flatnonzero(ok)[np.argsort(-areas[ok], kind="stable")]:
+        found = _marker_at(img, labels, int(i) + 1, stats[int(i) + 1], cfg, static)
+        if found is not None:
+            return found
+    return None
 
+
+def static_marker_mask(background: Image, config: MarkerDetectorConfig | None = None) -> Any:
+    """Return the pixels (H, W) bool of a camera's `background` (BGR uint8, its view without
+    the robot) that are of the marker's colour, grown by two pixels (anti-aliased edges, noise).
+    Raises InvalidInput for a background that is not (H, W, 3) uint8."""
+    cfg = config or MarkerDetectorConfig()
+    bg = np.asarray(background)
+    if bg.ndim != 3 or bg.shape[2] != 3 or bg.dtype != np.uint8:
+        raise InvalidInput(f"background must be (H, W, 3) uint8 BGR, got {bg.shape} {bg.dtype}")
+    m = _hue_mask(cv2.cvtColor(bg, cv2.COLOR_BGR2HSV), cfg)
+    return cv2.dilate(m, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5))).astype(bool)
+
+
+def _disc_like(blob: NDArray[np.uint8], area: int, cfg: MarkerDetectorConfig) -> bool:
+    """Return whether a blob (a window holding it with a margin, values 0/1) of `area` pixels
+    has the shape of a disc's image: no hole, convex, elliptic."""
+    contours, _ = cv2.findContours(blob, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    outer = max(contours, key=cv2.contourArea)
+    filled = np.zeros_like(blob)
+    cv2.drawContours(filled, [outer], -1, 1, -1)
+    if area < cfg.min_fill * np.count_nonzero(filled):
+        return False
+    hull = cv2.contourArea(cv2.convexHull(outer))
+    if hull <= 0 or area / hull < cfg.min_solidity:
+        return False
+    bx, by, bw, bh = cv2.boundingRect(outer)
+    return _ellipse_overlap(blob, bx, by, bw, bh) >= cfg.min_ellipse_overlap
+
+
+def _marker_at(
+    img: Image,
+    labels: NDArray[Any],
+    k: int,
+    stat: NDArray[Any],
+    cfg: MarkerDetectorConfig,
+    static: NDArray[np.bool_] | None = None,
+) -> MarkerDetection | None:
+    """Return the marker found at blob `k` of `labels` (its stats row `stat`), or None when
+    the blob is not a disc's image, its window reaches a `static` pixel (of the marker's colour
+    without the robot) or its soft centroid is undefined."""
+    h, w = img.shape[:2]
+    x0, y0 = int(stat[cv2.CC_STAT_LEFT]), int(stat[cv2.CC_STAT_TOP])
+    bw, bh = int(stat[cv2.CC_STAT_WIDTH]), int(stat[cv2.CC_STAT_HEIGHT])
+    area = int(stat[cv2.CC_STAT_AREA])
     # A window holding the blob, its soft edge (4 px) and a background ring (4 px more).
     pad = 9
     xa, ya = max(x0 - pad, 0), max(y0 - pad, 0)
     xb, yb = min(x0 + bw + pad, w), min(y0 + bh + pad, h)
+    core_m = (labels[ya:yb, xa:xb] == k).astype(np.uint8)
+    if not _disc_like(core_m, area, cfg):
+        return None
     win = img[ya:yb, xa:xb].astype(np.float64)
-    core_m = blob[ya:yb, xa:xb]
     k3 = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (3, 3))
     k5 = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5))
     inner = cv2.erode(core_m, k3).astype(bool)
     near = cv2.dilate(core_m, k5, iterations=2).astype(bool)
     far = cv2.dilate(core_m, k5, iterations=4).astype(bool)
+    if static is not None and np.any(static[ya:yb, xa:xb] & near):
+        return None
     ring = far & ~near
     if not np.any(ring):
         return None
@@ -779,16 +852,30 @@ class PersonDetector:
         self.min_area = int(min_area)
         self.pixel_sigma = float(pixel_sigma)
         self.body = body or BodyModel()
+        self._background: Image | None = None
+        self._learnt = False
 
     def learn(self, image: Image) -> None:
         """Update the background model with a BGR frame (H, W, 3)."""
         self._mog.apply(image, learningRate=-1)
+        self._background = None
+        self._learnt = True
+
+    def background(self) -> Image | None:
+        """Return the learnt background (BGR, the model's most probable colour per pixel), or
+        None before anything is learnt."""
+        if self._background is None and self._learnt:
+            self._background = self._mog.getBackgroundImage()
+        return self._background
 
     def _blobs(
         self, image: Image, learning_rate: float
     ) -> tuple[Image, list[tuple[int, tuple[int, int, int, int], int]]]:
         """Return the label image and the (label, bbox, area) of the blobs, largest first."""
         fg = self._mog.apply(image, learningRate=learning_rate)
+        if learning_rate != 0.0:
+            self._background = None
+            self._learnt = True
         fg = (fg > 127).astype(np.uint8)
         kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (3, 3))
         fg = cv2.morphologyEx(fg, cv2.MORPH_OPEN, kernel)

@@ -65,10 +65,13 @@ def detect_frame(
     people); camera: the camera's calibration, which locates a person at the axis of their
     body rather than at the near edge of the silhouette (strongly preferred: the edge is a body
     radius off, towards the camera). A foreground blob around the marker is the robot's body,
-    not a person, and so is a blob whose fitted body is shorter than MIN_PERSON_HEIGHT_M.
+    not a person, and so is a blob whose fitted body is shorter than MIN_PERSON_HEIGHT_M. The
+    person detector's learnt background also tells the marker detector what red things belong to
+    the room (core.localization.detect.detect_marker).
     """
     out: list[FrameDetection] = []
-    found = detect_marker(image, marker) if marker is not None else None
+    background = people.background() if people is not None else None
+    found = detect_marker(image, marker, background=background) if marker is not None else None
     if found is not None:
         out.append(FrameDetection("robot", found.pixel, found.cov, float(marker_height)))
     if people is None:

@@ -163,7 +163,7 @@ def localization_images(
         state = world_state(scene, 0.0, Pose2D(float(x), float(y), 0.0))
         for k, nc in enumerate(net):
             frame = renderer.render(nc.name, state, rng=rng, noise=noise)
-            det = detect_marker(frame.image, cfg)
+            det = detect_marker(frame.image, cfg, background=renderer.empty(nc.name))
             if det is None:
                 continue
             pixels[k, j], cov[k, j], vis[k, j] = det.pixel, det.cov, True

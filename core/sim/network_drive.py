@@ -463,7 +463,7 @@ def observe_marker(
             state = world_state(scene, float(times[j]), Pose2D(*P[j]))
             for k, cam in enumerate(cams):
                 frame = renderer.render(cam.name, state, rng=rng, noise=noise)
-                det = detect_marker(frame.image, cfg)
+                det = detect_marker(frame.image, cfg, background=renderer.empty(cam.name))
                 if det is None:
                     continue
                 pixels[k, j], cov[k, j], vis[k, j] = det.pixel, det.cov, True

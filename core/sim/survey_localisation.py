@@ -205,7 +205,7 @@ class CeilingLocaliser:
             cam = self.cameras[k]
             image = self.renderer.render(cam.name, state, rng=self.rng).image
             self.frames += 1
-            found = detect_marker(image, self.config)
+            found = detect_marker(image, self.config, background=self.renderer.empty(cam.name))
             if found is not None:
                 cams.append(cam)
                 pixels.append(found.pixel)

@@ -26,7 +26,8 @@ from core.sim.render._layers import (
     _View,
 )
 from core.sim.render._raster import _Target
-from core.sim.render._textures import _bgr
+from core.sim.render._textures import _bgr, _Texture
+from core.sim.render.landmarks import scene_landmarks
 from core.sim.scene import Board, CeilingCamera, Scene
 
 Array = NDArray[np.float64]
@@ -52,6 +53,9 @@ class _RobotTruth(TypedDict, total=False):
 class Renderer:
     """Renders a scene's cameras; caches each camera's static layer and lens map on first use.
 
+    The static layer holds the floor, walls and furniture and the landmarks' printed pages
+    (their artwork, core.sim.render.landmarks.scene_landmarks, on their planes).
+
     supersample: the static layer is rasterised at this many times the resolution and box
     filtered (anti-aliasing); object_supersample: the same for the textures of moving planar
     objects (marker, board), per frame. near: the near plane in metres.
@@ -72,7 +76,9 @@ class Renderer:
         self.object_supersample = int(object_supersample)
         self.near = float(near)
         self._faces: list[_StaticFace] | None = None
+        self._landmarks: list[_StaticFace] | None = None
         self._views: dict[CeilingCamera, _View] = {}
+        self._empty: dict[str, NDArray[np.uint8]] = {}
         self._robot = _robot_geometry(scene.robot) if scene.robot is not None else None
         self._banks: dict[tuple[float, int], NDArray[np.int16]] = {}
 
@@ -110,6 +116,8 @@ class Renderer:
         )
         if self._faces is None:
             self._faces = _static_faces(self.scene)
+        if self._landmarks is None:
+            self._landmarks = _landmark_faces(self.scene)
         for f in self._faces:
             if float(f.normal @ (cam.position - f.poly.mean(0))) <= 1e-9:
                 continue
@@ -117,6 +125,14 @@ class Renderer:
                 tgt.textured(f.poly, f.texture, convex=f.convex, level=0)
             elif f.colour is not None:
                 tgt.fill(f.poly, f.colour, f.convex)
+        # Landmarks are printed pages a few millimetres in front of their wall or object: drawn
+        # after the static faces, the z-buffer hides them behind walls and furniture; the
+        # pyramid level is chosen per page (a ceiling camera sees a 1.7 mm module as ~0.2 px).
+        for f in self._landmarks:
+            if float(f.normal @ (cam.position - f.poly.mean(0))) <= 1e-9:
+                continue
+            assert f.texture is not None
+            tgt.textured(f.poly, f.texture, convex=True)
         if s > 1:
             img = cv2.resize(tgt.img, (wc, hc), interpolation=cv2.INTER_AREA)
             depth = tgt.depth.reshape(hc, s, wc, s).min(axis=(1, 3))
@@ -151,6 +167,14 @@ class Renderer:
             bank = np.rint(rng.standard_normal(2 * n) * sigma).astype(np.int16)
             self._banks[(sigma, n)] = bank
         return bank
+
+    def empty(self, camera: str) -> NDArray[np.uint8]:
+        """Return the scene camera `camera`'s view of the home with nobody in it and the robot
+        away, as an installer records it for a background (cached; sensor noise seed 0)."""
+        if camera not in self._empty:
+            away = tuple((1e4, 1e4) for _ in self.scene.people)
+            self._empty[camera] = self.render(camera, WorldState(0.0, None, away), rng=0).image
+        return self._empty[camera]
 
     def render(
         self,
@@ -350,6 +374,29 @@ class Renderer:
                 c = truth["marker_world"][None]
                 truth["marker_visible"] = bool(_unoccluded(tgt, c, tol=0.05)[0])
         return truth
+
+
+def _landmark_faces(scene: Scene) -> list[_StaticFace]:
+    """Return the scene's landmarks as textured faces: each printed page (artwork PNG,
+    core.sim.render.landmarks.scene_landmarks) on its mark plane, facing along the mark's +z.
+
+    A page texel (row i, column j) has its centre at ((j + 0.5) / ppm - cx, cy - (i + 0.5) /
+    ppm) in the mark frame (x right, y up the page), so texel (s, t) of level 0 lies at
+    o + s u + t v with u = R e_x / ppm, v = -R e_y / ppm.
+    """
+    faces = []
+    for lm in scene_landmarks(scene):
+        tex = lm.texture
+        R, p = lm.T_world_mark[:3, :3], lm.T_world_mark[:3, 3]
+        h, w = tex.image.shape[:2]
+        cx, cy = tex.centre
+        x0, x1, y0, y1 = -cx, w / tex.ppm - cx, cy - h / tex.ppm, cy
+        page = np.array([[x0, y1, 0.0], [x1, y1, 0.0], [x1, y0, 0.0], [x0, y0, 0.0]])
+        o = R @ np.array([0.5 / tex.ppm - cx, cy - 0.5 / tex.ppm, 0.0]) + p
+        u, v = R[:, 0] / tex.ppm, -R[:, 1] / tex.ppm
+        texture = _Texture(tex.pyramid, o, u, v)
+        faces.append(_StaticFace(page @ R.T + p, R[:, 2].copy(), None, texture, True))
+    return faces
 
 
 def _in_image(cam: CameraModel, px: Array) -> NDArray[np.bool_]:
