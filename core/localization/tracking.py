@@ -36,7 +36,9 @@ d2 + ln det S, with d2 = nu^T S^-1 nu the squared Mahalanobis distance of the pi
 nu = u_j - pi_k(x_i) (S = J P J^T + R): the negative log-likelihood up to a constant, so a vague
 track does not win a detection from a precise one merely by its wide gate. Pairs above the
 chi-square gate or of incompatible kinds (a "robot" detection never updates a "person" track;
-"unknown" matches both) are forbidden, and scipy.optimize.linear_sum_assignment solves the
+"unknown" matches both), and unlabelled pairs whose track the camera cannot see past the
+occluders (walls, tall furniture: a vague track in the next room does not take a detection
+through the wall), are forbidden, and scipy.optimize.linear_sum_assignment solves the
 rest in rounds: detections with a label go to the track of that label; then confirmed and
 coasting tracks take their detections; then tentative tracks take what is left, so a track born
 from clutter beside a target cannot take that target's detection.
@@ -47,16 +49,19 @@ Life cycle, by elapsed time (never by frame count, since cameras report at their
   unknown: N(0, `initial_speed_std`^2) per axis), unless it lies within `min_separation` metres
   of a live track or within `birth_gate` of it: two bodies do not stand inside each other, so it
   is that target's outlier (a second blob of one person, the robot's body seen as a person);
+  tracks the camera cannot see past the occluders do not count (no blob is the outlier of a
+  body behind a wall);
 * a tentative track carries the log-likelihood ratio of "a body" against "clutter" of what the
   cameras reported (the sequential track score of Blackman & Popoli, "Design and Analysis of
   Modern Tracking Systems", 1999, sec. 6.2): each update adds ln(p_D N(nu; 0, S) / lambda),
   lambda the clutter density per pixel, and each frame of a camera that has the track in view
-  but gave it no detection adds ln(1 - p_D). A track born from clutter collects small or
-  negative terms (its detections fall anywhere in a wide gate) and is soon dropped; a body's
-  collect large ones. It becomes CONFIRMED when its score reaches `confirm_score` with at
-  least `confirm_hits` updates within `confirm_window` seconds of its birth, and is dropped
-  when the score falls below `drop_score`, the window passes, or it goes
-  `tentative_timeout` seconds without an update;
+  but gave it no detection adds ln(1 - p_D) (in view: not hidden by the occluders, nor behind
+  another track's body, nor inside the gate of a detection left out as too vague). A track
+  born from clutter collects small or negative terms (its detections fall anywhere in a wide
+  gate) and is soon dropped; a body's collect large ones. It becomes CONFIRMED when its
+  score reaches `confirm_score` with at least `confirm_hits` updates within `confirm_window`
+  seconds of its birth, and is dropped when the score falls below `drop_score`, the window
+  passes, or it goes `tentative_timeout` seconds without an update;
 * a confirmed track becomes COASTING after `coast_after` seconds without an update (predicted
   only; an update makes it confirmed again), and ENDED after `end_after` seconds without one,
   or earlier when its position standard deviation exceeds `max_position_std` (it could be
@@ -147,6 +152,8 @@ class TrackerConfig:
     past a door jamb): such blobs also come with a biased bearing, so the tracker leaves them out
     (they neither update nor start a track; their track id is -1) and the tracks coast through
     them on their own velocities, as through a crossing (0: every detection counts).
+    body_height, body_radius (m): the size of a body that can hide another from a camera; a
+    tentative track hidden so (or inside the gate of a detection left out) is not missed.
     """
 
     q: float = 2.0
@@ -169,6 +176,8 @@ class TrackerConfig:
     labelled_end_after: float = 60.0
     camera_error_std: float = 0.02
     located_std: float = 0.5
+    body_height: float = 1.8
+    body_radius: float = 0.25
 
     def __post_init__(self) -> None:
         for name in (
@@ -186,7 +195,13 @@ class TrackerConfig:
             "labelled_end_after",
         ):
             _positive(name, getattr(self, name))
-        for name in ("min_separation", "camera_error_std", "located_std"):
+        for name in (
+            "min_separation",
+            "camera_error_std",
+            "located_std",
+            "body_height",
+            "body_radius",
+        ):
             value = getattr(self, name)
             if not isinstance(value, int | float) or not (math.isfinite(value) and value >= 0):
                 raise InvalidInput(f"TrackerConfig.{name} must be >= 0 metres, got {value!r}")
@@ -638,6 +653,8 @@ class Tracker:
             | (self.config.located_std == 0)
             | np.array([v is not None for v in lab], dtype=bool)
         )
+        left_out = np.setdiff1d(np.arange(n_all), used)
+        vague = (px[left_out], R[left_out], h[left_out])
         if used.size < n_all:
             px, R, h = px[used], R[used], h[used]
             kind = [kind[j] for j in used.tolist()]
@@ -684,7 +701,7 @@ class Tracker:
                     track_ids[j] = self._ids[i]
                     touched.append(self._ids[i])
             free = np.setdiff1d(np.arange(n), cols)
-        self._score_misses(cam, hit)
+        self._score_misses(cam, hit, vague)
         if n:
             if free.size:
                 for j, tid in self._births(cam, free, px, R, h, kind, lab):
@@ -837,6 +854,10 @@ class Tracker:
         # An unlabelled track too vague to say where its body is takes nothing: it is ending.
         ok &= ~(self._vague(np.arange(T)) & ~trk_labelled)[:, None]
         gated = ok & (d2 <= self.config.gate) & ~det_labelled[None, :] & ~trk_labelled[:, None]
+        if self.occluders is not None:
+            # A camera does not see through walls: a track it cannot see takes nothing of it
+            # (a vague track in the next room would otherwise take a detection through one).
+            gated &= self._visible(cam)[:, None]
         rows_out: list[NDArray[np.intp]] = []
         cols_out: list[NDArray[np.intp]] = []
         free_rows = np.ones(T, dtype=bool)
@@ -859,6 +880,20 @@ class Tracker:
         rows, cols = np.concatenate(rows_out), np.concatenate(cols_out)
         loglik = -0.5 * (d2[rows, cols] + logdet[rows, cols]) - math.log(2.0 * math.pi)
         return rows, cols, loglik, np.concatenate(ambiguous_out)
+
+    def _visible(self, cam: NetworkCamera) -> NDArray[np.bool_]:
+        """Return whether `cam` has a clear line of sight (past the occluders) to each track's
+        body: the top of its axis, body_height (a robot: the height of its last detection), as
+        a camera that sees any of a body may detect it."""
+        assert self.occluders is not None
+        z = np.array(
+            [
+                hh if k == "robot" else self.config.body_height
+                for k, hh in zip(self._kinds, self._height, strict=True)
+            ]
+        )
+        pts = np.column_stack([self._x[:, :2], z])
+        return line_of_sight(cam.center[None], pts, self.occluders)[0]
 
     def _vague(self, rows: NDArray[np.intp]) -> NDArray[np.bool_]:
         """Return whether each track's position standard deviation (larger axis) exceeds
@@ -884,10 +919,14 @@ class Tracker:
             self._P[i, :2, :2] = est.cov[0]
             self._P[i, 2, 2] = self._P[i, 3, 3] = self.config.initial_speed_std**2
 
-    def _score_misses(self, cam: NetworkCamera, hit: NDArray[np.bool_]) -> None:
+    def _score_misses(
+        self, cam: NetworkCamera, hit: NDArray[np.bool_], vague: tuple[Array, Array, Array]
+    ) -> None:
         """Add ln(1 - p_D) to the score of each tentative track that this camera has in view
-        (at the height of its last detection, not hidden by the occluders) but did not detect
-        in this frame."""
+        (at the height of its last detection, not hidden by the occluders nor by another body:
+        `_behind_a_body`) but did not detect in this frame. A track inside the gate of a
+        detection left out as too vague (`vague`: its pixels, covariances and heights) was seen,
+        only not placed: no miss either."""
         idx = [i for i in range(hit.size) if not hit[i] and self._states[i] is TrackState.TENTATIVE]
         if not idx:
             return
@@ -897,9 +936,50 @@ class Tracker:
         seen = cam.in_view(pts)
         if self.occluders is not None and seen.any():
             seen[seen] = line_of_sight(cam.center[None], pts[seen], self.occluders)[0]
+        if seen.any():
+            seen[seen] = ~self._behind_a_body(cam, rows[seen])
+        v_px, v_R, v_h = vague
+        if seen.any() and v_px.shape[0]:
+            for value in np.unique(v_h):
+                sel = np.flatnonzero(v_h == value)
+                look = rows[seen]
+                proj = project_plane(cam, self._x[look, :2], float(value), jacobian=True)
+                assert proj.jacobian is not None
+                J = proj.jacobian
+                S = J[:, None] @ self._P[look][:, None, :2, :2] @ transposed(J)[:, None]
+                d2, _ = _mahalanobis(v_px[sel][None] - proj.pixels[:, None], S + v_R[sel][None])
+                inside = np.any(np.nan_to_num(d2, nan=np.inf) <= self.config.gate, axis=1)
+                seen[np.flatnonzero(seen)[inside]] = False
         miss = math.log(1.0 - self.config.p_detect)
         for i in rows[seen].tolist():
             self._score[i] += miss
+
+    def _behind_a_body(self, cam: NetworkCamera, rows: NDArray[np.intp]) -> NDArray[np.bool_]:
+        """Return whether each track of `rows` stands behind another track's body as `cam`
+        sees it: on the floor, the other is nearer the camera, within two body radii of the
+        line of sight at its own range, and near enough that its body (body_height tall) hides
+        some of this one (from a camera at height H, a body at range d covers the floor out to
+        d H / (H - body_height)). Robots are too low to hide anybody."""
+        cfg = self.config
+        others = np.array([k != "robot" for k in self._kinds], dtype=bool)
+        out = np.zeros(rows.size, dtype=bool)
+        if others.sum() == 0:
+            return out
+        c = cam.center[:2]
+        H = float(cam.center[2])
+        a = self._x[rows, :2] - c  # (n, 2)
+        b = self._x[others, :2] - c  # (m, 2)
+        da = np.linalg.norm(a, axis=1)
+        db = np.linalg.norm(b, axis=1)
+        reach = db * H / (H - cfg.body_height) if H > cfg.body_height else np.full(db.shape, np.inf)
+        along = a @ b.T / np.maximum(da[:, None], 1e-9)  # (n, m) b's range along a's sight line
+        across = np.abs(a[:, 0:1] * b[None, :, 1] - a[:, 1:2] * b[None, :, 0]) / np.maximum(
+            da[:, None], 1e-9
+        )
+        nearer = (db[None] < da[:, None] - 1e-6) & (along > 0)
+        covers = (across < 2.0 * cfg.body_radius) & (da[:, None] <= reach[None])
+        out = np.any(nearer & covers, axis=1)
+        return out
 
     def _ekf_update(
         self, cam: NetworkCamera, rows: NDArray[np.intp], z: Array, R: Array, h: Array
@@ -955,10 +1035,12 @@ class Tracker:
             if lab[j] is not None and lab[j] in self._labels:
                 continue
             if self._ids and lab[j] is None:
-                diff = xy[j] - self._x[:, :2]
+                # Only a body this camera can see may have made this blob as its outlier.
+                near = self._visible(cam) if self.occluders is not None else slice(None)
+                diff = xy[j] - self._x[near, :2]
                 if np.any(np.einsum("ij,ij->i", diff, diff) < cfg.min_separation**2):
                     continue
-                d2, _ = _mahalanobis(diff, self._P[:, :2, :2] + C[j])
+                d2, _ = _mahalanobis(diff, self._P[near, :2, :2] + C[j])
                 if np.any(d2 <= cfg.birth_gate):
                     continue
             out.append((j, self._birth(xy[j], C[j], kind[j], lab[j], float(h[j]))))

@@ -11,6 +11,7 @@ from scipy.integrate import quad_vec
 from scipy.stats import chi2
 
 from core.errors import InvalidInput
+from core.localization.occluders import Occluders, Wall
 from core.localization.tracking import (
     ReorderBuffer,
     Tracker,
@@ -162,6 +163,72 @@ def test_a_detection_that_cannot_place_a_body_is_left_out():
     assert lone.update(1, 0.0, far, np.eye(2) * 150.0**2, heights=HEIGHT).track_ids[0] == -1
     every = Tracker(cams, TrackerConfig(located_std=0.0))
     assert every.update(1, 0.0, far, np.eye(2) * 150.0**2, heights=HEIGHT).started[0]
+
+
+def _hidden_b(hiding: bool, vague_instead: bool = False) -> list[tuple[float, TrackState]]:
+    """Body B (4, 3) seen by cam2 alone at 10 Hz for a second; cam0 (20 Hz, 1.2 s) has B in view but
+    reports only body A (2, 1.5), confirmed before, which stands between cam0 and B (`hiding`),
+    or, without A, nothing, or one vague blob where B is (`vague_instead`). Return the tracks'
+    (x, state) at the end."""
+    cams = make_cameras(4)
+    A, B = np.array([[2.0, 1.5, HEIGHT]]), np.array([[4.0, 3.0, HEIGHT]])
+    trk = Tracker(cams, TrackerConfig())
+    t = 0.0
+    if hiding:
+        for k in range(12):
+            t, c = 0.05 * k, (0, 3)[k % 2]
+            trk.update(c, t, cams[c].project(A), pixel_sigma=0.5, heights=HEIGHT)
+    frames = sorted(
+        [(t + 0.05 + 0.1 * i, 2) for i in range(10)] + [(t + 0.06 + 0.05 * i, 0) for i in range(20)]
+    )
+    for tt, c in frames:
+        if c == 2:
+            seen = np.vstack([B, A]) if hiding else B
+            trk.update(2, tt, cams[2].project(seen), pixel_sigma=0.5, heights=HEIGHT)
+        elif hiding:
+            trk.update(0, tt, cams[0].project(A), pixel_sigma=0.5, heights=HEIGHT)
+        elif vague_instead:
+            # Placed by its width alone: 150 px spreads it over metres of floor.
+            trk.update(0, tt, cams[0].project(B), np.eye(2) * 150.0**2, heights=HEIGHT)
+        else:
+            trk.update(0, tt, np.zeros((0, 2)), heights=HEIGHT)
+    return [(round(float(s.xy[0]), 1), s.state) for s in trk.tracks()]
+
+
+def test_a_body_hidden_behind_another_is_not_missed():
+    """cam0 cannot see B behind A: its frames are no evidence against B, which one other camera
+    confirms within a second. The same frames with nobody in front of B are misses, and B (seen
+    by one camera in two) is dropped as clutter would be; a blob left out as too vague where B
+    stands is no miss either."""
+    assert _hidden_b(hiding=True) == [
+        (2.0, TrackState.CONFIRMED),
+        (4.0, TrackState.CONFIRMED),
+    ]
+    assert TrackState.CONFIRMED not in [state for _, state in _hidden_b(hiding=False)]
+    assert _hidden_b(hiding=False, vague_instead=True) == [(4.0, TrackState.CONFIRMED)]
+
+
+def test_a_camera_does_not_see_through_walls():
+    """A track coasting behind a wall (its position now uncertain by 0.8 m) does not take the
+    detection of a camera on the other side, 1.8 m away: a new track starts there and the old
+    one stays put. Without the occluders the old track is pulled through the wall."""
+    cams = make_cameras(4)
+    wall = Occluders.build(walls=[Wall((4.0, -1.0), (4.0, 7.0), height=3.0)])
+    left, right = np.array([[3.0, 3.0, HEIGHT]]), np.array([[4.8, 3.0, HEIGHT]])
+    for occluders in (wall, None):
+        trk = Tracker(cams, TrackerConfig(), occluders=occluders)
+        for k in range(12):  # cam0 and cam3 are on the wall's left
+            c = (0, 3)[k % 2]
+            trk.update(c, 0.05 * k, cams[c].project(left), pixel_sigma=0.5, heights=HEIGHT)
+        (before,) = trk.tracks()
+        trk.advance(1.5)
+        r = trk.update(1, 1.5, cams[1].project(right), pixel_sigma=0.5, heights=HEIGHT)
+        old = next(s for s in trk.tracks() if s.id == before.id)
+        if occluders is not None:
+            assert r.started[0] and r.track_ids[0] != before.id
+            np.testing.assert_allclose(old.xy, left[0, :2], atol=0.02)
+        else:
+            assert r.track_ids[0] == before.id and old.xy[0] > 4.0
 
 
 def test_clutter_alone_never_becomes_a_target():
