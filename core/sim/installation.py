@@ -1,11 +1,13 @@
 """The twin's installed calibration: the home's cameras as their network calibration placed them.
 
 A home is calibrated once, when its cameras are installed: each camera is shown a chessboard,
-then the robot drives its marker past them (core.sim.network_drive.drive_marker_calibration).
-The service's twin starts from that result, never from the twin's true cameras. The default
-home's calibration is shipped with the package (`data/installed_calibration.json`, made by
-`write_installed_calibration` from the drive with `INSTALL_SEED`), so the service does not
-spend the drive's seconds at every start; any other home is calibrated when first asked.
+then the robot drives its marker past them (core.sim.network_drive.drive_marker_calibration)
+and tours the signposts, which register the network to the world
+(core.sim.network_registration). The service's twin starts from that result, never from the
+twin's true cameras. The default home's calibration is shipped with the package
+(`data/installed_calibration.json`, made by `write_installed_calibration` from the drive with
+`INSTALL_SEED`), so the service does not spend the drive's seconds at every start; any other
+home is calibrated when first asked.
 
 The file names the scene it belongs to by a fingerprint of what the calibration sees (cameras,
 robot, walls, furniture); a home that differs gets its own drive.
@@ -65,12 +67,19 @@ def scene_fingerprint(scene: Scene) -> str:
 
 
 def calibrate_installation(scene: Scene, seed: int = INSTALL_SEED) -> InstalledCalibration:
-    """Return the network calibration of `scene`'s cameras by the robot's marker drive."""
-    from core.sim.network_drive import drive_marker_calibration  # the whole calibration stack
+    """Return the network calibration of `scene`'s cameras by the robot's marker drive,
+    registered to the world by its tour of the signposts where the home has them
+    (core.sim.network_registration)."""
+    # The whole calibration stack, and the signpost tour's head camera.
+    from core.sim.network_drive import drive_marker_calibration
+    from core.sim.network_registration import can_register, register_network
 
     md = drive_marker_calibration(scene, seed)
+    net = md.calibration
+    if can_register(scene):
+        net, _ = register_network(net, scene, seed)
     cams = []
-    for c in md.calibration.cameras:
+    for c in net.cameras:
         std = dict(zip(c.parameter_names, np.asarray(c.std, dtype=np.float64), strict=False))
 
         def norm(*names: str, std: dict[str, float] = std) -> float:
@@ -87,7 +96,7 @@ def calibrate_installation(scene: Scene, seed: int = INSTALL_SEED) -> InstalledC
                 float(np.degrees(norm("rx", "ry", "rz"))),
             )
         )
-    rejected = {r.name: r.reason for r in md.calibration.rejected}
+    rejected = {r.name: r.reason for r in net.rejected}
     return InstalledCalibration(tuple(cams), rejected, seed, md.drive.duration_s, "computed")
 
 

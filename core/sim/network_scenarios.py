@@ -3,7 +3,8 @@
 * `network_calibration` (`network-calibration`): each camera shown a chessboard for its own
   intrinsics, the robot driving its marker through a programme of stops, the marker detected
   in the rendered images and the network calibrated jointly with the odometry as prior
-  (core.sim.network_drive, core.calibration.network marker kind); errors against the twin's
+  (core.sim.network_drive, core.calibration.network marker kind), then registered to the world
+  by a tour of the signposts (core.sim.network_registration); errors against the twin's
   cameras beside the calibration's Cramer-Rao bound, and optionally an accuracy study over
   drive length and pixel noise (`accuracy_study`).
 * `network_calibration_board` (`network-calibration-board`): the robot carries its chessboard;
@@ -26,7 +27,11 @@ from core.calibration.detect import (
     board_object_points,
     find_chessboard_on_background,
 )
-from core.calibration.network import calibrate_network_board, calibrate_network_marker
+from core.calibration.network import (
+    calibrate_network_board,
+    calibrate_network_marker,
+    registered,
+)
 from core.errors import InvalidInput, PatternNotFound
 from core.geometry.camera import distort_normalized, undistort_points
 from core.sim._floor import free_floor_grid, inside
@@ -40,6 +45,11 @@ from core.sim.network_drive import (
     drive_and_observe,
     drive_marker_calibration,
     show_chessboard,
+)
+from core.sim.network_registration import (
+    SignpostRegistration,
+    can_register,
+    register_network,
 )
 from core.sim.render import CameraModel, Renderer, SensorNoise
 from core.sim.scenario_records import (
@@ -68,17 +78,22 @@ def camera_errors(
     calibration: Any,
     cameras: Sequence[CameraModel],
     bound: Sequence[Any] = (),
+    start_frame: Any = None,
 ) -> tuple[CameraCalibrationError, ...]:
     """Return each calibrated camera's errors against the twin's `cameras`, the errors of
-    the network's own geometry (`aligned_errors`) and, where given, its bound (scoring)."""
+    the network's own geometry (`aligned_errors`), where given its bound and, for a network
+    registered to the world, the errors of `start_frame` (the same calibration before the
+    registration) (scoring)."""
     cals = list(calibration.cameras)
     trues = [next(cm for cm in cameras if cm.name == c.name) for c in cals]
     aligned = aligned_errors(cals, trues)
     b_of = {b.name: b for b in bound}
+    before = {} if start_frame is None else {c.name: c for c in start_frame.cameras}
     out = []
     for cal, true, (ap, ar) in zip(cals, trues, aligned, strict=True):
         err = calibration_errors(cal, true)
         b = b_of.get(cal.name)
+        s = calibration_errors(before[cal.name], true) if cal.name in before else None
         out.append(
             CameraCalibrationError(
                 name=cal.name,
@@ -94,6 +109,8 @@ def camera_errors(
                 bound_rotation_deg=None if b is None else b.rotation_deg,
                 bound_aligned_position_m=None if b is None else b.aligned_position_m,
                 bound_aligned_rotation_deg=None if b is None else b.aligned_rotation_deg,
+                start_frame_position_error_m=None if s is None else s.position_m,
+                start_frame_rotation_error_deg=None if s is None else s.rotation_deg,
             )
         )
     return tuple(out)
@@ -180,6 +197,7 @@ def network_calibration(
     camera_poses: dict[str, int] | None = None,
     study: bool = False,
     target: str = "marker",
+    register: bool = True,
 ) -> NetworkCalibrationResult:
     """Return the metrics of calibrating the scene's cameras by driving the robot's marker
     (`target` "marker") or its chessboard (`target` "board": `network_calibration_board`).
@@ -190,7 +208,10 @@ def network_calibration(
     ("projections"). `camera_poses` optionally caps how many stops a named camera gets to see
     (robustness checks). With `study` the record carries `accuracy_study` for this seed
     (drives of at most 100, 200 and 300 s; noise 0.25, 0.5, 1 px), reusing the cameras' own
-    calibration. Errors and bounds are against the scene.
+    calibration. With `register` (and a home with signposts and a robot with a head camera)
+    the robot then tours the signposts and the network is registered to the world
+    (core.sim.network_registration); the errors are then the registered network's, with those
+    of the start pose's frame beside them. Errors and bounds are against the scene.
     """
     if target == "board":
         return network_calibration_board(
@@ -215,14 +236,37 @@ def network_calibration(
     accuracy: tuple[AccuracyRow, ...] = ()
     if study:
         accuracy = accuracy_study(scene, (seed,), session=md.intrinsics, renderer=renderer)
-    return marker_result(md, seed, accuracy)
+    tour = None
+    if register and can_register(scene):
+        _, tour = register_network(md.calibration, scene, seed, renderer=renderer)
+    return marker_result(md, seed, accuracy, tour)
 
 
 def marker_result(
-    md: MarkerDrive, seed: int, accuracy: tuple[AccuracyRow, ...] = ()
+    md: MarkerDrive,
+    seed: int,
+    accuracy: tuple[AccuracyRow, ...] = (),
+    tour: SignpostRegistration | None = None,
 ) -> NetworkCalibrationResult:
-    """Return the scenario record of a marker calibration drive."""
+    """Return the scenario record of a marker calibration drive, registered to the world by
+    the signpost `tour` when it gave a registration."""
     net = md.calibration
+    start_frame = None
+    registration = None
+    if tour is not None and tour.registration is not None:
+        reg = tour.registration
+        start_frame, net = net, registered(net, reg)
+        registration = {
+            "signposts_declared": tour.declared,
+            "signposts_read": tour.read,
+            "sightings": len(tour.sightings),
+            "theta_deg": float(np.degrees(reg.theta)),
+            "theta_std_deg": reg.theta_std_deg,
+            "t_m": [float(v) for v in reg.t],
+            "t_std_m": [float(np.sqrt(reg.cov[1, 1])), float(np.sqrt(reg.cov[2, 2]))],
+            "residual_rms_m": float(np.sqrt(np.mean(np.sum(reg.residuals**2, axis=1)))),
+            "tour_s": tour.duration_s,
+        }
     return NetworkCalibrationResult(
         scenario="network-calibration",
         seed=seed,
@@ -235,9 +279,11 @@ def marker_result(
         distortion="from each camera's own calibration, refined jointly within its covariance",
         rms_px=net.rms_px,
         rms_whitened=net.rms_whitened,
-        cameras=camera_errors(net, md.true_cameras, md.bound),
+        cameras=camera_errors(net, md.true_cameras, md.bound, start_frame),
         rejected=tuple(RejectedCameraReport(r.name, r.reason, r.poses_seen) for r in net.rejected),
         accuracy=accuracy,
+        registration=registration,
+        registration_reason="" if tour is None else tour.reason,
     )
 
 

@@ -20,6 +20,11 @@ class CameraCalibrationError:
     standard deviation of the focal length in percent, root mean square position and
     orientation errors).
 
+    Registered to the world by the signpost tour (core.sim.network_registration; None
+    otherwise): `start_frame_position_error_m`, `start_frame_rotation_error_deg` the errors
+    before it, in the frame the robot's start pose fixed; the `bound_*` of position and rotation
+    are that frame's too.
+
     Board kind only (None otherwise): principal point error pixels (distance), and distortion
     error pixels: the largest difference between the estimated and the true lens distortion
     displacement, f_true |(D_est(x) - x) - (D_true(x) - x)| over ideal normalised rays x (the
@@ -41,6 +46,8 @@ class CameraCalibrationError:
     bound_rotation_deg: float | None = None
     bound_aligned_position_m: float | None = None
     bound_aligned_rotation_deg: float | None = None
+    start_frame_position_error_m: float | None = None
+    start_frame_rotation_error_deg: float | None = None
     principal_point_error_px: float | None = None
     distortion_error_px: float | None = None
     distortion_error_full_px: float | None = None
@@ -82,7 +89,11 @@ class NetworkCalibrationResult:
     rms_px: the joint reprojection RMS over all detections, pixels; rms_whitened: the same in
     units of the detections' standard deviations; placement_sigma_m: the board kind's placement
     noise (None for the marker); `accuracy`: an accuracy study (errors and bounds as functions
-    of drive length and pixel noise), empty unless asked for."""
+    of drive length and pixel noise), empty unless asked for; `registration`: the signpost
+    tour that registered the marker kind's network to the world (signposts declared, read and
+    used, the rotation theta_deg with its standard deviation, the translation t_m, the RMS of
+    the pairs' residuals, the tour's simulated seconds), None when not registered, with
+    `registration_reason`."""
 
     scenario: str
     seed: int
@@ -99,6 +110,8 @@ class NetworkCalibrationResult:
     rejected: tuple[RejectedCameraReport, ...]
     placement_sigma_m: float | None = None
     accuracy: tuple[AccuracyRow, ...] = ()
+    registration: dict[str, Any] | None = None
+    registration_reason: str = ""
 
     def to_dict(self) -> dict[str, Any]:
         """Return the record as JSON-ready values."""

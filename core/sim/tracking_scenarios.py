@@ -710,7 +710,8 @@ _CALIBRATION_CACHE: dict[tuple[str, int], CalibratedCameras] = {}
 def calibrated_cameras(scene: Scene, seed: int) -> CalibratedCameras:
     """Return the scene's cameras as its marker network calibration estimates them: each
     camera's own chessboard calibration, then the robot's drive with its odometry
-    (core.sim.network_drive.drive_marker_calibration, rendered images). Nothing of the twin's
+    (core.sim.network_drive.drive_marker_calibration, rendered images), registered to the world
+    by its tour of the signposts (core.sim.network_registration). Nothing of the twin's
     true cameras reaches the tracker. Cached per (scene, seed): the drive takes seconds."""
     key = (scene.model_dump_json(), seed)
     hit = _CALIBRATION_CACHE.get(key)
@@ -719,8 +720,11 @@ def calibrated_cameras(scene: Scene, seed: int) -> CalibratedCameras:
     # Imported here: the drive pulls the calibration stack, which the points-only helpers of
     # this module do not need.
     from core.sim.network_drive import drive_marker_calibration
+    from core.sim.network_registration import can_register, register_network
 
     net = drive_marker_calibration(scene, seed).calibration
+    if can_register(scene):
+        net, _ = register_network(net, scene, seed)
     names = [c.name for c in scene.cameras]
     # A camera's resolution is what its owner knows of it without any calibration.
     sizes = {c.name: (camera_model(c).width, camera_model(c).height) for c in scene.cameras}

@@ -15,6 +15,7 @@ from core.calibration.zhang import CameraCalibration, calibrate_camera
 from core.errors import InvalidInput, PatternNotFound
 from core.sim import Scene, SensorNoise
 from core.sim.network_drive import drive_marker_calibration
+from core.sim.network_registration import can_register, register_network
 from core.sim.network_scenarios import INTRINSICS_FROM_BOARD, accuracy_study, camera_errors
 from core.sim.render import renderer_for
 from core.sim.scenario_records import CameraCalibrationError
@@ -206,6 +207,8 @@ def _camera_errors(e: CameraCalibrationError) -> dict[str, Any]:
         "rotation_deg": e.rotation_error_deg,
         "aligned_position_m": e.aligned_position_error_m,
         "aligned_rotation_deg": e.aligned_rotation_error_deg,
+        "start_frame_position_m": e.start_frame_position_error_m,
+        "start_frame_rotation_deg": e.start_frame_rotation_error_deg,
     }
 
 
@@ -230,8 +233,11 @@ def network_calibration_drive(
     """Return the result of calibrating the scene's cameras by the robot's marker
     (core.sim.network_drive: each camera's own chessboard calibration, the robot driving
     `stops` stops, the marker detected in rendered images, the joint calibration with the
-    odometry as prior), with each calibrated camera's K, dist, T_world_camera, standard
-    deviations, per-pose residuals, its errors against the twin and their Cramer-Rao bound;
+    odometry as prior), registered to the world by the robot's tour of the signposts where the
+    home has them (core.sim.network_registration; `registration`, and each camera's errors in
+    the start pose's frame beside its registered ones), with each calibrated camera's K, dist,
+    T_world_camera, standard deviations, per-pose residuals, its errors against the twin and
+    their Cramer-Rao bound;
     with `study`, the errors and bounds as functions of drive length and pixel noise for this
     seed (core.sim.network_scenarios.accuracy_study over STUDY_BUDGETS_S x STUDY_SIGMAS_PX,
     one drive and noise level at a time so that `progress` hears of each)."""
@@ -242,7 +248,22 @@ def network_calibration_drive(
     progress("driving the robot and calibrating", 0.0)
     md = drive_marker_calibration(scene, seed, stops=stops, noise=SensorNoise(), renderer=renderer)
     net = md.calibration
-    scored = {e.name: e for e in camera_errors(net, md.true_cameras, md.bound)}
+    start_frame = None
+    registration: dict[str, Any] | None = None
+    if can_register(scene):
+        progress("touring the signposts", 0.8 * DRIVE_SHARE)
+        registered_net, tour = register_network(net, scene, seed, renderer=renderer)
+        reg = tour.registration
+        registration = {"signposts_read": tour.read, "reason": tour.reason}
+        if reg is not None:
+            start_frame, net = net, registered_net
+            registration.update(
+                theta_deg=float(np.degrees(reg.theta)),
+                theta_std_deg=reg.theta_std_deg,
+                t_m=[float(v) for v in reg.t],
+                sightings=len(tour.sightings),
+            )
+    scored = {e.name: e for e in camera_errors(net, md.true_cameras, md.bound, start_frame)}
     true = {cm.name: cm for cm in md.true_cameras}
     cameras = []
     for cal in net.cameras:
@@ -315,4 +336,5 @@ def network_calibration_drive(
             {"name": r.name, "reason": r.reason, "poses_seen": r.poses_seen} for r in net.rejected
         ],
         "accuracy": accuracy,
+        "registration": registration,
     }

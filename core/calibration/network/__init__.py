@@ -9,7 +9,9 @@ Two target kinds:
 * `calibrate_network_board`: a chessboard mounted on the robot; each camera gets a full Zhang
   calibration chained into the world by the robot's poses.
 
-Both return a `NetworkCalibration` of `CalibratedCamera`s and `RejectedCamera`s.
+Both return a `NetworkCalibration` of `CalibratedCamera`s and `RejectedCamera`s;
+`register_planar` and `registered` move one into the world by points known in both frames
+(the robot where it read a signpost), freeing it from the start pose's heading.
 """
 
 from core.calibration.network._board import calibrate_network_board
@@ -30,6 +32,7 @@ from core.calibration.network._odometry import (
     odometry_prior,
 )
 from core.calibration.network._records import CalibratedCamera, NetworkCalibration, RejectedCamera
+from core.calibration.network._register import PlanarRegistration, register_planar, registered
 
 __all__ = [
     "INTRINSIC_PARAMETERS",
@@ -38,6 +41,7 @@ __all__ = [
     "IntrinsicsPrior",
     "NetworkCalibration",
     "OdometryPrior",
+    "PlanarRegistration",
     "RejectedCamera",
     "SlipModel",
     "calibrate_network_board",
@@ -48,4 +52,6 @@ __all__ = [
     "increment_jacobian",
     "marker_network_bound",
     "odometry_prior",
+    "register_planar",
+    "registered",
 ]

@@ -86,13 +86,27 @@ def test_network_calibration_at_the_specs_noise_is_within_its_bound() -> None:
 
 
 def test_network_calibration_from_images() -> None:
-    # The real pipeline: rendered images, the marker detected, a shortened drive.
+    # The real pipeline: rendered images, the marker detected, a shortened drive, then the
+    # signpost tour registering the network to the world.
     r = network_calibration(seed=2, stops=16, revisit_below=0)
     assert 0.01 < r.sigma_px < 0.6
     assert r.poses == 16 and r.detections >= 16
+    reg = r.registration
+    assert reg is not None, r.registration_reason
+    assert reg["signposts_read"] >= 4 and reg["sightings"] >= 2
+    theta_sd = np.radians(reg["theta_std_deg"])
     for c in r.cameras:
         assert abs(c.focal_error_pct) < 1.0, c
         assert c.rms_px < 1.0
+        # Registered, a camera is off by the network's own error (aligned) plus the
+        # registration's: within 3 of its standard deviations (a camera 5 m at most from the
+        # signposts turns the heading's into position). Before it, this seed's frame put
+        # cam_living_ne 8 cm off; now it is about 1 cm.
+        assert c.aligned_rotation_error_deg is not None and c.aligned_position_error_m is not None
+        assert c.start_frame_position_error_m is not None
+        assert c.rotation_error_deg < c.aligned_rotation_error_deg + 3 * reg["theta_std_deg"], c
+        slack = 3 * (float(np.hypot(*reg["t_std_m"])) + 5.0 * theta_sd)
+        assert c.position_error_m < c.aligned_position_error_m + slack, c
 
 
 def test_a_camera_seeing_too_few_poses_is_reported_by_name() -> None:
