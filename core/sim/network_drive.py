@@ -55,7 +55,7 @@ from core.errors import (
     NotEnoughPoints,
     PatternNotFound,
 )
-from core.geometry.camera import undistort_points
+from core.geometry.camera import project_points, undistort_points
 from core.geometry.rotations import matrix_to_rotvec, rotvec_to_matrix
 from core.localization.detect import MarkerDetectorConfig, detect_marker
 from core.sim._floor import FloorRoutes, inside
@@ -161,15 +161,25 @@ def show_chessboard(
                 f"camera {cam.name!r}: the shown board was found in only {len(found)} frames; "
                 "needs at least 4 (check the camera's view and the board size)"
             )
+        objs = [obj] * len(found)
         try:
-            for _ in range(3):
-                cal = _calibrate_robustly(obj, found, (cam.width, cam.height), distortion)
+            for _ in range(4):
+                cal = _calibrate_robustly(objs, found, (cam.width, cam.height), distortion)
                 # A view whose corners fit far worse than the others' (a corner caught on an
                 # occluding edge) is dropped and the camera calibrated again.
                 bad = cal.per_view_rms > max(3.0 * float(np.median(cal.per_view_rms)), 0.3)
-                if not bad.any() or len(found) - int(bad.sum()) < 4:
+                if bad.any() and len(found) - int(bad.sum()) >= 4:
+                    objs = [o for o, b in zip(objs, bad, strict=True) if not b]
+                    found = [c for c, b in zip(found, bad, strict=True) if not b]
+                    continue
+                # So is a single corner that fits far worse than the rest: one corner 2 px off
+                # among 24 leaves its view's RMS unremarkable but moved a camera's principal
+                # point by 2 px (9 of its standard deviations) on one drive.
+                keep = _consistent_corners(cal, objs, found)
+                if all(k.all() for k in keep):
                     break
-                found = [c for c, b in zip(found, bad, strict=True) if not b]
+                objs = [o[k] for o, k in zip(objs, keep, strict=True)]
+                found = [c[k] for c, k in zip(found, keep, strict=True)]
         except (DegenerateConfiguration, NotEnoughPoints, ConvergenceError) as exc:
             raise InvalidInput(
                 f"camera {cam.name!r}: its board calibration failed: {exc}"
@@ -182,19 +192,40 @@ def show_chessboard(
 
 
 def _calibrate_robustly(
-    obj: Array, found: list[Array], size: tuple[int, int], distortion: str
+    objs: list[Array], found: list[Array], size: tuple[int, int], distortion: str
 ) -> CameraCalibration:
     """Return the Zhang calibration of the views; when the closed form fails (close views
     fill the image, and the strong lens distortion it ignores leaves B indefinite), start from
     a nominal K instead (f = half the image width, principal point at the centre)."""
     try:
-        return calibrate_camera([obj] * len(found), found, size, distortion=distortion)
+        return calibrate_camera(objs, found, size, distortion=distortion)
     except DegenerateConfiguration:
         w, h = size
         K0 = np.array([[0.5 * w, 0.0, 0.5 * (w - 1)], [0.0, 0.5 * w, 0.5 * (h - 1)], [0, 0, 1.0]])
-        return calibrate_camera(
-            [obj] * len(found), found, size, distortion=distortion, initial_K=K0
-        )
+        return calibrate_camera(objs, found, size, distortion=distortion, initial_K=K0)
+
+
+# A corner whose reprojection error exceeds this many robust standard deviations of all the
+# camera's corners (and CORNER_FLOOR_PX) is an outlier.
+CORNER_OUTLIER_SIGMAS = 6.0
+CORNER_FLOOR_PX = 0.3
+
+
+def _consistent_corners(
+    cal: CameraCalibration, objs: list[Array], found: list[Array]
+) -> list[NDArray[np.bool_]]:
+    """Return, per view, which corners fit the calibration within CORNER_OUTLIER_SIGMAS robust
+    standard deviations (1.4826 MAD of every corner's error, per axis) or CORNER_FLOOR_PX; a
+    view keeps all its corners when dropping some would leave it fewer than 8."""
+    res = [
+        project_points(o, p.rvec, p.t, cal.K, cal.dist).points - c
+        for o, p, c in zip(objs, cal.poses, found, strict=True)
+    ]
+    flat = np.concatenate(res)
+    sigma = 1.4826 * float(np.median(np.abs(flat - np.median(flat, axis=0))))
+    limit = max(CORNER_OUTLIER_SIGMAS * sigma, CORNER_FLOOR_PX)
+    keep = [np.linalg.norm(r, axis=1) <= limit for r in res]
+    return [k if k.sum() >= 8 else np.ones_like(k) for k in keep]
 
 
 # --------------------------------------------------------------------------------------------

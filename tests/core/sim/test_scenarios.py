@@ -36,10 +36,14 @@ def test_shown_chessboard_calibrates_each_camera() -> None:
         # (measured 0.02-0.45 % over seeds 3, 4 and 10 or 16 views), against the spec's 1 %.
         assert abs(cal.K[0, 0] / true.K[0, 0] - 1) < 5e-3
         assert abs(cal.K[1, 1] / true.K[1, 1] - 1) < 5e-3
-        # The principal point: measured 0.1-2.2 px, while its claimed standard deviation is
-        # 0.15-0.5 px (the renders' corners carry a bias the covariance does not know, up to
-        # ~9 sigma): 2.5 px holds what is measured, the claim is a known shortfall.
-        assert np.linalg.norm(cal.K[:2, 2] - true.K[:2, 2]) < 2.5
+        # The principal point within its claimed covariance: Mahalanobis distance below 4
+        # (2 dof: exceeded with probability 3e-4), measured 0.3-2.6 over seeds 3, 4 and 5.
+        # Before single outlying corners were dropped, one corner 2 px off moved a camera's
+        # principal point by 2.2 px, 9 of its standard deviations.
+        names = list(cal.parameter_names)
+        i = [names.index("cx"), names.index("cy")]
+        e = cal.K[:2, 2] - true.K[:2, 2]
+        assert float(np.sqrt(e @ np.linalg.solve(cal.covariance[np.ix_(i, i)], e))) < 4.0, name
         assert cal.covariance.shape[0] == len(cal.parameter_names)
         assert 0.05 < cal.std_intrinsics["fx"] < 2.0
 
