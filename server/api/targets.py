@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import asyncio
+import json
 import time
-from typing import Annotated, Literal
+import weakref
+from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Path, Query, WebSocket, WebSocketDisconnect, status
 from sqlalchemy import select
@@ -164,16 +166,9 @@ async def stream_targets(websocket: WebSocket) -> None:
             if live.version != seen:
                 wait = max(0.0, last_sent + 1.0 / _STREAM_HZ - loop.time())
                 if wait == 0.0:
-                    version, items = live.snapshot()
-                    seen = version
+                    seen, text = _positions_message(live)
                     last_sent = loop.time()
-                    await websocket.send_json(
-                        {
-                            "type": "positions",
-                            "t": max((i["t"] for i in items), default=None),
-                            "targets": [{k: i[k] for k in _TARGET_KEYS} for i in items],
-                        }
-                    )
+                    await websocket.send_text(text)
                     continue
             # A client message (or its leaving) is noticed while waiting for the next change.
             waiting = asyncio.ensure_future(changed.wait())
@@ -189,6 +184,30 @@ async def stream_targets(websocket: WebSocket) -> None:
     finally:
         unwatch()
         receiving.cancel()
+
+
+# The last positions message of each live-targets store, by its version: every subscriber of
+# a version sends the same text, encoded once (the streams all run on the event loop's thread).
+_ENCODED: weakref.WeakKeyDictionary[Any, tuple[int, str]] = weakref.WeakKeyDictionary()
+
+
+def _positions_message(live: Any) -> tuple[int, str]:
+    """Return (version, the stream's JSON text) of the live targets now."""
+    hit = _ENCODED.get(live)
+    if hit is not None and hit[0] == live.version:
+        return hit
+    version, items = live.snapshot()
+    text = json.dumps(
+        {
+            "type": "positions",
+            "t": max((i["t"] for i in items), default=None),
+            "targets": [{k: i[k] for k in _TARGET_KEYS} for i in items],
+        },
+        separators=(",", ":"),
+        ensure_ascii=False,
+    )
+    _ENCODED[live] = (version, text)
+    return version, text
 
 
 def _wake(loop: asyncio.AbstractEventLoop, event: asyncio.Event) -> None:

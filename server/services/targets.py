@@ -21,7 +21,8 @@ import logging
 import threading
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -103,6 +104,7 @@ class LiveTargets:
         self._thread: threading.Thread | None = None
         self._last_retention = 0.0
         self._watchers: list[Callable[[], None]] = []
+        self._local = threading.local()
         self.version = 0
         # Set when other processes follow this one's targets: changes wait in the outbox.
         self.publishing = False
@@ -116,8 +118,26 @@ class LiveTargets:
     @version.setter
     def version(self, value: int) -> None:
         self._version = value
+        if getattr(self._local, "depth", 0):
+            self._local.pending = True  # told once, when the batch ends
+            return
         for notify in list(self._watchers):
             notify()
+
+    @contextmanager
+    def batch(self) -> Iterator[None]:
+        """Within it, this thread's changes wake the watchers once, at its end (one tracker
+        frame's tracks are one change for the streams, not one per track)."""
+        depth = getattr(self._local, "depth", 0)
+        self._local.depth = depth + 1
+        try:
+            yield
+        finally:
+            self._local.depth = depth
+            if depth == 0 and getattr(self._local, "pending", False):
+                self._local.pending = False
+                for notify in list(self._watchers):
+                    notify()
 
     def watch(self, notify: Callable[[], None]) -> Callable[[], None]:
         """Call `notify()` after every change (in the changing thread, with the store locked:

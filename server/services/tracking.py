@@ -862,6 +862,10 @@ class TrackingService:
         self._publish(space, result)
 
     def _publish(self, space: _SpaceTracker, result: FrameResult) -> None:
+        with self._live.batch():
+            self._publish_frame(space, result)
+
+    def _publish_frame(self, space: _SpaceTracker, result: FrameResult) -> None:
         for snap in result.updated:
             if snap.state is TrackState.TENTATIVE:
                 continue
