@@ -107,8 +107,9 @@ class NetworkCameraErrors(ReadSchema):
 
     focal_pct: float = Field(description="Focal length error, percent of the truth (signed).")
     position_m: float = Field(
-        description="Optical centre position error, metres, in the world frame the robot's "
-        "start pose defines."
+        description="Optical centre position error, metres, in the world (registered by the "
+        "signposts when `registration` says so, else in the frame the robot's start pose "
+        "defines)."
     )
     rotation_deg: float = Field(description="Orientation error (angle of R_est R_true^T), deg.")
     aligned_position_m: float | None = Field(
@@ -118,6 +119,12 @@ class NetworkCameraErrors(ReadSchema):
     )
     aligned_rotation_deg: float | None = Field(
         None, description="Orientation error after the same alignment, degrees."
+    )
+    start_frame_position_m: float | None = Field(
+        None, description="Position error before the registration, in the start pose's frame."
+    )
+    start_frame_rotation_deg: float | None = Field(
+        None, description="Orientation error before the registration, degrees."
     )
 
 
@@ -173,6 +180,17 @@ class AccuracyRowRead(ReadSchema):
     rejected: list[str]
 
 
+class NetworkRegistration(ReadSchema):
+    """The network moved into the world by the robot's marker where it read signposts."""
+
+    signposts_read: int
+    reason: str = Field("", description="Why it was not registered (empty when it was).")
+    theta_deg: float | None = Field(None, description="Rotation about the vertical, degrees.")
+    theta_std_deg: float | None = None
+    t_m: list[float] | None = Field(None, description="Translation on the floor, metres.")
+    sightings: int | None = Field(None, description="Signpost reads the ceiling also saw.")
+
+
 class NetworkRunResult(ReadSchema):
     """What a network calibration produced: every calibrated camera, and those left out."""
 
@@ -198,6 +216,9 @@ class NetworkRunResult(ReadSchema):
     accuracy: list[AccuracyRowRead] = Field(
         default_factory=list,
         description="Errors and Cramer-Rao bounds against drive length and pixel noise.",
+    )
+    registration: NetworkRegistration | None = Field(
+        None, description="The signpost tour that registered the network to the world."
     )
 
 

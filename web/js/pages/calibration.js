@@ -583,6 +583,10 @@ function networkResultView(run) {
       e.rotation_deg !== undefined
         ? errorCell(e.rotation_deg, NETWORK_TARGETS.rotation_deg, 3, `network-rotation-${i}`)
         : h("td", { class: "num" }, "–"),
+      h("td", { class: "num", testid: `network-start-frame-${i}` },
+        e.start_frame_position_m != null
+          ? `${fmt(e.start_frame_position_m * 100, 2)} cm, ${fmt(e.start_frame_rotation_deg, 3)}°`
+          : "–"),
       h("td", { class: "num", testid: `network-aligned-${i}` },
         e.aligned_position_m != null
           ? `${fmt(e.aligned_position_m * 100, 2)} cm, ${fmt(e.aligned_rotation_deg, 3)}°`
@@ -596,6 +600,14 @@ function networkResultView(run) {
     );
   });
   const rejected = r.rejected || [];
+  const reg = r.registration;
+  const registration = reg
+    ? reg.theta_deg != null
+      ? ` Registered to the world by ${reg.sightings} of ${reg.signposts_read} signposts read: ` +
+        `turned ${fmt(reg.theta_deg, 3)}° ± ${fmt(reg.theta_std_deg, 3)}° and moved ` +
+        `${reg.t_m.map((v) => fmt(v * 100, 1)).join(", ")} cm from the start pose's frame.`
+      : ` Not registered to the world: ${reg.reason}.`
+    : "";
   return panel(
     "Cameras calibrated",
     `${cams.length} cameras from ${r.poses ?? "–"} marker positions` +
@@ -606,9 +618,11 @@ function networkResultView(run) {
           `(${fmt(r.rms_whitened, 2)} standard deviations)`
         : "") +
       (r.intrinsics_from ? `. Intrinsics: ${r.intrinsics_from}` : "") +
-      ". Errors against the digital twin's truth (absolute: in the frame of the robot's start " +
-      "pose; aligned: after the best floor alignment), beside their Cramer-Rao bound; " +
-      "targets: focal < 1 %, position < 2 cm, rotation < 0.3°.",
+      "." + registration +
+      " Errors against the digital twin's truth (absolute: in the world, registered by the " +
+      "signposts when it was; start frame: in the frame of the robot's start pose; aligned: " +
+      "after the best floor alignment), beside their Cramer-Rao bound (in the start pose's " +
+      "frame); targets: focal < 1 %, position < 2 cm, rotation < 0.3°.",
     h(
       "div",
       { class: "table-wrap" },
@@ -630,6 +644,7 @@ function networkResultView(run) {
               "Focal error (%)",
               "Position error (cm)",
               "Rotation error (°)",
+              "Start frame error",
               "Aligned error",
               "Bound",
             ].map((t, i) => h("th", { class: i ? "num" : null }, t)),
