@@ -999,6 +999,8 @@ class HeadRobot:
                 return self._follow(ap, final[2])
             o = self.odom()
             v, omega, rho = polar_command(o, final)
+            if ap is None and rho > 2 * APPROACH_M:
+                return 0.0, 0.0  # no route there: the polar law alone would cut through
             if rho < 0.02 and abs(_wrap(final[2] - o[2])) < 0.03:
                 return 0.0, 0.0  # at the reading pose: wait for a read
             return v, omega
@@ -1086,17 +1088,24 @@ class HeadRobot:
     def _plan_approach(self, goal: Array) -> _Approach | None:
         """Return the approach to the reading pose `goal` (x, y, yaw; odometry frame): the
         free pose nearest it on the mark's normal (the pose itself, unless the estimate put it
-        within an obstacle's margin), the hand-over point up to APPROACH_M behind it with a
-        free straight run in, and the route there; None when no free pose or route exists
-        (the polar law then drives alone)."""
+        within an obstacle's margin), else the free pose nearest it, the hand-over point up to
+        APPROACH_M behind it with a free straight run in, and the route there; None when no
+        free pose or route exists (the polar law then drives alone, and only the last
+        2 APPROACH_M: from further it would cut through furniture)."""
         W = self.T_world_odom
         out_w = W[:2, :2] @ -np.array([np.cos(goal[2]), np.sin(goal[2])])  # away from the mark
-        g_w = (W @ np.array([goal[0], goal[1], 0.0, 1.0]))[:2]
+        g0 = (W @ np.array([goal[0], goal[1], 0.0, 1.0]))[:2]
         steps = np.arange(0.0, 0.5 + 1e-9, PLAN_RESOLUTION)
-        shift = next((s for s in steps if self._free(g_w + out_w * s)), None)
-        if shift is None:
-            return None
-        g_w = g_w + out_w * shift
+        shift = next((s for s in steps if self._free(g0 + out_w * s)), None)
+        if shift is not None:
+            g_w = g0 + out_w * shift
+        else:
+            # Nothing free on the normal (a mark beside a table's corner): the free pose nearest
+            # the reading pose; the head still aims at the mark from there.
+            near = self._nearest_free(self.grid, g0)
+            if near is None:
+                return None
+            g_w = near
         hand = next(
             (
                 g_w + out_w * s
@@ -1108,7 +1117,7 @@ class HeadRobot:
         route = self.plan_route(hand)
         if route is None:
             return None
-        offset = np.linalg.inv(W)[:2, :2] @ (out_w * shift)
+        offset = np.linalg.inv(W)[:2, :2] @ (g_w - g0)
         return _Approach(goal.copy(), offset, route)
 
     def _follow(self, ap: _Approach, heading: float) -> tuple[float, float]:
