@@ -158,3 +158,21 @@ def test_drift_correction_is_spread_along_the_path() -> None:
     np.testing.assert_allclose(_se2_exp(0 * x), np.eye(4), atol=1e-12)
     half = _se2_exp(0.5 * x)
     np.testing.assert_allclose(half @ half, D, atol=1e-12)
+
+
+def test_a_reading_pose_with_nothing_free_on_its_normal_takes_the_nearest_free_pose() -> None:
+    """A reading pose 6 cm from the dining table's end whose normal runs back along the table
+    (every pose on it within the table's margin): the approach stands the base on the nearest
+    free pose instead, with a route there. Without it the polar law drove the base alone from
+    across the room, which touched the TV stand and the bookshelf in 4 of 5 surveys."""
+    scene = default_scene()
+    rng = np.random.default_rng(2)
+    K, dist, _ = _calibrated(scene, rng, 6)
+    robot = HeadRobot(scene, K, dist, start=np.array([5.2, 1.0, 0.0]), rng=rng)
+    goal = np.array([6.96, 2.15, 0.0])  # odometry frame = world at the start
+    assert not any(robot._free(goal[:2] - [s, 0.0]) for s in np.arange(0.0, 0.51, 0.05))
+    ap = robot._plan_approach(goal)
+    assert ap is not None
+    stand = goal[:2] + ap.offset
+    assert robot._free(stand) and np.linalg.norm(ap.offset) <= 0.5
+    np.testing.assert_allclose(ap.route[-1], stand, atol=0.08)  # the route leads there
