@@ -882,18 +882,27 @@ class Tracker:
         return rows, cols, loglik, np.concatenate(ambiguous_out)
 
     def _visible(self, cam: NetworkCamera) -> NDArray[np.bool_]:
-        """Return whether `cam` has a clear line of sight (past the occluders) to each track's
-        body: the top of its axis, body_height (a robot: the height of its last detection), as
-        a camera that sees any of a body may detect it."""
+        """Return whether `cam` has a clear line of sight (past the occluders) to some of each
+        track's body: the top of its axis, body_height (a robot: the height of its last
+        detection), as a camera that sees any of a body may detect it, at the predicted
+        position or at any of four points around it, body_radius plus up to 0.3 m of its
+        position's uncertainty (two standard deviations) away: a body beside a tall cabinet
+        whose prediction falls just behind it is still seen."""
         assert self.occluders is not None
+        T = len(self._ids)
         z = np.array(
             [
                 hh if k == "robot" else self.config.body_height
                 for k, hh in zip(self._kinds, self._height, strict=True)
             ]
         )
-        pts = np.column_stack([self._x[:, :2], z])
-        return line_of_sight(cam.center[None], pts, self.occluders)[0]
+        spread = 2.0 * np.sqrt(np.maximum(_largest_variance(self._P[:, :2, :2]), 0.0))
+        r = self.config.body_radius + np.minimum(spread, 0.3)
+        ring = np.array([[0.0, 0.0], [1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]])
+        xy = self._x[:, None, :2] + r[:, None, None] * ring[None]  # (T, 5, 2)
+        pts = np.concatenate([xy, np.broadcast_to(z[:, None, None], (T, 5, 1))], axis=2)
+        clear = line_of_sight(cam.center[None], pts.reshape(-1, 3), self.occluders)[0]
+        return np.asarray(clear.reshape(T, 5).any(axis=1), dtype=bool)
 
     def _vague(self, rows: NDArray[np.intp]) -> NDArray[np.bool_]:
         """Return whether each track's position standard deviation (larger axis) exceeds
