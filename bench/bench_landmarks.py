@@ -14,6 +14,12 @@ runs, with what each found and read. Spec 04's goal: detection and pose of all l
 
 from __future__ import annotations
 
+import os
+
+# One core: numpy's BLAS threads too (before numpy loads).
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
 import cv2
 import numpy as np
 import zxingcpp

@@ -34,6 +34,10 @@ def conic_matrix(c: ArrayLike) -> Array:
     )
 
 
+# The conics of the six unit coefficient vectors (conic_matrix is linear in them).
+_BASIS = conic_matrix(np.eye(6))
+
+
 @dataclass(frozen=True)
 class ConicFit:
     """An ellipse fitted to edge points.
@@ -92,39 +96,55 @@ def fit_ellipse(points: ArrayLike, *, iterations: int = 10) -> ConicFit:
     a1 = v[:, ok[0]]
     c = np.concatenate([a1, T @ a1])
     c /= np.linalg.norm(c)
-    M2 = np.array([x * x, x * y, y * y, x, y, np.ones_like(x)]).T
-    gxv = np.stack([2 * x, y, 0 * x, np.ones_like(x), 0 * x, 0 * x], 1)
-    gyv = np.stack([0 * x, x, 2 * y, 0 * x, np.ones_like(x), 0 * x], 1)
-    J = np.zeros((len(x), 6))
+    M2 = np.empty((len(x), 6))
+    M2[:, 0], M2[:, 1], M2[:, 2], M2[:, 3], M2[:, 4], M2[:, 5] = x * x, x * y, y * y, x, y, 1.0
+
+    def gradient(c: Array) -> tuple[Array, Array]:
+        # d(x^T C x)/dx and /dy of the conic at the points.
+        return 2 * c[0] * x + c[1] * y + c[3], c[1] * x + 2 * c[2] * y + c[4]
+
+    J = np.empty((len(x), 6))
     r = np.zeros(len(x))
     for _ in range(iterations):
         f = M2 @ c
-        gx, gy = gxv @ c, gyv @ c
+        gx, gy = gradient(c)
         g = np.sqrt(gx * gx + gy * gy)
         r = f / g
-        J = M2 / g[:, None] - (f / g**3)[:, None] * (gx[:, None] * gxv + gy[:, None] * gyv)
+        # d r / d c = M2 / g - f / g^3 (gx d gx / d c + gy d gy / d c).
+        w = f / g**3
+        J[:] = M2 / g[:, None]
+        J[:, 0] -= w * 2 * x * gx
+        J[:, 1] -= w * (y * gx + x * gy)
+        J[:, 2] -= w * 2 * y * gy
+        J[:, 3] -= w * gx
+        J[:, 4] -= w * gy
         # Normal equations in the tangent space of the unit sphere (c c^T fills the null
         # direction of the scale, so the 6x6 system is regular and the step is tangent).
         A = J.T @ J
         step = np.linalg.solve(A + np.trace(A) * np.outer(c, c), -(J.T @ r))
         c = c + step
         c /= np.linalg.norm(c)
-        if np.linalg.norm(step) < 1e-9:
+        # Gauss-Newton converges quadratically here: after a step under 1e-7, what remains is of
+        # its square, far below the fit's own noise.
+        if np.linalg.norm(step) < 1e-7:
             break
     f = M2 @ c
-    gx, gy = gxv @ c, gyv @ c
+    gx, gy = gradient(c)
     g = np.sqrt(gx * gx + gy * gy)
     r = f / g
     n = len(x)
     sigma2 = float(r @ r) / max(n - 5, 1)
+    # The pseudo-inverse of P A P (P = I - c c^T, the tangent space): P A P and c c^T act on
+    # orthogonal subspaces, so (P A P + c c^T)^-1 = (P A P)^+ + c c^T.
     P = np.eye(6) - np.outer(c, c)
-    cov_n = sigma2 * np.linalg.pinv((J @ P).T @ (J @ P))
+    cc = np.outer(c, c)
+    cov_n = sigma2 * (np.linalg.inv(P @ (J.T @ J) @ P + cc) - cc)
     # Back to pixels: C_pix = A^T C_n A with A = [[1/s, 0, -mu/s], [0, 1/s, ...], [0, 0, 1]].
     A = np.array([[1 / s, 0, -mu[0] / s], [0, 1 / s, -mu[1] / s], [0, 0, 1]])
-    Cn = conic_matrix(c)
+    Cn = (c @ _BASIS.reshape(6, 9)).reshape(3, 3)
     Cp = A.T @ Cn @ A
     # The linear map of coefficients c_n -> c_pix, for the covariance (before normalisation).
-    E = A.T @ conic_matrix(np.eye(6)) @ A  # the six basis conics, mapped
+    E = A.T @ _BASIS @ A  # the six basis conics, mapped
     L = np.stack(
         [E[:, 0, 0], 2 * E[:, 0, 1], E[:, 1, 1], 2 * E[:, 0, 2], 2 * E[:, 1, 2], E[:, 2, 2]], 0
     )
@@ -146,8 +166,8 @@ def _conic_at_centre(C: Array) -> float:
 
 
 def concentric_centre(Q1: ArrayLike, Q2: ArrayLike) -> Array:
-    """Return the image (homogeneous (3,), last coordinate 1) of the common centre of two
-    concentric circles from their image conics Q1, Q2 (3, 3).
+    """Return the image (homogeneous (..., 3), last coordinate 1) of the common centre of two
+    concentric circles from their image conics Q1, Q2 (..., 3, 3) (stacks of pairs at once).
 
     The pencil Q1 - lambda Q2 of two concentric circles has a double eigenvalue (its
     eigenvectors span the line at infinity of the plane) and a simple one whose eigenvector is
@@ -158,17 +178,19 @@ def concentric_centre(Q1: ArrayLike, Q2: ArrayLike) -> Array:
     """
     A = np.linalg.solve(np.asarray(Q2, dtype=np.float64), np.asarray(Q1, dtype=np.float64))
     w, v = np.linalg.eig(A)
-    gap = np.array([min(abs(w[i] - w[j]) for j in range(3) if j != i) for i in range(3)])
-    k = int(np.argmax(gap))
-    c = np.real(v[:, k])
-    if abs(c[2]) < 1e-12:
+    d = np.abs(w[..., :, None] - w[..., None, :])
+    d[..., [0, 1, 2], [0, 1, 2]] = np.inf
+    k = np.argmax(d.min(-1), -1)
+    c = np.real(np.take_along_axis(v, k[..., None, None], -1)[..., 0])
+    if np.any(np.abs(c[..., 2]) < 1e-12):
         raise DegenerateConfiguration("the circles' centre is at infinity: the plane is edge-on")
-    return c / c[2]
+    return np.asarray(c / c[..., 2:3], dtype=np.float64)
 
 
 def circle_normals(Q: ArrayLike) -> tuple[Array, Array]:
-    """Return the two unit normals (3,) of the planes that cut the cone Q (3, 3) (normalised
-    camera coordinates) in a circle, each oriented toward the camera (n . ray < 0).
+    """Return the two unit normals (..., 3) of the planes that cut the cone Q (..., 3, 3)
+    (normalised camera coordinates) in a circle, each oriented toward the camera
+    (n . ray < 0).
 
     With Q = V diag(l1, l2, l3) V^T, l1 >= l2 > 0 > l3 (sign of Q chosen so), subtracting l2
     times the identity factors the form into two planes, so the circular sections have normals
@@ -177,30 +199,32 @@ def circle_normals(Q: ArrayLike) -> tuple[Array, Array]:
     """
     Qm = np.asarray(Q, dtype=np.float64)
     w, V = np.linalg.eigh(Qm)
-    if np.sum(w > 0) == 1:
-        w, V = np.linalg.eigh(-Qm)
-    if not (w[2] >= w[1] > 0 > w[0]):
+    flip = np.sum(w > 0, -1) == 1
+    if np.any(flip):
+        Qm = np.where(flip[..., None, None], -Qm, Qm)
+        w, V = np.linalg.eigh(Qm)
+    if not np.all((w[..., 2] >= w[..., 1]) & (w[..., 1] > 0) & (w[..., 0] < 0)):
         raise DegenerateConfiguration(
             "the conic is not the image of a circle in front of the camera"
         )
-    l1, l2, l3 = w[2], w[1], w[0]
-    e1, e3 = V[:, 2], V[:, 0]
-    a = np.sqrt(max(l1 - l2, 0.0))
+    l1, l2, l3 = w[..., 2:3], w[..., 1:2], w[..., 0:1]
+    e1, e3 = V[..., 2], V[..., 0]
+    a = np.sqrt(np.maximum(l1 - l2, 0.0))
     b = np.sqrt(l2 - l3)
+    axis = np.where(e3[..., 2:3] > 0, e3, -e3)  # the cone's axis, pointing forward
     out = []
-    axis = e3 if e3[2] > 0 else -e3  # the cone's axis, pointing forward
     for sgn in (1.0, -1.0):
         n = sgn * a * e1 + b * e3
-        n /= np.linalg.norm(n)
-        if n @ axis > 0:
-            n = -n
+        n = n / np.linalg.norm(n, axis=-1, keepdims=True)
+        n = np.where(np.sum(n * axis, -1, keepdims=True) > 0, -n, n)
         out.append(n)
     return out[0], out[1]
 
 
-def circle_distance(Q: ArrayLike, n: ArrayLike, m: ArrayLike, radius: float) -> float:
-    """Return the depth factor t (the circle's centre is t m) of a circle of `radius` with
-    plane normal n (3,) whose centre's ray is m (3,, with m[2] = 1), from its cone Q.
+def circle_distance(Q: ArrayLike, n: ArrayLike, m: ArrayLike, radius: float) -> Array | float:
+    """Return the depth factor t (..., the circle's centre is t m) of a circle of `radius` with
+    plane normal n (..., 3) whose centre's ray is m (..., 3, with m[2] = 1), from its cone Q
+    (..., 3, 3); a float for single inputs.
 
     With u, v an orthonormal basis of the plane and H = [u v t m] mapping the plane's (x, y, 1)
     to rays, H^T Q H is proportional to diag(1, 1, -radius^2), so
@@ -210,8 +234,9 @@ def circle_distance(Q: ArrayLike, n: ArrayLike, m: ArrayLike, radius: float) -> 
     nn = np.asarray(n, dtype=np.float64)
     mm = np.asarray(m, dtype=np.float64)
     # u^T Q u + v^T Q v = trace(Q) - n^T Q n for any orthonormal basis (u, v, n).
-    a = (float(np.trace(Qm)) - float(nn @ Qm @ nn)) / 2
-    mq = float(mm @ Qm @ mm)
-    if a * mq >= 0:
+    a = (np.trace(Qm, axis1=-2, axis2=-1) - np.einsum("...i,...ij,...j", nn, Qm, nn)) / 2
+    mq = np.einsum("...i,...ij,...j", mm, Qm, mm)
+    if np.any(a * mq >= 0):
         raise DegenerateConfiguration("the circle's centre ray is not inside its image conic")
-    return float(radius * np.sqrt(-a / mq))
+    t = radius * np.sqrt(-a / mq)
+    return float(t) if np.ndim(t) == 0 else np.asarray(t, dtype=np.float64)

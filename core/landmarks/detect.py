@@ -39,11 +39,9 @@ from core.calibration.pose import pose_from_homography
 from core.errors import ConvergenceError, DegenerateConfiguration, InvalidInput
 from core.geometry.camera import (
     as_distortion,
-    left_jacobian_so3,
-    project_points,
+    distortion_model,
     undistort_points,
 )
-from core.geometry.rotations import matrix_to_rotvec, rotvec_to_matrix
 from core.homography.estimate import dlt_homography
 from core.landmarks.artwork import FRAME_BAND, RING_RADII, pattern_layout
 from core.landmarks.conics import (
@@ -151,24 +149,37 @@ def detect_landmarks(
         if np.linalg.norm(upv) < 1e-9:
             raise InvalidInput("up must be a non-zero direction")
         upv = upv / np.linalg.norm(upv)
-    ctx = _Context(img, Km, d, upv, decode)
     b, g, r = cv2.split(img)
+    ctx = _Context(img, cv2.max(cv2.max(b, g), r), Km, d, upv, decode)
     blue = cv2.subtract(b, cv2.max(g, r))
     red = cv2.subtract(r, cv2.max(g, b))
-    out: list[LandmarkDetection] = []
     # A candidate whose geometry fails (degenerate fit, distortion not invertible there) is not
     # a landmark this detector can locate; it is left out, never returned half-made.
     skip = (DegenerateConfiguration, ConvergenceError, np.linalg.LinAlgError)
+    found: list[_FrameEdges | _RingEdges] = []
     for outer, hole in _holed_components(blue):
         try:
-            det = _frame(ctx, blue, outer, hole, frame_size)
+            edges: _FrameEdges | _RingEdges | None = _frame_edges(blue, outer, hole)
         except skip:
-            det = None
-        if det is not None:
-            out.append(det)
+            edges = None
+        if edges is not None:
+            found.append(edges)
     for outer, _hole in _holed_components(red):
         try:
-            det = _rings(ctx, red, outer, ring_size)
+            edges = _ring_edges(red, outer)
+        except skip:
+            edges = None
+        if edges is not None:
+            found.append(edges)
+    out: list[LandmarkDetection] = []
+    for edges, ideal in zip(found, _undistort_each(ctx, [e.points for e in found]), strict=True):
+        if ideal is None:
+            continue
+        try:
+            if isinstance(edges, _FrameEdges):
+                det = _frame(ctx, edges, ideal, frame_size)
+            else:
+                det = _rings(ctx, edges, ideal, ring_size)
         except skip:
             det = None
         if det is not None:
@@ -179,6 +190,7 @@ def detect_landmarks(
 @dataclass(frozen=True)
 class _Context:
     image: Image
+    grey: Image  # the per-pixel maximum of the channels: the blue frame and red rings white
     K: Array
     dist: Array
     up: Array | None
@@ -193,7 +205,33 @@ class _Context:
         if not np.any(self.dist):
             return ideal
         n = np.linalg.solve(self.K, np.column_stack([ideal, np.ones(len(ideal))]).T).T
-        return project_points(n, np.zeros(3), np.zeros(3), self.K, self.dist).points
+        return self.project(n.astype(np.float64))
+
+    def project(self, P: Array) -> Array:
+        """Return the distorted pixels (N, 2) of camera-frame points P (N, 3) in front of it."""
+        x, y = P[:, 0] / P[:, 2], P[:, 1] / P[:, 2]
+        if np.any(self.dist):
+            x, y, _, _ = distortion_model(x, y, self.dist)
+        K = self.K
+        return np.stack([K[0, 0] * x + K[0, 1] * y + K[0, 2], K[1, 1] * y + K[1, 2]], -1)
+
+
+def _undistort_each(ctx: _Context, points: list[Array]) -> list[Array | None]:
+    """Return the ideal pixels of each candidate's edge points (one undistortion for all; a
+    candidate where the distortion is not invertible gets None)."""
+    if not points:
+        return []
+    try:
+        ideal = ctx.undistort(np.concatenate(points))
+        return list(np.split(ideal, np.cumsum([len(p) for p in points])[:-1]))
+    except ConvergenceError:
+        out: list[Array | None] = []
+        for p in points:
+            try:
+                out.append(ctx.undistort(p))
+            except ConvergenceError:
+                out.append(None)
+        return out
 
 
 def _holed_components(score: Image) -> list[tuple[Image, Image]]:
@@ -246,17 +284,23 @@ def _iso_points(score: Image, roi: tuple[int, int, int, int], inside: Image) -> 
     the four ring edges (the gap between the rings borders two of them, one on each side).
     A thin band broken by the threshold into pieces still gives one boundary per edge."""
     x0, y0, x1, y1 = roi
-    patch = score[y0:y1, x0:x1].astype(np.float32)
-    vals = patch[inside > 0]
-    if vals.size == 0:
+    roi_score = score[y0:y1, x0:x1]
+    m = cv2.moments(inside, binaryImage=True)
+    if m["m00"] == 0:
         return []
-    # Half-way between the pattern's plateau (a high percentile: blur lowers thin bands'
-    # pixels, and a low level would widen the bands) and the white page around it (~0).
-    level = np.float32(0.5 * float(np.percentile(vals, 90)))
+    cx, cy = m["m10"] / m["m00"], m["m01"] / m["m00"]
+    # Half-way between the pattern's plateau (the 90th percentile of the scores over `inside`,
+    # linearly interpolated as numpy's percentile, from their histogram: blur lowers thin
+    # bands' pixels, and a low level would widen the bands) and the white page around it (~0).
+    hist = cv2.calcHist([roi_score], [0], inside, [256], [0, 256]).ravel()
+    cum = np.cumsum(hist.astype(np.float64))
+    pos = 0.9 * (cum[-1] - 1)
+    lo = int(np.floor(pos))
+    v_lo, v_hi = np.searchsorted(cum, [lo + 1, min(lo + 2, cum[-1])])
+    level = np.float32(0.5 * (v_lo + (pos - lo) * (v_hi - v_lo)))
+    patch = roi_score.astype(np.float32)
     above = (patch > level).astype(np.uint8)
     _, lb = cv2.connectedComponents(1 - above, connectivity=8)
-    iy, ix = np.nonzero(inside)
-    cx, cy = float(ix.mean()), float(iy.mean())
     gxi = cv2.Sobel(patch, cv2.CV_32F, 1, 0, ksize=3)
     gyi = cv2.Sobel(patch, cv2.CV_32F, 0, 1, ksize=3)
     xs, ys, keys = [], [], []
@@ -265,7 +309,8 @@ def _iso_points(score: Image, roi: tuple[int, int, int, int], inside: Image) -> 
         b = patch[:, 1:] if axis == 1 else patch[1:, :]
         ia = above[:, :-1] if axis == 1 else above[:-1, :]
         ib = above[:, 1:] if axis == 1 else above[1:, :]
-        yy, xx = np.nonzero(ia != ib)
+        # (flat indices: numpy's two-dimensional nonzero is several times slower)
+        yy, xx = np.divmod(np.flatnonzero(ia != ib), ia.shape[1])
         if len(yy) == 0:
             continue
         va, vb = a[yy, xx], b[yy, xx]
@@ -317,59 +362,92 @@ def _signed_area(p: Array) -> float:
 
 
 @dataclass(frozen=True)
-class _Line:
-    normal: Array  # (2,) unit
-    rho: float  # normal . x = rho
-    centroid: Array
-    var_phi: float
-    var_rho: float  # of rho at the centroid
-    sigma: float
+class _Lines:
+    """Lines normal . x = rho, one row each."""
+
+    normal: Array  # (L, 2) unit
+    rho: Array  # (L,)
+    centroid: Array  # (L, 2)
+    var_phi: Array  # (L,)
+    var_rho: Array  # (L,) of rho at the centroid
+    sigma: Array  # (L,) residual RMS, pixels
+
+    def take(self, n: int) -> _Lines:
+        return _Lines(*(getattr(self, f)[:n] for f in self.__dataclass_fields__))
 
 
-def _fit_line(p: Array) -> _Line | None:
-    """Total least-squares line with one 3-sigma outlier pass; None with fewer than 4 points."""
+def _fit_lines(p: Array, label: Array, count: int) -> _Lines | None:
+    """Return the total least-squares lines of the points p (N, 2) of each label 0..count-1,
+    each with one 3-sigma outlier pass; None when a line has fewer than 4 points."""
+    stats = None
     for _ in range(2):
-        if len(p) < 4:
+        n_pts = np.bincount(label, minlength=count).astype(np.float64)
+        if np.any(n_pts < 4):
             return None
-        c = p.mean(0)
-        d = p - c
+        c = np.stack([np.bincount(label, p[:, k], count) for k in range(2)], -1) / n_pts[:, None]
+        d = p - c[label]
+        S = np.empty((count, 2, 2))
+        S[:, 0, 0] = np.bincount(label, d[:, 0] * d[:, 0], count)
+        S[:, 0, 1] = S[:, 1, 0] = np.bincount(label, d[:, 0] * d[:, 1], count)
+        S[:, 1, 1] = np.bincount(label, d[:, 1] * d[:, 1], count)
         # The normal: the eigenvector of the scatter matrix's smaller eigenvalue.
-        _, V = np.linalg.eigh(d.T @ d)
-        n, along_dir = V[:, 0], V[:, 1]
-        r = d @ n
-        s = float(np.sqrt(np.sum(r * r) / max(len(p) - 2, 1)))
-        keep = np.abs(r) <= 3 * max(s, 0.05)
+        _, V = np.linalg.eigh(S)
+        normal, along_dir = V[:, :, 0], V[:, :, 1]
+        r = np.sum(d * normal[label], 1)
+        s = np.sqrt(np.bincount(label, r * r, count) / np.maximum(n_pts - 2, 1))
+        keep = np.abs(r) <= 3 * np.maximum(s, 0.05)[label]
+        stats = (c, normal, along_dir, s)
         if keep.all():
             break
-        p = p[keep]
-    along = (p - c) @ along_dir
-    s = max(s, 0.02)  # marching squares quantises; never claim better than 0.02 px
-    return _Line(n, float(n @ c), c, s * s / max(float(along @ along), 1e-9), s * s / len(p), s)
+        p, label = p[keep], label[keep]
+    assert stats is not None
+    c, normal, along_dir, s = stats
+    along = np.sum((p - c[label]) * along_dir[label], 1)
+    spread = np.bincount(label, along * along, count)
+    used = np.bincount(label, minlength=count)
+    s = np.maximum(s, 0.02)  # marching squares quantises; never claim better than 0.02 px
+    return _Lines(
+        normal,
+        np.sum(normal * c, 1),
+        c,
+        s * s / np.maximum(spread, 1e-9),
+        s * s / used,
+        s,
+    )
 
 
-def _intersect(a: _Line, b: _Line) -> Array:
-    A = np.array([a.normal, b.normal])
-    return np.linalg.solve(A, [a.rho, b.rho])
-
-
-def _corner_jacobian(a: _Line, b: _Line) -> Array:
-    """Return d corner / d (phi_a, rho_a, phi_b, rho_b) (2, 4), rho measured at each line's
-    centroid (so phi and rho are uncorrelated): with A x = rho (rows the normals),
-    dx/drho_i = A^-1 e_i and dx/dphi_i = A^-1 e_i (n_i^perp . (c_i - x))."""
-    A = np.array([a.normal, b.normal])
+def _corners(lines: _Lines) -> tuple[Array, Array]:
+    """Return the corners (n, 2) of the quadrilaterals of lines 4 i .. 4 i + 3 (corner k of
+    each at lines k - 1 and k) and their Jacobian (2 n, 2 L) on the lines' (phi, rho), rho
+    measured at each line's centroid (so phi and rho are uncorrelated): with A x = rho (rows
+    the normals), dx/drho_i = A^-1 e_i and dx/dphi_i = A^-1 e_i (n_i^perp . (c_i - x)).
+    Raises LinAlgError when two adjacent lines are parallel."""
+    count = len(lines.rho)
+    k = np.arange(count)
+    a = (k // 4) * 4 + (k - 1) % 4  # the previous side of the same quadrilateral
+    A = np.stack([lines.normal[a], lines.normal[k]], 1)  # (n, 2, 2)
     Ai = np.linalg.inv(A)
-    x = Ai @ [a.rho, b.rho]
-    J = np.zeros((2, 4))
-    for k, line in enumerate((a, b)):
-        perp = np.array([-line.normal[1], line.normal[0]])
-        J[:, 2 * k] = Ai[:, k] * float(perp @ (line.centroid - x))
-        J[:, 2 * k + 1] = Ai[:, k]
-    return J
+    x = np.einsum("nij,nj->ni", Ai, np.stack([lines.rho[a], lines.rho[k]], 1))
+    perp = np.stack([-lines.normal[:, 1], lines.normal[:, 0]], 1)
+    JL = np.zeros((count, 2, count, 2))
+    for col, idx in ((0, a), (1, k)):
+        lever = np.sum(perp[idx] * (lines.centroid[idx] - x), 1)
+        JL[k, :, idx, 0] = Ai[:, :, col] * lever[:, None]
+        JL[k, :, idx, 1] = Ai[:, :, col]
+    return x, JL.reshape(2 * count, 2 * count)
 
 
-def _frame(
-    ctx: _Context, score: Image, outer: Image, hole: Image, size: float
-) -> LandmarkDetection | None:
+@dataclass(frozen=True)
+class _FrameEdges:
+    """A blue frame's edge points (N, 2) distorted pixels, each labelled with its side: 0-3
+    the outline's, 4-7 the hole's (when its edge was found)."""
+
+    points: Array
+    labels: Array
+    count: int
+
+
+def _frame_edges(score: Image, outer: Image, hole: Image) -> _FrameEdges | None:
     if _quad(outer) is None or _quad(hole) is None:
         return None
     roi = _roi(outer, score.shape)
@@ -380,21 +458,22 @@ def _frame(
     closed = _iso_points(score, roi, mask)
     if not closed:
         return None
-    areas = np.array([_hull_area(c) for c in closed])
+    hulls = [cv2.convexHull(c.astype(np.float32)) for c in closed]
+    areas = np.array([cv2.contourArea(h) for h in hulls])
     order = np.argsort(-areas)
-    curves = [closed[order[0]]]
+    chosen = [int(order[0])]
     # The frame's hole: the next boundary, inside, of (1 - 2 band)^2 = 0.58 of its area (an
     # affine view keeps area ratios).
     for k in order[1:]:
         ratio = areas[k] / areas[order[0]]
-        hull = cv2.convexHull(curves[0].astype(np.float32))
-        inside = cv2.pointPolygonTest(hull, tuple(map(float, closed[k].mean(0))), False)
+        inside = cv2.pointPolygonTest(hulls[order[0]], tuple(map(float, closed[k].mean(0))), False)
         if 0.45 < ratio < 0.7 and inside > 0:
-            curves.append(closed[k])
+            chosen.append(int(k))
             break
+    curves = [closed[k] for k in chosen]
     quads: list[Array] = []
-    for c in curves:
-        q = _quad(c.astype(np.float32)[:, None, :])
+    for k in chosen:
+        q = _quad(hulls[k])
         if q is None:
             return None
         if _signed_area(q) > 0:
@@ -406,40 +485,39 @@ def _frame(
             outer_q = quads[0]
             c0 = outer_q.mean(0)
             target = c0 + (1 - 2 * FRAME_BAND) * (outer_q - c0)
-            shift = int(np.argmin([np.sum((np.roll(q, -s, 0) - target) ** 2) for s in range(4)]))
-            q = np.roll(q, -shift, 0)
+            turns = q[(np.arange(4)[:, None] + np.arange(4)) % 4]  # (4 shifts, 4 corners, 2)
+            q = turns[int(np.argmin(np.sum((turns - target) ** 2, (1, 2))))]
         quads.append(q)
     # Each curve's points go to its own quadrilateral's nearest side, away from the corners.
-    lines = []
-    for c, q in zip(curves, quads, strict=True):
-        best = np.full(len(c), -1)
-        best_d = np.full(len(c), np.inf)
-        for e in range(4):
-            a, b = q[e], q[(e + 1) % 4]
-            L = float(np.linalg.norm(b - a))
-            if L < 3:
-                return None
-            u = (b - a) / L
-            s = (c - a) @ u
-            dn = np.abs((c - a) @ np.array([-u[1], u[0]]))
-            margin = max(1.5, 0.12 * L)
-            ok = (s > margin) & (s < L - margin) & (dn < 3.0) & (dn < best_d)
-            best[ok] = e
-            best_d[ok] = dn[ok]
-        ideal = ctx.undistort(c)
-        for e in range(4):
-            ln = _fit_line(ideal[best == e])
-            if ln is None:
-                return None
-            lines.append(ln)
+    points, labels = [], []
+    for i, (c, q) in enumerate(zip(curves, quads, strict=True)):
+        a, b = q, np.roll(q, -1, 0)
+        L = np.linalg.norm(b - a, axis=1)
+        if np.any(L < 3):
+            return None
+        u = (b - a) / L[:, None]
+        d = c[:, None, :] - a[None]  # (N, 4, 2)
+        s = np.sum(d * u, -1)
+        dn = np.abs(d[..., 1] * u[:, 0] - d[..., 0] * u[:, 1])
+        margin = np.maximum(1.5, 0.12 * L)
+        ok = (s > margin) & (s < L - margin) & (dn < 3.0)
+        dn = np.where(ok, dn, np.inf)
+        best = np.argmin(dn, 1)
+        on = np.isfinite(dn[np.arange(len(c)), best])
+        points.append(c[on])
+        labels.append(best[on] + 4 * i)
+    return _FrameEdges(np.concatenate(points), np.concatenate(labels), 4 * len(curves))
+
+
+def _frame(
+    ctx: _Context, edges: _FrameEdges, ideal: Array, size: float
+) -> LandmarkDetection | None:
+    """Locate and read a frame from its edge points' ideal pixels."""
+    lines = _fit_lines(ideal, edges.labels, edges.count)
+    if lines is None:
+        return None
     try:
-        corners = np.array(
-            [
-                _intersect(lines[(k - 1) % 4 + o], lines[k + o])
-                for o in range(0, len(lines), 4)
-                for k in range(4)
-            ]
-        )
+        corners, JL = _corners(lines)
     except np.linalg.LinAlgError:
         return None
     lay = pattern_layout("object", size)
@@ -450,22 +528,47 @@ def _frame(
         if rms > MAX_CORNER_RMS_PX and len(corners) == 8:
             # The hole's edges disagree with the outline (a frame seen nearly edge-on, its band
             # unresolved): the outline alone.
-            corners, obj, lines = corners[:4], obj[:4], lines[:4]
+            corners, obj, lines, JL = corners[:4], obj[:4], lines.take(4), JL[:8, :8]
             R, t, rms = _plane_pose(obj, corners, ctx.K)
     except (DegenerateConfiguration, np.linalg.LinAlgError):
         return None
     if rms > MAX_CORNER_RMS_PX:  # not a square frame seen in perspective
         return None
-    cov = _frame_covariance(lines, obj, R, t, ctx.K)
-    # To the left rotation perturbation (d theta = J_l(rvec) d rvec), which a turn of the mark
-    # frame about its normal leaves unchanged.
-    M = np.eye(6)
-    M[:3, :3] = left_jacobian_so3(matrix_to_rotvec(R))
-    cov = M @ cov @ M.T
+    # Of the left rotation perturbation, which a turn of the mark frame about its normal
+    # leaves unchanged.
+    cov = _frame_covariance(lines, JL, obj, R, t, ctx.K)
     outline = ctx.distort(corners[:4])
-    return _finish(
-        ctx, "object", R, t, cov, outline, size, float(np.mean([ln.sigma for ln in lines]))
-    )
+    return _finish(ctx, "object", R, t, cov, outline, size, float(np.mean(lines.sigma)))
+
+
+def _project_plane(
+    obj: Array, R: Array, t: Array, K: Array, jacobian: bool = False
+) -> tuple[Array, Array, Array | None]:
+    """Return the ideal pixels (N, 2) of plane points obj (N, 2) under the pose (R, t), their
+    depths (N,) and, with `jacobian`, d pixels / d (left rotation perturbation, t) (N, 2, 6)
+    (R <- exp([d theta]x) R: d Xc / d theta = -[R X]x)."""
+    RX = obj @ R[:, :2].T
+    Pc = RX + t
+    z = Pc[:, 2]
+    xn = Pc[:, :2] / z[:, None]
+    uv = xn @ K[:2, :2].T + K[:2, 2]
+    if not jacobian:
+        return uv, z, None
+    n = len(obj)
+    # d normalised / d Pc (N, 2, 3), then through K's upper-left block.
+    dn = np.zeros((n, 2, 3))
+    dn[:, 0, 0] = dn[:, 1, 1] = 1.0 / z
+    dn[:, :, 2] = -xn / z[:, None]
+    du = K[:2, :2] @ dn
+    # -[RX]x, (N, 3, 3).
+    ns = np.zeros((n, 3, 3))
+    ns[:, 0, 1], ns[:, 0, 2] = RX[:, 2], -RX[:, 1]
+    ns[:, 1, 0], ns[:, 1, 2] = -RX[:, 2], RX[:, 0]
+    ns[:, 2, 0], ns[:, 2, 1] = RX[:, 1], -RX[:, 0]
+    J = np.empty((n, 2, 6))
+    J[:, :, :3] = du @ ns
+    J[:, :, 3:] = du
+    return uv, z, J
 
 
 def _plane_pose(
@@ -473,51 +576,40 @@ def _plane_pose(
 ) -> tuple[Array, Array, float]:
     """Return (R, t, rms px) of a plane from its points' ideal pixels: the normalised DLT
     homography and its closed-form pose (core.calibration.pose.pose_from_homography), then
-    Gauss-Newton on the reprojection error over (rvec, t) (the estimate_plane_pose criterion,
-    without its general-purpose machinery: eight points, a few iterations)."""
+    Gauss-Newton on the reprojection error over (rotation, t) (the estimate_plane_pose
+    criterion, without its general-purpose machinery: eight points, a few iterations)."""
     H = dlt_homography(obj, ideal)
     pose = pose_from_homography(H, K, obj)
-    x = np.concatenate([matrix_to_rotvec(pose.R), pose.t])
-    X3 = np.column_stack([obj, np.zeros(len(obj))])
-    res = np.zeros(2 * len(obj))
+    R, t = pose.R, np.asarray(pose.t, dtype=np.float64)
     for _ in range(iterations):
-        pr = project_points(X3, x[:3], x[3:], K, None, jacobians=True)
-        assert pr.d_pose is not None
-        res = (pr.points - ideal).ravel()
-        J = pr.d_pose.reshape(-1, 6)
-        step = np.linalg.solve(J.T @ J, -J.T @ res)
-        x = x + step
-        if np.max(np.abs(step)) < 1e-10 * max(1.0, float(np.linalg.norm(x[3:]))):
+        uv, _, J = _project_plane(obj, R, t, K, jacobian=True)
+        assert J is not None
+        res = (uv - ideal).ravel()
+        A = J.reshape(-1, 6)
+        step = np.linalg.solve(A.T @ A, -A.T @ res)
+        R = cv2.Rodrigues(step[:3])[0] @ R
+        t = t + step[3:]
+        # Converged far below the corners' noise (a 1e-7 relative step moves a 10 cm mark by
+        # nanometres).
+        if np.max(np.abs(step)) < 1e-7 * max(1.0, float(np.linalg.norm(t))):
             break
-    pr = project_points(X3, x[:3], x[3:], K, None)
-    if np.any(pr.depth <= 0):
+    uv, z, _ = _project_plane(obj, R, t, K)
+    if np.any(z <= 0):
         raise DegenerateConfiguration("the frame's pose puts it behind the camera")
-    res = (pr.points - ideal).ravel()
-    return rotvec_to_matrix(x[:3]), x[3:], float(np.sqrt(np.mean(res * res) * 2))
+    res = (uv - ideal).ravel()
+    return R, t, float(np.sqrt(np.mean(res * res) * 2))
 
 
-def _frame_covariance(lines: list[_Line], obj: Array, R: Array, t: Array, K: Array) -> Array:
-    """Return the (6, 6) covariance of (rvec, t) of the least-squares pose of the 8 corners,
-    from the lines' parameter variances: Sigma_c = J_L Sigma_L J_L^T for the corners (each
-    corner depends on two lines), then the sandwich (A^T A)^-1 A^T Sigma_c A (A^T A)^-1 with A
-    the pose Jacobian of the corners' projections."""
-    m = 2 * len(lines)
-    JL = np.zeros((m, m))
-    var = np.zeros(m)
-    for e, ln in enumerate(lines):
-        var[2 * e], var[2 * e + 1] = ln.var_phi, ln.var_rho
-    for o in range(0, len(lines), 4):
-        for k in range(4):
-            a, b = (k - 1) % 4 + o, k + o
-            J = _corner_jacobian(lines[a], lines[b])
-            row = 2 * (k + o)
-            JL[row : row + 2, 2 * a : 2 * a + 2] = J[:, :2]
-            JL[row : row + 2, 2 * b : 2 * b + 2] = J[:, 2:]
-    Sc = JL @ np.diag(var) @ JL.T
-    X3 = np.column_stack([obj, np.zeros(len(obj))])
-    pr = project_points(X3, matrix_to_rotvec(R), t, K, None, jacobians=True)
-    assert pr.d_pose is not None
-    A = pr.d_pose.reshape(-1, 6)
+def _frame_covariance(lines: _Lines, JL: Array, obj: Array, R: Array, t: Array, K: Array) -> Array:
+    """Return the (6, 6) covariance of (left rotation perturbation, t) of the least-squares pose
+    of the corners, from the lines' parameter variances: Sigma_c = J_L Sigma_L J_L^T for the
+    corners (JL from `_corners`: each corner depends on two lines), then the sandwich
+    (A^T A)^-1 A^T Sigma_c A (A^T A)^-1 with A the pose Jacobian of the corners' projections."""
+    var = np.stack([lines.var_phi, lines.var_rho], 1).ravel()
+    Sc = (JL * var) @ JL.T
+    _, _, Jp = _project_plane(obj, R, t, K, jacobian=True)
+    assert Jp is not None
+    A = Jp.reshape(-1, 6)
     G = np.linalg.solve(A.T @ A, A.T)
     return G @ Sc @ G.T
 
@@ -532,7 +624,17 @@ class _RingFit:
     radii: tuple[float, ...]
 
 
-def _rings(ctx: _Context, score: Image, outer: Image, size: float) -> LandmarkDetection | None:
+@dataclass(frozen=True)
+class _RingEdges:
+    """A signpost's edge curves (distorted pixels, all stacked in `points`) and their sizes
+    (square root of their hulls' areas)."""
+
+    points: Array
+    lengths: list[int]
+    sizes: Array
+
+
+def _ring_edges(score: Image, outer: Image) -> _RingEdges | None:
     if len(outer) < 8:
         return None
     _, (ea, eb), _ = cv2.fitEllipse(outer)
@@ -547,29 +649,52 @@ def _rings(ctx: _Context, score: Image, outer: Image, size: float) -> LandmarkDe
     if not iso:
         return None
     sizes = np.array([np.sqrt(_hull_area(c)) for c in iso])
+    return _RingEdges(np.concatenate(iso), [len(c) for c in iso], sizes)
+
+
+def _rings(
+    ctx: _Context, edges: _RingEdges, ideal_points: Array, size: float
+) -> LandmarkDetection | None:
+    """Locate and read a signpost from its edge curves' ideal pixels."""
+    ideal = np.split(ideal_points, np.cumsum(edges.lengths)[:-1])
+    sizes = edges.sizes
     order = np.argsort(-sizes)
     ref = sizes[order[0]]
     lay = pattern_layout("signpost", size)
-    fits: list[ConicFit] = []
-    radii: list[float] = []
-    centre0 = None
+    # Each ring edge's curve (the largest one whose size ratio to the outer edge matches it).
+    matched: list[tuple[int, int]] = []
     for k in order:
         ratio = sizes[k] / ref
         j = int(np.argmin([abs(ratio - r / RING_RADII[0]) for r in RING_RADII]))
-        if abs(ratio - RING_RADII[j] / RING_RADII[0]) > 0.045 or lay.ring_radii[j] in radii:
-            continue
+        if abs(ratio - RING_RADII[j] / RING_RADII[0]) <= 0.045 and all(j != i for _, i in matched):
+            matched.append((int(k), j))
+    # The pose needs only the outer edge (normal, distance, centre) and the innermost one that
+    # fits (the centre from the pencil of the two).
+    fits: list[ConicFit] = []
+    radii: list[float] = []
+    for n, (k, j) in enumerate(matched):
         try:
-            fit = fit_ellipse(ctx.undistort(iso[k]))
+            fit = fit_ellipse(ideal[k])
         except DegenerateConfiguration:
             continue
-        if centre0 is None:
-            if j != 0:
-                return None
-            centre0 = fit.centre
-        elif np.linalg.norm(fit.centre - centre0) > 0.2 * ref:
-            continue
+        if j != 0:
+            return None
         fits.append(fit)
-        radii.append(lay.ring_radii[j])
+        radii.append(lay.ring_radii[0])
+        matched = matched[n + 1 :]
+        break
+    if not fits:
+        return None
+    centre0 = fits[0].centre
+    for k, j in matched[::-1]:
+        try:
+            fit = fit_ellipse(ideal[k])
+        except DegenerateConfiguration:
+            continue
+        if np.linalg.norm(fit.centre - centre0) <= 0.2 * ref:
+            fits.append(fit)
+            radii.append(lay.ring_radii[j])
+            break
     if len(fits) < 2:
         return None
     rf = _RingFit(tuple(fits), tuple(radii))
@@ -594,21 +719,19 @@ def _conic_points(C: Array, angles: Array) -> Array:
     return c + (np.stack([np.cos(angles) * ax[0], np.sin(angles) * ax[1]], 1) @ V.T)
 
 
-def _ring_pose(
-    Qs: list[Array], radii: tuple[float, ...]
-) -> tuple[Array, tuple[Array, Array], Array]:
-    """Return (centre ray m (3,), the two candidate normals, their depth factors (2,)) from the
-    normalised conics: centre from the pencil of the largest and smallest circles, normals and
-    depth from the outer conic and its known radius."""
-    m = concentric_centre(Qs[0], Qs[-1])
-    na, nb = circle_normals(Qs[0])
-    depths = []
-    for n in (na, nb):
-        # The outer edge alone gives the distance: it has the white page outside and the widest
-        # band inside, while blur merges the inner edges with their neighbours (gaps of 0.05 of
-        # the size) once the rings are small in the image, shrinking their contours.
-        depths.append(circle_distance(Qs[0], n, m, radii[0]))
-    return m, (na, nb), np.array(depths)
+def _ring_pose(Q0: Array, Qn: Array, radius: float) -> tuple[Array, tuple[Array, Array], Array]:
+    """Return (centre ray m (..., 3), the two candidate normals (..., 3), their depth factors
+    (..., 2)) from the normalised conics (..., 3, 3) of the outer edge (radius known) and the
+    innermost one: centre from the pencil of the two, normals and depth from the outer one."""
+    m = concentric_centre(Q0, Qn)
+    na, nb = circle_normals(Q0)
+    # The outer edge alone gives the distance: it has the white page outside and the widest
+    # band inside, while blur merges the inner edges with their neighbours (gaps of 0.05 of
+    # the size) once the rings are small in the image, shrinking their contours.
+    depths = np.stack(
+        [np.asarray(circle_distance(Q0, n, m, radius), dtype=np.float64) for n in (na, nb)], -1
+    )
+    return m, (na, nb), depths
 
 
 @dataclass(frozen=True)
@@ -620,33 +743,50 @@ class _Candidates:
 
 
 def _ring_candidates(rf: _RingFit, K: Array) -> _Candidates:
-    Qs = [K.T @ f.C @ K for f in rf.fits]
-    m, normals, depths = _ring_pose(Qs, rf.radii)
-    # First-order propagation of every conic's covariance (sigma points along its principal
-    # axes), ignoring the rotation about the normal (added later from the symbol).
-    covs = [np.zeros((6, 6)), np.zeros((6, 6))]
-    # The outer and the innermost conics fix the centre and the normals; the others only add
-    # to the averaged distance, whose spread the outer one's dominates.
-    for k in (0, len(rf.fits) - 1):
-        f = rf.fits[k]
+    Q0 = K.T @ rf.fits[0].C @ K
+    Qn = K.T @ rf.fits[-1].C @ K
+    r0 = rf.radii[0]
+    # The pose, then the first-order propagation of both conics' covariances (sigma points
+    # along their principal axes), ignoring the rotation about the normal (added later from
+    # the symbol): the nominal pair first, then each perturbed one, in one batch.
+    outer, inner = [Q0], [Qn]
+    for k, f in enumerate((rf.fits[0], rf.fits[-1])):
         w, U = np.linalg.eigh(f.cov)
         base = _coeffs6(f.C)
         for s2, u in zip(w, U.T, strict=True):
             # The conic's scale direction has no variance (numerically ~0): skipped.
             if s2 <= 1e-9 * w[-1]:
                 continue
-            Qp = list(Qs)
-            Qp[k] = K.T @ _conic6(base + np.sqrt(s2) * u) @ K
+            Qp = K.T @ _conic6(base + np.sqrt(s2) * u) @ K
+            outer.append(Qp if k == 0 else Q0)
+            inner.append(Qp if k == 1 else Qn)
+    Q0s, Qns = np.array(outer), np.array(inner)
+    skip = (DegenerateConfiguration, np.linalg.LinAlgError)
+    try:
+        ms, (pa, pb), dps = _ring_pose(Q0s, Qns, r0)
+    except skip:
+        # The nominal pair or one sigma point is degenerate (a conic near the limit): the
+        # nominal alone (raising if it is the one), then the other sigma points one at a time.
+        _ring_pose(Q0, Qn, r0)
+        good = [0]
+        for i in range(1, len(Q0s)):
             try:
-                mp, nps, dps = _ring_pose(Qp, rf.radii)
-            except (DegenerateConfiguration, np.linalg.LinAlgError):
+                _ring_pose(Q0s[i], Qns[i], r0)
+            except skip:
                 continue
-            for j in range(2):
-                # Match the perturbed candidate to candidate j by its normal; one-sided
-                # difference of (rotation of the normal, centre).
-                i = 0 if nps[0] @ normals[j] >= nps[1] @ normals[j] else 1
-                dv = np.concatenate([np.cross(normals[j], nps[i]), dps[i] * mp - depths[j] * m])
-                covs[j] += np.outer(dv, dv)
+            good.append(i)
+        ms, (pa, pb), dps = _ring_pose(Q0s[good], Qns[good], r0)
+    m, normals, depths = ms[0], (pa[0], pb[0]), dps[0]
+    mp, pa, pb, dps = ms[1:], pa[1:], pb[1:], dps[1:]
+    covs = []
+    for j in range(2):
+        # Match each perturbed candidate to candidate j by its normal; one-sided difference of
+        # (rotation of the normal, centre).
+        first = (pa @ normals[j] >= pb @ normals[j])[:, None]
+        n_p = np.where(first, pa, pb)
+        d_p = np.where(first[:, 0], dps[:, 0], dps[:, 1])
+        dv = np.concatenate([np.cross(normals[j], n_p), d_p[:, None] * mp - depths[j] * m], 1)
+        covs.append(dv.T @ dv)
     return _Candidates(m, normals, depths, (covs[0], covs[1]))
 
 
@@ -751,10 +891,16 @@ def _finish_rings(
 
 
 def _rvec_cov(R: Array, cov_theta: Array) -> Array:
-    """Convert a covariance of (left rotation perturbation, t) to one of (rvec, t)."""
-    Jinv = np.linalg.inv(left_jacobian_so3(matrix_to_rotvec(R)))
+    """Convert a covariance of (left rotation perturbation, t) to one of (rvec, t): d rvec =
+    J_l(rvec)^-1 d theta, with the closed form J_l^-1 = I - [v]x / 2 + b [v]x^2,
+    b = 1 / t^2 - cot(t / 2) / (2 t), t = |v| (Barfoot, "State Estimation for Robotics",
+    eq. 7.79; the inverse of core.geometry.camera.left_jacobian_so3)."""
+    v = cv2.Rodrigues(R)[0].ravel()
+    t = float(np.linalg.norm(v))
+    b = 1 / 12 + t * t / 720 if t < 1e-3 else 1 / t**2 - 1 / (2 * t * np.tan(t / 2))
+    k = np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
     M = np.eye(6)
-    M[:3, :3] = Jinv
+    M[:3, :3] += -0.5 * k + b * (k @ k)
     return M @ cov_theta @ M.T
 
 
@@ -777,19 +923,23 @@ class _Read:
     module_px: float
 
 
-def _rectify(ctx: _Context, R: Array, t: Array, half: float, px: int) -> Image:
+def _rectify(
+    ctx: _Context, R: Array, t: Array, half: float, px: int, *, grey: bool = False
+) -> Image:
     """Return the mark plane's square [-half, half]^2 resampled fronto-parallel to px x px,
-    rows running down the mark's y axis, through the lens model."""
+    rows running down the mark's y axis, through the lens model: of the colour image, or with
+    `grey` of its per-pixel channel maximum."""
     step = 8
     g = np.arange(0, px + step, step, dtype=np.float64)
-    gj, gi = np.meshgrid(g, g)
-    X = -half + (gj + 0.5) * 2 * half / px
-    Y = half - (gi + 0.5) * 2 * half / px
-    P = np.stack([X, Y, np.zeros_like(X)], -1).reshape(-1, 3)
-    uv = project_points(P, matrix_to_rotvec(R), t, ctx.K, ctx.dist).points.reshape(*X.shape, 2)
+    X = -half + (g + 0.5) * 2 * half / px  # along the patch's columns
+    Y = half - (g + 0.5) * 2 * half / px  # along its rows
+    P = (Y[:, None, None] * R[:, 1] + X[None, :, None] * R[:, 0] + t).reshape(-1, 3)
+    uv = ctx.project(P).reshape(len(g), len(g), 2)
     big = (len(g) - 1) * step + 1
     mx = cv2.resize(uv[..., 0].astype(np.float32), (big, big), interpolation=cv2.INTER_LINEAR)
     my = cv2.resize(uv[..., 1].astype(np.float32), (big, big), interpolation=cv2.INTER_LINEAR)
+    if grey:
+        return cv2.remap(ctx.grey, mx[:px, :px], my[:px, :px], cv2.INTER_LINEAR, borderValue=255)
     return cv2.remap(
         ctx.image, mx[:px, :px], my[:px, :px], cv2.INTER_LINEAR, borderValue=(255, 255, 255)
     )
@@ -813,8 +963,7 @@ def _read_symbol(ctx: _Context, R: Array, t: Array, half: float, qr_side: float)
         return None
     # 2.5 patch pixels per image pixel: modules of >= 1.2 px get >= 3 px, what zxing-cpp needs.
     px = int(np.clip(2.5 * qpx * 2 * half / qr_side, _PATCH_MIN, _PATCH_MAX))
-    patch = _rectify(ctx, R, t, half, px)
-    grey = cv2.max(cv2.max(patch[..., 0], patch[..., 1]), patch[..., 2])
+    grey = _rectify(ctx, R, t, half, px, grey=True)
     # OpenCV's detector is the fallback where zxing-cpp fails; it is slow (tens of ms) and
     # reads nothing zxing-cpp cannot below 1.5 px modules, so it is not tried there.
     text, pts = _decode(grey, fallback=qpx / _NOMINAL_MODULES >= 1.5)
