@@ -27,6 +27,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from itertools import pairwise
 from typing import Any
 
 import cv2
@@ -42,6 +43,7 @@ from core.geometry.camera import (
     distortion_model,
     undistort_points,
 )
+from core.geometry.rotations import rotvec_to_matrix
 from core.homography.estimate import dlt_homography
 from core.landmarks.artwork import FRAME_BAND, RING_RADII, pattern_layout
 from core.landmarks.conics import (
@@ -171,15 +173,18 @@ def detect_landmarks(
             edges = None
         if edges is not None:
             found.append(edges)
-    out: list[LandmarkDetection] = []
-    for edges, ideal in zip(found, _undistort_each(ctx, [e.points for e in found]), strict=True):
-        if ideal is None:
+    ideals = _undistort_each(ctx, [e.points for e in found])
+    frames = [
+        (e, p)
+        for e, p in zip(found, ideals, strict=True)
+        if isinstance(e, _FrameEdges) and p is not None
+    ]
+    out = _frames(ctx, [e for e, _ in frames], [p for _, p in frames], frame_size)
+    for edges, ideal in zip(found, ideals, strict=True):
+        if not isinstance(edges, _RingEdges) or ideal is None:
             continue
         try:
-            if isinstance(edges, _FrameEdges):
-                det = _frame(ctx, edges, ideal, frame_size)
-            else:
-                det = _rings(ctx, edges, ideal, ring_size)
+            det = _rings(ctx, edges, ideal, ring_size)
         except skip:
             det = None
         if det is not None:
@@ -356,9 +361,14 @@ def _quad(contour: Image) -> Array | None:
     return None
 
 
+_NEXT = np.array([1, 2, 3, 0])  # the next corner of a quadrilateral
+
+
 def _signed_area(p: Array) -> float:
+    """Return the signed area of a quadrilateral p (4, 2) (positive counter-clockwise in x right,
+    y up)."""
     x, y = p[:, 0], p[:, 1]
-    return 0.5 * float(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y))
+    return 0.5 * float(x @ y[_NEXT] - x[_NEXT] @ y)
 
 
 @dataclass(frozen=True)
@@ -372,18 +382,19 @@ class _Lines:
     var_rho: Array  # (L,) of rho at the centroid
     sigma: Array  # (L,) residual RMS, pixels
 
-    def take(self, n: int) -> _Lines:
-        return _Lines(*(getattr(self, f)[:n] for f in self.__dataclass_fields__))
+    def take(self, rows: slice) -> _Lines:
+        return _Lines(*(getattr(self, f)[rows] for f in self.__dataclass_fields__))
 
 
-def _fit_lines(p: Array, label: Array, count: int) -> _Lines | None:
+def _fit_lines(p: Array, label: Array, count: int) -> tuple[_Lines, Array]:
     """Return the total least-squares lines of the points p (N, 2) of each label 0..count-1,
-    each with one 3-sigma outlier pass; None when a line has fewer than 4 points."""
+    each with one 3-sigma outlier pass, and whether each had the 4 points it needs (count,)."""
+    ok = np.ones(count, bool)
     stats = None
     for _ in range(2):
         n_pts = np.bincount(label, minlength=count).astype(np.float64)
-        if np.any(n_pts < 4):
-            return None
+        ok &= n_pts >= 4
+        n_pts = np.maximum(n_pts, 1)
         c = np.stack([np.bincount(label, p[:, k], count) for k in range(2)], -1) / n_pts[:, None]
         d = p - c[label]
         S = np.empty((count, 2, 2))
@@ -404,9 +415,9 @@ def _fit_lines(p: Array, label: Array, count: int) -> _Lines | None:
     c, normal, along_dir, s = stats
     along = np.sum((p - c[label]) * along_dir[label], 1)
     spread = np.bincount(label, along * along, count)
-    used = np.bincount(label, minlength=count)
+    used = np.maximum(np.bincount(label, minlength=count), 1)
     s = np.maximum(s, 0.02)  # marching squares quantises; never claim better than 0.02 px
-    return _Lines(
+    lines = _Lines(
         normal,
         np.sum(normal * c, 1),
         c,
@@ -414,19 +425,27 @@ def _fit_lines(p: Array, label: Array, count: int) -> _Lines | None:
         s * s / used,
         s,
     )
+    return lines, ok
 
 
-def _corners(lines: _Lines) -> tuple[Array, Array]:
+def _corners(lines: _Lines) -> tuple[Array, Array, Array]:
     """Return the corners (n, 2) of the quadrilaterals of lines 4 i .. 4 i + 3 (corner k of
-    each at lines k - 1 and k) and their Jacobian (2 n, 2 L) on the lines' (phi, rho), rho
+    each at lines k - 1 and k), their Jacobian (2 n, 2 L) on the lines' (phi, rho), rho
     measured at each line's centroid (so phi and rho are uncorrelated): with A x = rho (rows
-    the normals), dx/drho_i = A^-1 e_i and dx/dphi_i = A^-1 e_i (n_i^perp . (c_i - x)).
-    Raises LinAlgError when two adjacent lines are parallel."""
+    the normals), dx/drho_i = A^-1 e_i and dx/dphi_i = A^-1 e_i (n_i^perp . (c_i - x)); and
+    whether each corner exists (n,) (its two lines not parallel)."""
     count = len(lines.rho)
     k = np.arange(count)
     a = (k // 4) * 4 + (k - 1) % 4  # the previous side of the same quadrilateral
-    A = np.stack([lines.normal[a], lines.normal[k]], 1)  # (n, 2, 2)
-    Ai = np.linalg.inv(A)
+    na, nk = lines.normal[a], lines.normal[k]
+    det = na[:, 0] * nk[:, 1] - na[:, 1] * nk[:, 0]
+    ok = np.abs(det) > 1e-12
+    det = np.where(ok, det, 1.0)
+    # A^-1 of A = [na; nk]: columns (nk_y, -nk_x) / det and (-na_y, na_x) / det.
+    Ai = (
+        np.stack([np.stack([nk[:, 1], -na[:, 1]], 1), np.stack([-nk[:, 0], na[:, 0]], 1)], 1)
+        / det[:, None, None]
+    )
     x = np.einsum("nij,nj->ni", Ai, np.stack([lines.rho[a], lines.rho[k]], 1))
     perp = np.stack([-lines.normal[:, 1], lines.normal[:, 0]], 1)
     JL = np.zeros((count, 2, count, 2))
@@ -434,7 +453,7 @@ def _corners(lines: _Lines) -> tuple[Array, Array]:
         lever = np.sum(perp[idx] * (lines.centroid[idx] - x), 1)
         JL[k, :, idx, 0] = Ai[:, :, col] * lever[:, None]
         JL[k, :, idx, 1] = Ai[:, :, col]
-    return x, JL.reshape(2 * count, 2 * count)
+    return x, JL.reshape(2 * count, 2 * count), ok
 
 
 @dataclass(frozen=True)
@@ -491,7 +510,7 @@ def _frame_edges(score: Image, outer: Image, hole: Image) -> _FrameEdges | None:
     # Each curve's points go to its own quadrilateral's nearest side, away from the corners.
     points, labels = [], []
     for i, (c, q) in enumerate(zip(curves, quads, strict=True)):
-        a, b = q, np.roll(q, -1, 0)
+        a, b = q, q[_NEXT]
         L = np.linalg.norm(b - a, axis=1)
         if np.any(L < 3):
             return None
@@ -509,95 +528,136 @@ def _frame_edges(score: Image, outer: Image, hole: Image) -> _FrameEdges | None:
     return _FrameEdges(np.concatenate(points), np.concatenate(labels), 4 * len(curves))
 
 
-def _frame(
-    ctx: _Context, edges: _FrameEdges, ideal: Array, size: float
-) -> LandmarkDetection | None:
-    """Locate and read a frame from its edge points' ideal pixels."""
-    lines = _fit_lines(ideal, edges.labels, edges.count)
-    if lines is None:
-        return None
-    try:
-        corners, JL = _corners(lines)
-    except np.linalg.LinAlgError:
-        return None
+def _frames(
+    ctx: _Context, edges: list[_FrameEdges], ideals: list[Array], size: float
+) -> list[LandmarkDetection]:
+    """Locate and read frames from their edge points' ideal pixels: the lines, corners and
+    poses of all of them computed together."""
+    if not edges:
+        return []
+    starts = np.cumsum([0] + [e.count for e in edges])
+    lines, line_ok = _fit_lines(
+        np.concatenate(ideals),
+        np.concatenate([e.labels + o for e, o in zip(edges, starts, strict=False)]),
+        int(starts[-1]),
+    )
+    corners, JL, corner_ok = _corners(lines)
     lay = pattern_layout("object", size)
     square = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]], float)
-    obj = np.concatenate([square * lay.frame_outer, square * lay.frame_inner])[: len(corners)]
-    try:
-        R, t, rms = _plane_pose(obj, corners, ctx.K)
-        if rms > MAX_CORNER_RMS_PX and len(corners) == 8:
-            # The hole's edges disagree with the outline (a frame seen nearly edge-on, its band
-            # unresolved): the outline alone.
-            corners, obj, lines, JL = corners[:4], obj[:4], lines.take(4), JL[:8, :8]
-            R, t, rms = _plane_pose(obj, corners, ctx.K)
-    except (DegenerateConfiguration, np.linalg.LinAlgError):
-        return None
-    if rms > MAX_CORNER_RMS_PX:  # not a square frame seen in perspective
-        return None
-    # Of the left rotation perturbation, which a turn of the mark frame about its normal
-    # leaves unchanged.
-    cov = _frame_covariance(lines, JL, obj, R, t, ctx.K)
-    outline = ctx.distort(corners[:4])
-    return _finish(ctx, "object", R, t, cov, outline, size, float(np.mean(lines.sigma)))
+    obj8 = np.concatenate([square * lay.frame_outer, square * lay.frame_inner])
+    span = [slice(int(a), int(b)) for a, b in pairwise(starts)]
+    valid = [bool(line_ok[sl].all() and corner_ok[sl].all()) for sl in span]
+    # Frames whose hole's edges were found (eight corners), and those with the outline alone.
+    poses: dict[int, tuple[Array, Array, float, int]] = {}
+    for n in (8, 4):
+        idx = [i for i, e in enumerate(edges) if valid[i] and e.count == n]
+        found = _plane_poses(obj8[:n], [corners[span[i]] for i in idx], ctx.K)
+        for i, pose in zip(idx, found, strict=True):
+            if pose is not None:
+                poses[i] = (*pose, n)
+    # The hole's edges disagree with the outline (a frame seen nearly edge-on, its band
+    # unresolved): the outline alone.
+    redo = [i for i, p in poses.items() if p[2] > MAX_CORNER_RMS_PX and p[3] == 8]
+    found = _plane_poses(obj8[:4], [corners[span[i]][:4] for i in redo], ctx.K)
+    for i, pose in zip(redo, found, strict=True):
+        if pose is None:
+            del poses[i]
+        else:
+            poses[i] = (*pose, 4)
+    out = []
+    for i in sorted(poses):
+        R, t, rms, n = poses[i]
+        if rms > MAX_CORNER_RMS_PX:  # not a square frame seen in perspective
+            continue
+        sl = slice(span[i].start, span[i].start + n)
+        frame_lines = lines.take(sl)
+        rows = slice(2 * sl.start, 2 * sl.stop)
+        # Of the left rotation perturbation, which a turn of the mark frame about its normal
+        # leaves unchanged.
+        cov = _frame_covariance(frame_lines, JL[rows, rows], obj8[:n], R, t, ctx.K)
+        outline = ctx.distort(corners[span[i]][:4])
+        out.append(
+            _finish(ctx, "object", R, t, cov, outline, size, float(np.mean(frame_lines.sigma)))
+        )
+    return out
 
 
 def _project_plane(
     obj: Array, R: Array, t: Array, K: Array, jacobian: bool = False
 ) -> tuple[Array, Array, Array | None]:
-    """Return the ideal pixels (N, 2) of plane points obj (N, 2) under the pose (R, t), their
-    depths (N,) and, with `jacobian`, d pixels / d (left rotation perturbation, t) (N, 2, 6)
-    (R <- exp([d theta]x) R: d Xc / d theta = -[R X]x)."""
-    RX = obj @ R[:, :2].T
-    Pc = RX + t
-    z = Pc[:, 2]
-    xn = Pc[:, :2] / z[:, None]
+    """Return the ideal pixels (F, N, 2) of plane points obj (N, 2) under F poses (R (F, 3, 3),
+    t (F, 3)), their depths (F, N) and, with `jacobian`, d pixels / d (left rotation
+    perturbation, t) (F, N, 2, 6) (R <- exp([d theta]x) R: d Xc / d theta = -[R X]x)."""
+    RX = np.einsum("nk,fjk->fnj", obj, R[:, :, :2])
+    Pc = RX + t[:, None, :]
+    z = Pc[..., 2]
+    xn = Pc[..., :2] / z[..., None]
     uv = xn @ K[:2, :2].T + K[:2, 2]
     if not jacobian:
         return uv, z, None
-    n = len(obj)
-    # d normalised / d Pc (N, 2, 3), then through K's upper-left block.
-    dn = np.zeros((n, 2, 3))
-    dn[:, 0, 0] = dn[:, 1, 1] = 1.0 / z
-    dn[:, :, 2] = -xn / z[:, None]
+    shape = z.shape
+    # d normalised / d Pc (F, N, 2, 3), then through K's upper-left block.
+    dn = np.zeros((*shape, 2, 3))
+    dn[..., 0, 0] = dn[..., 1, 1] = 1.0 / z
+    dn[..., :, 2] = -xn / z[..., None]
     du = K[:2, :2] @ dn
-    # -[RX]x, (N, 3, 3).
-    ns = np.zeros((n, 3, 3))
-    ns[:, 0, 1], ns[:, 0, 2] = RX[:, 2], -RX[:, 1]
-    ns[:, 1, 0], ns[:, 1, 2] = -RX[:, 2], RX[:, 0]
-    ns[:, 2, 0], ns[:, 2, 1] = RX[:, 1], -RX[:, 0]
-    J = np.empty((n, 2, 6))
-    J[:, :, :3] = du @ ns
-    J[:, :, 3:] = du
+    # -[RX]x, (F, N, 3, 3).
+    ns = np.zeros((*shape, 3, 3))
+    ns[..., 0, 1], ns[..., 0, 2] = RX[..., 2], -RX[..., 1]
+    ns[..., 1, 0], ns[..., 1, 2] = -RX[..., 2], RX[..., 0]
+    ns[..., 2, 0], ns[..., 2, 1] = RX[..., 1], -RX[..., 0]
+    J = np.empty((*shape, 2, 6))
+    J[..., :3] = du @ ns
+    J[..., 3:] = du
     return uv, z, J
 
 
-def _plane_pose(
-    obj: Array, ideal: Array, K: Array, iterations: int = 6
-) -> tuple[Array, Array, float]:
-    """Return (R, t, rms px) of a plane from its points' ideal pixels: the normalised DLT
-    homography and its closed-form pose (core.calibration.pose.pose_from_homography), then
-    Gauss-Newton on the reprojection error over (rotation, t) (the estimate_plane_pose
-    criterion, without its general-purpose machinery: eight points, a few iterations)."""
-    H = dlt_homography(obj, ideal)
-    pose = pose_from_homography(H, K, obj)
-    R, t = pose.R, np.asarray(pose.t, dtype=np.float64)
+def _plane_poses(
+    obj: Array, ideal: list[Array], K: Array, iterations: int = 6
+) -> list[tuple[Array, Array, float] | None]:
+    """Return (R, t, rms px) of planes from their points' ideal pixels (one (N, 2) array per
+    plane; None where the points are degenerate): the normalised DLT homography
+    and its closed-form pose (core.calibration.pose.pose_from_homography), then Gauss-Newton
+    on the reprojection error over (rotation, t), all planes at once (the
+    estimate_plane_pose criterion, without its general-purpose machinery)."""
+    if not ideal:
+        return []
+    ok = np.ones(len(ideal), bool)
+    Hs = []
+    for f, uv in enumerate(ideal):
+        try:
+            Hs.append(dlt_homography(obj, uv))
+        except DegenerateConfiguration:
+            ok[f] = False
+            Hs.append(np.eye(3))
+    pose = pose_from_homography(np.array(Hs), K, obj)
+    R, t = np.asarray(pose.R, dtype=np.float64), np.asarray(pose.t, dtype=np.float64)
+    target = np.array(ideal)
     for _ in range(iterations):
         uv, _, J = _project_plane(obj, R, t, K, jacobian=True)
         assert J is not None
-        res = (uv - ideal).ravel()
-        A = J.reshape(-1, 6)
-        step = np.linalg.solve(A.T @ A, -A.T @ res)
-        R = cv2.Rodrigues(step[:3])[0] @ R
-        t = t + step[3:]
+        res = (uv - target).reshape(len(R), -1)
+        A = J.reshape(len(R), -1, 6)
+        At = np.swapaxes(A, 1, 2)
+        N = At @ A
+        singular = np.abs(np.linalg.det(N)) < 1e-300
+        ok &= ~singular
+        N[singular] = np.eye(6)
+        step = np.linalg.solve(N, -(At @ res[..., None]))[..., 0]
+        R = rotvec_to_matrix(step[:, :3]) @ R
+        t = t + step[:, 3:]
         # Converged far below the corners' noise (a 1e-7 relative step moves a 10 cm mark by
         # nanometres).
-        if np.max(np.abs(step)) < 1e-7 * max(1.0, float(np.linalg.norm(t))):
+        scale = np.maximum(1.0, np.linalg.norm(t, axis=1))
+        if np.all(np.max(np.abs(step), 1) < 1e-7 * scale):
             break
     uv, z, _ = _project_plane(obj, R, t, K)
-    if np.any(z <= 0):
-        raise DegenerateConfiguration("the frame's pose puts it behind the camera")
-    res = (uv - ideal).ravel()
-    return R, t, float(np.sqrt(np.mean(res * res) * 2))
+    ok &= np.all(z > 0, 1)  # else the pose puts the plane behind the camera
+    rms = np.sqrt(np.mean(np.sum((uv - target) ** 2, -1), 1))
+    return [
+        (R[f], t[f], float(rms[f])) if ok[f] and np.isfinite(rms[f]) else None
+        for f in range(len(R))
+    ]
 
 
 def _frame_covariance(lines: _Lines, JL: Array, obj: Array, R: Array, t: Array, K: Array) -> Array:
@@ -607,7 +667,7 @@ def _frame_covariance(lines: _Lines, JL: Array, obj: Array, R: Array, t: Array, 
     (A^T A)^-1 A^T Sigma_c A (A^T A)^-1 with A the pose Jacobian of the corners' projections."""
     var = np.stack([lines.var_phi, lines.var_rho], 1).ravel()
     Sc = (JL * var) @ JL.T
-    _, _, Jp = _project_plane(obj, R, t, K, jacobian=True)
+    _, _, Jp = _project_plane(obj, R[None], t[None], K, jacobian=True)
     assert Jp is not None
     A = Jp.reshape(-1, 6)
     G = np.linalg.solve(A.T @ A, A.T)
