@@ -34,7 +34,15 @@ _POLL_S = 0.01
 # A client's generator ends after this long without a new frame (the twin paused or stopped);
 # the client reconnects, as it does to a camera that stalled.
 _IDLE_S = 30.0
-_JPEG_QUALITY = 85
+# Quality 90 with full-resolution chroma (4:4:4): the robot's marker and the landmarks are
+# found by colour, and 4:2:0 halves the chroma's resolution (at quality 85 it moved the marker's
+# detected centre by 0.12 px RMS, 0.06 px at 4:4:4), which a camera for measurement should not.
+_JPEG_PARAMS = [
+    cv2.IMWRITE_JPEG_QUALITY,
+    90,
+    cv2.IMWRITE_JPEG_SAMPLING_FACTOR,
+    cv2.IMWRITE_JPEG_SAMPLING_FACTOR_444,
+]
 
 
 class _EncodedFrames:
@@ -50,7 +58,7 @@ class _EncodedFrames:
             cached = self._jpeg.get(frame.camera_id)
         if cached is not None and cached[0] == frame.t:
             return cached[1]
-        ok, buf = cv2.imencode(".jpg", frame.image, [cv2.IMWRITE_JPEG_QUALITY, _JPEG_QUALITY])
+        ok, buf = cv2.imencode(".jpg", frame.image, _JPEG_PARAMS)
         if not ok:  # pragma: no cover - an 8-bit BGR image always encodes
             raise RuntimeError(f"JPEG encoding of camera {frame.camera_id}'s frame failed")
         data = buf.tobytes()

@@ -54,7 +54,14 @@ RECORDING_FILE = "recording.json"
 INDEX_FILE = "index.jsonl"
 FORMAT = "intspace-recording"
 VERSION = 1
-_JPEG_QUALITY = 95
+# Quality 95, full-resolution chroma (4:4:4): a replay finds the coloured markers where the live
+# run did (4:2:0 halves the chroma's resolution and moves their detected centres).
+_JPEG_PARAMS = [
+    cv2.IMWRITE_JPEG_QUALITY,
+    95,
+    cv2.IMWRITE_JPEG_SAMPLING_FACTOR,
+    cv2.IMWRITE_JPEG_SAMPLING_FACTOR_444,
+]
 # A line of the index longer than this is not one of ours (a frame's detections are a few kB).
 _MAX_LINE = 4 * 2**20
 
@@ -142,7 +149,7 @@ class Recorder:
             return
         data = frame.jpeg
         if data is None and frame.image is not None:
-            ok, buf = cv2.imencode(".jpg", frame.image, [cv2.IMWRITE_JPEG_QUALITY, _JPEG_QUALITY])
+            ok, buf = cv2.imencode(".jpg", frame.image, _JPEG_PARAMS)
             data = buf.tobytes() if ok else None
         if data is None:
             return

@@ -52,12 +52,12 @@ def test_node_path_tracks_the_robot_as_well_as_the_in_process_path(tmp_path):
     # network is registered to the world by the signposts; 2-3.5 cm before, mostly the frame's
     # error, common to both paths).
     assert both.internal_rmse_m <= 0.05, report
-    # Spec 08 asks the node's path (JPEG at quality 85 with 4:2:0 chroma, the stream, the
-    # node's clock) for 1.2x. With the common frame error gone that is a millimetre, and the
-    # node's path measures 1.21-1.36x (0.61-0.69 cm against 0.51 cm): spec 08's ratio is not
-    # met. JPEG alone moves the marker's detected centre by 0.12 px RMS at quality 85 (0.06 px
-    # with 4:4:4 chroma), 1-2 mm on the floor here; this asserts 1.2x plus those 2 mm, so the
-    # node's path cannot lose more than what its images lose without the test failing.
+    # Spec 08 asks the node's path (the twin's JPEG at quality 90 with 4:4:4 chroma, the
+    # stream, the node's clock) for 1.2x. bench/bench_end_to_end.py measures 1.06x over 60 s
+    # (0.67 cm against 0.63 cm); over the 40 steps here the ratio of two sub-centimetre RMSEs
+    # spreads (0.99-1.14 measured; 1.08-1.36 with 4:2:0 chroma at quality 85, which moved the
+    # marker's detected centre by 0.12 px RMS), so this allows 1.2x plus 2 mm: the node's path
+    # cannot lose more than its images lose without the test failing.
     assert both.external_rmse_m <= 1.2 * both.internal_rmse_m + 0.002, report
     # Every scored point reached the WebSocket, within the reorder window plus a second: the
     # rest is the stream, the node's decoding and detection, the POST, the tracker and the
