@@ -26,6 +26,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from itertools import pairwise
 from typing import Any
@@ -624,12 +625,18 @@ def _plane_poses(
         return []
     ok = np.ones(len(ideal), bool)
     Hs = []
+    src = obj[:4].astype(np.float32)
     for f, uv in enumerate(ideal):
-        try:
-            Hs.append(dlt_homography(obj, uv))
-        except DegenerateConfiguration:
-            ok[f] = False
-            Hs.append(np.eye(3))
+        # The start: the outline's four corners' exact homography (the refinement below makes
+        # every corner count); the normalised DLT when there are more and these are degenerate.
+        H = cv2.getPerspectiveTransform(src, uv[:4].astype(np.float32)).astype(np.float64)
+        if not (np.all(np.isfinite(H)) and abs(np.linalg.det(H)) > 1e-12):
+            try:
+                H = dlt_homography(obj, uv)
+            except DegenerateConfiguration:
+                ok[f] = False
+                H = np.eye(3)
+        Hs.append(H)
     pose = pose_from_homography(np.array(Hs), K, obj)
     R, t = np.asarray(pose.R, dtype=np.float64), np.asarray(pose.t, dtype=np.float64)
     target = np.array(ideal)
@@ -1010,7 +1017,12 @@ def _module_px(ctx: _Context, R: Array, t: Array, side: float) -> float:
     foreshortened direction."""
     z = t[2]
     J = ctx.K[:2, :2] @ (R[:2, :2] * z - np.outer(t[:2], R[2, :2])) / z**2
-    return float(side * np.linalg.svd(J, compute_uv=False)[-1])
+    # The smaller singular value of a 2x2 matrix in closed form (the stable root of
+    # s^4 - |J|_F^2 s^2 + det(J)^2 = 0: the product of the two over the larger).
+    f2 = float(np.sum(J * J))
+    det = float(J[0, 0] * J[1, 1] - J[0, 1] * J[1, 0])
+    big = f2 + math.sqrt(max(f2 * f2 - 4 * det * det, 0.0))
+    return side * math.sqrt(2 * det * det / big) if big > 0 else 0.0
 
 
 def _read_symbol(ctx: _Context, R: Array, t: Array, half: float, qr_side: float) -> _Read | None:
