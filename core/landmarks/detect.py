@@ -5,13 +5,16 @@
   points are the iso-contour of the blue score at half the frame's contrast (marching squares,
   which is where a symmetric blur leaves a straight step edge), undistorted, assigned to the
   frame's eight edges (corners excluded, where blur rounds them), each fitted by a total
-  least-squares line; the eight corners are the lines' intersections. The pose is the
-  world-plane homography of the eight corners to the known squares, refined by LM
-  (core.calibration.pose.estimate_plane_pose). Its covariance propagates the line fits'
-  residual noise to the corners (first order) and through the least-squares pose (sandwich
-  formula, since the corners are correlated).
+  least-squares line; the eight corners are the lines' intersections. The pose minimises the
+  eight corners' reprojection error (the criterion of core.calibration.pose.estimate_plane_pose,
+  by Gauss-Newton from the closed-form pose of the outline's homography). Its covariance
+  propagates the line fits' residual noise to the corners (first order) and through the
+  least-squares pose (sandwich formula, since the corners are correlated). The lines, corners
+  and poses of all the frames of an image are computed together (one call for many frames:
+  numpy's per-call cost, not arithmetic, is what a frame's pose costs).
 * Signposts (red rings): the iso-contours of the red score give up to four concentric circles'
-  edges, each fitted by an ellipse (core.landmarks.conics: algebraic, then Sampson refinement).
+  edges; the outer and the innermost are fitted by ellipses (core.landmarks.conics: algebraic,
+  then Sampson refinement).
   The centre's image is the eigenvector of the pencil of two conics (not an ellipse centre, which
   perspective biases); the plane normal has two candidates from the outer conic; the distance
   follows from the known radii. The two-fold ambiguity is resolved by the QR symbol (the
