@@ -136,8 +136,8 @@ def fit_ellipse(points: ArrayLike, *, iterations: int = 10) -> ConicFit:
     sigma2 = float(r @ r) / max(n - 5, 1)
     # The pseudo-inverse of P A P (P = I - c c^T, the tangent space): P A P and c c^T act on
     # orthogonal subspaces, so (P A P + c c^T)^-1 = (P A P)^+ + c c^T.
-    P = np.eye(6) - np.outer(c, c)
     cc = np.outer(c, c)
+    P = np.eye(6) - cc
     cov_n = sigma2 * (np.linalg.inv(P @ (J.T @ J) @ P + cc) - cc)
     # Back to pixels: C_pix = A^T C_n A with A = [[1/s, 0, -mu/s], [0, 1/s, ...], [0, 0, 1]].
     A = np.array([[1 / s, 0, -mu[0] / s], [0, 1 / s, -mu[1] / s], [0, 0, 1]])

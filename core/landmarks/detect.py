@@ -434,10 +434,12 @@ def _fit_lines(p: Array, label: Array, count: int) -> tuple[_Lines, Array]:
 
 def _corners(lines: _Lines) -> tuple[Array, Array, Array]:
     """Return the corners (n, 2) of the quadrilaterals of lines 4 i .. 4 i + 3 (corner k of
-    each at lines k - 1 and k), their Jacobian (2 n, 2 L) on the lines' (phi, rho), rho
-    measured at each line's centroid (so phi and rho are uncorrelated): with A x = rho (rows
-    the normals), dx/drho_i = A^-1 e_i and dx/dphi_i = A^-1 e_i (n_i^perp . (c_i - x)); and
-    whether each corner exists (n,) (its two lines not parallel)."""
+    each at lines k - 1 and k), each quadrilateral's Jacobian (n / 4, 8, 8) of its corners on
+    its lines' (phi, rho) (corners and lines in order, x and y, phi and rho interleaved; a
+    corner depends on its own quadrilateral's lines only), rho measured at each line's
+    centroid (so phi and rho are uncorrelated): with A x = rho (rows the normals),
+    dx/drho_i = A^-1 e_i and dx/dphi_i = A^-1 e_i (n_i^perp . (c_i - x)); and whether each
+    corner exists (n,) (its two lines not parallel)."""
     count = len(lines.rho)
     k = np.arange(count)
     a = (k // 4) * 4 + (k - 1) % 4  # the previous side of the same quadrilateral
@@ -452,12 +454,14 @@ def _corners(lines: _Lines) -> tuple[Array, Array, Array]:
     )
     x = np.einsum("nij,nj->ni", Ai, np.stack([lines.rho[a], lines.rho[k]], 1))
     perp = np.stack([-lines.normal[:, 1], lines.normal[:, 0]], 1)
-    JL = np.zeros((count, 2, count, 2))
+    # Per quadrilateral q: J[q, corner, xy, line, (phi, rho)], lines numbered within it.
+    J = np.zeros((count // 4, 4, 2, 4, 2))
+    q, corner = k // 4, k % 4
     for col, idx in ((0, a), (1, k)):
         lever = np.sum(perp[idx] * (lines.centroid[idx] - x), 1)
-        JL[k, :, idx, 0] = Ai[:, :, col] * lever[:, None]
-        JL[k, :, idx, 1] = Ai[:, :, col]
-    return x, JL.reshape(2 * count, 2 * count), ok
+        J[q, corner, :, idx % 4, 0] = Ai[:, :, col] * lever[:, None]
+        J[q, corner, :, idx % 4, 1] = Ai[:, :, col]
+    return x, J.reshape(count // 4, 8, 8), ok
 
 
 @dataclass(frozen=True)
@@ -545,7 +549,7 @@ def _frames(
         np.concatenate([e.labels + o for e, o in zip(edges, starts, strict=False)]),
         int(starts[-1]),
     )
-    corners, JL, corner_ok = _corners(lines)
+    corners, blocks, corner_ok = _corners(lines)
     lay = pattern_layout("object", size)
     square = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]], float)
     obj8 = np.concatenate([square * lay.frame_outer, square * lay.frame_inner])
@@ -575,10 +579,13 @@ def _frames(
             continue
         sl = slice(span[i].start, span[i].start + n)
         frame_lines = lines.take(sl)
-        rows = slice(2 * sl.start, 2 * sl.stop)
+        # The frame's corners on its lines: its quadrilaterals' blocks on the diagonal.
+        JL = np.zeros((2 * n, 2 * n))
+        for b in range(n // 4):
+            JL[8 * b : 8 * b + 8, 8 * b : 8 * b + 8] = blocks[sl.start // 4 + b]
         # Of the left rotation perturbation, which a turn of the mark frame about its normal
         # leaves unchanged.
-        cov = _frame_covariance(frame_lines, JL[rows, rows], obj8[:n], R, t, ctx.K)
+        cov = _frame_covariance(frame_lines, JL, obj8[:n], R, t, ctx.K)
         outline = ctx.distort(corners[span[i]][:4])
         out.append(
             _finish(ctx, "object", R, t, cov, outline, size, float(np.mean(frame_lines.sigma)))
@@ -620,10 +627,10 @@ def _plane_poses(
     obj: Array, ideal: list[Array], K: Array, iterations: int = 6
 ) -> list[tuple[Array, Array, float] | None]:
     """Return (R, t, rms px) of planes from their points' ideal pixels (one (N, 2) array per
-    plane; None where the points are degenerate): the normalised DLT homography
-    and its closed-form pose (core.calibration.pose.pose_from_homography), then Gauss-Newton
-    on the reprojection error over (rotation, t), all planes at once (the
-    estimate_plane_pose criterion, without its general-purpose machinery)."""
+    plane; None where the points are degenerate): the closed-form pose
+    (core.calibration.pose.pose_from_homography) of the first four points' homography, then
+    Gauss-Newton on all the points' reprojection error over (rotation, t), all planes at once
+    (the estimate_plane_pose criterion, without its general-purpose machinery)."""
     if not ideal:
         return []
     ok = np.ones(len(ideal), bool)
@@ -673,7 +680,7 @@ def _plane_poses(
 def _frame_covariance(lines: _Lines, JL: Array, obj: Array, R: Array, t: Array, K: Array) -> Array:
     """Return the (6, 6) covariance of (left rotation perturbation, t) of the least-squares pose
     of the corners, from the lines' parameter variances: Sigma_c = J_L Sigma_L J_L^T for the
-    corners (JL from `_corners`: each corner depends on two lines), then the sandwich
+    corners (JL (2 n, 2 n), from `_corners`: each corner depends on two lines), then the sandwich
     (A^T A)^-1 A^T Sigma_c A (A^T A)^-1 with A the pose Jacobian of the corners' projections."""
     var = np.stack([lines.var_phi, lines.var_rho], 1).ravel()
     Sc = (JL * var) @ JL.T

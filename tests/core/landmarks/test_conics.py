@@ -71,3 +71,27 @@ def test_circle_normals_and_distance() -> None:
     n = na if na @ n_true > nb @ n_true else nb
     m = T / T[2]
     assert circle_distance(Q, n, m, 0.1) * m == pytest.approx(T, abs=1e-9)
+
+
+def test_circle_functions_take_stacks_as_one_at_a_time() -> None:
+    # The detector's sigma points go through them in one stack; each row must be what the
+    # single call gives, and one degenerate row must not pass unnoticed.
+    rng = np.random.default_rng(5)
+    Q1 = K.T @ fit_ellipse(_circle_px(0.1)).C @ K
+    Q2 = K.T @ fit_ellipse(_circle_px(0.06)).C @ K
+    Q1s = np.array([Q1 + rng.normal(0, 1e-4 * np.abs(Q1).max(), (3, 3)) for _ in range(5)])
+    Q1s = 0.5 * (Q1s + np.swapaxes(Q1s, 1, 2))
+    Q2s = np.broadcast_to(Q2, Q1s.shape)
+    m = concentric_centre(Q1s, Q2s)
+    na, nb = circle_normals(Q1s)
+    d = circle_distance(Q1s, na, m, 0.1)
+    assert m.shape == na.shape == nb.shape == (5, 3) and np.shape(d) == (5,)
+    for i in range(5):
+        assert np.allclose(m[i], concentric_centre(Q1s[i], Q2s[i]), atol=1e-12)
+        a1, b1 = circle_normals(Q1s[i])
+        assert np.allclose(na[i], a1, atol=1e-12) and np.allclose(nb[i], b1, atol=1e-12)
+        assert d[i] == pytest.approx(circle_distance(Q1s[i], a1, m[i], 0.1), rel=1e-12)
+    bad = Q1s.copy()
+    bad[2] = np.diag([1.0, 1.0, 1.0])  # no real points: not the image of a circle
+    with pytest.raises(DegenerateConfiguration):
+        circle_normals(bad)
