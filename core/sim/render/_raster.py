@@ -130,8 +130,12 @@ class _Target:
         if r is None:
             return None
         (x0, y0, x1, y1), m, z = r
-        self.img[y0:y1, x0:x1][m] = np.clip(np.rint(bgr), 0, 255).astype(np.uint8)
-        self.depth[y0:y1, x0:x1][m] = z[m]
+        np.copyto(
+            self.img[y0:y1, x0:x1],
+            np.clip(np.rint(bgr), 0, 255).astype(np.uint8),
+            where=m[..., None],
+        )
+        np.copyto(self.depth[y0:y1, x0:x1], z, where=m)
         return (x0, y0, x1, y1), m
 
     def homography(self, o: Array, u: Array, v: Array) -> Array:
@@ -185,8 +189,8 @@ class _Target:
             roi_img[m] = np.rint(mix[m]).astype(np.uint8)
             m &= a[..., 0] >= 0.5
         else:
-            roi_img[m] = warped[m]
-        self.depth[y0:y1, x0:x1][m] = z[m]
+            np.copyto(roi_img, warped, where=m[..., None])
+        np.copyto(self.depth[y0:y1, x0:x1], z, where=m)
         return bool(m.any())
 
     def cylinder(

@@ -25,7 +25,7 @@ from core.sim.render._layers import (
     _StaticFace,
     _View,
 )
-from core.sim.render._raster import _Target
+from core.sim.render._raster import _shade, _Target
 from core.sim.render._textures import _bgr, _Texture
 from core.sim.render.landmarks import scene_landmarks
 from core.sim.scene import Board, CeilingCamera, Scene
@@ -59,6 +59,11 @@ class Renderer:
     supersample: the static layer is rasterised at this many times the resolution and box
     filtered (anti-aliasing); object_supersample: the same for the textures of moving planar
     objects (marker, board), per frame. near: the near plane in metres.
+
+    The scene's own cameras keep their static layer for good. Any other camera (one that moves,
+    such as the eye-in-hand camera) has its layer rasterised on use and kept only among the
+    last `moving_views` such cameras, so memory stays bounded however many poses are rendered;
+    the lens map of a lens (resolution, intrinsics, distortion) is computed once.
     """
 
     def __init__(
@@ -68,9 +73,12 @@ class Renderer:
         supersample: int = 2,
         object_supersample: int = 2,
         near: float = 0.05,
+        moving_views: int = 4,
     ) -> None:
-        if supersample < 1 or object_supersample < 1 or not near > 0:
-            raise InvalidInput("supersample and object_supersample must be >= 1, near > 0")
+        if supersample < 1 or object_supersample < 1 or not near > 0 or moving_views < 1:
+            raise InvalidInput(
+                "supersample, object_supersample and moving_views must be >= 1, near > 0"
+            )
         self.scene = scene
         self.supersample = int(supersample)
         self.object_supersample = int(object_supersample)
@@ -78,6 +86,9 @@ class Renderer:
         self._faces: list[_StaticFace] | None = None
         self._landmarks: list[_StaticFace] | None = None
         self._views: dict[CeilingCamera, _View] = {}
+        self._moving: OrderedDict[CeilingCamera, _View] = OrderedDict()
+        self._moving_max = int(moving_views)
+        self._lenses: dict[tuple[Any, ...], tuple[Array, Any, Any, int, int]] = {}
         self._empty: dict[str, NDArray[np.uint8]] = {}
         self._robot = _robot_geometry(scene.robot) if scene.robot is not None else None
         self._banks: dict[tuple[float, int], NDArray[np.int16]] = {}
@@ -89,20 +100,46 @@ class Renderer:
     def _view(self, camera: str | CeilingCamera) -> _View:
         cam_spec = self.scene.camera(camera) if isinstance(camera, str) else camera
         view = self._views.get(cam_spec)
-        if view is None:
-            view = self._build_view(camera_model(cam_spec))
+        if view is not None:
+            return view
+        if cam_spec in self.scene.cameras:
+            view = self._build_view(cam_spec)
             self._views[cam_spec] = view
+            return view
+        view = self._moving.get(cam_spec)
+        if view is None:
+            view = self._build_view(cam_spec)
+            self._moving[cam_spec] = view
+            while len(self._moving) > self._moving_max:
+                self._moving.popitem(last=False)
+        else:
+            self._moving.move_to_end(cam_spec)
         return view
 
-    def _build_view(self, cam: CameraModel) -> _View:
-        if np.any(cam.dist != 0):
-            Kc, mx, my = _lens_maps(cam)
-            map1, map2 = cv2.convertMaps(mx, my, cv2.CV_16SC2)
-            wc = math.ceil(float(mx.max())) + 3
-            hc = math.ceil(float(my.max())) + 3
-        else:
-            Kc, map1, map2 = cam.K.copy(), None, None
-            wc, hc = cam.width, cam.height
+    def _lens(self, spec: CeilingCamera, cam: CameraModel) -> tuple[Array, Any, Any, int, int]:
+        """Return (Kc, map1, map2, canvas width, canvas height) of a camera's lens, cached per
+        lens: cameras that differ only in pose share it."""
+        key = (spec.resolution, spec.intrinsics, spec.distortion)
+        lens = self._lenses.get(key)
+        if lens is None:
+            if np.any(cam.dist != 0):
+                Kc, mx, my = _lens_maps(cam)
+                map1, map2 = cv2.convertMaps(mx, my, cv2.CV_16SC2)
+                lens = (
+                    Kc,
+                    map1,
+                    map2,
+                    math.ceil(float(mx.max())) + 3,
+                    math.ceil(float(my.max())) + 3,
+                )
+            else:
+                lens = (cam.K.copy(), None, None, cam.width, cam.height)
+            self._lenses[key] = lens
+        return lens
+
+    def _build_view(self, spec: CeilingCamera) -> _View:
+        cam = camera_model(spec)
+        Kc, map1, map2, wc, hc = self._lens(spec, cam)
         s = self.supersample
         A = np.array([[s, 0, (s - 1) / 2], [0, s, (s - 1) / 2], [0, 0, 1.0]])
         bg = _bgr(self.scene.background).astype(np.uint8)
@@ -225,10 +262,14 @@ class Renderer:
         rng: np.random.Generator | int | None = None,
         noise: SensorNoise | None = _DEFAULT_NOISE,
         people: tuple[tuple[float, float], ...] = (),
+        box: tuple[float, float, float] | None = None,
     ) -> Frame:
         """Return the Frame `camera` sees of a chessboard held at `T_world_board` (4, 4) in
         the room without the robot (an installer showing a printed board to the camera), with
         the walkers at `people` (their floor positions, in the scene's order; none when empty).
+        With `box` (x, y, z metres), the board is printed on the top of a box (an object mark):
+        the top face, x along the board's columns and y along its rows, is centred on the
+        board's centre, and the box extends z behind the printed face.
 
         The board frame has its origin at the first inner corner, x along the columns, y down
         the rows, z = x cross y into the board (the printed face looks along -z), so the
@@ -262,6 +303,8 @@ class Renderer:
         R, p = T[:3, :3], T[:3, 3]
         centre = p + R @ np.array([(cols - 1) * s / 2, (rows - 1) * s / 2, 0.0])
         tex, poly, corners, normal = _board_geometry(board, centre, R[:, 0], R[:, 1])
+        if box is not None:
+            _draw_box(tgt, cam.position, centre, R, box)
         px = cam.project(corners)
         front = float(normal @ (cam.position - poly.mean(0))) > 0
         visible = bool(
@@ -374,6 +417,38 @@ class Renderer:
                 c = truth["marker_world"][None]
                 truth["marker_visible"] = bool(_unoccluded(tgt, c, tol=0.05)[0])
         return truth
+
+
+# A box carrying a printed mark: cardboard sides, a white top around the print.
+_BOX_SIDE = (176, 140, 98)
+_BOX_TOP = (236, 236, 230)
+
+
+def _draw_box(
+    tgt: _Target, eye: Array, top_centre: Array, R: Array, size: tuple[float, float, float]
+) -> None:
+    """Draw the faces of a box that face the camera at `eye`: its top face centred at
+    `top_centre`, edges along R's x and y columns, extending size[2] along R's z (behind the
+    top). The top is drawn 0.5 mm behind `top_centre`, so a print on that plane wins the
+    depth test."""
+    sx, sy, sz = (float(v) for v in size)
+    if not (sx > 0 and sy > 0 and sz > 0):
+        raise InvalidInput(f"box must be three positive sizes in metres, got {size}")
+    x, y, z = R[:, 0], R[:, 1], R[:, 2]
+    c = top_centre + 5e-4 * z
+    corners = np.array(
+        [c + a * sx / 2 * x + b * sy / 2 * y for a, b in ((-1, -1), (1, -1), (1, 1), (-1, 1))]
+    )
+    bottom = corners + sz * z
+    faces = [(corners, -z, _BOX_TOP)]
+    for i in range(4):
+        j = (i + 1) % 4
+        side = np.array([corners[i], corners[j], bottom[j], bottom[i]])
+        out = side.mean(0) - (c + sz / 2 * z)
+        faces.append((side, out / np.linalg.norm(out), _BOX_SIDE))
+    for poly, n, colour in faces:
+        if float(n @ (eye - poly.mean(0))) > 0:
+            tgt.fill(poly, _shade(colour, n))
 
 
 def _landmark_faces(scene: Scene) -> list[_StaticFace]:
