@@ -11,8 +11,10 @@
 * `hand_eye`: the scenario: every method of core.manipulation.calibrate_hand_eye and the
   reprojection refinement on the same views, errors against the twin's truth.
 * `grasp`: randomised fetch episodes on the dining table with the switching controller of
-  core.manipulation.grasp; the mark's pixels are its true projections plus 0.5 px noise (not
-  rendered images: 100 episodes of rendering would take far longer than the controller).
+  core.manipulation.grasp: a box with a printed chessboard mark on its top; every image the
+  controller uses (the gaze while driving, each look, the taught image) is rendered by the twin
+  and the mark's corners detected in it, plus 0.5 px noise; the parallel gripper opens, and
+  closes on the box where the controller put it (`close_gripper`).
 """
 
 from __future__ import annotations
@@ -27,7 +29,7 @@ from numpy.typing import NDArray
 
 from core.calibration import Chessboard, board_object_points, estimate_plane_pose, find_chessboard
 from core.errors import InvalidInput, PatternNotFound
-from core.geometry.camera import project_points
+from core.geometry.camera import project_points, undistort_points
 from core.geometry.rotations import matrix_to_rotvec, nearest_rotation
 from core.manipulation import (
     METHODS,
@@ -326,31 +328,55 @@ def hand_eye(
 
 __all__ = [
     "BOARD",
+    "BOX_SIZE",
     "EYE_DIST",
     "EYE_K",
+    "GRIPPER_OPEN",
+    "MARK_BOARD",
     "GraspEpisode",
     "GraspResult",
     "HandEyeMethodError",
     "HandEyeResult",
     "HandEyeViews",
     "board_on_table",
+    "close_gripper",
     "fetch_problem",
     "grasp",
     "grasp_episode",
     "hand_eye",
     "hand_eye_views",
+    "taught_image",
 ]
 
 
 # --------------------------------------------------------------------------------------------
 # Grasping
 
-# The object mark: 5 x 5 points over an 80 mm square, printed on the top of a 0.10 m box.
-_g = np.linspace(-0.04, 0.04, 5)
-MARK_POINTS = np.stack(
-    [np.repeat(_g, 5), np.tile(_g, 5), np.zeros(25)], axis=1
-)  # mark frame: origin at the centre, z up out of the box
-BOX_HEIGHT = 0.10
+# The object: a box 0.16 m long, 0.115 m wide (the gripper closes across its width) and 0.10 m
+# high, with its mark printed on the top: a chessboard of 7 x 6 squares of 16 mm (6 x 5 inner
+# corners: 6 + 5 odd, so the detector tells the first corner from the last and the mark's yaw
+# is not ambiguous) with an 8 mm white border, 128 x 112 mm in all.
+MARK_BOARD = Board(inner_corners=(6, 5), square_size=0.016, margin=0.5)
+BOX_SIZE = (0.16, 0.115, 0.10)
+BOX_HEIGHT = BOX_SIZE[2]
+# The board's frame (origin at the first inner corner, z into the box) in the mark's frame
+# (origin at the centre of the top, z up out of the box, x along the board's columns).
+_cx = (MARK_BOARD.inner_corners[0] - 1) * MARK_BOARD.square_size / 2
+_cy = (MARK_BOARD.inner_corners[1] - 1) * MARK_BOARD.square_size / 2
+T_MARK_BOARD = np.array(
+    [[1.0, 0.0, 0.0, -_cx], [0.0, -1.0, 0.0, _cy], [0.0, 0.0, -1.0, 0.0], [0.0, 0.0, 0.0, 1.0]]
+)
+# The mark's points (its inner corners, in the detector's order) in the mark frame.
+MARK_POINTS = (
+    board_object_points(Chessboard(*MARK_BOARD.inner_corners), MARK_BOARD.square_size)
+    @ T_MARK_BOARD[:3, :3].T
+    + T_MARK_BOARD[:3, 3]
+)
+# The parallel gripper: its fingers close along the end effector's y axis, from an opening of
+# 0.14 m at 0.10 m/s; 15 mm wide (along x), they reach 0.12 m from the flange to the tips.
+GRIPPER_OPEN = 0.14
+GRIPPER_SPEED = 0.10
+_FINGER_HALF_WIDTH = 0.0075
 # The end effector's grasp pose in the mark frame: fingertips 5 cm below the mark (mid-box),
 # gripper z pointing down; the pre-grasp pose is 0.20 m back along the approach.
 T_MARK_GRASP = np.array(
@@ -379,8 +405,10 @@ def _mark_pose(xy: Array, yaw: float) -> Array:
 class GraspEpisode:
     """One fetch: success, final end-effector error at the grasp (mm, deg) against the true
     grasp pose, simulated time (s), the mark's visibility during the approach (fraction of
-    steps), mode switches, looks made, the failure reason (empty on success) and the phase
-    (GRASP_PHASES) it ended in: the failed one, or the last on success."""
+    steps), mode switches, looks made, the failure reason (empty on success), the phase
+    (GRASP_PHASES) it ended in (the failed one, or the last on success), the gripper's opening
+    where its fingers stopped when it closed (mm; NaN if it never closed) and the eye-in-hand
+    images the episode took."""
 
     success: bool
     position_error_mm: float
@@ -391,6 +419,8 @@ class GraspEpisode:
     looks: int
     reason: str
     phase: str
+    gripper_opening_mm: float = math.nan
+    frames: int = 0
 
 
 @dataclass(frozen=True)
@@ -398,7 +428,9 @@ class GraspResult:
     """Metrics of `grasp`: episodes, success rate, medians over successes of the final
     end-effector position error (m) and rotation error (deg), median time (s), failure
     reasons with counts, the hand-eye transform's own error (it was calibrated first, refined,
-    from 15 views), and every episode."""
+    from 15 views), the images' source ("rendered": the twin's images, corners detected;
+    "projected": true projections), the eye-in-hand images taken in all, the median gripper
+    opening at closing over successes (mm; the box is 115 mm wide), and every episode."""
 
     scenario: str
     seed: int
@@ -411,6 +443,9 @@ class GraspResult:
     hand_eye_rotation_error_deg: float
     hand_eye_translation_error_mm: float
     sigma_px: float
+    source: str
+    frames: int
+    gripper_opening_mm: float
     per_episode: tuple[GraspEpisode, ...]
 
     def to_dict(self) -> dict[str, Any]:
@@ -419,30 +454,81 @@ class GraspResult:
 
 
 class _Eye:
-    """The eye-in-hand camera's observations of the mark (true projection + noise)."""
+    """The eye-in-hand camera's observations of the box's mark: with a `renderer`, the twin
+    renders what the camera sees (the room, the box and its printed mark, sensor noise) and
+    core.calibration.find_chessboard detects the mark's corners; without one, the corners'
+    true projections. Both then get N(0, sigma^2) per axis."""
 
-    def __init__(self, T_world_mark: Array, sigma: float, rng: np.random.Generator) -> None:
+    def __init__(
+        self,
+        T_world_mark: Array,
+        sigma: float,
+        rng: np.random.Generator,
+        renderer: Renderer | None = None,
+    ) -> None:
         self.T = T_world_mark
         self.sigma = sigma
         self.rng = rng
+        self.renderer = renderer
+        self.frames = 0
 
     def observe(self, T_world_cam: Array) -> Array | None:
-        """Return the mark's noisy pixels (25, 2), or None when it is not fully in view."""
+        """Return the mark's pixels (M, 2), or None when it is not fully in view (not found)."""
+        self.frames += 1
         C = invert_pose(T_world_cam) @ self.T
-        if C[2, 3] <= 0.05 or float(C[:3, 2] @ C[:3, 3]) >= 0:  # behind, or seen from below
-            return None
-        pc = MARK_POINTS @ C[:3, :3].T + C[:3, 3]
-        if np.any(pc[:, 2] < 0.05):
-            return None
-        uv = project_points(MARK_POINTS, matrix_to_rotvec(C[:3, :3]), C[:3, 3], EYE_K, EYE_DIST)
-        px = uv.points
-        if (
-            np.any(px < 0)
-            or np.any(px[:, 0] > EYE_SIZE[0] - 1)
-            or np.any(px[:, 1] > EYE_SIZE[1] - 1)
-        ):
-            return None
+        if self.renderer is not None:
+            frame = self.renderer.render_board(
+                _eye_camera(T_world_cam),
+                MARK_BOARD,
+                self.T @ T_MARK_BOARD,
+                rng=self.rng,
+                box=BOX_SIZE,
+            )
+            try:
+                px = find_chessboard(frame.image, MARK_BOARD.inner_corners, thorough=False).corners
+            except PatternNotFound:
+                return None
+        else:
+            if C[2, 3] <= 0.05 or float(C[:3, 2] @ C[:3, 3]) >= 0:  # behind, or seen from below
+                return None
+            pc = MARK_POINTS @ C[:3, :3].T + C[:3, 3]
+            if np.any(pc[:, 2] < 0.05):
+                return None
+            uv = project_points(MARK_POINTS, matrix_to_rotvec(C[:3, :3]), C[:3, 3], EYE_K, EYE_DIST)
+            px = uv.points
+            if (
+                np.any(px < 0)
+                or np.any(px[:, 0] > EYE_SIZE[0] - 1)
+                or np.any(px[:, 1] > EYE_SIZE[1] - 1)
+            ):
+                return None
         return px + self.rng.normal(0.0, self.sigma, px.shape)
+
+
+def close_gripper(T_world_ee: Array, T_world_mark: Array) -> tuple[float, str]:
+    """Return (opening in metres where the fingers stop, "" or why the grasp does not hold)
+    when the gripper, open at GRIPPER_OPEN with its fingertips' centre at T_world_ee, closes
+    on the box whose mark is at T_world_mark.
+
+    The fingers close along the end effector's y axis. The box's half extent along it, h, is
+    the support of its top square in that direction; its centre lies o off the fingers'
+    midline. The open fingers straddle the box when |o| + h < GRIPPER_OPEN / 2 (otherwise a
+    finger lands on it); they then close until both touch, pushing the box to the midline, at
+    an opening of 2h. The grasp holds when the fingertips are between 1 cm below the top and
+    1 cm above the bottom, and the fingers (15 mm wide) overlap the box along x."""
+    E = invert_pose(T_world_mark) @ np.asarray(T_world_ee, dtype=np.float64)  # T_mark_ee
+    y, x, p = E[:2, 1], E[:2, 0], E[:3, 3]
+    hx, hy, height = BOX_SIZE[0] / 2, BOX_SIZE[1] / 2, BOX_SIZE[2]
+    h = hx * abs(float(y[0])) + hy * abs(float(y[1]))
+    o = float(p[:2] @ y)  # the fingers' midline off the box's axis (x = y = 0, mark frame)
+    if abs(o) + h >= GRIPPER_OPEN / 2:
+        return GRIPPER_OPEN, "a finger landed on the box (the open gripper does not straddle it)"
+    if not -height + 0.01 <= float(p[2]) <= -0.01:
+        return 0.0, "the fingertips are not beside the box (too high or too low)"
+    along = abs(float(p[:2] @ x))
+    if along > hx * abs(float(x[0])) + hy * abs(float(x[1])) + _FINGER_HALF_WIDTH:
+        return 0.0, "the fingers closed beside the box, not on it"
+    return 2.0 * h, ""
 
 
 def _drive(
@@ -541,6 +627,9 @@ def grasp_episode(
     on_phase: Callable[[str], None] | None = None,
     T_world_prior: Array | None = None,
     on_joints: Callable[[Array], None] | None = None,
+    renderer: Renderer | None = None,
+    taught: Array | None = None,
+    on_gripper: Callable[[float], None] | None = None,
 ) -> GraspEpisode:
     """Run one randomised fetch and return its metrics (see `grasp`).
 
@@ -550,7 +639,13 @@ def grasp_episode(
     height kept). Without it the box is placed at random on the dining table and the prior
     drawn around it. `on_joints(q)`, when given, is called with the arm's joint values (6,)
     each time the arm moves: every control step of the approach, each look, the grasp, the
-    lift.
+    lift. `on_gripper(opening)` likewise with the gripper's opening (m) when it opens at the
+    start and where it stops when it closes.
+
+    `renderer`, when given, renders every eye-in-hand image the controller uses (the mark's
+    corners are detected in them); without it the controller sees the corners' true
+    projections. Both add N(0, sigma_px^2). `taught`: the mark's taught ideal pixels (M, 2)
+    (`taught_image`), made from the true hand-eye transform when not given.
 
     `on_phase(name)`, when given, is called as the episode enters each of GRASP_PHASES, in
     order: "approach" (base placement, driving with the gaze constraint, the first look over
@@ -584,7 +679,9 @@ def grasp_episode(
         T_mark = _mark_pose(T_prior[:2, 3] + rng.normal(0.0, prior_sigma_m, 2), 0.0)
         T_mark[:3, :3] = T_prior[:3, :3] @ _mark_pose(np.zeros(2), yaw_err)[:3, :3]
         T_mark[2, 3] = T_prior[2, 3]
-    eye = _Eye(T_mark, sigma_px, rng)
+    eye = _Eye(T_mark, sigma_px, rng, renderer)
+    if on_gripper is not None:
+        on_gripper(GRIPPER_OPEN)
     start = np.array([rng.uniform(5.0, 7.4), rng.uniform(*_CORRIDOR_Y), rng.uniform(-3.1, 3.1)])
     # The robot's own estimate of its start pose (its localisation), 3 cm / 0.03 rad off; it
     # then knows its motion by odometry (exact here: the drive has no wheel slip).
@@ -593,7 +690,9 @@ def grasp_episode(
     t = 0.0
 
     def fail(reason: str, vis: float, sw: int, looks: int) -> GraspEpisode:
-        return GraspEpisode(False, math.nan, math.nan, t, vis, sw, looks, reason, phase)
+        return GraspEpisode(
+            False, math.nan, math.nan, t, vis, sw, looks, reason, phase, frames=eye.frames
+        )
 
     # Base placement for the prior's pre-grasp pose, from the corridor.
     try:
@@ -734,7 +833,8 @@ def grasp_episode(
     if px2 is None:
         return fail("mark not in view after the probe motion", vis, switch.switches, 1)
     # The taught image: the mark's ideal pixels from the pre-grasp pose, recorded once.
-    taught = _taught_image(X_true=mm.T_ee_camera)
+    if taught is None:
+        taught = taught_image(mm.T_ee_camera, renderer=renderer, rng=rng, sigma_px=sigma_px)
     t += 2.0
     try:
         plane = first_look(F1, px1, F2, px2, taught, EYE_K, EYE_DIST)
@@ -779,6 +879,25 @@ def grasp_episode(
     t += 3.0
     achieved = T_world_arm @ mm.arm.fk(qg)
     dp, dr = pose_error(achieved, T_mark @ T_MARK_GRASP)
+    # Close: the fingers stop on the box (or close on nothing).
+    opening, missed = close_gripper(achieved, T_mark)
+    t += (GRIPPER_OPEN - opening) / GRIPPER_SPEED
+    if on_gripper is not None:
+        on_gripper(opening)
+    if missed:
+        return GraspEpisode(
+            False,
+            1e3 * float(dp),
+            math.degrees(float(dr)),
+            t,
+            vis,
+            switch.switches,
+            looks,
+            missed,
+            phase,
+            1e3 * opening,
+            eye.frames,
+        )
     enter("lift and carry")
     lift = grasp_pose.copy()
     lift[2, 3] += 0.10
@@ -798,14 +917,33 @@ def grasp_episode(
         looks=looks,
         reason="" if ok else "final pose error above 5 mm / 2 deg",
         phase=phase if ok else "grasp",
+        gripper_opening_mm=1e3 * opening,
+        frames=eye.frames,
     )
 
 
-def _taught_image(X_true: Array) -> Array:
-    """Return the taught ideal pixels (25, 2) of the mark: recorded once by placing the gripper
-    at the pre-grasp pose over a mark (a demonstration, made with the physical camera)."""
-    C = invert_pose(_pre_grasp() @ X_true)  # T_cam_mark
-    return project_points(MARK_POINTS, matrix_to_rotvec(C[:3, :3]), C[:3, 3], EYE_K).points
+def taught_image(
+    X_true: Array,
+    *,
+    renderer: Renderer | None = None,
+    rng: np.random.Generator | None = None,
+    sigma_px: float = 0.0,
+) -> Array:
+    """Return the mark's taught ideal (undistorted) pixels (M, 2): recorded once, by a
+    demonstration that puts the gripper at the pre-grasp pose over a box on the dining table;
+    the camera is where the arm truly holds it (X_true, T_ee_cam). With a `renderer` the image
+    is rendered and the corners detected, plus N(0, sigma_px^2), then undistorted with the
+    camera's known intrinsics; without one, the corners' ideal projections."""
+    T_mark = _mark_pose(np.array([6.3, 1.9]), 0.0)
+    T_cam = T_mark @ _pre_grasp() @ np.asarray(X_true, dtype=np.float64)
+    if renderer is None:
+        C = invert_pose(T_cam) @ T_mark  # T_cam_mark
+        return project_points(MARK_POINTS, matrix_to_rotvec(C[:3, :3]), C[:3, 3], EYE_K).points
+    gen = rng if rng is not None else np.random.default_rng(0)
+    px = _Eye(T_mark, sigma_px, gen, renderer).observe(T_cam)
+    if px is None:
+        raise PatternNotFound("the taught image does not show the whole mark")
+    return undistort_points(px, EYE_K, EYE_DIST, to_pixels=True)
 
 
 def grasp(
@@ -814,15 +952,23 @@ def grasp(
     *,
     episodes: int = 100,
     sigma_px: float = 0.5,
+    rendered: bool = True,
 ) -> GraspResult:
     """Return the `grasp` scenario's metrics: the eye-in-hand camera is first calibrated
-    (`hand_eye_views`, 15 projected views, refined), then `episodes` randomised fetches of a
-    marked box on the dining table (random placement and yaw, a prior 5 cm / 0.15 rad off, a
-    random start in the kitchen corridor) run the switching controller with `sigma_px` pixel
-    noise."""
+    (`hand_eye_views`, 15 views, refined), the mark taught once (`taught_image`), then
+    `episodes` randomised fetches of a marked box on the dining table (random placement and
+    yaw, a prior 5 cm / 0.15 rad off, a random start in the kitchen corridor) run the
+    switching controller with `sigma_px` pixel noise. `rendered` (the default): every image
+    is rendered by the twin and its corners detected; otherwise the true projections."""
     rng = np.random.default_rng(seed)
     mm = default_manipulator()
-    v = hand_eye_views(rng, views=15, sigma_px=sigma_px)
+    # The moving camera's static layer is drawn without supersampling: a new one every frame.
+    renderer = (
+        Renderer(scene if scene is not None else default_scene(), supersample=1)
+        if rendered
+        else None
+    )
+    v = hand_eye_views(rng, views=15, sigma_px=sigma_px, rendered=rendered, renderer=renderer)
     he = calibrate_hand_eye(
         v.T_base_ee,
         v.T_cam_target,
@@ -832,7 +978,11 @@ def grasp(
         dist=v.dist,
     )
     he_dp, he_dr = pose_error(he.X, mm.T_ee_camera)
-    eps = tuple(grasp_episode(rng, mm, he.X, sigma_px=sigma_px) for _ in range(episodes))
+    taught = taught_image(mm.T_ee_camera, renderer=renderer, rng=rng, sigma_px=sigma_px)
+    eps = tuple(
+        grasp_episode(rng, mm, he.X, sigma_px=sigma_px, renderer=renderer, taught=taught)
+        for _ in range(episodes)
+    )
     good = [e for e in eps if e.success]
     failures: dict[str, int] = {}
     for e in eps:
@@ -854,5 +1004,8 @@ def grasp(
         hand_eye_rotation_error_deg=math.degrees(float(he_dr)),
         hand_eye_translation_error_mm=1e3 * float(he_dp),
         sigma_px=sigma_px,
+        source="rendered" if rendered else "projected",
+        frames=sum(e.frames for e in eps),
+        gripper_opening_mm=med([e.gripper_opening_mm for e in good]),
         per_episode=eps,
     )

@@ -33,12 +33,16 @@ _COLOR_GRIPPER = (30, 41, 59)
 FRAME_NAMES = ("base", "link1", "link2", "link3", "link4", "link5", "flange", "ee")
 # Finger length when the tool puts the end effector at the flange (no length to draw from).
 _MIN_FINGER = 0.04
+_FINGER_THICKNESS = 0.01
+# The widest opening accepted, and the palm's width (the fingers slide along it).
+_MAX_OPENING = 0.3
+_MAX_PALM = 0.16
 
 
 @dataclass(frozen=True)
 class ArmSpec:
     """An arm as asked for: its id (scene key), the agent it is mounted on, name, kinematic
-    model, mount T_agent_arm (4, 4) and joint values q (6,) rad."""
+    model, mount T_agent_arm (4, 4), joint values q (6,) rad and the gripper's opening (m)."""
 
     id: str
     agent: str
@@ -46,6 +50,7 @@ class ArmSpec:
     model: DHArm
     T_agent_arm: Array
     q: Array
+    opening: float = 0.06
 
     def frames(self) -> Array:
         """Return the drawn frames T_arm_i (8, 4, 4): arm base, links 1-6, end effector."""
@@ -54,8 +59,9 @@ class ArmSpec:
 
 @dataclass(frozen=True)
 class ArmView:
-    """How one arm is drawn: its node (child of its agent's), the mount pose and the eight
-    frames' poses (relative to the mount: `frames[i]` = T_arm_i of FK at `q`)."""
+    """How one arm is drawn: its node (child of its agent's), the mount pose, the eight
+    frames' poses (relative to the mount: `frames[i]` = T_arm_i of FK at `q`) and the
+    gripper's opening (m, between the fingers)."""
 
     id: str
     agent: str
@@ -64,6 +70,7 @@ class ArmView:
     q: tuple[float, ...]
     mount: Pose
     frames: tuple[Pose, ...]
+    opening: float = 0.06
 
 
 def _matrix(value: Any, shape: tuple[int, ...], name: str) -> Array:
@@ -179,6 +186,26 @@ class ArmLayer:
                 self._dirty_arms.add(ident)
                 self._cond.notify_all()
 
+    def set_arm_gripper(self, id: str, opening: float) -> None:
+        """Open or close an arm's gripper to `opening` metres between the fingers. Raises
+        InvalidInput for an arm not in the scene or an opening not in [0, 0.3] m."""
+        ident = agent_id(id)
+        try:
+            width = float(opening)
+        except (TypeError, ValueError):
+            raise InvalidInput(f"arm {ident!r}: the gripper opening must be a number") from None
+        if not 0.0 <= width <= _MAX_OPENING:
+            raise InvalidInput(
+                f"arm {ident!r}: the gripper opening must be 0-{_MAX_OPENING} m, got {opening!r}"
+            )
+        with self._cond:
+            current = self._arm_specs.get(ident)
+            if current is None:
+                raise InvalidInput(f"no arm {ident!r} in the scene; add it with set_arm first")
+            self._arm_specs[ident] = replace(current, opening=width)
+            self._dirty_arms.add(ident)
+            self._cond.notify_all()
+
     def remove_arm(self, id: str) -> None:
         """Remove an arm from the scene (nothing happens if it is not there)."""
         ident = agent_id(id)
@@ -244,6 +271,7 @@ class ArmLayer:
                 handle = server.scene.get_handle_by_name(name)
                 handle.position = pose.position
                 handle.wxyz = pose.wxyz
+            self._draw_gripper(server, spec, names[-1], fingers_only=True)
         else:
             server.scene.remove_by_name(node)
             server.scene.add_frame(node, wxyz=mount.wxyz, position=mount.position, show_axes=False)
@@ -277,24 +305,35 @@ class ArmLayer:
             q=tuple(float(v) for v in spec.q),
             mount=mount,
             frames=poses,
+            opening=spec.opening,
         )
 
     @staticmethod
-    def _draw_gripper(server: Any, spec: ArmSpec, ee_node: str) -> None:
-        """Two fingers from the flange to the end effector (the fingertips' centre) and the
-        palm across them at the flange, in the end effector's frame."""
+    def _draw_gripper(
+        server: Any, spec: ArmSpec, ee_node: str, *, fingers_only: bool = False
+    ) -> None:
+        """Two fingers from the flange to the end effector (the fingertips' centre), `opening`
+        apart along the end effector's y (the axis they close along), and the palm across the
+        open fingers at the flange, in the end effector's frame. `fingers_only`: move the
+        drawn fingers to the spec's opening."""
         length = max(float(np.linalg.norm(spec.model.tool[:3, 3])), _MIN_FINGER)
-        gap = 0.06
-        for side, y in (("left", gap / 2), ("right", -gap / 2)):
+        half = spec.opening / 2 + _FINGER_THICKNESS / 2
+        for side, y in (("left", half), ("right", -half)):
+            name = f"{ee_node}/finger_{side}"
+            handle = server.scene.get_handle_by_name(name) if fingers_only else None
+            if handle is not None:
+                handle.position = (0.0, y, -length / 2)
+                continue
             server.scene.add_box(
-                f"{ee_node}/finger_{side}",
+                name,
                 color=_COLOR_GRIPPER,
-                dimensions=(0.015, 0.01, length),
+                dimensions=(0.015, _FINGER_THICKNESS, length),
                 position=(0.0, y, -length / 2),
             )
-        server.scene.add_box(
-            f"{ee_node}/palm",
-            color=_COLOR_GRIPPER,
-            dimensions=(0.03, gap + 0.01, 0.015),
-            position=(0.0, 0.0, -length),
-        )
+        if not fingers_only:
+            server.scene.add_box(
+                f"{ee_node}/palm",
+                color=_COLOR_GRIPPER,
+                dimensions=(0.03, _MAX_PALM, 0.015),
+                position=(0.0, 0.0, -length),
+            )

@@ -262,7 +262,8 @@ class FetchTaskCreate(Schema):
     """Fetch a marked box from the dining table with an arm, on the twin: each episode places
     the box at random (position, yaw; the robot knows its pose 5 cm / 0.15 rad off), starts the
     robot at random in the kitchen corridor, and runs the switching controller: approach under
-    the gaze constraint, switch, look then move, grasp, lift and carry. The arm's applied
+    the gaze constraint, switch, look then move, grasp (the gripper closes on the box), lift
+    and carry; every eye-in-hand image is rendered by the twin. The arm's applied
     hand-eye transform is used; without one the task calibrates it first (15 views, refined)."""
 
     kind: Literal["fetch"]
@@ -273,7 +274,9 @@ class FetchTaskCreate(Schema):
         "its name: the box is fetched at the pose the map holds. Absent: a box placed at "
         "random on the dining table.",
     )
-    episodes: int = Field(1, ge=1, le=100, description="Fetches to run (about 0.5 s each).")
+    episodes: int = Field(
+        1, ge=1, le=100, description="Fetches to run (about 5 s each: every image is rendered)."
+    )
     sigma_px: float = Field(0.5, ge=0, le=5, allow_inf_nan=False, description="Pixel noise.")
     seed: int | None = Field(None, ge=0, le=2**31 - 1, description="Drawn when absent.")
 
@@ -296,6 +299,10 @@ class FetchEpisodeRead(ReadSchema):
     switches: int
     looks: int
     reason: str
+    gripper_opening_mm: float | None = Field(
+        None, description="Where the fingers stopped when the gripper closed (the box: 115 mm)."
+    )
+    frames: int = Field(0, description="Eye-in-hand images rendered and searched.")
 
 
 class FetchResult(ReadSchema):

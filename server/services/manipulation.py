@@ -38,7 +38,10 @@ from core.sim.manipulation_scenarios import (
     fetch_problem,
     grasp_episode,
     hand_eye_views,
+    taught_image,
 )
+from core.sim.render import Renderer
+from core.sim.scene import default_scene
 from server.db.base import utcnow
 from server.db.models import Arm, SemanticObject, Task
 from server.services.runs import worker_id
@@ -281,6 +284,8 @@ def episode_record(episode: GraspEpisode) -> dict[str, Any]:
         "switches": episode.switches,
         "looks": episode.looks,
         "reason": episode.reason,
+        "gripper_opening_mm": _finite(episode.gripper_opening_mm),
+        "frames": episode.frames,
     }
 
 
@@ -381,21 +386,25 @@ def run_fetch(
     inputs: dict[str, Any],
     report: Callable[[str, float, dict[str, Any] | None], None],
     joints: Callable[[np.ndarray], None] | None = None,
+    gripper: Callable[[float], None] | None = None,
 ) -> dict[str, Any]:
     """Run a fetch task and return its result; `report(phase, fraction, partial result)` is
     called as each episode enters each of its phases ("episode 2 of 5: look then move", the
     controller's own calls) and with the result so far after each episode; `joints(q)` each
-    time the arm moves. With inputs["object"] (fetch_target's), every episode fetches the box
-    at the pose the semantic map holds (the twin's box lies off it by the map's error).
+    time the arm moves and `gripper(opening)` (m) each time the gripper opens or closes. With
+    inputs["object"] (fetch_target's), every episode fetches the box at the pose the semantic
+    map holds (the twin's box lies off it by the map's error).
 
-    The episodes and the hand-eye calibration (when the arm has none applied) draw from one
-    generator seeded by inputs["seed"], in the order of `intspace sim run grasp`: with the
+    Every eye-in-hand image is rendered by the twin and the mark detected in it. The hand-eye
+    calibration (when the arm has none applied), the taught image and the episodes draw from
+    one generator seeded by inputs["seed"], in the order of `intspace sim run grasp`: with the
     twin's arm and no applied hand-eye, a task's episodes are that scenario's."""
     seed = int(inputs["seed"])
     planned = int(inputs["episodes"])
     sigma = float(inputs["sigma_px"])
     rng = np.random.default_rng(seed)
     mm = twin_manipulator(inputs["arm"])
+    renderer = Renderer(default_scene(), supersample=1)
     target = inputs.get("object")
     applied = inputs["arm"].get("T_ee_camera")
     if applied is not None:
@@ -403,7 +412,9 @@ def run_fetch(
         source = "arm"
     else:
         report("calibrating the eye-in-hand camera", 0.0, None)
-        v = hand_eye_views(rng, views=15, sigma_px=sigma, manipulator=mm)
+        v = hand_eye_views(
+            rng, views=15, sigma_px=sigma, manipulator=mm, rendered=True, renderer=renderer
+        )
         X = calibrate_hand_eye(
             v.T_base_ee,
             v.T_cam_target,
@@ -419,6 +430,8 @@ def run_fetch(
         "rotation_error_deg": math.degrees(float(dr)),
         "translation_error_mm": 1e3 * float(dp),
     }
+    report("teaching the mark", 0.0, None)
+    taught = taught_image(mm.T_ee_camera, renderer=renderer, rng=rng, sigma_px=sigma)
     records: list[dict[str, Any]] = []
     for k in range(planned):
 
@@ -438,6 +451,9 @@ def run_fetch(
             on_phase=entered,
             T_world_prior=None if target is None else np.asarray(target["T_world_mark"]),
             on_joints=joints,
+            renderer=renderer,
+            taught=taught,
+            on_gripper=gripper,
         )
         records.append(episode_record(episode))
     return fetch_summary(records, planned, hand_eye, seed)
@@ -568,14 +584,18 @@ class TaskRunner:
         extends this."""
         if kind != "fetch":
             raise IntspaceError(f"this service cannot run {kind!r} tasks")
-        return run_fetch(inputs, report, self._arm_motion(arm))
+        joints, gripper = self._arm_motion(arm)
+        return run_fetch(inputs, report, joints, gripper)
 
-    def _arm_motion(self, arm: Arm | None) -> Callable[[np.ndarray], None] | None:
+    def _arm_motion(
+        self, arm: Arm | None
+    ) -> tuple[Callable[[np.ndarray], None] | None, Callable[[float], None] | None]:
         """Return what shows a task's arm moving in the 3D scene: its joints, at most 10
-        times a second (the twin runs the fetch faster than the clock), or None."""
+        times a second (the twin runs the fetch faster than the clock), and its gripper
+        opening and closing; or (None, None)."""
         scene = self.scene
         if scene is None or arm is None:
-            return None
+            return None, None
         arm_id = arm.id
         last = -math.inf
 
@@ -586,7 +606,10 @@ class TaskRunner:
                 last = now
                 scene.arm_joints(arm_id, q)
 
-        return show
+        def grip(opening: float) -> None:
+            scene.arm_gripper(arm_id, opening)
+
+        return show, grip
 
     def _heartbeat(self) -> None:
         while not self._stop.wait(self._heartbeat_s):

@@ -161,6 +161,11 @@ class SceneSync:
         if self.scene is not None:
             self._call("set_arm_joints", str(arm_id), q)
 
+    def arm_gripper(self, arm_id: int, opening: float) -> None:
+        """Open or close a drawn arm's gripper to `opening` metres (a task reporting it)."""
+        if self.scene is not None:
+            self._call("set_arm_gripper", str(arm_id), opening)
+
     def projector_changed(self, projector: Projector) -> None:
         """Redraw the projector at its (newly applied) pose T_world_projector, its beam still
         on the floor spot it was drawn to; nothing when it has no pose."""

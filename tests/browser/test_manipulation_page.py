@@ -82,6 +82,8 @@ def test_manipulation_page_calibrates_and_fetches(start_service, browser_page: P
         for i, episode in enumerate(task["result"]["per_episode"], start=1):
             row = page.get_by_test_id(f"episode-{i}")
             expect(row).to_contain_text(f"{episode['position_error_mm']:.2f} mm")
+            if episode["gripper_opening_mm"] is not None:  # where the fingers stopped
+                expect(row).to_contain_text(f"{episode['gripper_opening_mm']:.1f} mm")
             if episode["success"]:
                 expect(row.locator(".phase.done")).to_have_count(5)
             else:

@@ -13,7 +13,15 @@ from fastapi.testclient import TestClient
 
 from core.landmarks import ObjectMark, decode_payload, encode_payload
 from core.manipulation import calibrate_hand_eye, default_manipulator
-from core.sim.manipulation_scenarios import GraspEpisode, grasp, grasp_episode, hand_eye_views
+from core.sim import Renderer
+from core.sim.manipulation_scenarios import (
+    GRIPPER_OPEN,
+    GraspEpisode,
+    grasp,
+    grasp_episode,
+    hand_eye_views,
+    taught_image,
+)
 from core.sim.render.landmarks import scene_landmarks
 from core.sim.scene import default_scene
 from server.app import create_app
@@ -65,7 +73,12 @@ def test_fetch_on_the_twin(twin_client, admin):
     # While it ran, the task showed what it was doing: the calibration, then the phase each
     # episode was in, as the controller entered it.
     live = {f"episode {k} of 2: {p}" for k in (1, 2) for p in PHASES}
-    assert task["seen_phases"] <= live | {"queued", "calibrating the eye-in-hand camera", "done"}
+    assert task["seen_phases"] <= live | {
+        "queued",
+        "calibrating the eye-in-hand camera",
+        "teaching the mark",
+        "done",
+    }
     assert task["seen_phases"] & live
     result = task["result"]
     # Without an applied hand-eye transform the task calibrates first, then runs the episodes
@@ -84,6 +97,10 @@ def test_fetch_on_the_twin(twin_client, admin):
     assert result["successes"] == 2 and result["success_rate"] == 1.0
     for episode in result["per_episode"]:
         assert episode["position_error_mm"] < 5.0 and episode["rotation_error_deg"] < 2.0
+        # The gripper closed on the 115 mm box (wider only when the box sits turned in it);
+        # every image the controller used was rendered and searched.
+        assert 115.0 <= episode["gripper_opening_mm"] < 117.0
+        assert episode["frames"] > 5
         assert [p["name"] for p in episode["phases"]] == [
             "approach",
             "switch",
@@ -300,6 +317,10 @@ def test_fetch_an_object_of_the_semantic_map(twin_client, admin):
     limits = np.asarray(arm["limits"])
     assert np.all((moves >= limits[:, 0]) & (moves <= limits[:, 1]))
     assert np.ptp(moves, axis=0).max() > 0.1  # it moved
+    # The gripper opened at the start of each episode and closed on the box (115 mm wide).
+    grips = [opening for _, opening in scene.calls["set_arm_gripper"]]
+    assert grips[::2] == [GRIPPER_OPEN, GRIPPER_OPEN] and len(grips) == 4
+    assert all(0.115 <= g < 0.117 for g in grips[1::2])
     # The task takes the map's pose of the object named (any case), nothing else.
     target = task["inputs"]["object"]
     assert target["id"] == 41 and target["name"] == "tea box"
@@ -308,7 +329,10 @@ def test_fetch_an_object_of_the_semantic_map(twin_client, admin):
     # (the twin's box lies off the map's pose by the prior's errors; the controller finds it).
     rng = np.random.default_rng(3)
     mm = default_manipulator()
-    v = hand_eye_views(rng, views=15, sigma_px=0.5, manipulator=mm)
+    renderer = Renderer(default_scene(), supersample=1)
+    v = hand_eye_views(
+        rng, views=15, sigma_px=0.5, manipulator=mm, rendered=True, renderer=renderer
+    )
     X = calibrate_hand_eye(
         v.T_base_ee,
         v.T_cam_target,
@@ -318,8 +342,11 @@ def test_fetch_an_object_of_the_semantic_map(twin_client, admin):
         dist=v.dist,
     ).X
     prior = np.asarray(held[41]["T_world_mark"])
+    taught = taught_image(mm.T_ee_camera, renderer=renderer, rng=rng, sigma_px=0.5)
     for mine in task["result"]["per_episode"]:
-        theirs = grasp_episode(rng, mm, X, sigma_px=0.5, T_world_prior=prior)
+        theirs = grasp_episode(
+            rng, mm, X, sigma_px=0.5, T_world_prior=prior, renderer=renderer, taught=taught
+        )
         assert mine["success"] == theirs.success
         assert mine["position_error_mm"] == pytest.approx(theirs.position_error_mm, rel=1e-9)
     # Spec 05's grasp bounds: within 5 mm and 2 deg of the true grasp pose, both episodes.

@@ -75,6 +75,23 @@ def test_arm_frames_are_forward_kinematics_on_the_robot_and_follow_joint_updates
     assert scene.flush()
     _assert_frames_are_fk(scene, q)
 
+    # The gripper opens and closes (as a fetch reports it): the fingers' inner faces are the
+    # opening apart along the end effector's y, and the joints stay where they were.
+    fingers = ("/agents/robot/arm-7/ee/finger_left", "/agents/robot/arm-7/ee/finger_right")
+    for opening in (0.14, 0.115):
+        scene.set_arm_gripper("7", opening)
+        assert scene.flush()
+        left, right = (np.asarray(find(name).position) for name in fingers)
+        assert left[1] - right[1] - 0.01 == pytest.approx(opening, abs=1e-6)  # 10 mm fingers
+        assert scene.arms()["7"].opening == opening
+        _assert_frames_are_fk(scene, q)
+    with pytest.raises(InvalidInput, match="opening"):
+        scene.set_arm_gripper("7", -0.01)
+    with pytest.raises(InvalidInput, match="opening"):
+        scene.set_arm_gripper("7", float("nan"))
+    with pytest.raises(InvalidInput, match="no arm"):
+        scene.set_arm_gripper("8", 0.1)
+
     scene.remove_arm("7")
     assert scene.flush()
     assert find("/agents/robot/arm-7") is None and scene.arms() == {}

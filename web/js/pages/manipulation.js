@@ -420,8 +420,8 @@ function taskView(task) {
             h(
               "tr",
               null,
-              ["#", "Phases", "Position error", "Rotation error", "Looks", "Outcome"].map((t) =>
-                h("th", null, t),
+              ["#", "Phases", "Position error", "Rotation error", "Looks", "Gripper", "Outcome"].map(
+                (t) => h("th", null, t),
               ),
             ),
           ),
@@ -437,6 +437,11 @@ function taskView(task) {
                 h("td", { class: "num" }, `${fmt(e.position_error_mm, 2)} mm`),
                 h("td", { class: "num" }, `${fmt(e.rotation_error_deg, 2)}°`),
                 h("td", { class: "num" }, String(e.looks)),
+                h(
+                  "td",
+                  { class: "num", title: "Where the fingers stopped when the gripper closed" },
+                  e.gripper_opening_mm == null ? "–" : `${fmt(e.gripper_opening_mm, 1)} mm`,
+                ),
                 h("td", null, e.success ? "fetched" : e.reason),
               ),
             ),
