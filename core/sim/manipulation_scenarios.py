@@ -41,9 +41,8 @@ from core.manipulation import (
     pose_error,
 )
 from core.manipulation.grasp import ModeSwitch, first_look, gaze_step, next_look
-from core.sim._geometry import matrix_to_quaternion
-from core.sim.render import Renderer, SensorNoise
-from core.sim.scene import Board, CeilingCamera, Distortion, Intrinsics, Pose, Scene, default_scene
+from core.sim.render import Renderer, SensorNoise, camera_at
+from core.sim.scene import Board, CeilingCamera, Scene, default_scene
 
 Array = NDArray[np.float64]
 
@@ -209,23 +208,7 @@ def hand_eye_views(
 
 def _eye_camera(T_world_cam: Array) -> CeilingCamera:
     """Return the eye-in-hand camera at a world pose as a renderable camera."""
-    qx, qy, qz, qw = (float(v) for v in matrix_to_quaternion(T_world_cam[:3, :3]))
-    k1, k2, p1, p2, k3 = (float(v) for v in EYE_DIST)
-    return CeilingCamera(
-        name="eye_in_hand",
-        resolution=EYE_SIZE,
-        intrinsics=Intrinsics(
-            fx=float(EYE_K[0, 0]),
-            fy=float(EYE_K[1, 1]),
-            cx=float(EYE_K[0, 2]),
-            cy=float(EYE_K[1, 2]),
-        ),
-        distortion=Distortion(k1=k1, k2=k2, k3=k3, p1=p1, p2=p2),
-        pose=Pose(
-            position=(float(T_world_cam[0, 3]), float(T_world_cam[1, 3]), float(T_world_cam[2, 3])),
-            quaternion_xyzw=(qx, qy, qz, qw),
-        ),
-    )
+    return camera_at("eye_in_hand", EYE_K, EYE_DIST, EYE_SIZE, T_world_cam)
 
 
 @dataclass(frozen=True)
@@ -928,22 +911,30 @@ def taught_image(
     renderer: Renderer | None = None,
     rng: np.random.Generator | None = None,
     sigma_px: float = 0.0,
+    frames: int = 30,
 ) -> Array:
     """Return the mark's taught ideal (undistorted) pixels (M, 2): recorded once, by a
     demonstration that puts the gripper at the pre-grasp pose over a box on the dining table;
-    the camera is where the arm truly holds it (X_true, T_ee_cam). With a `renderer` the image
-    is rendered and the corners detected, plus N(0, sigma_px^2), then undistorted with the
-    camera's known intrinsics; without one, the corners' ideal projections."""
+    the camera is where the arm truly holds it (X_true, T_ee_cam). With a `renderer`, `frames`
+    images are taken while it holds still (two seconds of video), each rendered with its own
+    sensor noise, the corners detected in each plus N(0, sigma_px^2), and their mean
+    undistorted with the camera's known intrinsics. Every episode servoes to this one image,
+    so its error is common to them all: one frame's 0.5 px gave a 1.3 deg median grasp error
+    over 100 episodes (seed 8), where 30 frames' mean gives 0.37 deg. Without a renderer, the
+    corners' ideal projections."""
     T_mark = _mark_pose(np.array([6.3, 1.9]), 0.0)
     T_cam = T_mark @ _pre_grasp() @ np.asarray(X_true, dtype=np.float64)
     if renderer is None:
         C = invert_pose(T_cam) @ T_mark  # T_cam_mark
         return project_points(MARK_POINTS, matrix_to_rotvec(C[:3, :3]), C[:3, 3], EYE_K).points
-    gen = rng if rng is not None else np.random.default_rng(0)
-    px = _Eye(T_mark, sigma_px, gen, renderer).observe(T_cam)
-    if px is None:
+    if frames < 1:
+        raise InvalidInput(f"frames must be >= 1, got {frames}")
+    eye = _Eye(T_mark, sigma_px, rng if rng is not None else np.random.default_rng(0), renderer)
+    shots = [eye.observe(T_cam) for _ in range(frames)]
+    if any(px is None for px in shots):
         raise PatternNotFound("the taught image does not show the whole mark")
-    return undistort_points(px, EYE_K, EYE_DIST, to_pixels=True)
+    mean = np.mean(np.stack([px for px in shots if px is not None]), axis=0)
+    return undistort_points(mean, EYE_K, EYE_DIST, to_pixels=True)
 
 
 def grasp(
