@@ -171,7 +171,7 @@ class LandmarkPoseBin:
 class LandmarkPoseResult:
     """Metrics of `landmark-pose`: the head camera's calibration error (focal % and principal
     point px of the calibrated K against the true one, calibration RMS px), per-bin figures,
-    and the acceptance figures of spec 04 / issue 8 section 5 (`goals`)."""
+    and the acceptance figures of spec 04 (`goals`)."""
 
     scenario: str
     seed: int

@@ -1,4 +1,4 @@
-"""Projector and spot-following scenarios of the twin (spec 03, issue 10).
+"""Projector and spot-following scenarios of the twin (spec 03).
 
 * `path-following` (`path_following`): a tour of the living room (about 10 m) planned leg by
   leg on the inflated floor plan (core.navigation.plan_path), drawn by the projector at
@@ -19,10 +19,13 @@ The floor camera. The scene's robot carries one onboard camera, mounted level; s
 needs the floor camera spec 07 describes (tilted down, seeing the floor from ~0.3 m ahead), so
 it is defined here (`FLOOR_CAMERA_*`) until the scene schema carries it.
 
-What is measured, and what is not: the spot's pixel in the floor camera is the true spot
-projected through the true lens plus Gaussian pixel noise (`SPOT_PIXEL_SIGMA`, a conservative
-bound on the sub-pixel centroid of core.navigation.detect_laser_spot, which its tests measure
-at ~0.02 px on rendered blobs); the twin's home renderer does not draw the beam yet. In
+What is measured: the floor camera's frames are rendered from the robot's true pose (the home,
+and the spot's red light where the camera sees it: core.sim.render), 15 a second, and the spot
+is found in each by core.navigation.detect_laser_spot (no laser-off frame: the camera moves),
+then given SPOT_PIXEL_SIGMA of extra pixel noise and dropped at random (DETECTION_PROBABILITY,
+glints and motion blur the renderer does not draw). The floor camera's plane comes from one
+rendered view of a floor chessboard (`calibrate_floor_camera`). Without a renderer (unit tests)
+the spot's true projection stands in for the detection. In
 `projector-calibration` each ceiling camera's frame of the home is rendered (core.sim.render)
 with the laser's light added where the spot's image falls, when the camera sees it (in view,
 not hidden by walls or furniture), and the spot is detected in it by
@@ -42,9 +45,10 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 from shapely.geometry import LineString
 
+from core.calibration import Chessboard, board_object_points, find_chessboard
 from core.calibration.onboard import FloorPlane, calibrate_floor_plane
 from core.calibration.projector import calibrate_projector, mount_errors
 from core.errors import InvalidInput
@@ -52,7 +56,7 @@ from core.geometry.camera import project_points
 from core.geometry.rotations import matrix_to_rotvec, rotvec_to_matrix
 from core.localization import NetworkCamera
 from core.localization.ground import locate_ml
-from core.navigation import occupancy_grid, plan_path
+from core.navigation import detect_laser_spot, occupancy_grid, plan_path
 from core.navigation._control import (
     AdaptiveLaw,
     Limits,
@@ -64,8 +68,9 @@ from core.navigation._control import (
     control_point,
 )
 from core.projector import JointTrajectory, PanTiltProjector, project_path
-from core.sim.motion import Pose2D, UnicycleBase
-from core.sim.scene import Scene, default_scene
+from core.sim.motion import Pose2D, UnicycleBase, WorldState
+from core.sim.render import Renderer, camera_at, renderer_for
+from core.sim.scene import Board, CeilingCamera, Scene, default_scene
 
 Array = NDArray[np.float64]
 # on_step(t, pose, spot, error) of simulate_following: s, (3,) x y theta, (2,) x y, m.
@@ -82,6 +87,11 @@ FLOOR_CAMERA_SIZE = (640, 480)
 # Sub-pixel spot centroid noise (px), a conservative bound: the detector's tests measure
 # ~0.02 px on clean rendered blobs (tests/core/navigation/test_spot_detection.py).
 SPOT_PIXEL_SIGMA = 0.3
+# The floor camera under-exposes, as a laser-spot camera is set to: the floor sits at mid-grey
+# and the laser, far brighter than the room, saturates the red channel (on a bright tile at
+# full exposure the spot is only ~40 grey levels redder than the floor, below the detector's
+# threshold).
+FLOOR_CAMERA_EXPOSURE = 0.5
 CAMERA_RATE = 15.0  # Hz
 CAMERA_LATENCY = 0.1  # s from capture to the robot's controller
 DETECTION_PROBABILITY = 0.98  # per frame with the spot in view (glints, motion blur)
@@ -182,17 +192,67 @@ def _project_robot_points(T_robot_cam: Array, X_robot: Array) -> tuple[Array, ND
     return uv, ok
 
 
-def calibrate_floor_camera(rng: np.random.Generator) -> FloorPlane:
-    """Return the floor camera's floor plane from one noisy view of a 7 x 5 floor pattern of
-    0.1 m squares laid 0.5 m to 1.1 m ahead of the robot (its corners' true pixels plus the
-    detector's noise, 0.1 px for chessboard corners refined by cv2.cornerSubPix)."""
-    gx, gy = np.meshgrid(0.5 + 0.1 * np.arange(7), 0.1 * (np.arange(5) - 2))
-    pattern = np.column_stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)])
-    uv, ok = _project_robot_points(floor_camera_mount(), pattern)
-    if not np.all(ok):
-        raise InvalidInput("the floor pattern must lie inside the floor camera's view")
-    uv = uv + rng.normal(0.0, 0.1, uv.shape)
-    return calibrate_floor_plane(pattern, uv, FLOOR_CAMERA_K, FLOOR_CAMERA_DIST, sigma=0.1)
+# The floor pattern the floor camera is calibrated on: a chessboard of 0.1 m squares, 7 x 6
+# inner corners (7 + 6 odd: its first corner is told from its last), laid flat 0.5 m to 1.1 m
+# ahead of the robot, centred on its axis; the robot stands at FLOOR_PATTERN_POSE (world x, y,
+# theta), where the living room's floor is free ahead of it.
+FLOOR_PATTERN = Board(inner_corners=(7, 6), square_size=0.1, margin=0.5)
+FLOOR_PATTERN_POSE = (1.6, 1.2, 0.0)
+
+
+def robot_transform(pose: ArrayLike) -> Array:
+    """Return T_world_robot (4, 4) of a base pose (x, y, theta)."""
+    x, y, th = (float(v) for v in np.asarray(pose, dtype=np.float64).ravel()[:3])
+    c, s = math.cos(th), math.sin(th)
+    T = np.eye(4)
+    T[:2, :2] = [[c, -s], [s, c]]
+    T[:2, 3] = [x, y]
+    return T
+
+
+def floor_camera_at(pose: ArrayLike) -> CeilingCamera:
+    """Return the floor camera of a robot at base pose (x, y, theta) as a renderable camera."""
+    T = robot_transform(pose) @ floor_camera_mount()
+    return camera_at("floor_camera", FLOOR_CAMERA_K, FLOOR_CAMERA_DIST, FLOOR_CAMERA_SIZE, T)
+
+
+def _floor_pattern_points() -> tuple[Array, Array]:
+    """Return (T_robot_board (4, 4), inner corners (N, 3) robot frame, detector order)."""
+    cols, rows = FLOOR_PATTERN.inner_corners
+    s = FLOOR_PATTERN.square_size
+    # Columns run ahead (+x), rows to the right (-y): z = x cross y points down, the printed
+    # face looks up. The print is drawn 0.5 mm above the floor (its thickness), its corners
+    # taken on the floor.
+    T = np.eye(4)
+    T[:3, :3] = np.diag([1.0, -1.0, -1.0])
+    T[:3, 3] = [0.5, (rows - 1) * s / 2, 0.0]
+    P = board_object_points(Chessboard(cols, rows), s) @ T[:3, :3].T + T[:3, 3]
+    T[2, 3] = 5e-4
+    return T, P
+
+
+def calibrate_floor_camera(
+    rng: np.random.Generator, renderer: Renderer | None = None
+) -> FloorPlane:
+    """Return the floor camera's floor plane from one view of the floor pattern
+    (FLOOR_PATTERN) laid ahead of the robot. With a `renderer`, the view is rendered (the robot
+    at FLOOR_PATTERN_POSE in the home) and the corners detected (core.calibration.
+    find_chessboard); without one, the corners' true pixels plus 0.1 px of noise (what
+    cv2.cornerSubPix achieves on chessboard corners). Raises PatternNotFound when the rendered
+    pattern is not found."""
+    T_robot_board, pattern = _floor_pattern_points()
+    if renderer is None:
+        uv, ok = _project_robot_points(floor_camera_mount(), pattern)
+        if not np.all(ok):
+            raise InvalidInput("the floor pattern must lie inside the floor camera's view")
+        uv = uv + rng.normal(0.0, 0.1, uv.shape)
+        return calibrate_floor_plane(pattern, uv, FLOOR_CAMERA_K, FLOOR_CAMERA_DIST, sigma=0.1)
+    T_world_robot = robot_transform(FLOOR_PATTERN_POSE)
+    frame = renderer.render_board(
+        floor_camera_at(FLOOR_PATTERN_POSE), FLOOR_PATTERN, T_world_robot @ T_robot_board, rng=rng
+    )
+    uv = find_chessboard(frame.image, FLOOR_PATTERN.inner_corners).corners
+    return calibrate_floor_plane(pattern, uv, FLOOR_CAMERA_K, FLOOR_CAMERA_DIST)
 
 
 def plan_tour(scene: Scene, waypoints: tuple[tuple[float, float], ...] = TOUR) -> Array:
@@ -253,6 +313,7 @@ def simulate_following(
     *,
     settle: float = 3.0,
     on_step: StepCallback | None = None,
+    renderer: Renderer | None = None,
 ) -> FollowRun:
     """Run one law in closed loop (module docstring) and return its errors against the twin.
 
@@ -262,6 +323,11 @@ def simulate_following(
     error)`, when given, is called at every control step (CONTROL_DT) with the simulated time
     (s), the robot's true pose (3,), the true spot (2,) and the error (m) as the run records
     them, so a caller can show the run while it goes; it must not modify the arrays.
+
+    `renderer`, when given, renders every floor-camera frame (the home from the robot's true
+    pose, the spot's red light where the camera sees it) and core.navigation.detect_laser_spot
+    finds the spot in it; without one the spot's true projection stands in for the detection.
+    Both add SPOT_PIXEL_SIGMA of noise and drop frames at random (DETECTION_PROBABILITY).
     """
     robot = scene.robot
     if robot is None:
@@ -269,6 +335,8 @@ def simulate_following(
     base = UnicycleBase(robot.limits, robot.slip, start, dt=CONTROL_DT, rng=seed)
     cam_rng = np.random.default_rng([seed, 15])
     T_true = floor_camera_mount()
+    # Nobody walks through this scenario: the walkers are kept out of the home.
+    empty = WorldState(0.0, None, tuple((1e4, 1e4) for _ in scene.people))
     period = 1.0 / CAMERA_RATE
     next_capture = 0.0
     pending: deque[tuple[float, float, Array, Array]] = deque()
@@ -306,10 +374,23 @@ def simulate_following(
         straight.append(bool(np.interp(tau, trajectory.t, run) >= 3.0) and tau < end)
         if t + 1e-9 >= next_capture:
             next_capture += period
-            c, s = math.cos(pose[2]), math.sin(pose[2])
-            rel = np.array([[c, s], [-s, c]]) @ (spot - pose[:2])
-            uv, ok = _project_robot_points(T_true, np.array([[rel[0], rel[1], 0.0]]))
-            seen = bool(ok[0]) and cam_rng.random() < DETECTION_PROBABILITY
+            if renderer is None:
+                c, s = math.cos(pose[2]), math.sin(pose[2])
+                rel = np.array([[c, s], [-s, c]]) @ (spot - pose[:2])
+                uv, ok = _project_robot_points(T_true, np.array([[rel[0], rel[1], 0.0]]))
+                found = bool(ok[0])
+            else:
+                frame = renderer.render(
+                    floor_camera_at(pose),
+                    empty,
+                    rng=cam_rng,
+                    spot=(spot[0], spot[1], 0.0),
+                    exposure=FLOOR_CAMERA_EXPOSURE,
+                )
+                det = detect_laser_spot(frame.image)
+                found = det is not None
+                uv = np.zeros((1, 2)) if det is None else np.asarray(det.pixel).reshape(1, 2)
+            seen = found and cam_rng.random() < DETECTION_PROBABILITY
             noise = cam_rng.normal(0.0, SPOT_PIXEL_SIGMA, 2)
             if seen:
                 z = plane.to_robot(uv + noise)[0]
@@ -368,8 +449,9 @@ class PathFollowingResult:
     """Metrics of `path-following`: path length (m), spot speed (m/s), camera rate (Hz) and
     latency (s), pixel noise (px), the projector's drawing error (max distance of the drawn
     spot from the planned path, m, from the calibrated model's residual error), the floor
-    camera's plane errors (normal deg, distance m), per-law metrics and the error series
-    (`series`: law -> {"t": [...], "error_m": [...]}, decimated to 5 Hz for plots)."""
+    camera's plane errors (normal deg, distance m), where the floor camera's images came from
+    (`source`: "rendered" or "projected"), per-law metrics and the error series (`series`:
+    law -> {"t": [...], "error_m": [...]}, decimated to 5 Hz for plots)."""
 
     scenario: str
     seed: int
@@ -381,6 +463,7 @@ class PathFollowingResult:
     drawing_error_max_m: float
     floor_normal_error_deg: float
     floor_distance_error_m: float
+    source: str
     laws: dict[str, LawMetrics]
     series: dict[str, dict[str, list[float]]] = field(repr=False)
 
@@ -403,12 +486,15 @@ def path_following(
     cameras: list[NetworkCamera] | None = None,
     tour: tuple[tuple[float, float], ...] = TOUR,
     projector: PanTiltProjector | None = None,
+    rendered: bool = True,
 ) -> PathFollowingResult:
     """Run the `path-following` scenario (module docstring) and return its metrics.
 
     The projector is first calibrated as in `projector-calibration` (with `cameras`, default
     the network calibration's) unless a `projector` model is given; `tour` the waypoints the
-    path is planned through.
+    path is planned through. `rendered` (the default): the floor camera's calibration view and
+    every frame it takes while following are rendered and detected; otherwise true projections
+    plus noise stand in for them.
     """
     scene = scene or default_scene()
     robot = scene.robot
@@ -426,7 +512,8 @@ def path_following(
     )
     drawn = truth.spot(traj.q)
     drawing_error = float(np.max(np.linalg.norm(drawn - traj.spot, axis=1)))
-    plane = calibrate_floor_camera(np.random.default_rng([seed, 7]))
+    renderer = Renderer(scene, supersample=1) if rendered else None
+    plane = calibrate_floor_camera(np.random.default_rng([seed, 7]), renderer)
     true_plane = np.linalg.inv(floor_camera_mount())
     n_true = true_plane[:3, 2]
     d_true = float(n_true @ true_plane[:3, 3])
@@ -438,7 +525,7 @@ def path_following(
     laws: dict[str, LawMetrics] = {}
     series: dict[str, dict[str, list[float]]] = {}
     for law in make_laws(limits):
-        run = simulate_following(law, traj, truth, plane, start, scene, seed)
+        run = simulate_following(law, traj, truth, plane, start, scene, seed, renderer=renderer)
         laws[law.name] = LawMetrics(
             rms_m=run.rms,
             max_m=float(run.error.max()),
@@ -462,6 +549,7 @@ def path_following(
         drawing_error_max_m=drawing_error,
         floor_normal_error_deg=normal_err,
         floor_distance_error_m=abs(plane.distance - d_true),
+        source="rendered" if rendered else "projected",
         laws=laws,
         series=series,
     )
@@ -553,10 +641,6 @@ def _spots_in_images(
     core.navigation.detect_laser_spot finds it in the on - off difference (the projector
     blinks the laser) or reports it not seen. A spot hidden from a camera adds no light.
     """
-    from core.navigation import detect_laser_spot
-    from core.sim.motion import WorldState
-    from core.sim.render import renderer_for
-
     renderer = renderer_for(scene)
     X = np.column_stack([spots, np.zeros(len(spots))])
     people = tuple((float(w.waypoints[0][0]), float(w.waypoints[0][1])) for w in scene.people)

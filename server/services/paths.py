@@ -1,4 +1,4 @@
-"""Planned paths and their follow tasks (spec 03, issue 10 section 3).
+"""Planned paths and their follow tasks (spec 03).
 
 Planning. The space's floor plan is the digital twin's scene when the space is the twin's home
 (walls with doors, furniture: server.services.floor_plan decides); any other space has only
@@ -13,7 +13,8 @@ projector without a pose is uncalibrated.
 Following. A follow task runs the closed loop of the twin's `path-following` scenario
 (core.sim.navigation_scenarios.simulate_following) for one law on the path's trajectory, in a
 background thread: the twin's true projector (its seeded mounting error) draws the spot from
-the commanded angles, the robot's floor camera sees it at 15 Hz with 100 ms latency, and the
+the commanded angles, the robot's floor camera sees it at 15 Hz with 100 ms latency (every
+frame rendered from the robot's true pose and the spot detected in it), and the
 error is the distance between the robot's control point and the true spot (scored against the
 twin). The row carries the status, the progress and the series so far while it runs (written
 with the heartbeat, every `_HEARTBEAT_S`: the tracking error, the robot's true pose and the
@@ -53,6 +54,7 @@ from core.navigation import (
 from core.projector import JointTrajectory, PanTiltProjector, project_path
 from core.sim import Scene
 from core.sim import navigation_scenarios as nav
+from core.sim.render import Renderer
 from server.db.base import utcnow
 from server.db.models import (
     CalibrationRun,
@@ -520,11 +522,20 @@ class FollowTasks:
         assert robot is not None  # checked by start()
         traj = draw(model, points, speed)
         truth = nav.twin_projector(scene, seed)
-        plane = nav.calibrate_floor_camera(np.random.default_rng([seed, 7]))
+        renderer = Renderer(scene, supersample=1)
+        plane = nav.calibrate_floor_camera(np.random.default_rng([seed, 7]), renderer)
         law = _law(law_name, Limits(robot.limits.max_speed, robot.limits.max_turn_rate))
         live = LiveSeries(traj.duration, lambda p, series: self._beat(path_id, p, series))
         run = nav.simulate_following(
-            law, traj, truth, plane, nav.start_pose(traj), scene, seed, on_step=live.step
+            law,
+            traj,
+            truth,
+            plane,
+            nav.start_pose(traj),
+            scene,
+            seed,
+            on_step=live.step,
+            renderer=renderer,
         )
         drawn = truth.spot(traj.q)
         steady = run.steady

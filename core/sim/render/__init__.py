@@ -18,11 +18,16 @@ How a frame is made (per camera):
    in core.geometry.camera.undistort_points).
 4. Optical blur (Gaussian), exposure gain and additive Gaussian sensor noise, all seeded.
 
+The projector's laser spot, when a frame is asked with one, is red light added to the ideal
+canvas (a Gaussian blob of the spot's size, at least a glare of ~1 px) where the camera sees it.
+Cameras that move (the robot's floor camera, the eye-in-hand camera) are described by
+`camera_at` at their current pose.
+
 Pixel coordinates have their origin at the centre of the top-left pixel; colours in images are
 BGR (OpenCV), in the scene (r, g, b).
 """
 
-from core.sim.render._camera import CameraModel, Frame, SensorNoise, camera_model
+from core.sim.render._camera import CameraModel, Frame, SensorNoise, camera_at, camera_model
 from core.sim.render._raster import _clip_near
 from core.sim.render._renderer import Renderer, _disc_image_centre, render, renderer_for
 
@@ -33,6 +38,7 @@ __all__ = [
     "SensorNoise",
     "_clip_near",
     "_disc_image_centre",
+    "camera_at",
     "camera_model",
     "render",
     "renderer_for",

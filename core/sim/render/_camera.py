@@ -14,7 +14,7 @@ from core.geometry.camera import project_points
 from core.geometry.rotations import matrix_to_rotvec
 from core.sim._geometry import matrix_to_quaternion, pose_matrix
 from core.sim.motion import Pose2D
-from core.sim.scene import CeilingCamera
+from core.sim.scene import CeilingCamera, Distortion, Intrinsics, Pose
 
 Array = NDArray[np.float64]
 Image = NDArray[Any]  # uint8 images; typed loosely because cv2 returns its own array type
@@ -94,6 +94,36 @@ def camera_model(camera: CeilingCamera) -> CameraModel:
     )
 
 
+def camera_at(
+    name: str,
+    K: ArrayLike,
+    dist: ArrayLike,
+    size: tuple[int, int],
+    T_world_camera: ArrayLike,
+    frame_rate: float = 15.0,
+) -> CeilingCamera:
+    """Return a camera that is not one of the scene's (one that moves: on the robot, on the
+    arm) as a renderable camera: intrinsics K (3, 3), distortion (k1, k2, p1, p2, k3), image
+    size (width, height) and its pose T_world_camera (4, 4, OpenCV camera axes)."""
+    Km = np.asarray(K, dtype=np.float64)
+    k1, k2, p1, p2, k3 = (float(v) for v in np.asarray(dist, dtype=np.float64).ravel()[:5])
+    T = np.asarray(T_world_camera, dtype=np.float64)
+    qx, qy, qz, qw = (float(v) for v in matrix_to_quaternion(T[:3, :3]))
+    return CeilingCamera(
+        name=name,
+        resolution=(int(size[0]), int(size[1])),
+        intrinsics=Intrinsics(
+            fx=float(Km[0, 0]), fy=float(Km[1, 1]), cx=float(Km[0, 2]), cy=float(Km[1, 2])
+        ),
+        distortion=Distortion(k1=k1, k2=k2, k3=k3, p1=p1, p2=p2),
+        pose=Pose(
+            position=(float(T[0, 3]), float(T[1, 3]), float(T[2, 3])),
+            quaternion_xyzw=(qx, qy, qz, qw),
+        ),
+        frame_rate=frame_rate,
+    )
+
+
 @dataclass(frozen=True)
 class SensorNoise:
     """Image degradation, applied after the lens: Gaussian blur of `blur_sigma` pixels, gain
@@ -132,7 +162,8 @@ class Frame:
     board_corner_pixels (N, 2): the chessboard's inner corners, row by row of the board
     (columns fastest); board_visible: all corners in front of the camera, inside the image, on
     the board's front side and unoccluded by the static scene. gain: the exposure gain this
-    frame was taken with.
+    frame was taken with. spot_pixel (2,): the laser spot's projection with distortion;
+    spot_visible: in front of the camera, inside the image and not hidden.
     """
 
     image: Image
@@ -148,3 +179,5 @@ class Frame:
     board_corner_pixels: Array | None = None
     board_visible: bool = False
     gain: float = field(default=1.0)
+    spot_pixel: Array | None = None
+    spot_visible: bool = False

@@ -220,10 +220,17 @@ class Renderer:
         *,
         rng: np.random.Generator | int | None = None,
         noise: SensorNoise | None = _DEFAULT_NOISE,
+        spot: ArrayLike | None = None,
+        exposure: float = 1.0,
     ) -> Frame:
         """Return the Frame that `camera` (a scene camera's name, or any CeilingCamera) sees of
         the scene in `state`. `rng` seeds the sensor noise (same seed, same image); `noise`
-        None renders a noiseless, unblurred image."""
+        None renders a noiseless, unblurred image. `spot` (3,) world metres: the projector's
+        laser spot, drawn where the camera sees it (`_draw_spot`). `exposure` scales the
+        scene's light before the spot's is added: a camera set to under-expose (0.5: the floor
+        at mid-grey) still sees the laser, far brighter than the room, saturate red."""
+        if not (math.isfinite(exposure) and 0.0 < exposure <= 1.0):
+            raise InvalidInput(f"exposure must be in (0, 1], got {exposure!r}")
         view = self._view(camera)
         cam = view.camera
         tgt = _Target(
@@ -242,6 +249,9 @@ class Renderer:
             body = _bgr(w.colour)
             tgt.cylinder(p, 0.0, w.height, w.radius, body * 0.85, body)
         truth = self._draw_robot(tgt, cam, state.robot)
+        if exposure != 1.0:
+            tgt.img = cv2.convertScaleAbs(tgt.img, alpha=exposure)
+        spot_px, spot_seen = (None, False) if spot is None else _draw_spot(tgt, cam, spot)
         img, gain = self._develop(view, tgt.img, rng, noise)
         return Frame(
             image=img,
@@ -250,6 +260,8 @@ class Renderer:
             robot=state.robot,
             people=state.people,
             gain=gain,
+            spot_pixel=spot_px,
+            spot_visible=spot_seen,
             **truth,
         )
 
@@ -417,6 +429,45 @@ class Renderer:
                 c = truth["marker_world"][None]
                 truth["marker_visible"] = bool(_unoccluded(tgt, c, tol=0.05)[0])
         return truth
+
+
+# The laser spot: a red dot of this radius (m) on the floor, whose glare spans at least
+# SPOT_GLARE_PX pixels (standard deviation of its Gaussian image) however far it is; its peak
+# adds this much red light (the red channel saturates on a bright floor) and a little green.
+SPOT_RADIUS = 0.004
+SPOT_GLARE_PX = 1.2
+_SPOT_RED = 300.0
+_SPOT_GREEN = 10.0
+
+
+def _draw_spot(tgt: _Target, cam: CameraModel, spot: ArrayLike) -> tuple[Array, bool]:
+    """Add the laser spot's light to the ideal canvas where the camera sees it (in front,
+    inside the image, not hidden by what is drawn so far by more than 1 cm); return its
+    projection with distortion (2,) and whether it was seen. The blob is drawn on the canvas
+    before the lens remap, so it is distorted like everything else."""
+    X = np.asarray(spot, dtype=np.float64).reshape(1, 3)
+    if not np.all(np.isfinite(X)):
+        raise InvalidInput(f"spot must be a finite world point (3,), got {spot!r}")
+    px = cam.project(X)[0]
+    Pc = tgt.to_camera(X)[0]
+    seen = bool(Pc[2] > tgt.near and _in_image(cam, px[None])[0])
+    if seen:
+        uv = tgt.to_pixels(Pc[None])[0]
+        ui, vi = math.floor(uv[0] + 0.5), math.floor(uv[1] + 0.5)
+        seen = 0 <= ui < tgt.w and 0 <= vi < tgt.h and Pc[2] <= tgt.depth[vi, ui] + 0.01
+    if not seen:
+        return px, False
+    sigma = max(SPOT_GLARE_PX, float(tgt.K[0, 0]) * SPOT_RADIUS / 2 / float(Pc[2]))
+    r = math.ceil(5 * sigma)
+    x0, y0 = max(int(uv[0]) - r, 0), max(int(uv[1]) - r, 0)
+    x1, y1 = min(int(uv[0]) + r + 1, tgt.w), min(int(uv[1]) + r + 1, tgt.h)
+    yy, xx = np.mgrid[y0:y1, x0:x1]
+    g = np.exp(-((xx - uv[0]) ** 2 + (yy - uv[1]) ** 2) / (2 * sigma**2))
+    roi = tgt.img[y0:y1, x0:x1].astype(np.float32)
+    roi[..., 2] += _SPOT_RED * g
+    roi[..., 1] += _SPOT_GREEN * g
+    tgt.img[y0:y1, x0:x1] = np.clip(np.rint(roi), 0, 255).astype(np.uint8)
+    return px, True
 
 
 # A box carrying a printed mark: cardboard sides, a white top around the print.

@@ -8,16 +8,20 @@ import json
 import numpy as np
 import pytest
 
+from core.errors import InvalidInput
 from core.localization import NetworkCamera
-from core.navigation import AdaptiveLaw, Limits, occupancy_grid, segment_is_free
+from core.navigation import AdaptiveLaw, Limits, detect_laser_spot, occupancy_grid, segment_is_free
 from core.projector import project_path
+from core.sim.motion import WorldState
 from core.sim.navigation_scenarios import (
     CONTROL_DT,
     CORNER_RADIUS,
+    FLOOR_CAMERA_EXPOSURE,
     LOOKAHEAD,
     PLAN_MARGIN,
     SPOT_ACCELERATION,
     calibrate_floor_camera,
+    floor_camera_at,
     nominal_projector,
     path_following,
     plan_tour,
@@ -26,7 +30,7 @@ from core.sim.navigation_scenarios import (
     start_pose,
     twin_projector,
 )
-from core.sim.render import camera_model
+from core.sim.render import Renderer, camera_model
 from core.sim.scene import default_scene
 
 
@@ -82,6 +86,11 @@ def test_path_following_runs_every_law_on_the_same_path() -> None:
     r = path_following(scene, 0, tour=tour, projector=nominal_projector(scene))
     d = r.to_dict()
     json.dumps(d)
+    # Every floor-camera frame was rendered and the spot detected in it; the camera's floor
+    # plane came from a rendered view of the floor chessboard (0.5 mm thick: its distance is
+    # that much short).
+    assert d["source"] == "rendered"
+    assert d["floor_normal_error_deg"] < 0.05 and d["floor_distance_error_m"] < 1e-3
     assert set(d["laws"]) == {"state_feedback", "adaptive", "proportional"}
     for law in d["laws"].values():
         assert {"rms_m", "max_m", "steady_m"} <= law.keys()
@@ -91,6 +100,32 @@ def test_path_following_runs_every_law_on_the_same_path() -> None:
     assert laws["adaptive"]["rms_m"] * 3 < laws["proportional"]["rms_m"]
     assert laws["state_feedback"]["rms_m"] * 3 < laws["proportional"]["rms_m"]
     assert len(d["series"]["adaptive"]["t"]) == len(d["series"]["adaptive"]["error_m"])
+
+
+def test_floor_camera_frames_show_the_spot_where_it_is() -> None:
+    # The floor camera on a robot in the living room, the spot 0.8 m ahead: rendered with the
+    # camera's exposure, detected within a tenth of a pixel of its true (distorted)
+    # projection.
+    scene = default_scene()
+    renderer = Renderer(scene, supersample=1)
+    empty = WorldState(0.0, None, tuple((1e4, 1e4) for _ in scene.people))
+    pose = (1.6, 1.2, 0.3)
+    ahead = np.array([1.6 + 0.8 * np.cos(0.3), 1.2 + 0.8 * np.sin(0.3), 0.0])
+    frame = renderer.render(
+        floor_camera_at(pose), empty, rng=1, spot=ahead, exposure=FLOOR_CAMERA_EXPOSURE
+    )
+    assert frame.spot_visible
+    det = detect_laser_spot(frame.image)
+    assert det is not None and np.linalg.norm(det.pixel - frame.spot_pixel) < 0.1
+    # Behind the robot: not seen, and nothing red is found instead.
+    behind = np.array([1.6 - 0.8 * np.cos(0.3), 1.2 - 0.8 * np.sin(0.3), 0.0])
+    frame = renderer.render(
+        floor_camera_at(pose), empty, rng=1, spot=behind, exposure=FLOOR_CAMERA_EXPOSURE
+    )
+    assert not frame.spot_visible and detect_laser_spot(frame.image) is None
+    # An exposure is a fraction of the full one.
+    with pytest.raises(InvalidInput, match="exposure"):
+        renderer.render(floor_camera_at(pose), empty, spot=ahead, exposure=0.0)
 
 
 def test_simulate_following_reports_every_step_live() -> None:
