@@ -23,6 +23,7 @@ from core.sim.manipulation_scenarios import (
     EYE_K,
     GRASP_PHASES,
     GRIPPER_OPEN,
+    JOINT_RATE,
     MARK_POINTS,
     T_MARK_GRASP,
     _Eye,
@@ -217,9 +218,11 @@ def test_grasp_episode_fetches_the_box_where_the_prior_says() -> None:
         # 5 mm and 2 deg.
         successes += e.success
         assert e.position_error_mm < 5.0 and e.rotation_error_deg < 2.0, e
-        # Every arm motion was reported, each within the arm's limits.
+        # Every arm motion was reported, each within the arm's limits, and no joint moved
+        # faster than the joint position control allows (JOINT_RATE over a 0.1 s step).
         q = np.array(joints)
         assert len(q) > 20 and np.all(mm.arm.within_limits(q, tol=1e-9))
+        assert np.abs(np.diff(q, axis=0)).max() <= JOINT_RATE * 0.1 + 1e-12
     assert successes == 2
 
 
