@@ -60,6 +60,9 @@ def _wait(client, admin, task_id: int, timeout: float = 60.0) -> dict:
         time.sleep(0.2)
 
 
+# The episodes render every image (seconds each) and do the same on either database; the
+# tasks' storage on PostgreSQL is exercised by the other tests of this module.
+@pytest.mark.parametrize("database_url", ["sqlite"], indirect=True)
 def test_fetch_on_the_twin(twin_client, admin):
     client = twin_client
     arm = _arm(client, admin)
@@ -287,6 +290,7 @@ def _read_mark(client, admin, space: int, mark_id: int, name: str, T: np.ndarray
     assert response.status_code == 200, response.text
 
 
+@pytest.mark.parametrize("database_url", ["sqlite"], indirect=True)
 def test_fetch_an_object_of_the_semantic_map(twin_client, admin):
     client = twin_client
     arm = _arm(client, admin)
