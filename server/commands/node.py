@@ -18,7 +18,6 @@ from __future__ import annotations
 import argparse
 import logging
 import os
-import signal
 import sys
 from pathlib import Path
 
@@ -123,6 +122,7 @@ def _config(args: argparse.Namespace):
 
 def run_node(args: argparse.Namespace) -> int:
     """Run the node until SIGINT/SIGTERM (or until every video file ended)."""
+    from server.commands._signals import stop_on_signals
     from server.node.client import NodeError
     from server.node.runner import Node
 
@@ -147,9 +147,5 @@ def run_node(args: argparse.Namespace) -> int:
         node.client.close()
         return _fail(str(exc))
 
-    def on_signal(signum: int, _frame: object) -> None:
-        node.stop_event.set()
-
-    signal.signal(signal.SIGTERM, on_signal)
-    signal.signal(signal.SIGINT, on_signal)
+    stop_on_signals(node.stop_event)
     return node.run()

@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import argparse
 import logging
-import signal
 import sys
 import threading
 
+from server.commands._signals import stop_on_signals
 from server.settings import Settings
 
 
@@ -119,13 +119,12 @@ def run_worker(args: argparse.Namespace) -> int:
         return 2
     engine = make_engine(settings.resolved_database_url, pool_size=settings.run_workers + 2)
     stop = threading.Event()
-
-    def on_signal(signum: int, _frame: object) -> None:
-        log.info("signal %d: handing the runs in progress back to the queue", signum)
-        stop.set()
-
-    signal.signal(signal.SIGTERM, on_signal)
-    signal.signal(signal.SIGINT, on_signal)
+    stop_on_signals(
+        stop,
+        lambda signum: log.info(
+            "signal %d: handing the runs in progress back to the queue", signum
+        ),
+    )
     executor = RunExecutor(
         make_session_factory(engine), settings.run_workers, policy, poll_s=args.poll
     )
