@@ -445,9 +445,10 @@ def _draw_spot(tgt: _Target, cam: CameraModel, spot: ArrayLike) -> tuple[Array, 
     inside the image, not hidden by what is drawn so far by more than 1 cm); return its
     projection with distortion (2,) and whether it was seen. The blob is drawn on the canvas
     before the lens remap, so it is distorted like everything else."""
-    X = np.asarray(spot, dtype=np.float64).reshape(1, 3)
-    if not np.all(np.isfinite(X)):
+    X = np.asarray(spot, dtype=np.float64)
+    if X.size != 3 or not np.all(np.isfinite(X)):
         raise InvalidInput(f"spot must be a finite world point (3,), got {spot!r}")
+    X = X.reshape(1, 3)
     px = cam.project(X)[0]
     Pc = tgt.to_camera(X)[0]
     seen = bool(Pc[2] > tgt.near and _in_image(cam, px[None])[0])
