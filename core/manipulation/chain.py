@@ -21,6 +21,7 @@ from core.manipulation.arm import (
     DHArm,
     IKResult,
     _lm,
+    _pose_residual,
     _rotvec_one,
     as_pose,
     default_arm,
@@ -208,9 +209,8 @@ class MobileManipulator:
         periodic = np.array([False, False, True] + [True] * 6)
         gen = np.random.default_rng(rng)
         restarts = 0
-        xf, cost, used, ok = _lm(
-            self._kinematics_one, Tm, x, lo, hi, w, tol, max_iterations, periodic=periodic
-        )
+        residual = _pose_residual(self._kinematics_one, Tm)
+        xf, cost, used, ok = _lm(residual, x, lo, hi, w, tol, max_iterations, periodic=periodic)
         iters += used
         # A polish stuck at an arm limit restarts from the arm's nearest seeds at the base
         # reached, then from random arm configurations: the base stays where it was.
@@ -220,8 +220,7 @@ class MobileManipulator:
             xs[3:] = starts.pop(0) if starts else gen.uniform(*self.arm.limits.T)
             restarts += 1
             xr, cr, used, ok = _lm(
-                self._kinematics_one,
-                Tm,
+                residual,
                 xs,
                 lo,
                 hi,
