@@ -618,6 +618,7 @@ def grasp_episode(
     renderer: Renderer | None = None,
     taught: Array | None = None,
     on_gripper: Callable[[float], None] | None = None,
+    on_box: Callable[[Array], None] | None = None,
 ) -> GraspEpisode:
     """Run one randomised fetch and return its metrics (see `grasp`).
 
@@ -628,7 +629,11 @@ def grasp_episode(
     drawn around it. `on_joints(q)`, when given, is called with the arm's joint values (6,)
     each time the arm moves: every control step of the approach, each look, the grasp, the
     lift. `on_gripper(opening)` likewise with the gripper's opening (m) when it opens at the
-    start and where it stops when it closes.
+    start and where it stops when it closes. `on_box(T_arm_box)` likewise with the twin's box
+    in the arm's base frame (4, 4; the mark frame: the top's centre, z up out of the box):
+    where the robot starts, at each step of the approach's gaze (the base drives), and once
+    the gripper holds it, as it closes (the fingers push the box onto their midline) and at
+    each step of the lift; a step's box comes before its joints.
 
     `renderer`, when given, renders every eye-in-hand image the controller uses (the mark's
     corners are detected in them); without it the controller sees the corners' true
@@ -676,6 +681,13 @@ def grasp_episode(
     start_est = start + np.array([*rng.normal(0.0, 0.03, 2), rng.normal(0.0, 0.03)])
     T_ee_cam = X_est
     t = 0.0
+    held: Array | None = None  # T_ee_box once the gripper holds the box
+
+    def show_box(T_world_arm_true: Array) -> None:
+        if on_box is not None:
+            on_box(invert_pose(T_world_arm_true) @ T_mark)
+
+    show_box(base_transform(start) @ mm.T_base_arm)
 
     def fail(reason: str, vis: float, sw: int, looks: int) -> GraspEpisode:
         return GraspEpisode(
@@ -701,6 +713,7 @@ def grasp_episode(
     def gaze_once(base_est: Array) -> None:
         nonlocal q, mark_est, seen, steps
         T_base_est = base_transform(base_est)
+        show_box(offset @ T_base_est @ mm.T_base_arm)
         F_est = T_base_est @ mm.T_base_arm @ mm.arm.fk(q) @ T_ee_cam
         px = eye.observe(offset @ T_base_est @ mm.T_base_arm @ mm.arm.fk(q) @ mm.T_ee_camera)
         steps += 1
@@ -750,9 +763,12 @@ def grasp_episode(
         if not r.success:
             return None
         steps = max(1, math.ceil(float(np.max(np.abs(r.q - q0))) / (JOINT_RATE * dt)))
-        if on_joints is not None:
-            for k in range(1, steps + 1):
-                on_joints(q0 + (r.q - q0) * (k / steps))
+        for k in range(1, steps + 1):
+            qk = q0 + (r.q - q0) * (k / steps)
+            if on_box is not None and held is not None:
+                on_box(mm.arm.fk(qk) @ held)
+            if on_joints is not None:
+                on_joints(qk)
         t += steps * dt + SETTLE_S
         return r.q
 
@@ -891,6 +907,10 @@ def grasp_episode(
             1e3 * opening,
             eye.frames,
         )
+    held = invert_pose(achieved) @ T_mark
+    held[1, 3] = 0.0  # the closing fingers pushed it onto their midline (close_gripper)
+    if on_box is not None:
+        on_box(mm.arm.fk(qg) @ held)
     enter("lift and carry")
     lift = grasp_pose.copy()
     lift[2, 3] += 0.10

@@ -13,6 +13,9 @@ scene.set_projector({"name": "laser", "T_world_projector": T, "spot": [1.0, 2.5]
 scene.set_arm({"id": "7", "agent": "robot", "name": "arm", "dh": dh, "limits": limits,
                "tool": tool, "home": home, "T_robot_arm": T, "q": None})  # None: home
 scene.set_arm_joints("7", q)                          # q (6,) rad
+scene.set_arm_gripper("7", 0.115)                     # the opening between the fingers, m
+scene.set_arm_box("7", T_arm_box)                     # the fetched box, in the arm's frame
+scene.remove_arm_box("7")
 scene.remove_arm("7")
 scene.remove_agent("robot")
 scene.remove_camera(3)

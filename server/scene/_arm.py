@@ -1,10 +1,14 @@
 """Arms on the robots in the live scene: each link frame of the Denavit-Hartenberg chain at
-the arm's joint values, the links between them and the gripper.
+the arm's joint values, the links between them, the gripper and the box it is fetching.
 
 An arm is drawn inside its robot's agent frame (`/agents/<agent>/arm-<id>`), so it rides
 along when the robot moves; the frames come from core.manipulation's forward kinematics
 (`DHArm.frames`), never recomputed here. A joint update moves the eight frames and redraws
 the link poly-line: a few small messages, fine at the ~10 Hz a task reports.
+
+The box a fetch task reports (the twin's, core.sim.manipulation_scenarios: BOX_SIZE with its
+chessboard MARK_BOARD printed on its top) is drawn in the arm's base frame at the pose the
+task gives, T_arm_box: on the table as the robot drives to it, between the fingers as it lifts.
 
 `ArmLayer` is the part of SceneService that holds and draws arms; it uses the service's lock
 (`_cond`) and viser server (`_server`).
@@ -22,6 +26,7 @@ from numpy.typing import NDArray
 
 from core.errors import IntspaceError, InvalidInput
 from core.manipulation import DHArm
+from core.sim.manipulation_scenarios import BOX_SIZE, MARK_BOARD, T_MARK_BOARD
 from server.scene._agents import agent_id
 from server.scene._geometry import Pose, pose_from_transform
 
@@ -37,12 +42,43 @@ _FINGER_THICKNESS = 0.01
 # The widest opening accepted, and the palm's width (the fingers slide along it).
 _MAX_OPENING = 0.3
 _MAX_PALM = 0.16
+_COLOR_BOX = (200, 160, 110)  # cardboard
+_COLOR_PRINT = (245, 245, 245)
+_COLOR_SQUARE = (20, 20, 20)
+# The print's paper and its dark squares stand this far (m) proud of the box's top and of the
+# paper, so the viewer's depth buffer keeps them apart from a few metres away.
+_PRINT_LIFT = 0.001
+
+
+def mark_squares() -> tuple[Array, NDArray[np.int64]]:
+    """Return the dark squares of the box's printed chessboard as a mesh in the box's mark
+    frame: vertices (4 n, 3) m, four per square, on the top (z = 0), and faces (2 n, 3).
+
+    The print is the renderer's (core.sim.render): the board's square in row i, column j
+    spans [j - 1, j] x [i - 1, i] squares in the board frame (origin at the first inner
+    corner), dark when i + j is even; T_MARK_BOARD takes it to the mark frame."""
+    cols, rows = MARK_BOARD.inner_corners
+    s = MARK_BOARD.square_size
+    ii, jj = np.meshgrid(np.arange(rows + 1), np.arange(cols + 1), indexing="ij")
+    dark = (ii + jj) % 2 == 0
+    low = np.stack([jj[dark] - 1, ii[dark] - 1], axis=1) * s  # (n, 2) lower corners
+    quad = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]]) * s
+    board = (low[:, None, :] + quad[None]).reshape(-1, 2)
+    board = np.concatenate([board, np.zeros((len(board), 1))], axis=1)
+    vertices = board @ T_MARK_BOARD[:3, :3].T + T_MARK_BOARD[:3, 3]
+    first = 4 * np.arange(len(low))[:, None, None]
+    faces = (first + np.array([[0, 1, 2], [0, 2, 3]])).reshape(-1, 3)
+    return vertices, faces
+
+
+_SQUARES = mark_squares()
 
 
 @dataclass(frozen=True)
 class ArmSpec:
     """An arm as asked for: its id (scene key), the agent it is mounted on, name, kinematic
-    model, mount T_agent_arm (4, 4), joint values q (6,) rad and the gripper's opening (m)."""
+    model, mount T_agent_arm (4, 4), joint values q (6,) rad, the gripper's opening (m) and
+    the box it is fetching, T_arm_box (4, 4; its mark frame in the arm's base frame), if any."""
 
     id: str
     agent: str
@@ -51,6 +87,7 @@ class ArmSpec:
     T_agent_arm: Array
     q: Array
     opening: float = 0.06
+    box: Array | None = None
 
     def frames(self) -> Array:
         """Return the drawn frames T_arm_i (8, 4, 4): arm base, links 1-6, end effector."""
@@ -60,8 +97,9 @@ class ArmSpec:
 @dataclass(frozen=True)
 class ArmView:
     """How one arm is drawn: its node (child of its agent's), the mount pose, the eight
-    frames' poses (relative to the mount: `frames[i]` = T_arm_i of FK at `q`) and the
-    gripper's opening (m, between the fingers)."""
+    frames' poses (relative to the mount: `frames[i]` = T_arm_i of FK at `q`), the gripper's
+    opening (m, between the fingers) and the pose of the box it is fetching (relative to the
+    mount: T_arm_box; None when there is none)."""
 
     id: str
     agent: str
@@ -71,6 +109,7 @@ class ArmView:
     mount: Pose
     frames: tuple[Pose, ...]
     opening: float = 0.06
+    box: Pose | None = None
 
 
 def _matrix(value: Any, shape: tuple[int, ...], name: str) -> Array:
@@ -159,8 +198,9 @@ class ArmLayer:
         """Add or redraw an arm on a robot: {"id", "agent" (the robot's agent id), "name",
         "dh", "limits", "tool", "home", "T_robot_arm", "q"} with the fields of an arm of the
         registry (metres, radians; q defaults to home). Its links, frames and gripper are
-        drawn inside the agent's frame once the agent is drawn. Raises InvalidInput (nothing
-        changes) for a malformed model, a mount that is not rigid, or q outside the limits."""
+        drawn inside the agent's frame once the agent is drawn, the gripper at its default
+        opening and no box. Raises InvalidInput (nothing changes) for a malformed model, a
+        mount that is not rigid, or q outside the limits."""
         spec = parse_arm(arm)
         with self._cond:
             old = self._arm_specs.get(spec.id)
@@ -205,6 +245,33 @@ class ArmLayer:
             self._arm_specs[ident] = replace(current, opening=width)
             self._dirty_arms.add(ident)
             self._cond.notify_all()
+
+    def set_arm_box(self, id: str, T_arm_box: Any) -> None:
+        """Draw the box an arm is fetching (the twin's: BOX_SIZE, MARK_BOARD printed on its
+        top), or move it, to T_arm_box (4, 4): its mark frame (the top's centre, x along its
+        length, z up out of it) in the arm's base frame, the frame its joints' forward
+        kinematics are in. Raises InvalidInput (nothing changes) for an arm not in the scene
+        or a pose that is not a finite rigid 4x4 transform."""
+        ident = agent_id(id)
+        pose_from_transform(T_arm_box, f"arm {ident!r}: T_arm_box")  # rigid, or InvalidInput
+        box = np.array(T_arm_box, dtype=np.float64)
+        with self._cond:
+            current = self._arm_specs.get(ident)
+            if current is None:
+                raise InvalidInput(f"no arm {ident!r} in the scene; add it with set_arm first")
+            self._arm_specs[ident] = replace(current, box=box)
+            self._dirty_arms.add(ident)
+            self._cond.notify_all()
+
+    def remove_arm_box(self, id: str) -> None:
+        """Take an arm's box out of the scene (nothing happens if there is none)."""
+        ident = agent_id(id)
+        with self._cond:
+            current = self._arm_specs.get(ident)
+            if current is not None and current.box is not None:
+                self._arm_specs[ident] = replace(current, box=None)
+                self._dirty_arms.add(ident)
+                self._cond.notify_all()
 
     def remove_arm(self, id: str) -> None:
         """Remove an arm from the scene (nothing happens if it is not there)."""
@@ -272,6 +339,7 @@ class ArmLayer:
                 handle.position = pose.position
                 handle.wxyz = pose.wxyz
             self._draw_gripper(server, spec, names[-1], fingers_only=True)
+            box = self._draw_box(server, spec, f"{node}/box", moved_only=True)
         else:
             server.scene.remove_by_name(node)
             server.scene.add_frame(node, wxyz=mount.wxyz, position=mount.position, show_axes=False)
@@ -285,6 +353,7 @@ class ArmLayer:
                     axes_radius=0.006,
                 )
             self._draw_gripper(server, spec, names[-1])
+            box = self._draw_box(server, spec, f"{node}/box")
             server.scene.add_label(
                 f"{node}/label", spec.name, position=(0.0, 0.0, -0.05), font_screen_scale=0.7
             )
@@ -306,6 +375,7 @@ class ArmLayer:
             mount=mount,
             frames=poses,
             opening=spec.opening,
+            box=box,
         )
 
     @staticmethod
@@ -337,3 +407,53 @@ class ArmLayer:
                 dimensions=(0.03, _MAX_PALM, 0.015),
                 position=(0.0, 0.0, -length),
             )
+
+    @staticmethod
+    def _draw_box(
+        server: Any, spec: ArmSpec, name: str, *, moved_only: bool = False
+    ) -> Pose | None:
+        """The box at spec.box in the arm's base frame: the body below its top, the print's
+        white paper on the top and its dark squares on the paper; return its pose (None when
+        the spec has no box, and a drawn one is taken away). `moved_only`: the arm was drawn
+        before, so a box drawn then is only moved."""
+        handle = server.scene.get_handle_by_name(name) if moved_only else None
+        if spec.box is None:
+            if handle is not None:
+                server.scene.remove_by_name(name)
+            return None
+        pose = pose_from_transform(spec.box, f"arm {spec.id} T_arm_box")
+        if handle is not None:
+            handle.position = pose.position
+            handle.wxyz = pose.wxyz
+            return pose
+        server.scene.add_frame(name, wxyz=pose.wxyz, position=pose.position, show_axes=False)
+        height = BOX_SIZE[2]
+        server.scene.add_box(
+            f"{name}/body",
+            color=_COLOR_BOX,
+            dimensions=BOX_SIZE,
+            position=(0.0, 0.0, -height / 2),
+        )
+        cols, rows = MARK_BOARD.inner_corners
+        s = MARK_BOARD.square_size
+        margin = 2 * MARK_BOARD.margin * s
+        server.scene.add_box(
+            f"{name}/print",
+            color=_COLOR_PRINT,
+            dimensions=((cols + 1) * s + margin, (rows + 1) * s + margin, _PRINT_LIFT),
+            position=(0.0, 0.0, _PRINT_LIFT / 2),
+            cast_shadow=False,
+        )
+        vertices, faces = _SQUARES
+        server.scene.add_mesh_simple(
+            f"{name}/squares",
+            vertices=vertices,
+            faces=faces,
+            color=_COLOR_SQUARE,
+            flat_shading=True,
+            side="double",
+            position=(0.0, 0.0, 2 * _PRINT_LIFT),
+            cast_shadow=False,
+            receive_shadow=False,
+        )
+        return pose

@@ -15,6 +15,7 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -387,11 +388,14 @@ def run_fetch(
     report: Callable[[str, float, dict[str, Any] | None], None],
     joints: Callable[[np.ndarray], None] | None = None,
     gripper: Callable[[float], None] | None = None,
+    box: Callable[[np.ndarray], None] | None = None,
 ) -> dict[str, Any]:
     """Run a fetch task and return its result; `report(phase, fraction, partial result)` is
     called as each episode enters each of its phases ("episode 2 of 5: look then move", the
     controller's own calls) and with the result so far after each episode; `joints(q)` each
-    time the arm moves and `gripper(opening)` (m) each time the gripper opens or closes. With
+    time the arm moves, `gripper(opening)` (m) each time the gripper opens or closes and
+    `box(T_arm_box)` each time the twin's box moves relative to the arm's base (its mark frame
+    in the arm's base frame, before the joints of the same step: grasp_episode's on_box). With
     inputs["object"] (fetch_target's), every episode fetches the box at the pose the semantic
     map holds (the twin's box lies off it by the map's error).
 
@@ -454,6 +458,7 @@ def run_fetch(
             renderer=renderer,
             taught=taught,
             on_gripper=gripper,
+            on_box=box,
         )
         records.append(episode_record(episode))
     return fetch_summary(records, planned, hand_eye, seed)
@@ -483,11 +488,22 @@ def expire_stale_tasks(session: Session, stale_s: float) -> int:
     return int(result.rowcount or 0)
 
 
+@dataclass(frozen=True)
+class ArmMotion:
+    """What shows a task's arm in the 3D scene, run_fetch's reporters: `joints(q)`,
+    `gripper(opening)` and `box(T_arm_box)`; all None when there is no scene or no arm."""
+
+    joints: Callable[[np.ndarray], None] | None = None
+    gripper: Callable[[float], None] | None = None
+    box: Callable[[np.ndarray], None] | None = None
+
+
 class TaskRunner:
     """Runs tasks in background threads of the API process (`workers` at a time; the others
     wait queued). A heartbeat thread renews the `heartbeat` of the tasks it holds every
     `heartbeat_s` and marks interrupted those of any process silent for `stale_s`. With the
-    live 3D scene (`scene`), a task's arm is drawn on the robot the scene shows."""
+    live 3D scene (`scene`), a task's arm is drawn on the robot the scene shows, with the box
+    it fetches."""
 
     def __init__(
         self,
@@ -534,6 +550,7 @@ class TaskRunner:
         return result.rowcount == 1
 
     def _run(self, task_id: int, cancel: threading.Event) -> None:
+        arm: Arm | None = None
         try:
             with self.factory() as session:
                 task = session.get(Task, task_id)
@@ -569,11 +586,13 @@ class TaskRunner:
                 log.exception("task %d crashed", task_id)
                 outcome = {"status": "failed", "error": f"internal error: {exc!r}"}
             self._write(task_id, finished_at=utcnow(), **outcome)
-            if arm is not None and self.scene is not None:
-                self.scene.arm_changed(arm)  # back at home: the arm is idle
         except Exception:
             log.exception("task %d could not be run", task_id)
         finally:
+            if arm is not None and self.scene is not None:
+                # However it ended, the arm is idle: the box it fetched gone, back at home.
+                self.scene.arm_box_removed(arm.id)
+                self.scene.arm_changed(arm)
             with self._lock:
                 self._held.pop(task_id, None)
 
@@ -584,20 +603,19 @@ class TaskRunner:
         extends this."""
         if kind != "fetch":
             raise IntspaceError(f"this service cannot run {kind!r} tasks")
-        joints, gripper = self._arm_motion(arm)
-        return run_fetch(inputs, report, joints, gripper)
+        motion = self._arm_motion(arm)
+        return run_fetch(inputs, report, motion.joints, motion.gripper, motion.box)
 
-    def _arm_motion(
-        self, arm: Arm | None
-    ) -> tuple[Callable[[np.ndarray], None] | None, Callable[[float], None] | None]:
+    def _arm_motion(self, arm: Arm | None) -> ArmMotion:
         """Return what shows a task's arm moving in the 3D scene: its joints, at most 10
-        times a second (the twin runs the fetch faster than the clock), and its gripper
-        opening and closing; or (None, None)."""
+        times a second (the twin runs the fetch faster than the clock), with the box where
+        the step that moved them put it, and its gripper opening and closing."""
         scene = self.scene
         if scene is None or arm is None:
-            return None, None
+            return ArmMotion()
         arm_id = arm.id
         last = -math.inf
+        pending: list[np.ndarray] = []  # the box's latest pose, not shown yet
 
         def show(q: np.ndarray) -> None:
             nonlocal last
@@ -605,11 +623,18 @@ class TaskRunner:
             if now - last >= 0.1:
                 last = now
                 scene.arm_joints(arm_id, q)
+                if pending:
+                    scene.arm_box(arm_id, pending.pop())
+
+        def hold(T_arm_box: np.ndarray) -> None:
+            # Shown with the joints that follow it (the episode reports the box first): a box
+            # in the gripper sent alone would be drawn a control step off the fingers.
+            pending[:] = [T_arm_box]
 
         def grip(opening: float) -> None:
             scene.arm_gripper(arm_id, opening)
 
-        return show, grip
+        return ArmMotion(joints=show, gripper=grip, box=hold)
 
     def _heartbeat(self) -> None:
         while not self._stop.wait(self._heartbeat_s):

@@ -166,6 +166,17 @@ class SceneSync:
         if self.scene is not None:
             self._call("set_arm_gripper", str(arm_id), opening)
 
+    def arm_box(self, arm_id: int, T_arm_box: Any) -> None:
+        """Draw the box a drawn arm's task is fetching, or move it, to T_arm_box (4, 4): its
+        mark frame (the top's centre) in the arm's base frame (a task reporting it)."""
+        if self.scene is not None:
+            self._call("set_arm_box", str(arm_id), T_arm_box)
+
+    def arm_box_removed(self, arm_id: int) -> None:
+        """Take a drawn arm's box out of the scene (its task ended)."""
+        if self.scene is not None:
+            self._call("remove_arm_box", str(arm_id))
+
     def projector_changed(self, projector: Projector) -> None:
         """Redraw the projector at its (newly applied) pose T_world_projector, its beam still
         on the floor spot it was drawn to; nothing when it has no pose."""

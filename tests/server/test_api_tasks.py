@@ -252,15 +252,49 @@ def test_survey_on_the_twin_fills_the_maps(twin_client, admin):
         assert response.status_code == 422, bad
 
 
+def _assert_scene_showed_the_box(scene, arm: dict, reported: list) -> None:
+    """The 3D scene drew the fetched box where the episode had it when the arm was at the
+    joints drawn with it, and took it away when the task ended."""
+    log = scene.log
+    sent = [i for i, (name, _) in enumerate(log) if name == "set_arm_box"]
+    assert sent, "the box was never drawn"
+    closed = [i for i, (name, _) in enumerate(log) if name == "set_arm_gripper"][1]
+    mount = np.asarray(arm["T_robot_arm"])
+    for i in sent:
+        (arm_id, T) = log[i][1]
+        name, (_, q) = log[i - 1]
+        assert arm_id == str(arm["id"]) and name == "set_arm_joints"
+        # The box the episode had when its arm was at q: the last one reported before them.
+        steps = [
+            k for k, (kind, v) in enumerate(reported) if kind == "joints" and np.array_equal(v, q)
+        ]
+        boxes = [next(v for kind, v in reversed(reported[:k]) if kind == "box") for k in steps]
+        assert any(np.array_equal(T, b) for b in boxes), "a box pose the episode never had"
+        if i < closed:
+            # On the table, in the robot's frame (T_robot_arm @ T_arm_box): its top at the
+            # map's 0.85 m, face up.
+            T_robot_box = mount @ np.asarray(T)
+            assert T_robot_box[2, 3] == pytest.approx(0.85, abs=1e-9)
+            np.testing.assert_allclose(T_robot_box[:3, 2], [0.0, 0.0, 1.0], atol=1e-9)
+    # The task ended: the box went, after every pose sent, then the arm was drawn at home.
+    names = [name for name, _ in log]
+    gone = len(names) - 1 - names[::-1].index("remove_arm_box")
+    assert log[gone][1] == (str(arm["id"]),) and gone > sent[-1]
+    assert names[gone + 1 :] == ["set_arm"]
+
+
 class _SceneRecorder:
-    """Stands in for the live 3D scene: records the calls the service makes."""
+    """Stands in for the live 3D scene: records the calls the service makes, by method
+    (`calls`) and in order (`log`: (method, args))."""
 
     def __init__(self) -> None:
         self.calls: dict[str, list[tuple]] = {}
+        self.log: list[tuple[str, tuple]] = []
 
     def __getattr__(self, name):
         def record(*args):
             self.calls.setdefault(name, []).append(args)
+            self.log.append((name, args))
 
         return record
 
@@ -348,12 +382,22 @@ def test_fetch_an_object_of_the_semantic_map(twin_client, admin):
     ).X
     prior = np.asarray(held[41]["T_world_mark"])
     taught = taught_image(mm.T_ee_camera, renderer=renderer, rng=rng, sigma_px=0.5)
+    reported: list[tuple[str, np.ndarray]] = []  # the episode's joints and box, in order
     for mine in task["result"]["per_episode"]:
         theirs = grasp_episode(
-            rng, mm, X, sigma_px=0.5, T_world_prior=prior, renderer=renderer, taught=taught
+            rng,
+            mm,
+            X,
+            sigma_px=0.5,
+            T_world_prior=prior,
+            renderer=renderer,
+            taught=taught,
+            on_joints=lambda q: reported.append(("joints", q)),
+            on_box=lambda T: reported.append(("box", T)),
         )
         assert mine["success"] == theirs.success
         assert mine["position_error_mm"] == pytest.approx(theirs.position_error_mm, rel=1e-9)
+    _assert_scene_showed_the_box(scene, arm, reported)
     # Spec 05's grasp bounds: within 5 mm and 2 deg of the true grasp pose, the episode.
     result = task["result"]
     assert result["successes"] == 1

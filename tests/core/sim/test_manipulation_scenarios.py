@@ -209,9 +209,15 @@ def test_grasp_episode_fetches_the_box_where_the_prior_says() -> None:
     assert fetch_problem(mm, prior) is None
     successes = 0
     for seed in range(2):
-        joints: list[np.ndarray] = []
+        events: list[tuple[str, object]] = []  # the reports, in order
         e = grasp_episode(
-            np.random.default_rng(seed), mm, X, T_world_prior=prior, on_joints=joints.append
+            np.random.default_rng(seed),
+            mm,
+            X,
+            T_world_prior=prior,
+            on_joints=_recorder(events, "joints"),
+            on_gripper=_recorder(events, "gripper"),
+            on_box=_recorder(events, "box"),
         )
         # Scored against the twin's box, which lies off the prior by its 5 cm / 0.15 rad
         # errors: the controller found it from the prior and grasped it within spec 05's
@@ -220,10 +226,58 @@ def test_grasp_episode_fetches_the_box_where_the_prior_says() -> None:
         assert e.position_error_mm < 5.0 and e.rotation_error_deg < 2.0, e
         # Every arm motion was reported, each within the arm's limits, and no joint moved
         # faster than the joint position control allows (JOINT_RATE over a 0.1 s step).
-        q = np.array(joints)
+        q = np.array([v for kind, v in events if kind == "joints"])
         assert len(q) > 20 and np.all(mm.arm.within_limits(q, tol=1e-9))
         assert np.abs(np.diff(q, axis=0)).max() <= JOINT_RATE * 0.1 + 1e-12
+        _assert_box_reports(events, mm, prior, e)
     assert successes == 2
+
+
+def _recorder(events: list, kind: str):
+    """Return a reporter that appends (kind, value) to events."""
+    return lambda value: events.append((kind, value))
+
+
+def _assert_box_reports(events: list, mm, prior: np.ndarray, e) -> None:
+    """The box an episode reported (T_arm_box, its mark frame in the arm's base frame): on
+    the table until the gripper closes, then held in the gripper as it lifts."""
+    closed = [i for i, (kind, _) in enumerate(events) if kind == "gripper"][1]
+    table = [T for kind, T in events[:closed] if kind == "box"]
+    held = [(i, T) for i, (kind, T) in enumerate(events) if kind == "box" and i > closed]
+    assert events[0][0] == "gripper" and events[1][0] == "box"  # before the robot moves
+    # On the table (the map's height kept, 0.85 m) and face up, seen from the arm's base
+    # (mounted upright 0.80 m above the floor): the base drives, so the box moves in its frame.
+    table_arr = np.array(table)
+    assert len(table) > 10
+    np.testing.assert_allclose(table_arr[:, 2, 3], prior[2, 3] - mm.T_base_arm[2, 3], atol=1e-12)
+    np.testing.assert_allclose(
+        table_arr[:, :3, 2], np.tile([0.0, 0.0, 1.0], (len(table), 1)), atol=1e-12
+    )
+    assert np.ptp(table_arr[:, :2, 3], axis=0).max() > 0.05
+    # Every box the lift reports comes just before the joints of the same step, and rides in
+    # the end effector: T_ee_box is one constant transform, the grasp pose relative to the
+    # mark (T_MARK_GRASP) inverted, off by the episode's own error against the twin's box
+    # (plus its rotation error's lever: the mark is 0.05 m above the fingertips), centred
+    # between the fingers.
+    assert len(held) >= 3
+    ee_box = []
+    for i, T in held[1:]:
+        kind, q = events[i + 1]
+        assert kind == "joints"
+        ee_box.append(invert_pose(mm.arm.fk(q)) @ T)
+    ee_box = np.array(ee_box)
+    np.testing.assert_allclose(ee_box, np.broadcast_to(ee_box[0], ee_box.shape), atol=1e-12)
+    dp, dr = pose_error(ee_box[0], invert_pose(T_MARK_GRASP))
+    assert np.degrees(dr) == pytest.approx(e.rotation_error_deg, abs=1e-9)
+    assert dp <= e.position_error_mm / 1e3 + 0.05 * dr + 1e-12
+    assert ee_box[0][1, 3] == pytest.approx(0.0, abs=1e-12)
+    # Closed on, the box moved only sideways (onto the fingers' midline), then the lift took
+    # it 0.10 m straight up (within the numerical IK's 1e-6 tolerance).
+    at_close, lifted = held[0][1], held[-1][1]
+    dp, dr = pose_error(at_close, table[-1])
+    lever = 0.05 * np.radians(e.rotation_error_deg)
+    assert dr < 1e-12 and dp <= e.position_error_mm / 1e3 + lever
+    np.testing.assert_allclose(lifted[:3, 3] - at_close[:3, 3], [0.0, 0.0, 0.10], atol=1e-6)
 
 
 def test_fetch_problem_names_what_stops_a_fetch() -> None:

@@ -9,6 +9,9 @@ import pytest
 
 from core.errors import InvalidInput
 from core.manipulation import default_arm
+from core.sim.manipulation_scenarios import BOX_SIZE, MARK_BOARD, MARK_POINTS, T_MARK_BOARD
+from core.sim.render._textures import _board_texture
+from server.scene import Pose
 from server.scene._arm import FRAME_NAMES
 from server.scene._geometry import matrix_from_quaternion
 from server.schemas.manipulation import TWIN_ARM
@@ -28,6 +31,13 @@ def _pose(handle) -> np.ndarray:
     T = np.eye(4)
     T[:3, :3] = matrix_from_quaternion(handle.wxyz)
     T[:3, 3] = handle.position
+    return T
+
+
+def _pose_of_view(pose: Pose) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3] = matrix_from_quaternion(pose.wxyz)
+    T[:3, 3] = pose.position
     return T
 
 
@@ -119,3 +129,96 @@ def test_arm_waits_for_its_robot_and_bad_arms_are_refused(scene):
         scene.set_arm(_arm(dh={"a": [0.1] * 5, "d": [0] * 6, "alpha": [0] * 6}))
     assert scene.flush()
     _assert_frames_are_fk(scene, np.asarray(TWIN_ARM["home"]))  # nothing changed
+
+
+def _yawed_box(yaw: float, position) -> np.ndarray:
+    c, s = np.cos(yaw), np.sin(yaw)
+    T = np.eye(4)
+    T[:3, :3] = [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]
+    T[:3, 3] = position
+    return T
+
+
+def test_the_fetched_box_is_drawn_in_the_arm_frame_follows_its_reports_and_goes(scene):
+    scene.upsert_agent({"id": "robot", "kind": "robot", "x": 2.0, "y": 1.0, "theta": 0.4})
+    scene.set_arm(_arm())
+    assert scene.flush()
+    find = scene.server.scene.get_handle_by_name
+    node = "/agents/robot/arm-7/box"
+    assert find(node) is None and scene.arms()["7"].box is None
+
+    # On the table ahead of the arm: drawn inside the arm's node (itself at the mount), so in
+    # the robot's frame the box is at T_robot_arm @ T_arm_box.
+    on_table = _yawed_box(0.7, [0.62, 0.08, 0.05])
+    scene.set_arm_box("7", on_table)
+    assert scene.flush()
+    np.testing.assert_allclose(_pose(find(node)), on_table, atol=POSE_TOL)
+    np.testing.assert_allclose(
+        _pose(find("/agents/robot/arm-7")) @ _pose(find(node)), MOUNT @ on_table, atol=POSE_TOL
+    )
+    np.testing.assert_allclose(_pose_of_view(scene.arms()["7"].box), on_table, atol=POSE_TOL)
+    # The twin's box (core.sim): 160 x 115 x 100 mm below its top, the mark frame's origin;
+    # the print's paper 7 x 6 squares of 16 mm with an 8 mm border, 128 x 112 mm, on the top.
+    body = find(f"{node}/body")
+    np.testing.assert_allclose(body.dimensions, BOX_SIZE, atol=1e-7)  # float32 in viser
+    np.testing.assert_allclose(body.position, [0.0, 0.0, -0.05], atol=1e-7)
+    np.testing.assert_allclose(find(f"{node}/print").dimensions[:2], [0.128, 0.112], atol=1e-7)
+    # Its dark squares are the renderer's print: every inner corner the detector finds
+    # (MARK_POINTS, mark frame) is a corner of the drawn squares, and each drawn square's
+    # centre is dark in the texture the twin's camera images are rendered from.
+    squares = find(f"{node}/squares")
+    vertices = np.asarray(squares.vertices, dtype=np.float64)
+    for corner in MARK_POINTS:
+        assert np.min(np.linalg.norm(vertices - corner, axis=1)) < 1e-7
+    texture = _board_texture(MARK_BOARD, per_square=32)
+    centres = vertices.reshape(-1, 4, 3).mean(axis=1)
+    board = centres @ T_MARK_BOARD[:3, :3] - T_MARK_BOARD[:3, 3] @ T_MARK_BOARD[:3, :3]
+    texel = MARK_BOARD.square_size / 32
+    margin = round(MARK_BOARD.margin * 32)  # texels, then the squares from (-1, -1)
+    col = np.floor(board[:, 0] / texel + margin + 32).astype(int)
+    row = np.floor(board[:, 1] / texel + margin + 32).astype(int)
+    assert len(centres) == 21 and np.all(texture[row, col, 0] < 128)  # 42 squares, half dark
+
+    # The gripper holds it: re-posed as the task reports, and kept as the joints move.
+    lifted = _yawed_box(-0.2, [0.5, -0.1, 0.25])
+    scene.set_arm_box("7", lifted)
+    q = np.asarray(TWIN_ARM["home"]) + 0.1
+    scene.set_arm_joints("7", q)
+    assert scene.flush()
+    np.testing.assert_allclose(_pose(find(node)), lifted, atol=POSE_TOL)
+    assert find(f"{node}/body") is not None
+    _assert_frames_are_fk(scene, q)
+    # The robot redrawn drops its children: the box is drawn again with the arm.
+    scene.upsert_agent({"id": "robot", "kind": "robot", "x": 2.0, "y": 1.0, "radius": 0.25})
+    assert scene.flush()
+    np.testing.assert_allclose(_pose(find(node)), lifted, atol=POSE_TOL)
+
+    # Bad poses and unknown arms are refused by name; nothing changes.
+    skew = lifted.copy()
+    skew[0, 1] = 0.3
+    for bad, words in (
+        (lifted[:3, :3], "finite 4x4"),
+        (np.full((4, 4), np.nan), "finite 4x4"),
+        (skew, "rotation"),
+        ("box", "numeric"),
+    ):
+        with pytest.raises(InvalidInput, match=words):
+            scene.set_arm_box("7", bad)
+    with pytest.raises(InvalidInput, match="no arm '8'"):
+        scene.set_arm_box("8", on_table)
+    assert scene.flush()
+    np.testing.assert_allclose(_pose(find(node)), lifted, atol=POSE_TOL)
+    assert set(scene.arms()) == {"7"}
+
+    # The task ended: the box goes, the arm stays.
+    scene.remove_arm_box("7")
+    assert scene.flush()
+    assert find(node) is None and scene.arms()["7"].box is None
+    _assert_frames_are_fk(scene, q)
+    scene.remove_arm_box("7")  # nothing to remove
+    scene.remove_arm_box("8")
+    # Drawing the arm afresh (as a task starts or ends) draws it without a box.
+    scene.set_arm_box("7", on_table)
+    scene.set_arm(_arm())
+    assert scene.flush()
+    assert find(node) is None and scene.arms()["7"].box is None
