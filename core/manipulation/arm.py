@@ -492,7 +492,7 @@ class DHArm:
         x += r[0] * tx + r[1] * ty + r[2] * tz
         y += r[3] * tx + r[4] * ty + r[5] * tz
         z += r[6] * tx + r[7] * ty + r[8] * tz
-        jac = []
+        jac: list[tuple[float, ...]] = []
         for (ax, ay, az), (ox, oy, oz) in zip(axes, origins, strict=True):
             dx, dy, dz = x - ox, y - oy, z - oz
             jac.append((ay * dz - az * dy, az * dx - ax * dz, ax * dy - ay * dx, ax, ay, az))
