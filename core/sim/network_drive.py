@@ -418,13 +418,15 @@ def revisit_stops(
 @dataclass(frozen=True)
 class MarkerObservations:
     """Each camera's view of the marker at each stop: `pixels` (C, M, 2), `cov` (C, M, 2, 2)
-    px^2 (the detector's, or sigma^2 I), `visible` (C, M), and `errors` the pixels minus the
-    marker's true image centre (scoring only; `sigma_px` their RMS per axis)."""
+    px^2 (the detector's, or sigma^2 I), `visible` (C, M), `areas` (C, M) the detected blobs'
+    covered areas in pixels (NaN unseen or for projections), and `errors` the pixels minus
+    the marker's true image centre (scoring only; `sigma_px` their RMS per axis)."""
 
     pixels: Array
     cov: Array
     visible: NDArray[np.bool_]
     errors: Array = field(repr=False)  # (K, 2) px, detections minus truth (scoring only)
+    areas: Array | None = None
 
     @property
     def sigma_px(self) -> float:
@@ -434,11 +436,15 @@ class MarkerObservations:
 
     def joined(self, other: MarkerObservations) -> MarkerObservations:
         """Return these observations followed by `other`'s stops."""
+        areas = None
+        if self.areas is not None and other.areas is not None:
+            areas = np.concatenate([self.areas, other.areas], axis=1)
         return MarkerObservations(
             np.concatenate([self.pixels, other.pixels], axis=1),
             np.concatenate([self.cov, other.cov], axis=1),
             np.concatenate([self.visible, other.visible], axis=1),
             np.concatenate([self.errors, other.errors]),
+            areas,
         )
 
 
@@ -477,6 +483,7 @@ def observe_marker(
     pixels = np.zeros((C, M, 2))
     cov = np.tile(np.eye(2), (C, M, 1, 1))
     vis = np.zeros((C, M), bool)
+    areas = np.full((C, M), np.nan)
     errs: list[Array] = []
     if mode == "projections":
         if not sigma_px > 0:
@@ -498,10 +505,11 @@ def observe_marker(
                 if det is None:
                     continue
                 pixels[k, j], cov[k, j], vis[k, j] = det.pixel, det.cov, True
+                areas[k, j] = det.area
                 if frame.marker_ellipse_pixel is not None:
                     errs.append((det.pixel - frame.marker_ellipse_pixel)[None])
     e = np.concatenate(errs) if errs else np.zeros((0, 2))
-    return MarkerObservations(pixels, cov, vis, e)
+    return MarkerObservations(pixels, cov, vis, e, areas)
 
 
 def drive_and_observe(
@@ -703,7 +711,7 @@ def drive_marker_calibration(
             raise InvalidInput(f"camera_poses names an unknown camera {name!r}")
         k = names.index(name)
         vis[k, np.flatnonzero(vis[k])[cap:]] = False
-    obs = MarkerObservations(obs.pixels, obs.cov, vis, obs.errors)
+    obs = MarkerObservations(obs.pixels, obs.cov, vis, obs.errors, obs.areas)
     marker = scene.robot.marker
     net = calibrate_network_marker(
         names,
@@ -715,6 +723,7 @@ def drive_marker_calibration(
         offset=marker.offset,
         radius=marker.radius if mode == "images" else 0.0,
         pixel_cov=obs.cov,
+        areas=obs.areas,
         min_poses=min_poses,
     )
     done = [c.name for c in net.cameras]
