@@ -75,6 +75,10 @@ class MarkerDetectorConfig:
     pixel_sigma: when given (pixels), the centroid covariance is sigma^2 I instead of the one
     propagated from the image noise; min_sigma: a floor (pixels) on the propagated standard
     deviation, for the model errors the noise does not show (blur, distortion over the blob).
+    Measured on the twin's rendered markers (264 unhidden detections of three calibration
+    drives against the true image ellipse centre): blobs of 60 px and more are 0.03-0.06 px
+    off per axis where the propagated deviation is about 0.022 px (mean NEES 13 for the
+    largest); with the floor at 0.04 px the mean NEES of all of them is 1.5 (expected 2).
     """
 
     colour: tuple[int, int, int] = (220, 20, 30)
@@ -88,7 +92,7 @@ class MarkerDetectorConfig:
     min_ellipse_overlap: float = 0.7
     border: int = 2
     pixel_sigma: float | None = None
-    min_sigma: float = 0.02
+    min_sigma: float = 0.04
 
     def __post_init__(self) -> None:
         if len(self.colour) != 3 or not all(0 <= int(c) <= 255 for c in self.colour):
