@@ -238,13 +238,7 @@ class ArmLayer:
             raise InvalidInput(
                 f"arm {ident!r}: the gripper opening must be 0-{_MAX_OPENING} m, got {opening!r}"
             )
-        with self._cond:
-            current = self._arm_specs.get(ident)
-            if current is None:
-                raise InvalidInput(f"no arm {ident!r} in the scene; add it with set_arm first")
-            self._arm_specs[ident] = replace(current, opening=width)
-            self._dirty_arms.add(ident)
-            self._cond.notify_all()
+        self._replace_arm(ident, opening=width)
 
     def set_arm_box(self, id: str, T_arm_box: Any) -> None:
         """Draw the box an arm is fetching (the twin's: BOX_SIZE, MARK_BOARD printed on its
@@ -254,12 +248,16 @@ class ArmLayer:
         or a pose that is not a finite rigid 4x4 transform."""
         ident = agent_id(id)
         pose_from_transform(T_arm_box, f"arm {ident!r}: T_arm_box")  # rigid, or InvalidInput
-        box = np.array(T_arm_box, dtype=np.float64)
+        self._replace_arm(ident, box=np.array(T_arm_box, dtype=np.float64))
+
+    def _replace_arm(self, ident: str, **changes: Any) -> None:
+        """Change fields of a drawn arm's spec and have it redrawn. Raises InvalidInput for an
+        arm not in the scene."""
         with self._cond:
             current = self._arm_specs.get(ident)
             if current is None:
                 raise InvalidInput(f"no arm {ident!r} in the scene; add it with set_arm first")
-            self._arm_specs[ident] = replace(current, box=box)
+            self._arm_specs[ident] = replace(current, **changes)
             self._dirty_arms.add(ident)
             self._cond.notify_all()
 
