@@ -50,6 +50,9 @@ _BASE_DT = 0.05
 _SCENE_HZ = 5.0
 # How many of the robot track's errors against the truth the state keeps.
 _ERRORS_KEPT = 2000
+# The most a late step advances the simulation (seconds): the whole frame periods since the
+# previous step, up to this (a stalled machine), so the world never jumps further at once.
+MAX_CATCH_UP_S = 1.0
 _IMAGE_HZ = 1.0
 
 
@@ -345,13 +348,31 @@ class Twin:
                 return
             self._detectors[cam.name] = self._learn_background(cam.name)
         next_time = time.monotonic()
+        last: float | None = None
+        owed = 0.0  # real time not yet simulated (s)
         while not self._stop.is_set():
             period = 1.0 / max(self.rate_hz, 1e-3)
             if not self._paused.is_set():
+                # The home keeps the service's time, as real cameras do: when steps come late
+                # (a loaded machine) each advances the world by the whole periods that have
+                # passed, so the frames' stamps and the motion they show agree, and there are
+                # fewer frames. Advancing by one period regardless slowed the world while the
+                # stamps kept real time: a walker seemed to stop and jump, and the tracker
+                # could lose it. Whole periods keep the instants on one grid, whatever the
+                # load (two services on one home simulate the same instants).
+                now = time.monotonic()
+                if last is not None:
+                    owed = min(owed + now - last, MAX_CATCH_UP_S)
+                last = now
+                most = max(1, int(MAX_CATCH_UP_S / period + 1e-9))
+                periods = max(1, min(round(owed / period), most))
+                owed -= periods * period
                 try:
-                    self.step(period)
+                    self.step(periods * period)
                 except Exception:
                     log.exception("twin step failed")
+            else:
+                last, owed = None, 0.0
             self._last_step = time.monotonic()
             next_time = max(next_time + period, time.monotonic())
             if self._wake.wait(max(0.0, next_time - time.monotonic())):
