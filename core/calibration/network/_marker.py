@@ -505,9 +505,14 @@ def calibrate_network_marker(
     uv, vis, cov = _check_inputs(
         names, intrinsics, pixels, visible, odometry, pixel_cov, pixel_sigma
     )
+    if not (0.0 <= hidden_fraction < 1.0 and hidden_px >= 0.0):
+        raise InvalidInput("need 0 <= hidden_fraction < 1 and hidden_px >= 0")
     area = None
     if areas is not None:
-        area = np.asarray(areas, dtype=np.float64)
+        try:
+            area = np.asarray(areas, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise InvalidInput("areas must be numbers of pixels, (C, M)") from None
         if area.shape != vis.shape:
             raise InvalidInput(f"areas must be (C, M) = {vis.shape}, got {area.shape}")
         if np.any(area[vis] < 0):

@@ -363,6 +363,8 @@ def test_a_partly_hidden_marker_is_dropped_by_its_area() -> None:
     assert sum(c.outliers for c in blind.cameras) > 1
     with pytest.raises(InvalidInput, match="areas"):
         calibrate_network_marker(NAMES, pri, px, vis, odo, H, areas=areas[:, :5], **kw)
+    with pytest.raises(InvalidInput, match="hidden_fraction"):
+        calibrate_network_marker(NAMES, pri, px, vis, odo, H, hidden_fraction=1.5, **kw)
 
 
 def test_floor_gauge_projector_removes_a_floor_rigid_motion() -> None:
