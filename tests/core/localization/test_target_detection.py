@@ -122,3 +122,53 @@ def test_person_located_on_the_floor_from_the_foot_point(home: Renderer) -> None
     # Where on the rim depends on the view (the circle's image is tangent to an image row, not
     # to the direction of the camera): measured within 40 degrees of the camera's side.
     assert np.min(cosines) > np.cos(np.radians(45)), cosines
+
+
+def _disc_image(
+    centre: tuple[float, float], radius: float, cut: float, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
+    """Return a noisy BGR image of a red disc on grey whose side beyond x = centre + cut (px,
+    inf: none) a straight edge hides, and the true centroid of what shows (8x supersampled)."""
+    s = 8
+    ys, xs = np.mgrid[0 : 64 * s, 0 : 64 * s]
+    x, y = (xs + 0.5) / s - 0.5, (ys + 0.5) / s - 0.5
+    inside = ((x - centre[0]) ** 2 + (y - centre[1]) ** 2 <= radius**2) & (x - centre[0] <= cut)
+    w = inside.reshape(64, s, 64, s).mean(axis=(1, 3))
+    c = np.array([x[inside].mean(), y[inside].mean()])
+    img = (1 - w)[..., None] * np.array([128.0, 128.0, 128.0]) + w[..., None] * np.array(
+        [30.0, 20.0, 220.0]
+    )
+    img += rng.normal(0.0, 2.0, img.shape)
+    return np.clip(np.rint(img), 0, 255).astype(np.uint8), c
+
+
+def test_a_disc_cut_by_an_edge_is_reported_with_its_bias() -> None:
+    # A disc of 7 px radius: whole, its centroid error is hundredths of a pixel and its
+    # asymmetry at the noise; with a straight edge hiding 5-20 % of it the centroid moves
+    # 0.3-1.3 px (the true centre is the whole disc's), which the covariance must then cover.
+    rng = np.random.default_rng(7)
+    whole, cut_z, cut_blind = [], [], []
+    for i in range(12):
+        centre = (30.0 + 0.37 * i, 31.0 + 0.21 * i)
+        img, _ = _disc_image(centre, 7.0, np.inf, rng)
+        det = detect_marker(img)
+        assert det is not None
+        whole.append(np.linalg.norm(det.pixel - centre) / det.std.max())
+        for cut in (3.5, 4.5):  # hides about 20 % and 10 % of the disc
+            img, _ = _disc_image(centre, 7.0, cut, rng)
+            det = detect_marker(img)
+            blind = detect_marker(img, MarkerDetectorConfig(asymmetry_margin=0.0))
+            assert det is not None and blind is not None
+            assert det.asymmetry > 0.05
+            cut_z.append(np.linalg.norm(det.pixel - centre) / det.std.max())
+            cut_blind.append(np.linalg.norm(blind.pixel - centre) / blind.std.max())
+    # Measured: whole discs at most 0.3 of their deviation off; cut ones 0.7 with the test and
+    # at least 17 without it.
+    assert max(whole) < 3.0  # whole discs keep their small covariance
+    assert max(cut_z) < 3.0, cut_z  # the cut ones' covers the bias
+    assert min(cut_blind) > 5.0, cut_blind  # without the test it would not
+
+
+def test_asymmetry_margin_is_checked() -> None:
+    with pytest.raises(InvalidInput):
+        MarkerDetectorConfig(asymmetry_margin=-1.0)
