@@ -152,6 +152,11 @@ class NetworkCameraResult(ReadSchema):
     )
     rms: float = Field(description="RMS reprojection error of its detections, pixels.")
     poses_seen: int
+    detections: int | None = Field(
+        default=None,
+        description="Images of the robot's markers it had (the top marker and the mast's): "
+        "pose_residuals has one row per detection kept, detections - outliers.",
+    )
     outliers: int = 0
     pose_residuals: list[list[float]] = Field(
         default_factory=list,

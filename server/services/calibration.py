@@ -277,6 +277,7 @@ def network_calibration_drive(
                 "std": _std_of(cal),
                 "rms": cal.rms,
                 "poses_seen": cal.poses_seen,
+                "detections": cal.detections,
                 "outliers": cal.outliers,
                 "pose_residuals": [
                     [int(j), float(r[0]), float(r[1])]

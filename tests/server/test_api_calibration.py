@@ -538,7 +538,8 @@ def test_network_drive_result_is_stored_and_read_with_its_diagnostics():
     assert read.rms_px is not None and read.rms_whitened is not None
     assert len(read.pose_rms_px) == read.poses
     for cam in read.cameras:
-        assert len(cam.pose_residuals) == cam.poses_seen - cam.outliers
+        assert cam.detections is not None and cam.detections >= cam.poses_seen
+        assert len(cam.pose_residuals) == cam.detections - cam.outliers
         # Pooled per camera: the residuals' RMS is the camera's rms (pixels).
         r = np.array(cam.pose_residuals)[:, 1:]
         assert abs(np.sqrt(np.mean(np.sum(r**2, axis=1))) - cam.rms) < 1e-9

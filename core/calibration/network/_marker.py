@@ -8,6 +8,15 @@ with their covariance; the robot's poses come from its odometry, as independent 
 between stops with their covariance (`odometry_prior`), so the absolute poses carry the
 odometry's correlated covariance.
 
+The robot may carry several markers at different heights (the default robot: its top disc at
+0.36 m and a second disc on a thin mast at 1.2 m). With one marker, the points a camera sees lie
+on one plane, and its tilt rests on the floor distances between its stops, that is on the
+odometry: a camera alone in its room (one whose stops no other camera sees) is then left with a
+few tenths of a degree of tilt error (Cramer-Rao bound 0.25-0.75 deg over a 5-minute drive in the
+default home's bedroom). The image of a marker above another is a vertical segment at every
+stop, which gives the tilt directly: the bound falls to 0.1-0.25 deg, and positions within the
+network's frame from 1-5 cm to 0.3-0.9 cm.
+
 1. Initialisation per camera: the detections undistorted with the camera's own intrinsics and
    the marker's floor positions give its pose (a plane pose,
    core.calibration.estimate_plane_pose). The odometry drifts (up to a metre and ten degrees
@@ -167,17 +176,18 @@ def floor_gauge_projector(centres: ArrayLike) -> Array:
 
 
 def disc_centre_offset(
-    X: Array, rvec: Array, t: Array, K: Array, dist: Array, radius: float
+    X: Array, rvec: Array, t: Array, K: Array, dist: Array, radius: ArrayLike
 ) -> Array:
     """Return the pixel offset (M, 2) of the centre of a horizontal disc's image from the
-    image of its centre, for discs of `radius` metres centred at X (M, 3).
+    image of its centre, for discs of `radius` metres (one value, or (M,)) centred at X (M, 3).
 
     A detector's blob centroid is the centre of the disc's image ellipse, which perspective
     moves off the projected centre (by up to ~0.1 px for the twin's 5 cm marker at 3 m): the
     disc maps by H = [R e1, R e2, R X + t] (normalised image) to the conic
     C = H^-T diag(1, 1, -r^2) H^-1 (Hartley & Zisserman eq. 2.13), whose centre is
     -C[:2, :2]^-1 C[:2, 2]; both centres are then distorted and mapped through K."""
-    if radius <= 0:
+    r = np.broadcast_to(np.asarray(radius, dtype=np.float64), (len(X),))
+    if not np.any(r > 0):
         return np.zeros((len(X), 2))
     R = rotvec_to_matrix(rvec)
     Xc = X @ R.T + t
@@ -186,28 +196,86 @@ def disc_centre_offset(
     H[:, :, 1] = R[:, 1]
     H[:, :, 2] = Xc
     Hi = np.linalg.inv(H)
-    C = np.swapaxes(Hi, -1, -2) @ np.diag([1.0, 1.0, -(radius**2)]) @ Hi
+    disc = np.zeros((len(X), 3, 3))
+    disc[:, 0, 0] = disc[:, 1, 1] = 1.0
+    disc[:, 2, 2] = -(r**2)
+    C = np.swapaxes(Hi, -1, -2) @ disc @ Hi
     centre = -np.linalg.solve(C[:, :2, :2], C[:, :2, 2:3])[..., 0]
     point = Xc[:, :2] / Xc[:, 2:3]
     d = distort_normalized(np.stack([centre, point]), dist)
     px = d @ K[:2, :2].T
-    return np.asarray(px[0] - px[1])
+    return np.where((r > 0)[:, None], px[0] - px[1], 0.0)
 
 
 def disc_image_area(
-    X: Array, rvec: Array, t: Array, K: Array, dist: Array, radius: float, n: int = 48
+    X: Array, rvec: Array, t: Array, K: Array, dist: Array, radius: ArrayLike, n: int = 48
 ) -> Array:
-    """Return the image area (M,) in pixels of horizontal discs of `radius` (metres) centred
-    at X (M, 3), seen by the camera (rvec, t world-to-camera, K, dist): the area of the
-    distorted images of n points on each rim (shoelace formula; the inscribed polygon's area,
-    short of the ellipse's by about 2 pi^2 / (3 n^2), 0.3 % for n = 48)."""
+    """Return the image area (M,) in pixels of horizontal discs of `radius` (metres; one
+    value, or (M,)) centred at X (M, 3), seen by the camera (rvec, t world-to-camera, K,
+    dist): the area of the distorted images of n points on each rim (shoelace formula; the
+    inscribed polygon's area, short of the ellipse's by about 2 pi^2 / (3 n^2), 0.3 % for
+    n = 48)."""
     phi = np.linspace(0.0, 2.0 * np.pi, n, endpoint=False)
-    rim = np.stack([np.cos(phi), np.sin(phi), np.zeros(n)], axis=1) * radius
-    pts = X[:, None, :] + rim[None]  # (M, n, 3)
+    r = np.broadcast_to(np.asarray(radius, dtype=np.float64), (len(X),))
+    rim = np.stack([np.cos(phi), np.sin(phi), np.zeros(n)], axis=1)
+    pts = X[:, None, :] + r[:, None, None] * rim[None]  # (M, n, 3)
     uv = project_points(pts.reshape(-1, 3), rvec, t, K, dist).points.reshape(len(X), n, 2)
     x, y = uv[..., 0], uv[..., 1]
     cross = x * np.roll(y, -1, axis=1) - y * np.roll(x, -1, axis=1)
     return np.asarray(0.5 * np.abs(cross.sum(axis=1)))
+
+
+@dataclass(frozen=True)
+class _Layout:
+    """Where each observation column's marker is: the robot carries K markers, and column
+    n = j K + k holds marker k at stop j: `stop` (N,) the stop, `offset` (N, 2) and `height`
+    (N,) the marker's place on the robot, `radius` (N,) its disc's radius, `first` (N,) the
+    columns of marker 0 (one height: what a camera's plane pose starts from)."""
+
+    stop: NDArray[np.intp]
+    offset: Array
+    height: Array
+    radius: Array
+    first: NDArray[np.bool_]
+    markers: int
+
+    @classmethod
+    def of(cls, stops: int, offsets: Array, heights: Array, radii: Array) -> _Layout:
+        k = len(heights)
+        return cls(
+            stop=np.repeat(np.arange(stops), k),
+            offset=np.tile(offsets, (stops, 1)),
+            height=np.tile(heights, stops),
+            radius=np.tile(radii, stops),
+            first=np.tile(np.arange(k) == 0, stops),
+            markers=k,
+        )
+
+    def head(self, stops: int) -> _Layout:
+        """The layout of the first `stops` stops."""
+        n = stops * self.markers
+        return _Layout(
+            self.stop[:n],
+            self.offset[:n],
+            self.height[:n],
+            self.radius[:n],
+            self.first[:n],
+            self.markers,
+        )
+
+    def points(self, poses: Array) -> tuple[Array, Array]:
+        """Return the markers' world points (N, 3) at the robot poses (M, 3) and d X / d pose
+        of their stops (N, 3, 3)."""
+        P = poses[self.stop]
+        c, s = np.cos(P[:, 2]), np.sin(P[:, 2])
+        o = self.offset
+        ro = np.stack([c * o[:, 0] - s * o[:, 1], s * o[:, 0] + c * o[:, 1]], 1)
+        X = np.column_stack([P[:, :2] + ro, self.height])
+        dX = np.zeros((len(P), 3, 3))
+        dX[:, 0, 0] = dX[:, 1, 1] = 1.0
+        dX[:, 0, 2] = -ro[:, 1]
+        dX[:, 1, 2] = ro[:, 0]
+        return X, dX
 
 
 class _MarkerProblem:
@@ -221,21 +289,18 @@ class _MarkerProblem:
         whiten: Array,
         used: NDArray[np.bool_],
         odometry: OdometryPrior,
-        offset: Array,
-        height: float,
-        radius: float = 0.0,
+        layout: _Layout,
     ) -> None:
         self.cams = cams
-        self.radius = radius
-        self.uv = pixels  # (C, M, 2)
-        self.W = whiten  # (C, M, 2, 2)
-        self.used = used  # (C, M)
+        self.layout = layout
+        self.uv = pixels  # (C, N, 2)
+        self.W = whiten  # (C, N, 2, 2)
+        self.used = used  # (C, N)
         self.odo = odometry
-        self.off = offset
-        self.h = height
         sizes = [len(c.prior.names) + 6 for c in cams]
         self.start = np.concatenate([[0], np.cumsum(sizes)]).astype(int)
         self.M = len(odometry.increments)
+        self.N = len(layout.stop)
         self.n_cam = int(self.start[-1])
         self.n = self.n_cam + 3 * self.M
         self.Lc = [_chol_whitener(c.prior.cov) if len(c.prior.names) else None for c in cams]
@@ -262,24 +327,18 @@ class _MarkerProblem:
         return compose_increments(self.odo.start, self.odo.increments + eps)
 
     def marker(self, poses: Array) -> tuple[Array, Array]:
-        """Return the marker's world points (M, 3) and d X / d pose (M, 3, 3)."""
-        c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
-        ro = np.stack([c * self.off[0] - s * self.off[1], s * self.off[0] + c * self.off[1]], 1)
-        X = np.column_stack([poses[:, :2] + ro, np.full(len(poses), self.h)])
-        dX = np.zeros((len(poses), 3, 3))
-        dX[:, 0, 0] = dX[:, 1, 1] = 1.0
-        dX[:, 0, 2] = -ro[:, 1]
-        dX[:, 1, 2] = ro[:, 0]
-        return X, dX
+        """Return the markers' world points (N, 3) and d X / d pose (N, 3, 3) (`_Layout`)."""
+        return self.layout.points(poses)
 
     def jacobians(self, g: Array, loc: Array) -> tuple[Array, Array, Array]:
-        C, M = len(self.cams), self.M
+        C, M, N = len(self.cams), self.M, self.N
         poses = self.poses(g)
         X, dX = self.marker(poses)
         eps = g[self.n_cam :].reshape(M, 3)
         D = increment_jacobian(self.odo.start, self.odo.increments + eps).reshape(M, 3, 3 * M)
+        D = D[self.layout.stop]  # (N, 3, 3 M)
         n_int = [len(c.prior.names) for c in self.cams]
-        rows = 2 * C * M + sum(n_int) + 3 * M
+        rows = 2 * C * N + sum(n_int) + 3 * M
         res = np.zeros(rows)
         J = np.zeros((rows, self.n))
         r = 0
@@ -288,21 +347,21 @@ class _MarkerProblem:
             pr = project_points(X, rv, t, K, d, jacobians=True)
             assert pr.d_intrinsics is not None and pr.d_distortion is not None
             assert pr.d_pose is not None
-            w = self.used[k][:, None, None] * self.W[k]  # (M, 2, 2)
+            w = self.used[k][:, None, None] * self.W[k]  # (N, 2, 2)
             # The ellipse-centre offset is second order in the disc's size: it enters the
             # prediction, its derivatives are left out of the Jacobian.
-            pred = pr.points + disc_centre_offset(X, rv, t, K, d, self.radius)
-            res[r : r + 2 * M] = np.einsum("mij,mj->mi", w, pred - self.uv[k]).ravel()
+            pred = pr.points + disc_centre_offset(X, rv, t, K, d, self.layout.radius)
+            res[r : r + 2 * N] = np.einsum("mij,mj->mi", w, pred - self.uv[k]).ravel()
             d_all = np.concatenate([pr.d_intrinsics[..., :4], pr.d_distortion], axis=-1)
             sel = [INTRINSIC_PARAMETERS.index(n) for n in cam.prior.names]
-            jc = np.concatenate([d_all[..., sel], pr.d_pose], axis=-1)  # (M, 2, P)
-            J[r : r + 2 * M, self.start[k] : self.start[k + 1]] = (w @ jc).reshape(2 * M, -1)
+            jc = np.concatenate([d_all[..., sel], pr.d_pose], axis=-1)  # (N, 2, P)
+            J[r : r + 2 * N, self.start[k] : self.start[k + 1]] = (w @ jc).reshape(2 * N, -1)
             # Xc = R X + t: d pixel / d X = (d pixel / d t) R.
-            dpix = pr.d_pose[..., 3:6] @ rotvec_to_matrix(rv) @ dX  # (M, 2, 3)
-            J[r : r + 2 * M, self.n_cam :] = np.einsum("mab,mbk->mak", w @ dpix, D).reshape(
-                2 * M, -1
+            dpix = pr.d_pose[..., 3:6] @ rotvec_to_matrix(rv) @ dX  # (N, 2, 3)
+            J[r : r + 2 * N, self.n_cam :] = np.einsum("mab,mbk->mak", w @ dpix, D).reshape(
+                2 * N, -1
             )
-            r += 2 * M
+            r += 2 * N
         for k, cam in enumerate(self.cams):
             L = self.Lc[k]
             if L is None:
@@ -320,9 +379,9 @@ class _MarkerProblem:
         return self.jacobians(g, loc)[0]
 
     def pixel_rows(self, res: Array) -> Array:
-        """Return the whitened pixel residuals (C, M, 2) from a residual vector."""
+        """Return the whitened pixel residuals (C, N, 2) from a residual vector."""
         C = len(self.cams)
-        return res.ravel()[: 2 * C * self.M].reshape(C, self.M, 2)
+        return res.ravel()[: 2 * C * self.N].reshape(C, self.N, 2)
 
 
 def _init_camera(
@@ -364,9 +423,7 @@ def _grow(
     vis: NDArray[np.bool_],
     cov: Array,
     odometry: OdometryPrior,
-    off: Array,
-    height: float,
-    radius: float,
+    layout: _Layout,
     min_poses: int,
     min_spread: float,
     max_iterations: int,
@@ -378,7 +435,8 @@ def _grow(
     the refinement to converge. The drive is taken in growing windows of `window` stops; each
     window's problem is solved from the previous window's solution (its new stops placed by
     the odometry from the last corrected pose), and a camera enters when the stops it saw
-    within the window first suffice, initialised from the corrected positions."""
+    within the window first suffice, initialised from the corrected positions of its images
+    of the first marker (one height: a plane pose)."""
     C, M = len(names), len(odometry.increments)
     eps = np.zeros((M, 3))
     state: dict[int, Array] = {}  # camera index -> its global parameters
@@ -387,9 +445,11 @@ def _grow(
     ends = [*range(window, M, window), M]
     for end in ends:
         sub = OdometryPrior(odometry.start, odometry.increments[:end], odometry.cov[:end])
+        lay = layout.head(end)
+        n = len(lay.stop)
         poses = compose_increments(sub.start, sub.increments + eps[:end])
-        c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
-        xy = poses[:, :2] + np.stack([c * off[0] - s * off[1], s * off[0] + c * off[1]], 1)
+        X, _ = lay.points(poses)
+        first = lay.first
         for k in range(C):
             if k in cams:
                 continue
@@ -397,10 +457,10 @@ def _grow(
                 names[k],
                 k,
                 intrinsics[k],
-                xy,
-                uv[k, :end],
-                vis[k, :end],
-                height,
+                X[first, :2],
+                uv[k, :n][first],
+                vis[k, :n][first],
+                float(lay.height[0]),
                 min_poses,
                 min_spread,
             )
@@ -416,13 +476,11 @@ def _grow(
         in_cams = [cams[k] for k in order]
         problem = _MarkerProblem(
             in_cams,
-            np.where(vis[order, :end, None], uv[order, :end], 0.0),
-            _chol_whitener(cov[order, :end]),
-            vis[order, :end],
+            np.where(vis[order, :n, None], uv[order, :n], 0.0),
+            _chol_whitener(cov[order, :n]),
+            vis[order, :n],
             sub,
-            off,
-            height,
-            radius,
+            lay,
         )
         g0 = np.concatenate([*(state[k] for k in order), eps[:end].ravel()])
         sol = solve_sparse_lm(problem, g0, np.zeros((1, 0)), max_iterations=max_iterations)
@@ -434,6 +492,30 @@ def _grow(
     return [cams[k] for k in order], [last_reject[k] for k in sorted(last_reject)], g
 
 
+def _markers(height: ArrayLike, offset: ArrayLike, radius: ArrayLike) -> tuple[Array, Array, Array]:
+    """Return the K markers' heights (K,), offsets (K, 2) and radii (K,) from one value each
+    or one per marker; InvalidInput when they disagree or are not finite."""
+    try:
+        h = np.atleast_1d(np.asarray(height, dtype=np.float64)).reshape(-1)
+        o = np.asarray(offset, dtype=np.float64)
+        r = np.atleast_1d(np.asarray(radius, dtype=np.float64)).reshape(-1)
+    except (TypeError, ValueError):
+        raise InvalidInput("marker heights, offsets and radii must be numbers (metres)") from None
+    k = len(h)
+    if k == 0 or o.size != 2 * k or len(r) not in (1, k):
+        raise InvalidInput(
+            f"need one (x, y) offset per marker height and one radius or one per marker: "
+            f"{k} heights, offsets {o.shape}, {len(r)} radii"
+        )
+    o = o.reshape(k, 2)
+    r = np.broadcast_to(r, (k,)).copy()
+    if not (np.all(np.isfinite(h)) and np.all(np.isfinite(o)) and np.all(np.isfinite(r))):
+        raise InvalidInput("marker heights, offsets and radii must be finite")
+    if np.any(r < 0):
+        raise InvalidInput("marker radii must be >= 0 metres")
+    return h, o, r
+
+
 def _check_inputs(
     names: Sequence[str],
     intrinsics: Sequence[IntrinsicsPrior],
@@ -442,27 +524,45 @@ def _check_inputs(
     odometry: OdometryPrior,
     pixel_cov: ArrayLike | None,
     pixel_sigma: float,
+    markers: int = 1,
 ) -> tuple[Array, NDArray[np.bool_], Array]:
-    C = len(names)
-    uv = np.asarray(pixels, dtype=np.float64)
-    vis = np.asarray(visible, dtype=bool)
+    """Return pixels (C, N, 2), visibility (C, N) and covariances (C, N, 2, 2) with N = M K
+    columns, column j K + k marker k at stop j (`_Layout`), from pixels (C, M, 2) and visible
+    (C, M) for one marker or (C, M, K, 2) and (C, M, K) for K."""
+    C, K = len(names), markers
     M = len(odometry.increments)
-    if len(intrinsics) != C or uv.shape != (C, M, 2) or vis.shape != (C, M):
+    N = M * K
+    try:
+        uv = np.asarray(pixels, dtype=np.float64)
+        vis = np.asarray(visible, dtype=bool)
+    except (TypeError, ValueError):
+        raise InvalidInput("pixels must be numbers and visible booleans") from None
+    if K == 1 and uv.shape == (C, M, 2):
+        uv = uv.reshape(C, M, 1, 2)
+    if K == 1 and vis.shape == (C, M):
+        vis = vis.reshape(C, M, 1)
+    if len(intrinsics) != C or uv.shape != (C, M, K, 2) or vis.shape != (C, M, K):
+        shape = "(C, M, 2) and (C, M)" if K == 1 else f"(C, M, {K}, 2) and (C, M, {K})"
         raise InvalidInput(
-            f"need one intrinsics prior per camera, pixels (C, M, 2) and visible (C, M) for "
-            f"C = {C} names and M = {M} odometry stops; got {len(intrinsics)} priors, "
+            f"need one intrinsics prior per camera, pixels and visible {shape} for C = {C} "
+            f"names, M = {M} odometry stops and {K} marker(s); got {len(intrinsics)} priors, "
             f"{uv.shape}, {vis.shape}"
         )
+    uv = uv.reshape(C, N, 2)
+    vis = vis.reshape(C, N)
     if not np.all(np.isfinite(uv[vis])):
         raise InvalidInput("the visible pixels must be finite")
     if pixel_cov is None:
         if not pixel_sigma > 0:
             raise InvalidInput(f"pixel_sigma must be > 0 pixels, got {pixel_sigma}")
-        cov = np.broadcast_to(pixel_sigma**2 * np.eye(2), (C, M, 2, 2)).copy()
+        cov = np.broadcast_to(pixel_sigma**2 * np.eye(2), (C, N, 2, 2)).copy()
     else:
-        cov = np.asarray(pixel_cov, dtype=np.float64).reshape(C, M, 2, 2).copy()
+        try:
+            cov = np.asarray(pixel_cov, dtype=np.float64).reshape(C, N, 2, 2).copy()
+        except (TypeError, ValueError):
+            raise InvalidInput(f"pixel_cov must be 2 x 2 px^2 per pixel, {C * N} of them") from None
         cov[~vis] = np.eye(2)
-        if np.any(np.linalg.eigvalsh(cov)[..., 0] <= 0):
+        if not np.all(np.isfinite(cov)) or np.any(np.linalg.eigvalsh(cov)[..., 0] <= 0):
             raise InvalidInput("pixel_cov must be positive definite where visible")
     return uv, vis, cov
 
@@ -473,10 +573,10 @@ def calibrate_network_marker(
     pixels: ArrayLike,
     visible: ArrayLike,
     odometry: OdometryPrior,
-    height: float,
+    height: ArrayLike,
     *,
-    offset: tuple[float, float] = (0.0, 0.0),
-    radius: float = 0.0,
+    offset: ArrayLike = (0.0, 0.0),
+    radius: ArrayLike = 0.0,
     pixel_cov: ArrayLike | None = None,
     pixel_sigma: float = 0.5,
     areas: ArrayLike | None = None,
@@ -499,11 +599,21 @@ def calibrate_network_marker(
     the model predicts (`disc_centre_offset`). pixel_cov (C, M, 2, 2) px^2 per detection, or
     pixel_sigma (px) for all. areas (C, M): each detection's covered area in pixels (a blob
     detector's; NaN where unknown), which with `radius` > 0 drops the images of a partly hidden
-    marker (module docstring, step 2). A camera that cannot be calibrated is listed in
-    `rejected`, never raised; InvalidInput for inconsistent shapes or values.
+    marker (module docstring, step 2).
+
+    Several markers at different heights (K of them: `height` (K,), `offset` (K, 2), `radius`
+    one or (K,); pixels (C, M, K, 2), visible, areas (C, M, K), pixel_cov (C, M, K, 2, 2)):
+    the image of a marker above another gives each camera its tilt at every stop, where one
+    marker's give it only through the odometry between the stops (module docstring). The
+    first marker starts each camera's plane pose.
+
+    A camera that cannot be calibrated is listed in `rejected`, never raised; InvalidInput for
+    inconsistent shapes or values.
     """
+    heights, offsets, radii = _markers(height, offset, radius)
+    n_markers = len(heights)
     uv, vis, cov = _check_inputs(
-        names, intrinsics, pixels, visible, odometry, pixel_cov, pixel_sigma
+        names, intrinsics, pixels, visible, odometry, pixel_cov, pixel_sigma, n_markers
     )
     if not (0.0 <= hidden_fraction < 1.0 and hidden_px >= 0.0):
         raise InvalidInput("need 0 <= hidden_fraction < 1 and hidden_px >= 0")
@@ -512,13 +622,14 @@ def calibrate_network_marker(
         try:
             area = np.asarray(areas, dtype=np.float64)
         except (TypeError, ValueError):
-            raise InvalidInput("areas must be numbers of pixels, (C, M)") from None
-        if area.shape != vis.shape:
-            raise InvalidInput(f"areas must be (C, M) = {vis.shape}, got {area.shape}")
+            raise InvalidInput("areas must be numbers of pixels, like visible") from None
+        if area.size != vis.size:
+            raise InvalidInput(f"areas must be shaped like visible, got {area.shape}")
+        area = area.reshape(vis.shape)
         if np.any(area[vis] < 0):
             raise InvalidInput("areas must be >= 0 pixels (NaN where unknown)")
     M = len(odometry.increments)
-    off = np.asarray(offset, dtype=np.float64).reshape(2)
+    layout = _Layout.of(M, offsets, heights, radii)
     recorded = odometry.poses
     cams, rejected, g_init = _grow(
         names,
@@ -527,9 +638,7 @@ def calibrate_network_marker(
         vis,
         cov,
         odometry,
-        off,
-        float(height),
-        float(radius),
+        layout,
         min_poses,
         min_spread,
         max_iterations if refine else 0,
@@ -547,7 +656,7 @@ def calibrate_network_marker(
     iterations = 0
     rounds = 5
     for round_ in range(rounds):
-        problem = _MarkerProblem(cams, pix, W, used, odometry, off, float(height), float(radius))
+        problem = _MarkerProblem(cams, pix, W, used, odometry, layout)
         start = g
         n_res = int(2 * used.sum() + sum(len(cm.prior.names) for cm in cams) + 3 * M)
         sol = solve_sparse_lm(
@@ -561,15 +670,16 @@ def calibrate_network_marker(
         g, iterations = sol.x_global, iterations + sol.iterations
         e = np.linalg.norm(problem.pixel_rows(problem.residuals(g, sol.x_local)), axis=-1)
         keep = used.copy()
-        if area is not None and radius > 0:
+        if area is not None and np.any(radii > 0):
             # First the hidden markers, judged by their area alone: until they are gone, the
             # residuals of good detections at the same stops are pulled with them.
             X, _ = problem.marker(problem.poses(g))
             for k, cm in enumerate(cams):
                 K, d, rv, t = problem.unpack(g, k)
-                expected = disc_image_area(X, rv, t, K, d, float(radius))
+                expected = disc_image_area(X, rv, t, K, d, layout.radius)
                 short = expected - area[cm.index]  # NaN (unknown) compares False
-                keep[k] &= ~(short > np.maximum(hidden_px, hidden_fraction * expected))
+                hidden = short > np.maximum(hidden_px, hidden_fraction * expected)
+                keep[k] &= ~(hidden & (layout.radius > 0))
         if np.array_equal(keep, used):
             keep &= e <= outlier_sigma
         if np.array_equal(keep, used) or round_ == rounds - 1:
@@ -587,7 +697,7 @@ def calibrate_network_marker(
         K, d, rv, t = problem.unpack(g, k)
         u = used[k]
         pred = project_points(X[u], rv, t, K, d).points
-        pred = pred + disc_centre_offset(X[u], rv, t, K, d, float(radius))
+        pred = pred + disc_centre_offset(X[u], rv, t, K, d, layout.radius[u])
         resid = pred - uv[cm.index][u]
         sq_px += float(np.sum(resid**2))
         sq_w += float(np.sum(np.einsum("mij,mj->mi", W[k][u], resid) ** 2))
@@ -602,14 +712,15 @@ def calibrate_network_marker(
                 t=t.copy(),
                 std=np.sqrt(np.maximum(np.diag(gcov)[sl], 0.0)),
                 residuals=resid,
-                poses_seen=int(vis[cm.index].sum()),
+                poses_seen=int(vis[cm.index].reshape(M, -1).any(axis=1).sum()),
                 outliers=int(vis[cm.index].sum() - u.sum()),
                 initial_K=K0,
                 initial_R=rotvec_to_matrix(rv0),
                 initial_t=t0.copy(),
                 parameter_names=(*cm.prior.names, *_POSE_NAMES),
-                pose_index=np.flatnonzero(u),
+                pose_index=layout.stop[u],
                 covariance=gcov[sl, sl].copy(),
+                detections=int(vis[cm.index].sum()),
             )
         )
     # Covariance of the poses: D Cov(eps) D^T per pose (the blocks on the diagonal).
@@ -641,9 +752,9 @@ def marker_network_bound(
     true_poses: ArrayLike,
     visible: ArrayLike,
     odometry: OdometryPrior,
-    height: float,
+    height: ArrayLike,
     *,
-    offset: tuple[float, float] = (0.0, 0.0),
+    offset: ArrayLike = (0.0, 0.0),
     pixel_cov: ArrayLike | None = None,
     pixel_sigma: float = 0.5,
 ) -> tuple[CameraBound, ...]:
@@ -654,7 +765,8 @@ def marker_network_bound(
     (C, 3) (R_camera_world, t_camera_world), true_poses (M, 3) the robot's true stops; the
     priors (intrinsics' and odometry increments' covariances) and the detections' visibility
     and covariance as the calibration has them. For scoring and planning (which drive length
-    and pixel noise reach a target): it needs the truth.
+    and pixel noise reach a target): it needs the truth. Several markers as in
+    `calibrate_network_marker` (`height` (K,), `offset` (K, 2), visible (C, M, K)).
     """
     C = len(names)
     Ks = np.asarray(true_K, dtype=np.float64).reshape(C, 3, 3)
@@ -665,8 +777,12 @@ def marker_network_bound(
     M = len(odometry.increments)
     if len(P) != M:
         raise InvalidInput(f"true_poses must be (M, 3) with M = {M}; got {P.shape}")
-    uv = np.zeros((C, M, 2))
-    _, vis, cov = _check_inputs(names, intrinsics, uv, visible, odometry, pixel_cov, pixel_sigma)
+    heights, offsets, radii = _markers(height, offset, 0.0)
+    n_markers = len(heights)
+    shape = (C, M, 2) if n_markers == 1 else (C, M, n_markers, 2)
+    uv, vis, cov = _check_inputs(
+        names, intrinsics, np.zeros(shape), visible, odometry, pixel_cov, pixel_sigma, n_markers
+    )
     # Linearise at the truth: increments that compose to the true poses, priors centred on it.
     prev = np.vstack([odometry.start, P[:-1]])
     rel = P[:, :2] - prev[:, :2]
@@ -685,7 +801,7 @@ def marker_network_bound(
         truth = IntrinsicsPrior(Ks[k], ds[k], pr.names, pr.cov)
         cams.append(_Cam(names[k], k, truth, matrix_to_rotvec(Rs[k]), ts[k], vis[k]))
     problem = _MarkerProblem(
-        cams, uv, _chol_whitener(cov), vis, odo, np.asarray(offset, float), float(height)
+        cams, uv, _chol_whitener(cov), vis, odo, _Layout.of(M, offsets, heights, radii)
     )
     _, J, _ = problem.jacobians(problem.x0(), np.zeros((1, 0)))
     info = J[0].T @ J[0]

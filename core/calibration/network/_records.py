@@ -25,7 +25,8 @@ class CalibratedCamera:
     (marker centres or board corners) used, and `pose_index` (N,) the robot pose each belongs
     to; `initial_K`, `initial_R`, `initial_t`: the estimate before the joint refinement;
     `poses_seen`: robot poses detected; `outliers`: detections (board kind: views) dropped as
-    inconsistent.
+    inconsistent; `detections` (marker kind): the markers' images it had, of every marker the
+    robot carries (0 when not counted).
     """
 
     name: str
@@ -43,6 +44,7 @@ class CalibratedCamera:
     parameter_names: tuple[str, ...] = ("f", "rx", "ry", "rz", "tx", "ty", "tz")
     pose_index: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, np.int64), repr=False)
     covariance: Array = field(default_factory=lambda: np.zeros((0, 0)), repr=False)
+    detections: int = 0
 
     @property
     def focal(self) -> float:
