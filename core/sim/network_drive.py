@@ -61,7 +61,7 @@ from core.localization.detect import MarkerDetectorConfig, detect_marker
 from core.sim._floor import FloorRoutes, inside
 from core.sim.motion import Patrol, Pose2D, UnicycleBase, WorldState, world_state
 from core.sim.render import CameraModel, Renderer, SensorNoise
-from core.sim.scene import Board, Scene
+from core.sim.scene import Board, Robot, Scene
 
 Array = NDArray[np.float64]
 
@@ -427,6 +427,21 @@ class MarkerObservations:
     visible: NDArray[np.bool_]
     errors: Array = field(repr=False)  # (K, 2) px, detections minus truth (scoring only)
     areas: Array | None = None
+    mast: MarkerObservations | None = None
+
+    def stacked(self) -> tuple[Array, Array, NDArray[np.bool_], Array | None]:
+        """Return pixels (C, M, K, 2), covariances (C, M, K, 2, 2), visible (C, M, K) and
+        areas (C, M, K) (None when unknown) of the K markers: the top one, then the mast's."""
+        parts = [self] if self.mast is None else [self, self.mast]
+        areas = None
+        if all(p.areas is not None for p in parts):
+            areas = np.stack([p.areas for p in parts], axis=2)  # type: ignore[misc]
+        return (
+            np.stack([p.pixels for p in parts], axis=2),
+            np.stack([p.cov for p in parts], axis=2),
+            np.stack([p.visible for p in parts], axis=2),
+            areas,
+        )
 
     @property
     def sigma_px(self) -> float:
@@ -439,12 +454,24 @@ class MarkerObservations:
         areas = None
         if self.areas is not None and other.areas is not None:
             areas = np.concatenate([self.areas, other.areas], axis=1)
+        mast = None
+        if self.mast is not None and other.mast is not None:
+            mast = self.mast.joined(other.mast)
         return MarkerObservations(
             np.concatenate([self.pixels, other.pixels], axis=1),
             np.concatenate([self.cov, other.cov], axis=1),
             np.concatenate([self.visible, other.visible], axis=1),
             np.concatenate([self.errors, other.errors]),
             areas,
+            mast,
+        )
+
+    def capped(self, visible: NDArray[np.bool_]) -> MarkerObservations:
+        """Return these observations seen only where `visible` (C, M) also holds (every
+        marker)."""
+        mast = None if self.mast is None else self.mast.capped(visible)
+        return MarkerObservations(
+            self.pixels, self.cov, self.visible & visible, self.errors, self.areas, mast
         )
 
 
@@ -458,58 +485,68 @@ def observe_marker(
     noise: SensorNoise | None = _DEFAULT_NOISE,
     first: int = 0,
 ) -> MarkerObservations:
-    """Return what every camera sees of the robot's marker at the stops of `drive` from
-    `first` on (module docstring, 3). Raises InvalidInput for an unknown mode or a robot
-    without marker."""
+    """Return what every camera sees of the robot's marker (and of its mast marker, when it
+    has one: `MarkerObservations.mast`) at the stops of `drive` from `first` on (module
+    docstring, 3). Raises InvalidInput for an unknown mode or a robot without marker."""
     scene = renderer.scene
     if scene.robot is None or scene.robot.marker is None:
         raise InvalidInput("observing the marker needs a scene whose robot carries a marker")
     if mode not in ("images", "projections"):
         raise InvalidInput(f"unknown observation mode {mode!r}; use 'images' or 'projections'")
-    marker = scene.robot.marker
+    if mode == "projections" and not sigma_px > 0:
+        raise InvalidInput(f"sigma_px must be > 0 pixels, got {sigma_px}")
+    markers = [scene.robot.marker]
+    if scene.robot.mast_marker is not None:
+        markers.append(scene.robot.mast_marker)
     cams = [renderer.camera(c.name) for c in scene.cameras]
     P = drive.true_poses[first:]
     times = drive.times[first:]
-    C, M = len(cams), len(P)
+    C, M, K = len(cams), len(P), len(markers)
     c, s = np.cos(P[:, 2]), np.sin(P[:, 2])
-    off = marker.offset
-    X = np.column_stack(
-        [
-            P[:, 0] + c * off[0] - s * off[1],
-            P[:, 1] + s * off[0] + c * off[1],
-            np.full(M, marker.height),
-        ]
-    )
-    pixels = np.zeros((C, M, 2))
-    cov = np.tile(np.eye(2), (C, M, 1, 1))
-    vis = np.zeros((C, M), bool)
-    areas = np.full((C, M), np.nan)
-    errs: list[Array] = []
+    pixels = np.zeros((K, C, M, 2))
+    cov = np.tile(np.eye(2), (K, C, M, 1, 1))
+    vis = np.zeros((K, C, M), bool)
+    areas = np.full((K, C, M), np.nan)
+    errs: list[list[Array]] = [[] for _ in markers]
     if mode == "projections":
-        if not sigma_px > 0:
-            raise InvalidInput(f"sigma_px must be > 0 pixels, got {sigma_px}")
-        for k, cam in enumerate(cams):
-            vis[k] = renderer.sees(cam.name, X)
-            true = cam.project(X)
-            e = sigma_px * rng.standard_normal((M, 2))
-            pixels[k] = true + e
-            errs.append(e[vis[k]])
+        for i, mk in enumerate(markers):
+            off = mk.offset
+            X = np.column_stack(
+                [
+                    P[:, 0] + c * off[0] - s * off[1],
+                    P[:, 1] + s * off[0] + c * off[1],
+                    np.full(M, mk.height),
+                ]
+            )
+            for k, cam in enumerate(cams):
+                vis[i, k] = renderer.sees(cam.name, X)
+                e = sigma_px * rng.standard_normal((M, 2))
+                pixels[i, k] = cam.project(X) + e
+                errs[i].append(e[vis[i, k]])
         cov[:] = sigma_px**2 * np.eye(2)
+        areas[:] = np.nan
     else:
-        cfg = MarkerDetectorConfig(colour=marker.colour)
+        cfgs = [MarkerDetectorConfig(colour=mk.colour) for mk in markers]
         for j in range(M):
             state = world_state(scene, float(times[j]), Pose2D(*P[j]))
             for k, cam in enumerate(cams):
                 frame = renderer.render(cam.name, state, rng=rng, noise=noise)
-                det = detect_marker(frame.image, cfg, background=renderer.empty(cam.name))
-                if det is None:
-                    continue
-                pixels[k, j], cov[k, j], vis[k, j] = det.pixel, det.cov, True
-                areas[k, j] = det.area
-                if frame.marker_ellipse_pixel is not None:
-                    errs.append((det.pixel - frame.marker_ellipse_pixel)[None])
-    e = np.concatenate(errs) if errs else np.zeros((0, 2))
-    return MarkerObservations(pixels, cov, vis, e, areas)
+                truths = [frame.marker_ellipse_pixel, frame.mast_marker_ellipse_pixel]
+                for i, cfg in enumerate(cfgs):
+                    det = detect_marker(frame.image, cfg, background=renderer.empty(cam.name))
+                    if det is None:
+                        continue
+                    pixels[i, k, j], cov[i, k, j], vis[i, k, j] = det.pixel, det.cov, True
+                    areas[i, k, j] = det.area
+                    truth = truths[i]
+                    if truth is not None:
+                        errs[i].append((det.pixel - truth)[None])
+    out = None
+    for i in reversed(range(K)):
+        e = np.concatenate(errs[i]) if errs[i] else np.zeros((0, 2))
+        out = MarkerObservations(pixels[i], cov[i], vis[i], e, areas[i], out)
+    assert out is not None
+    return out
 
 
 def drive_and_observe(
@@ -646,15 +683,16 @@ def bound_for(
     cams: list[CameraModel],
     drive: Drive,
     obs: MarkerObservations,
-    height: float,
-    offset: tuple[float, float],
-    min_poses: int,
+    robot: Robot,
 ) -> tuple[CameraBound, ...]:
-    """Return the Cramer-Rao bound of the cameras `net_names` (scoring: it reads the truth)."""
+    """Return the Cramer-Rao bound of the cameras `net_names` (scoring: it reads the truth)
+    calibrated by the robot's markers (`robot_markers`)."""
     k_of = {cm.name: k for k, cm in enumerate(cams)}
     sel = [k_of[n] for n in net_names]
     if not sel:
         return ()
+    heights, offsets, _ = robot_markers(robot)
+    _, cov, seen, _ = obs.stacked()
     return marker_network_bound(
         net_names,
         session.priors(net_names),
@@ -663,11 +701,11 @@ def bound_for(
         [cams[k].R_camera_world for k in sel],
         [cams[k].t_camera_world for k in sel],
         drive.true_poses,
-        obs.visible[sel],
+        seen[sel],
         drive.odometry,
-        height,
-        offset=offset,
-        pixel_cov=obs.cov[sel],
+        heights,
+        offset=offsets,
+        pixel_cov=cov[sel],
     )
 
 
@@ -684,13 +722,15 @@ def drive_marker_calibration(
     min_poses: int = 6,
     camera_poses: dict[str, int] | None = None,
     renderer: Renderer | None = None,
+    max_drive_s: float = 300.0,
 ) -> MarkerDrive:
     """Return the network calibration of the scene's cameras by the robot's marker (module
     docstring): each camera's own chessboard calibration, a drive through `stops` stops with
     a second pass for cameras that saw fewer than `revisit_below` (`drive_and_observe`), the
     marker observed (`mode`, `sigma_px`) and the joint calibration. `camera_poses` optionally
     caps how many stops a named camera sees (robustness checks); `renderer` reuses one whose
-    static layers are built. Raises InvalidInput for a scene without cameras or marker."""
+    static layers are built; `max_drive_s` bounds the drive's simulated length (seconds).
+    Raises InvalidInput for a scene without cameras or marker."""
     if scene.robot is None or scene.robot.marker is None:
         raise InvalidInput("network-calibration needs a scene whose robot carries a marker")
     if not scene.cameras:
@@ -701,7 +741,14 @@ def drive_marker_calibration(
     renderer = renderer or Renderer(scene)
     session = show_chessboard(renderer, rng, views=board_views, noise=noise)
     drive, obs = drive_and_observe(
-        renderer, rng, stops, mode=mode, sigma_px=sigma_px, noise=noise, revisit_below=revisit_below
+        renderer,
+        rng,
+        stops,
+        mode=mode,
+        sigma_px=sigma_px,
+        noise=noise,
+        revisit_below=revisit_below,
+        max_drive_s=max_drive_s,
     )
     cams = [renderer.camera(c.name) for c in scene.cameras]
     names = [cm.name for cm in cams]
@@ -711,21 +758,33 @@ def drive_marker_calibration(
             raise InvalidInput(f"camera_poses names an unknown camera {name!r}")
         k = names.index(name)
         vis[k, np.flatnonzero(vis[k])[cap:]] = False
-    obs = MarkerObservations(obs.pixels, obs.cov, vis, obs.errors, obs.areas)
-    marker = scene.robot.marker
+    obs = obs.capped(vis)
+    heights, offsets, radii = robot_markers(scene.robot)
+    pixels, cov, seen, areas = obs.stacked()
     net = calibrate_network_marker(
         names,
         session.priors(names),
-        obs.pixels,
-        obs.visible,
+        pixels,
+        seen,
         drive.odometry,
-        marker.height,
-        offset=marker.offset,
-        radius=marker.radius if mode == "images" else 0.0,
-        pixel_cov=obs.cov,
-        areas=obs.areas,
+        heights,
+        offset=offsets,
+        radius=radii if mode == "images" else 0.0,
+        pixel_cov=cov,
+        areas=areas,
         min_poses=min_poses,
     )
     done = [c.name for c in net.cameras]
-    bound = bound_for(done, session, cams, drive, obs, marker.height, marker.offset, min_poses)
+    bound = bound_for(done, session, cams, drive, obs, scene.robot)
     return MarkerDrive(net, session, drive, obs, tuple(cams), bound)
+
+
+def robot_markers(robot: Robot) -> tuple[Array, Array, Array]:
+    """Return the heights (K,), offsets (K, 2) and radii (K,) of the robot's markers: its top
+    marker, then its mast marker when it has one (the calibration's marker layout)."""
+    ms = [m for m in (robot.marker, robot.mast_marker) if m is not None]
+    return (
+        np.array([m.height for m in ms]),
+        np.array([m.offset for m in ms], dtype=np.float64).reshape(-1, 2),
+        np.array([m.radius for m in ms]),
+    )

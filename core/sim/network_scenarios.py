@@ -44,6 +44,7 @@ from core.sim.network_drive import (
     calibration_errors,
     drive_and_observe,
     drive_marker_calibration,
+    robot_markers,
     show_chessboard,
 )
 from core.sim.network_registration import (
@@ -136,7 +137,8 @@ def accuracy_study(
     if scene.robot is None or scene.robot.marker is None:
         raise InvalidInput("the accuracy study needs a scene whose robot carries a marker")
     renderer = renderer or Renderer(scene)
-    marker = scene.robot.marker
+    robot = scene.robot
+    heights, offsets, _ = robot_markers(robot)
     cams = [renderer.camera(c.name) for c in scene.cameras]
     names = [c.name for c in cams]
     rows = []
@@ -158,18 +160,19 @@ def accuracy_study(
                     revisit_below=revisit_below,
                     max_drive_s=budget,
                 )
+                pixels, cov, seen, _ = obs.stacked()
                 net = calibrate_network_marker(
                     names,
                     ses.priors(names),
-                    obs.pixels,
-                    obs.visible,
+                    pixels,
+                    seen,
                     drive.odometry,
-                    marker.height,
-                    offset=marker.offset,
-                    pixel_cov=obs.cov,
+                    heights,
+                    offset=offsets,
+                    pixel_cov=cov,
                 )
                 done = [c.name for c in net.cameras]
-                bound = bound_for(done, ses, cams, drive, obs, marker.height, marker.offset, 6)
+                bound = bound_for(done, ses, cams, drive, obs, robot)
                 rows.append(
                     AccuracyRow(
                         seed=seed,
@@ -291,6 +294,16 @@ def marker_result(
 # Board kind
 
 
+def mount_board(scene: Scene) -> Scene:
+    """Return the scene with its robot's chessboard mounted (enabled), in the place of the
+    mast marker, which it would otherwise cut through. InvalidInput without a board."""
+    if scene.robot is None or scene.robot.board is None:
+        raise InvalidInput("the scene's robot carries no chessboard to mount")
+    board = scene.robot.board.model_copy(update={"enabled": True})
+    robot = scene.robot.model_copy(update={"board": board, "mast_marker": None})
+    return scene.model_copy(update={"robot": robot})
+
+
 def board_mounting(board: Board) -> tuple[Array, Array]:
     """Return the board's model points (N, 3) in its own frame (metres, Z = 0, row by row as
     core.calibration.board_object_points) and its mounting T_robot_board (4, 4).
@@ -344,7 +357,8 @@ def network_calibration_board(
 ) -> NetworkCalibrationResult:
     """Return the metrics of calibrating the scene's cameras by driving the robot's chessboard.
 
-    The scene's robot board is mounted (enabled) if the scene carries it unmounted. Programme:
+    The scene's robot board is mounted (`mount_board`) if the scene carries it unmounted.
+    Programme:
     as `network_calibration` (a grid of stops `spacing` metres apart, random yaw), the robot
     stopping within `placement_sigma` metres per axis and `yaw_sigma` radians of each scripted
     pose, which is what the calibration is told, with those standard deviations as its prior.
@@ -363,11 +377,9 @@ def network_calibration_board(
         raise InvalidInput("network-calibration-board needs a scene whose robot carries a board")
     if not scene.cameras:
         raise InvalidInput("network-calibration needs a scene with cameras")
+    scene = mount_board(scene)
+    assert scene.robot is not None and scene.robot.board is not None
     board = scene.robot.board
-    if not board.enabled:
-        board = board.model_copy(update={"enabled": True})
-        scene = scene.model_copy(update={"robot": scene.robot.model_copy(update={"board": board})})
-    assert scene.robot is not None
     rng = np.random.default_rng(seed)
     renderer = Renderer(scene)
     points, T_rb = board_mounting(board)

@@ -47,6 +47,7 @@ from core.sim.network_drive import MarkerDrive, PoseErrors, calibration_errors
 from core.sim.network_scenarios import (
     accuracy_study,
     board_mounting,
+    mount_board,
     network_calibration,
     network_calibration_board,
 )
@@ -86,6 +87,7 @@ __all__ = [
     "landmark_survey",
     "localization",
     "localization_images",
+    "mount_board",
     "network_calibration",
     "network_calibration_board",
     "path_following",

@@ -314,8 +314,11 @@ class SlipNoise(_Model):
 
 class Robot(_Model):
     """The mobile robot: a cylinder base (radius, height metres), limits, noise, its top marker,
-    an optional chessboard, an optional onboard (floor) camera, an optional head camera on a
-    pan-tilt unit, and its start pose (x, y, yaw)."""
+    an optional second marker on a thin mast (`mast_marker`, its disc at the mast's top: the
+    image of a marker above another gives a ceiling camera its tilt at every stop of a
+    calibration drive; a different colour tells the two apart), an optional chessboard, an
+    optional onboard (floor) camera, an optional head camera on a pan-tilt unit, and its start
+    pose (x, y, yaw)."""
 
     name: Name
     base_radius: Positive = 0.2
@@ -325,6 +328,7 @@ class Robot(_Model):
     limits: MotionLimits = MotionLimits()
     slip: SlipNoise = SlipNoise()
     marker: TopMarker | None = TopMarker()
+    mast_marker: TopMarker | None = None
     board: Board | None = None
     onboard_camera: CameraMount | None = None
     head_camera: HeadCamera | None = None

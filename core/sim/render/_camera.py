@@ -158,6 +158,7 @@ class Frame:
     image (the area centroid of the projected disc, which is not the projection of the disc's
     centre), mapped through the distortion; marker_visible: inside the image, in front of the
     camera and not hidden by the static scene or the board, centre and whole rim.
+    mast_marker_ellipse_pixel, mast_marker_visible: the same for the mast marker's disc.
     board_corners_world (N, 3) and
     board_corner_pixels (N, 2): the chessboard's inner corners, row by row of the board
     (columns fastest); board_visible: all corners in front of the camera, inside the image, on
@@ -175,6 +176,8 @@ class Frame:
     marker_pixel: Array | None = None
     marker_ellipse_pixel: Array | None = None
     marker_visible: bool = False
+    mast_marker_ellipse_pixel: Array | None = None
+    mast_marker_visible: bool = False
     board_corners_world: Array | None = None
     board_corner_pixels: Array | None = None
     board_visible: bool = False

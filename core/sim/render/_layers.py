@@ -23,7 +23,7 @@ from core.sim.render._textures import (
     _Texture,
     _tile_texture,
 )
-from core.sim.scene import Board, Robot, Scene
+from core.sim.scene import Board, Robot, Scene, TopMarker
 
 Array = NDArray[np.float64]
 Image = NDArray[Any]  # uint8 images; typed loosely because cv2 returns its own array type
@@ -151,6 +151,7 @@ class _RobotGeometry:
     robot: Robot
     marker_tex: _Texture | None  # in the robot frame (o, u, v robot-frame metres)
     marker_side: float
+    mast_tex: _Texture | None  # the mast marker's disc, in the robot frame
     board_tex: _Texture | None  # in the robot frame
     board_corners: Array | None  # (N, 3) robot frame
     board_poly: Array | None  # (4, 3) robot frame
@@ -160,12 +161,8 @@ class _RobotGeometry:
 def _robot_geometry(robot: Robot) -> _RobotGeometry:
     mtex, side = None, 0.0
     if robot.marker is not None:
-        img, side = _disc_texture(robot.marker)
-        n = img.shape[0]
-        ts = side / n
-        c = np.array([robot.marker.offset[0], robot.marker.offset[1], robot.marker.height])
-        o = c + np.array([-side / 2 + ts / 2, -side / 2 + ts / 2, 0.0])
-        mtex = _Texture(_pyramid(img), o, np.array([ts, 0.0, 0.0]), np.array([0.0, ts, 0.0]))
+        mtex, side = _disc_in_robot(robot.marker)
+    mast = _disc_in_robot(robot.mast_marker)[0] if robot.mast_marker is not None else None
     btex = corners = poly = normal = None
     b = robot.board
     if b is not None and b.enabled:
@@ -176,7 +173,17 @@ def _robot_geometry(robot: Robot) -> _RobotGeometry:
         v = np.array([math.cos(t), 0.0, -math.sin(t)])
         c = np.array([b.offset[0], b.offset[1], b.mounting_height])
         btex, poly, corners, normal = _board_geometry(b, c, u, v)
-    return _RobotGeometry(robot, mtex, side, btex, corners, poly, normal)
+    return _RobotGeometry(robot, mtex, side, mast, btex, corners, poly, normal)
+
+
+def _disc_in_robot(marker: TopMarker) -> tuple[_Texture, float]:
+    """Return a marker disc's texture in the robot frame and the side of its square (m)."""
+    img, side = _disc_texture(marker)
+    n = img.shape[0]
+    ts = side / n
+    c = np.array([marker.offset[0], marker.offset[1], marker.height])
+    o = c + np.array([-side / 2 + ts / 2, -side / 2 + ts / 2, 0.0])
+    return _Texture(_pyramid(img), o, np.array([ts, 0.0, 0.0]), np.array([0.0, ts, 0.0])), side
 
 
 def _board_geometry(

@@ -28,10 +28,13 @@ from core.sim.render._layers import (
 from core.sim.render._raster import _shade, _Target
 from core.sim.render._textures import _bgr, _Texture
 from core.sim.render.landmarks import scene_landmarks
-from core.sim.scene import Board, CeilingCamera, Scene
+from core.sim.scene import Board, CeilingCamera, Scene, TopMarker
 
 Array = NDArray[np.float64]
 Image = NDArray[Any]  # uint8 images; typed loosely because cv2 returns its own array type
+
+# The radius (m) of the rod that holds the robot's mast marker.
+MAST_RADIUS = 0.012
 
 # The default image degradation (frozen: safe to share as a default argument).
 _DEFAULT_NOISE = SensorNoise()
@@ -45,6 +48,8 @@ class _RobotTruth(TypedDict, total=False):
     marker_pixel: Array
     marker_ellipse_pixel: Array
     marker_visible: bool
+    mast_marker_ellipse_pixel: Array
+    mast_marker_visible: bool
     board_corners_world: Array
     board_corner_pixels: Array
     board_visible: bool
@@ -369,6 +374,29 @@ class Renderer:
                 img = cv2.add(img, bank[off : off + n].reshape(img.shape), dtype=cv2.CV_8U)
         return img, gain
 
+    def _draw_disc(
+        self, tgt: _Target, cam: CameraModel, tex: _Texture, R: Array, p: Array, m: TopMarker
+    ) -> tuple[Array, bool]:
+        """Draw a marker disc of the robot at pose (R, p); return its centre (3,) and whether
+        the camera sees all of it (centre and rim in front, in the image and unhidden)."""
+        centre = R @ np.array([m.offset[0], m.offset[1], m.height]) + p
+        # Visibility is decided against the depth buffer before the disc is drawn, so the
+        # disc cannot hide itself; the board (drawn later) is checked afterwards.
+        ang = np.linspace(0.0, 2 * np.pi, 16, endpoint=False)
+        rim = centre + m.radius * np.stack([np.cos(ang), np.sin(ang), 0 * ang], 1)
+        pts = np.vstack([centre, rim])
+        seen = bool(
+            np.all(cam.depth(pts) > self.near)
+            and np.all(_in_image(cam, cam.project(pts)))
+            and np.all(_unoccluded(tgt, pts))
+        )
+        world = _in_world(tex, R, p)
+        n = world.levels[0].shape[0]
+        o0 = world.o - (world.u + world.v) / 2
+        poly = np.array([o0, o0 + world.u * n, o0 + (world.u + world.v) * n, o0 + world.v * n])
+        tgt.textured(poly, world, alpha=True, supersample=self.object_supersample)
+        return centre, seen
+
     def _draw_robot(self, tgt: _Target, cam: CameraModel, pose: Pose2D | None) -> _RobotTruth:
         g = self._robot
         if g is None or pose is None:
@@ -380,26 +408,22 @@ class Renderer:
             (pose.x, pose.y), 0.0, r.base_height, r.base_radius, _bgr(r.colour), _bgr(r.top_colour)
         )
         truth = _RobotTruth()
-        if g.marker_tex is not None and r.marker is not None:
-            centre = R @ np.array([r.marker.offset[0], r.marker.offset[1], r.marker.height]) + p
-            px = cam.project(centre)
-            # Visibility is decided against the depth buffer before the disc is drawn, so the
-            # disc cannot hide itself; the board (drawn later) is checked afterwards.
-            ang = np.linspace(0.0, 2 * np.pi, 16, endpoint=False)
-            rim = centre + r.marker.radius * np.stack([np.cos(ang), np.sin(ang), 0 * ang], 1)
-            pts = np.vstack([centre, rim])
-            seen = bool(
-                np.all(cam.depth(pts) > self.near)
-                and np.all(_in_image(cam, cam.project(pts)))
-                and np.all(_unoccluded(tgt, pts))
+        if g.mast_tex is not None and r.mast_marker is not None:
+            # The mast (a grey rod from the base's top) and its disc, drawn first: the top
+            # marker is then checked against them.
+            m = r.mast_marker
+            foot = R @ np.array([m.offset[0], m.offset[1], 0.0]) + p
+            grey = np.array([120.0, 120.0, 120.0])
+            tgt.cylinder(
+                (foot[0], foot[1]), r.base_height, m.height - 0.002, MAST_RADIUS, grey, grey
             )
-            tex = _in_world(g.marker_tex, R, p)
-            n = tex.levels[0].shape[0]
-            o0 = tex.o - (tex.u + tex.v) / 2
-            poly = np.array([o0, o0 + tex.u * n, o0 + (tex.u + tex.v) * n, o0 + tex.v * n])
-            tgt.textured(poly, tex, alpha=True, supersample=self.object_supersample)
+            centre, seen = self._draw_disc(tgt, cam, g.mast_tex, R, p, m)
+            truth["mast_marker_ellipse_pixel"] = _disc_image_centre(cam, centre, m.radius)
+            truth["mast_marker_visible"] = seen
+        if g.marker_tex is not None and r.marker is not None:
+            centre, seen = self._draw_disc(tgt, cam, g.marker_tex, R, p, r.marker)
             truth["marker_world"] = centre
-            truth["marker_pixel"] = px[0]
+            truth["marker_pixel"] = cam.project(centre)[0]
             truth["marker_ellipse_pixel"] = _disc_image_centre(cam, centre, r.marker.radius)
             truth["marker_visible"] = seen
         if g.board_tex is not None:

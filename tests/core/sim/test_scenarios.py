@@ -19,6 +19,7 @@ from core.sim.scenarios import (
     board_mounting,
     localization,
     localization_images,
+    mount_board,
     network_calibration,
     run_scenario,
 )
@@ -189,8 +190,9 @@ def test_board_network_calibration_meets_the_targets(seed: int) -> None:
 def test_board_mounting_matches_the_rendered_board() -> None:
     scene = default_scene()
     assert scene.robot is not None and scene.robot.board is not None
-    board = scene.robot.board.model_copy(update={"enabled": True})
-    scene = scene.model_copy(update={"robot": scene.robot.model_copy(update={"board": board})})
+    scene = mount_board(scene)
+    assert scene.robot is not None and scene.robot.board is not None
+    board = scene.robot.board
     P, T = board_mounting(board)
     pose = Pose2D(2.0, 2.2, 0.7)
     frame = Renderer(scene).render("cam_living_ne", WorldState(0.0, pose, ((0.8, 2.4),)))
@@ -204,8 +206,9 @@ def test_board_mounting_matches_the_rendered_board() -> None:
 def test_board_detection_against_the_rendered_corners() -> None:
     scene = default_scene()
     assert scene.robot is not None and scene.robot.board is not None
-    board = scene.robot.board.model_copy(update={"enabled": True})
-    scene = scene.model_copy(update={"robot": scene.robot.model_copy(update={"board": board})})
+    scene = mount_board(scene)
+    assert scene.robot is not None and scene.robot.board is not None
+    board = scene.robot.board
     r = Renderer(scene)
     noise = SensorNoise()
     people = ((0.8, 2.4),)

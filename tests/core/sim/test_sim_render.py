@@ -20,6 +20,7 @@ from core.sim import (
     load_scene,
     world_state,
 )
+from core.sim.network_scenarios import mount_board
 from core.sim.render import _clip_near
 
 NOISE = SensorNoise(sigma=2.0, blur_sigma=0.5)
@@ -102,6 +103,7 @@ def test_marker_ellipse_centre_is_the_area_centroid_of_a_large_disc() -> None:
     d = default_scene().model_dump(mode="json")
     d["robot"]["marker"]["radius"] = 0.4
     d["robot"]["base_radius"] = 0.45
+    d["robot"]["mast_marker"] = None  # its mast would rise through so large a disc
     cam = d["cameras"][0]
     cam["distortion"] = {}
     cam["pose"] = {"position": [0.3, 0.3, 2.8], "look_at": [1.5, 1.5, 0.0]}
@@ -118,8 +120,7 @@ def test_marker_ellipse_centre_is_the_area_centroid_of_a_large_disc() -> None:
 
 
 def _board_scene() -> tuple[Renderer, str]:
-    d = default_scene().model_dump(mode="json")
-    d["robot"]["board"]["enabled"] = True
+    d = mount_board(default_scene()).model_dump(mode="json")
     # A plain floor: the default tiles are themselves a chessboard the detector may lock onto.
     d["floor"]["colour_b"] = d["floor"]["colour_a"]
     scene = load_scene(d)
