@@ -57,6 +57,7 @@ def detect_frame(
     marker_height: float = 0.0,
     people: PersonDetector | None = None,
     camera: NetworkCamera | None = None,
+    mast: MarkerDetectorConfig | None = None,
 ) -> list[FrameDetection]:
     """Return the robot and people detected in one BGR image.
 
@@ -65,7 +66,9 @@ def detect_frame(
     people); camera: the camera's calibration, which locates a person at the axis of their
     body rather than at the near edge of the silhouette (strongly preferred: the edge is a body
     radius off, towards the camera). A foreground blob around the marker is the robot's body,
-    not a person, and so is a blob whose fitted body is shorter than MIN_PERSON_HEIGHT_M. The
+    not a person, and so is one around the robot's mast marker (`mast`: its settings, when the
+    robot carries one: a mast reaches a person's height) and a blob whose fitted body is
+    shorter than MIN_PERSON_HEIGHT_M. The
     person detector's learnt background also tells the marker detector what red things belong to
     the room (core.localization.detect.detect_marker).
     """
@@ -77,9 +80,15 @@ def detect_frame(
     if people is None:
         return out
 
+    robot_points = [] if found is None else [found.pixel]
+    if mast is not None:
+        top = detect_marker(image, mast, background=background)
+        if top is not None:
+            robot_points.append(top.pixel)
+
     def holds_marker(box: tuple[int, int, int, int]) -> bool:
         x, y, w, h = box
-        return found is not None and x <= found.pixel[0] <= x + w and y <= found.pixel[1] <= y + h
+        return any(x <= u <= x + w and y <= v <= y + h for u, v in robot_points)
 
     if camera is None:
         for p in people.detect(image):

@@ -151,7 +151,9 @@ class TrackerConfig:
     does not say where a body stands (a blob of two people, one behind the other; a head seen
     past a door jamb): such blobs also come with a biased bearing, so the tracker leaves them out
     (they neither update nor start a track; their track id is -1) and the tracks coast through
-    them on their own velocities, as through a crossing (0: every detection counts).
+    them on their own velocities, as through a crossing (0: every detection counts). A "person"
+    detection within body_radius of a robot's confirmed track is that robot's body (its marker
+    missed by that camera) and is left out the same way.
     body_height, body_radius (m): the size of a body that can hide another from a camera; a
     tentative track hidden so (or inside the gate of a detection left out) is not missed.
     """
@@ -649,9 +651,12 @@ class Tracker:
         R, floor_std = self._with_camera_error(cam, px, R, h)
         n_all = px.shape[0]
         used = np.flatnonzero(
-            (floor_std <= self.config.located_std)
-            | (self.config.located_std == 0)
-            | np.array([v is not None for v in lab], dtype=bool)
+            (
+                (floor_std <= self.config.located_std)
+                | (self.config.located_std == 0)
+                | np.array([v is not None for v in lab], dtype=bool)
+            )
+            & ~self._inside_a_robot(cam, t, px, R, h, kind)
         )
         left_out = np.setdiff1d(np.arange(n_all), used)
         vague = (px[left_out], R[left_out], h[left_out])
@@ -761,6 +766,34 @@ class Tracker:
         if len(named) != len(set(named)):
             raise InvalidInput("a camera frame holds the same label twice")
         return px, R, h, kind, lab
+
+    def _inside_a_robot(
+        self, cam: NetworkCamera, t: float, px: Array, R: Array, h: Array, kind: list[str]
+    ) -> NDArray[np.bool_]:
+        """Return which detections are "person" ones whose floor point lies within
+        `body_radius` of a robot's confirmed track at time t: a camera that missed the robot's
+        marker fits its body (with a person beside it, or its mast) as a person, and nobody
+        stands inside the robot. Such detections are left out like vague ones."""
+        out = np.zeros(px.shape[0], dtype=bool)
+        robots = [
+            i
+            for i, (k, st) in enumerate(zip(self._kinds, self._states, strict=True))
+            if k == "robot" and st is not TrackState.TENTATIVE
+        ]
+        person = np.array([k == "person" for k in kind], dtype=bool)
+        if not robots or not person.any():
+            return out
+        x, _ = self._predicted(t)
+        where = x[robots, :2]
+        for value in np.unique(h[person]):
+            sel = np.flatnonzero(person & (h == value))
+            try:
+                est = locate_monocular(cam, px[sel], float(value), pixel_cov=R[sel])
+            except InvalidInput:
+                continue
+            d = np.linalg.norm(est.xy[:, None] - where[None], axis=2)  # NaN: ray missed
+            out[sel] = np.any(np.nan_to_num(d, nan=np.inf) < self.config.body_radius, axis=1)
+        return out
 
     def _with_camera_error(
         self, cam: NetworkCamera, px: Array, R: Array, h: Array

@@ -38,7 +38,7 @@ from core.sim.crowd import Crowd, crowd_of
 from core.sim.motion import Pose2D, WorldState, simulate_patrol
 from core.sim.occluders import scene_occluders
 from core.sim.render import Renderer, camera_model, renderer_for
-from core.sim.scene import Scene, Walker, default_scene
+from core.sim.scene import Robot, Scene, Walker, default_scene
 
 Array = NDArray[np.float64]
 
@@ -529,6 +529,7 @@ def rendered_frames(
     pose = np.asarray(drive.pose)
     crowd = crowd_around(scene, pose)
     marker = MarkerDetectorConfig(colour=scene.robot.marker.colour)
+    mast = mast_config(scene.robot)
     people = {c.name: _background(renderer, scene, c.name) for c in scene.cameras}
     period = 1.0 / rate_hz
     schedule = []
@@ -549,6 +550,7 @@ def rendered_frames(
             marker_height=scene.robot.marker.height,
             people=people[spec.name],
             camera=cameras[k],
+            mast=mast,
         )
         frames.append(RenderedFrame(t, k, tuple(found)))
     return frames, np.asarray(drive.pose)
@@ -664,6 +666,12 @@ def track_rendered(
             "people_overlap_s": crowd.overlap_s,
         },
     )
+
+
+def mast_config(robot: Robot) -> MarkerDetectorConfig | None:
+    """Return the detector settings of the robot's mast marker, None without one."""
+    m = robot.mast_marker
+    return None if m is None else MarkerDetectorConfig(colour=m.colour)
 
 
 def _background(renderer: Renderer, scene: Scene, camera: str) -> PersonDetector:

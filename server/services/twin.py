@@ -206,6 +206,11 @@ class Twin:
             if scene.robot is not None and scene.robot.marker is not None
             else None
         )
+        self._mast_cfg = (
+            MarkerDetectorConfig(colour=scene.robot.mast_marker.colour)
+            if scene.robot is not None and scene.robot.mast_marker is not None
+            else None
+        )
         self._lock = threading.Lock()
         self._stop = threading.Event()
         # Set to cut the loop's wait short (a new rate, a stop): a slow rate must not hold it.
@@ -440,6 +445,7 @@ class Twin:
                     marker_height=marker_height,
                     people=self._detectors.get(cf.name),
                     camera=network.get(camera_id),
+                    mast=self._mast_cfg,
                 )
                 if self.detect
                 else []

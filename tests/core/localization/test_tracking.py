@@ -411,3 +411,47 @@ def test_cameras_that_disagree_by_their_calibration_error_share_one_track():
     # Without it the two views cannot be the same body: one camera's detections are refused.
     _, _, alone = _disagreeing_cameras_track(TrackerConfig(camera_error_std=0.0))
     assert min(alone) < 10, alone
+
+
+def test_a_person_inside_the_robot_is_the_robots_body():
+    """A camera that misses the robot's marker fits its body (with its mast, or a person
+    beside it) as a person: a "person" detection inside a confirmed robot track updates no
+    person and starts no track; one beside the robot (0.5 m away) is a person's."""
+    cams = make_cameras(2)
+    trk = Tracker(cams, TrackerConfig(camera_error_std=0.0))
+    robot = np.array([4.0, 3.0, 0.36])
+    walker = np.array([4.5, 3.0, HEIGHT])
+    t = 0.0
+    for _ in range(15):  # both confirmed
+        t += 0.1
+        for k in (0, 1):
+            at = t + 0.02 * k
+            trk.update(
+                k, at, cams[k].project(robot[None]), heights=0.36, kinds="robot", labels="robot"
+            )
+            trk.update(k, at + 0.01, cams[k].project(walker[None]), heights=HEIGHT, kinds="person")
+    # The walker unseen for a second (behind someone): its track grows vague around it.
+    for _ in range(10):
+        t += 0.1
+        for k in (0, 1):
+            trk.update(
+                k,
+                t + 0.02 * k,
+                cams[k].project(robot[None]),
+                heights=0.36,
+                kinds="robot",
+                labels="robot",
+            )
+    live = {s.id: s for s in trk.tracks()}
+    assert len(live) == 2
+    person = next(s for s in live.values() if s.kind == "person")
+    # Camera 1 misses the marker and reports the robot's body as a person at its centre.
+    body = cams[1].project(np.array([[robot[0], robot[1], HEIGHT]]))
+    res = trk.update(1, t + 0.05, body, heights=HEIGHT, kinds="person")
+    assert res.track_ids[0] == -1 and not res.started[0]
+    after = {s.id: s for s in trk.tracks()}
+    assert len(after) == 2
+    np.testing.assert_allclose(after[person.id].xy, person.xy, atol=0.05)
+    # The walker's own detection, half a metre from the robot, still counts.
+    res = trk.update(1, t + 0.06, cams[1].project(walker[None]), heights=HEIGHT, kinds="person")
+    assert res.track_ids[0] == person.id
