@@ -65,6 +65,9 @@ Array = NDArray[np.float64]
 
 _DEFAULT_NOISE = SensorNoise()
 
+# The calibration drive's default length (s): spec 02's "a drive of at most 5 minutes".
+DRIVE_S = 300.0
+
 INTRINSICS_FROM_BOARD = (
     "each camera's own Zhang calibration (k1k2p1p2k3) from a chessboard shown to it, "
     "with its covariance as the prior"
@@ -201,6 +204,7 @@ def network_calibration(
     study: bool = False,
     target: str = "marker",
     register: bool = True,
+    minutes: float | None = None,
 ) -> NetworkCalibrationResult:
     """Return the metrics of calibrating the scene's cameras by driving the robot's marker
     (`target` "marker") or its chessboard (`target` "board": `network_calibration_board`).
@@ -215,6 +219,8 @@ def network_calibration(
     the robot then tours the signposts and the network is registered to the world
     (core.sim.network_registration); the errors are then the registered network's, with those
     of the start pose's frame beside them. Errors and bounds are against the scene.
+    `minutes` sets the drive's length instead (at most that long, 5 minutes by default): the
+    planned stops and the second pass's floor scale with it (32 and 20 per 5 minutes).
     """
     if target == "board":
         return network_calibration_board(
@@ -224,6 +230,13 @@ def network_calibration(
         raise InvalidInput(f"unknown calibration target {target!r}; use 'marker' or 'board'")
     scene = scene or default_scene()
     renderer = Renderer(scene)
+    budget = DRIVE_S
+    if minutes is not None:
+        if not (math.isfinite(minutes) and minutes > 0):
+            raise InvalidInput(f"minutes must be a positive number, got {minutes}")
+        budget = 60.0 * minutes
+        stops = max(4, round(stops * budget / DRIVE_S))
+        revisit_below = round(revisit_below * budget / DRIVE_S)
     md = drive_marker_calibration(
         scene,
         seed,
@@ -235,6 +248,7 @@ def network_calibration(
         min_poses=min_poses,
         camera_poses=camera_poses,
         renderer=renderer,
+        max_drive_s=budget,
     )
     accuracy: tuple[AccuracyRow, ...] = ()
     if study:

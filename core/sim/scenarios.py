@@ -143,15 +143,17 @@ DESCRIPTIONS: dict[str, str] = {
 }
 
 
-# Scenarios whose length a caller may shorten (`minutes`), never their conditions.
-TIMED = ("tracking", "tracking-async")
+# Scenarios whose length a caller may set (`minutes`), never their conditions: the simulated
+# length of the tracking ones, the drive's of network-calibration.
+TIMED = ("tracking", "tracking-async", "network-calibration")
 
 
 def run_scenario(
     name: str, scene: Scene | None = None, seed: int = 0, *, minutes: float | None = None
 ) -> ScenarioResult:
     """Return the metrics of the scenario called `name` on `scene` (default home) with `seed`;
-    `minutes` sets the simulated length of the timed scenarios (TIMED).
+    `minutes` sets the simulated length of the timed scenarios (TIMED; for network-calibration
+    the longest the calibration drive may last, 5 by default).
 
     Raises InvalidInput naming the known scenarios when `name` is not one of them, or when
     `minutes` is given to a scenario without a length or is not positive.

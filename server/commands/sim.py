@@ -33,8 +33,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--minutes",
         type=float,
         metavar="M",
-        help="simulated length of a timed scenario (tracking, tracking-async); shorter runs "
-        "keep the same conditions",
+        help="simulated length of a timed scenario (tracking, tracking-async; shorter runs "
+        "keep the same conditions), or how long network-calibration's drive may last "
+        "(default 5)",
     )
     run.add_argument("--json", action="store_true", help="print one JSON object")
     run.set_defaults(func=_run)
