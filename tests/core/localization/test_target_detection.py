@@ -144,10 +144,11 @@ def _disc_image(
 
 def test_a_disc_cut_by_an_edge_is_reported_with_its_bias() -> None:
     # A disc of 7 px radius: whole, its centroid error is hundredths of a pixel and its
-    # asymmetry at the noise; with a straight edge hiding 5-20 % of it the centroid moves
-    # 0.3-1.3 px (the true centre is the whole disc's), which the covariance must then cover.
+    # asymmetry at the noise; with a straight edge hiding 10-20 % of it every shape test still
+    # passes but the centroid moves 0.6-1.3 px (the true centre is the whole disc's), which
+    # the covariance must then cover.
     rng = np.random.default_rng(7)
-    whole, cut_z, cut_blind = [], [], []
+    whole, cut_z, blind = [], [], []
     for i in range(12):
         centre = (30.0 + 0.37 * i, 31.0 + 0.21 * i)
         img, _ = _disc_image(centre, 7.0, np.inf, rng)
@@ -157,16 +158,15 @@ def test_a_disc_cut_by_an_edge_is_reported_with_its_bias() -> None:
         for cut in (3.5, 4.5):  # hides about 20 % and 10 % of the disc
             img, _ = _disc_image(centre, 7.0, cut, rng)
             det = detect_marker(img)
-            blind = detect_marker(img, MarkerDetectorConfig(asymmetry_margin=0.0))
-            assert det is not None and blind is not None
-            assert det.asymmetry > 0.05
+            seen = detect_marker(img, MarkerDetectorConfig(asymmetry_margin=0.0))
+            assert det is not None and seen is not None and det.asymmetry > 0.05
             cut_z.append(np.linalg.norm(det.pixel - centre) / det.std.max())
-            cut_blind.append(np.linalg.norm(blind.pixel - centre) / blind.std.max())
-    # Measured: whole discs at most 0.3 of their deviation off; cut ones 0.7 with the test and
+            blind.append(np.linalg.norm(seen.pixel - centre) / seen.std.max())
+    # Measured: whole discs at most 0.3 of their deviation off; cut ones 1.7 with the test and
     # at least 17 without it.
     assert max(whole) < 3.0  # whole discs keep their small covariance
     assert max(cut_z) < 3.0, cut_z  # the cut ones' covers the bias
-    assert min(cut_blind) > 5.0, cut_blind  # without the test it would not
+    assert min(blind) > 5.0, blind  # without the test it would not
 
 
 def test_asymmetry_margin_is_checked() -> None:
