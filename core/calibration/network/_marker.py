@@ -8,8 +8,8 @@ with their covariance; the robot's poses come from its odometry, as independent 
 between stops with their covariance (`odometry_prior`), so the absolute poses carry the
 odometry's correlated covariance.
 
-The robot may carry several markers at different heights (the default robot: its top disc at
-0.36 m and a second disc on a thin mast at 1.2 m). With one marker, the points a camera sees lie
+The robot may carry several markers at different heights (for example its top disc at 0.36 m
+and a second disc on a thin mast at 1.2 m, core.sim's `mast_marker`). With one marker, the points a camera sees lie
 on one plane, and its tilt rests on the floor distances between its stops, that is on the
 odometry: a camera alone in its room (one whose stops no other camera sees) is then left with a
 few tenths of a degree of tilt error (Cramer-Rao bound 0.25-0.75 deg over a 5-minute drive in the

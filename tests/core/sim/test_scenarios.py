@@ -23,6 +23,7 @@ from core.sim.scenarios import (
     network_calibration,
     run_scenario,
 )
+from core.sim.scene import TopMarker
 
 
 def test_shown_chessboard_calibrates_each_camera() -> None:
@@ -114,13 +115,16 @@ def test_network_calibration_from_images() -> None:
         assert c.position_error_m < c.aligned_position_error_m + slack, c
 
 
-def test_network_calibration_meets_the_specs_goal() -> None:
-    # The scenario as a user runs it (rendered images, both of the robot's markers detected,
-    # the 5-minute drive, the signpost tour), on a seed nothing was tuned on: spec 02's goal
-    # of 1 % focal, 2 cm and 0.3 deg for every camera in the world frame. Measured on seeds
-    # 0-10: 0.7-1.7 cm and 0.08-0.38 deg for the worst camera (10 seeds of 11 within the
-    # goal; seed 3's bedroom at 0.38 deg against a bound of 0.24 deg); here 0.8 cm, 0.14 deg.
-    r = network_calibration(seed=8)
+def test_network_calibration_with_a_mast_marker_meets_the_specs_goal() -> None:
+    # The robot with a second marker on a mast (not the default robot's: its rod crosses the
+    # top disc for the cameras behind it): rendered images, both markers detected, the
+    # 5-minute drive, the signpost tour, on a seed nothing was tuned on. Spec 02's goal of 1 %
+    # focal, 2 cm and 0.3 deg for every camera in the world frame: measured 1.4 cm, 0.20 deg.
+    scene = default_scene()
+    assert scene.robot is not None
+    mast = TopMarker(colour=(210, 30, 200), radius=0.08, height=1.2, offset=(-0.17, 0.0))
+    robot = scene.robot.model_copy(update={"mast_marker": mast})
+    r = network_calibration(scene.model_copy(update={"robot": robot}), seed=8)
     assert r.drive_s is not None and r.drive_s <= 300.0
     assert not r.rejected and len(r.cameras) == 5
     assert r.registration is not None, r.registration_reason
@@ -277,19 +281,14 @@ def test_localization_images_reports_the_detector_noise_and_reaches_the_bound() 
     assert r.samples >= 100
     assert set(r.rmse_m) == {"mono", "linear", "constrained", "ml"}
     assert r.measured_sigma_px is not None
-    # The marker detector's per-axis error on these renders, below what it claims (sigma_px):
-    # measured 0.22 px. The robot stands at yaw 0, so its mast hides a strip of the disc from
-    # the cameras behind it at every sample (0.13 px before the robot had a mast); those
-    # detections are taken as cut and their covariance covers their bias.
-    assert 0.02 < r.measured_sigma_px < 0.25
+    # The marker detector's per-axis error on these renders (measured 0.13 px) is below the
+    # 0.15 px (2D RMS) the detector test holds it to, and below what it claims (sigma_px).
+    assert 0.02 < r.measured_sigma_px < 0.2
     assert r.measured_sigma_px < r.sigma_px
     # ML against the bound computed with the detector's own covariances: over ~120 points an
-    # RMSE has a sampling error of 1 / sqrt(2 * 120) ~ 6.5 %. Measured 0.78 (0.97 before the
-    # mast): the cut detections' covariances are conservative (mean NEES 0.7), so the bound
-    # built on them lies above the error, and the ML estimate must still reach it within 20 %
-    # from above and 30 % from below. With 126 points seed 0 holds one partly hidden marker
-    # 2 cm off, which alone triples the RMSE: detection gating, not the estimator, is what
-    # that needs.
-    assert 0.7 < r.rmse_m["ml"] / r.crb_rmse_m < 1.2
+    # RMSE has a sampling error of 1 / sqrt(2 * 120) ~ 6.5 %, so 20 % is three of them
+    # (measured 0.97). With 126 points seed 0 holds one partly hidden marker 2 cm off, which
+    # alone triples the RMSE: detection gating, not the estimator, is what that needs.
+    assert abs(r.rmse_m["ml"] / r.crb_rmse_m - 1) < 0.2
     assert r.rmse_m["ml"] <= r.rmse_m["constrained"] * 1.01
     assert r.rmse_m["mono"] > r.rmse_m["ml"]
