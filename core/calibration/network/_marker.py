@@ -9,13 +9,13 @@ between stops with their covariance (`odometry_prior`), so the absolute poses ca
 odometry's correlated covariance.
 
 The robot may carry several markers at different heights (for example its top disc at 0.36 m
-and a second disc on a thin mast at 1.2 m, core.sim's `mast_marker`). With one marker, the points a camera sees lie
-on one plane, and its tilt rests on the floor distances between its stops, that is on the
-odometry: a camera alone in its room (one whose stops no other camera sees) is then left with a
-few tenths of a degree of tilt error (Cramer-Rao bound 0.25-0.75 deg over a 5-minute drive in the
-default home's bedroom). The image of a marker above another is a vertical segment at every
-stop, which gives the tilt directly: the bound falls to 0.1-0.25 deg, and positions within the
-network's frame from 1-5 cm to 0.3-0.9 cm.
+and a second disc on a thin mast at 1.2 m, core.sim's `mast_marker`). With one marker, the
+points a camera sees lie on one plane, and its tilt rests on the floor distances between its
+stops, that is on the odometry: a camera alone in its room (one whose stops no other camera
+sees) is then left with a few tenths of a degree of tilt error (Cramer-Rao bound 0.25-0.75 deg
+over a 5-minute drive in the default home's bedroom). The image of a marker above another is
+a vertical segment at every stop, which gives the tilt directly: the bound falls to 0.1-0.45
+deg, and positions within the network's frame from 1-5 cm to 0.3-0.9 cm.
 
 1. Initialisation per camera: the detections undistorted with the camera's own intrinsics and
    the marker's floor positions give its pose (a plane pose,
