@@ -67,6 +67,8 @@ _DEFAULT_NOISE = SensorNoise()
 
 # The calibration drive's default length (s): spec 02's "a drive of at most 5 minutes".
 DRIVE_S = 300.0
+# The longest drive a caller may ask for (s): the programme's size follows the length asked.
+MAX_DRIVE_S = 1800.0
 
 INTRINSICS_FROM_BOARD = (
     "each camera's own Zhang calibration (k1k2p1p2k3) from a chessboard shown to it, "
@@ -232,8 +234,11 @@ def network_calibration(
     renderer = Renderer(scene)
     budget = DRIVE_S
     if minutes is not None:
-        if not (math.isfinite(minutes) and minutes > 0):
-            raise InvalidInput(f"minutes must be a positive number, got {minutes}")
+        if not (math.isfinite(minutes) and 0 < minutes <= MAX_DRIVE_S / 60.0):
+            raise InvalidInput(
+                f"minutes must be a drive of more than 0 and at most {MAX_DRIVE_S / 60.0:g} "
+                f"minutes, got {minutes}"
+            )
         budget = 60.0 * minutes
         stops = max(4, round(stops * budget / DRIVE_S))
         revisit_below = round(revisit_below * budget / DRIVE_S)

@@ -143,6 +143,8 @@ def test_the_drive_length_is_the_callers() -> None:
     assert longer.poses > r.poses
     with pytest.raises(InvalidInput, match="minutes"):
         network_calibration(seed=3, minutes=0.0)
+    with pytest.raises(InvalidInput, match="at most 30"):  # refused before anything is planned
+        network_calibration(seed=3, minutes=1e6)
 
 
 def test_a_camera_seeing_too_few_poses_is_reported_by_name() -> None:
