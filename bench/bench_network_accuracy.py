@@ -37,6 +37,7 @@ from core.sim.network_drive import (
 )
 from core.sim.network_scenarios import accuracy_study, network_calibration
 from core.sim.scenario_records import AccuracyRow
+from core.sim.scene import raise_mast
 
 
 def _worst(rows: list[AccuracyRow], key: str, scale: float = 1.0) -> float:
@@ -52,7 +53,8 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4])
     parser.add_argument("--skip-images", action="store_true", help="skip part 1")
     args = parser.parse_args()
-    scene = default_scene()
+    # The calibration drive raises the robot's telescopic mast.
+    scene = raise_mast(default_scene())
 
     if not args.skip_images:
         print("1. network-calibration (rendered images), per seed and camera")

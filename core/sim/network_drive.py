@@ -61,7 +61,7 @@ from core.localization.detect import MarkerDetectorConfig, detect_marker
 from core.sim._floor import FloorRoutes, inside
 from core.sim.motion import Patrol, Pose2D, UnicycleBase, WorldState, world_state
 from core.sim.render import CameraModel, Renderer, SensorNoise
-from core.sim.scene import Board, Robot, Scene
+from core.sim.scene import Board, Robot, Scene, raise_mast
 
 Array = NDArray[np.float64]
 
@@ -737,8 +737,10 @@ def drive_marker_calibration(
         raise InvalidInput("network-calibration needs a scene with cameras")
     if stops < 4:
         raise InvalidInput(f"a calibration drive needs at least 4 stops, got {stops}")
+    # The drive raises the robot's telescopic mast, if it has one (scene.raise_mast).
+    scene = raise_mast(scene)
     rng = np.random.default_rng(seed)
-    renderer = renderer or Renderer(scene)
+    renderer = renderer.for_scene(scene) if renderer is not None else Renderer(scene)
     session = show_chessboard(renderer, rng, views=board_views, noise=noise)
     drive, obs = drive_and_observe(
         renderer,

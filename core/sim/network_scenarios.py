@@ -59,7 +59,7 @@ from core.sim.scenario_records import (
     NetworkCalibrationResult,
     RejectedCameraReport,
 )
-from core.sim.scene import Board, Scene, default_scene
+from core.sim.scene import Board, Scene, default_scene, raise_mast
 
 Array = NDArray[np.float64]
 
@@ -138,10 +138,10 @@ def accuracy_study(
     most that long (planned stops, then the second pass for cameras below `revisit_below`
     stops) and for each of `sigmas` the marker's true projections plus Gaussian noise of that
     many pixels, calibrated and scored. About 5 s per drive and noise on the default home."""
-    scene = scene or default_scene()
+    scene = raise_mast(scene or default_scene())
     if scene.robot is None or scene.robot.marker is None:
         raise InvalidInput("the accuracy study needs a scene whose robot carries a marker")
-    renderer = renderer or Renderer(scene)
+    renderer = renderer.for_scene(scene) if renderer is not None else Renderer(scene)
     robot = scene.robot
     heights, offsets, _ = robot_markers(robot)
     cams = [renderer.camera(c.name) for c in scene.cameras]
@@ -230,7 +230,7 @@ def network_calibration(
         )
     if target != "marker":
         raise InvalidInput(f"unknown calibration target {target!r}; use 'marker' or 'board'")
-    scene = scene or default_scene()
+    scene = raise_mast(scene or default_scene())
     renderer = Renderer(scene)
     budget = DRIVE_S
     if minutes is not None:
@@ -315,11 +315,13 @@ def marker_result(
 
 def mount_board(scene: Scene) -> Scene:
     """Return the scene with its robot's chessboard mounted (enabled), in the place of the
-    mast marker, which it would otherwise cut through. InvalidInput without a board."""
+    mast, which it would otherwise cut through. InvalidInput without a board."""
     if scene.robot is None or scene.robot.board is None:
         raise InvalidInput("the scene's robot carries no chessboard to mount")
     board = scene.robot.board.model_copy(update={"enabled": True})
-    robot = scene.robot.model_copy(update={"board": board, "mast_marker": None})
+    robot = scene.robot.model_copy(
+        update={"board": board, "mast_marker": None, "calibration_mast": None}
+    )
     return scene.model_copy(update={"robot": robot})
 
 

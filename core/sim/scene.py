@@ -314,11 +314,14 @@ class SlipNoise(_Model):
 
 class Robot(_Model):
     """The mobile robot: a cylinder base (radius, height metres), limits, noise, its top marker,
-    an optional second marker on a thin mast (`mast_marker`, its disc at the mast's top: the
-    image of a marker above another gives a ceiling camera its tilt at every stop of a
-    calibration drive; a different colour tells the two apart), an optional chessboard, an
-    optional onboard (floor) camera, an optional head camera on a pan-tilt unit, and its start
-    pose (x, y, yaw)."""
+    an optional second marker on a thin mast (its disc at the mast's top: the image of a marker
+    above another gives a ceiling camera its tilt at every stop of a calibration drive; a
+    different colour tells the two apart), an optional chessboard, an optional onboard (floor)
+    camera, an optional head camera on a pan-tilt unit, and its start pose (x, y, yaw).
+
+    The mast is either always up (`mast_marker`) or telescopic (`calibration_mast`): stowed in
+    the base in normal use, where its rod would cross the top marker and join walkers' blobs
+    to the robot's, and raised for the network calibration drive only (`raise_mast`)."""
 
     name: Name
     base_radius: Positive = 0.2
@@ -329,11 +332,18 @@ class Robot(_Model):
     slip: SlipNoise = SlipNoise()
     marker: TopMarker | None = TopMarker()
     mast_marker: TopMarker | None = None
+    calibration_mast: TopMarker | None = None
     board: Board | None = None
     onboard_camera: CameraMount | None = None
     head_camera: HeadCamera | None = None
     start: Vec3 = (1.0, 1.0, 0.0)
     patrol: list[Vec2] = Field(default_factory=list)
+
+    @model_validator(mode="after")
+    def _one_mast(self) -> Robot:
+        if self.mast_marker is not None and self.calibration_mast is not None:
+            raise ValueError("a robot has one mast: set mast_marker or calibration_mast, not both")
+        return self
 
 
 class Landmark(_Model):
@@ -455,6 +465,19 @@ def default_scene() -> Scene:
     """Return the default home shipped with the package (core/sim/data/default_home.yaml)."""
     text = resources.files("core.sim").joinpath("data/default_home.yaml").read_text("utf-8")
     return load_scene(text)
+
+
+def raise_mast(scene: Scene) -> Scene:
+    """Return the scene with its robot's telescopic mast raised (its `calibration_mast` as the
+    `mast_marker` the renderer draws and the drive observes); the scene itself when its robot
+    has no telescopic mast."""
+    robot = scene.robot
+    if robot is None or robot.calibration_mast is None:
+        return scene
+    raised = robot.model_copy(
+        update={"mast_marker": robot.calibration_mast, "calibration_mast": None}
+    )
+    return scene.model_copy(update={"robot": raised})
 
 
 def scene_to_json(scene: Scene) -> str:

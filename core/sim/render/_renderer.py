@@ -3,6 +3,7 @@ ground truth."""
 
 from __future__ import annotations
 
+import copy
 import math
 from collections import OrderedDict
 from typing import Any, TypedDict
@@ -97,6 +98,19 @@ class Renderer:
         self._empty: dict[str, NDArray[np.uint8]] = {}
         self._robot = _robot_geometry(scene.robot) if scene.robot is not None else None
         self._banks: dict[tuple[float, int], NDArray[np.int16]] = {}
+
+    def for_scene(self, scene: Scene) -> Renderer:
+        """Return a renderer of `scene` that shares this one's static layers and lenses: the
+        two scenes may differ in their robot only (a raised mast, a mounted board), which is
+        drawn per frame. Raises InvalidInput when anything else differs."""
+        if scene is self.scene:
+            return self
+        if scene.model_copy(update={"robot": self.scene.robot}) != self.scene:
+            raise InvalidInput("a renderer can be shared only by scenes that differ in the robot")
+        other = copy.copy(self)
+        other.scene = scene
+        other._robot = _robot_geometry(scene.robot) if scene.robot is not None else None
+        return other
 
     def camera(self, camera: str | CeilingCamera) -> CameraModel:
         """Return the CameraModel of a scene camera (by name) or of a given camera."""

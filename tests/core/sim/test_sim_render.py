@@ -22,6 +22,7 @@ from core.sim import (
 )
 from core.sim.network_scenarios import mount_board
 from core.sim.render import _clip_near
+from core.sim.scene import raise_mast
 
 NOISE = SensorNoise(sigma=2.0, blur_sigma=0.5)
 
@@ -433,3 +434,41 @@ def test_ceiling_cameras_draw_the_landmarks_where_they_are() -> None:
         assert not np.any(changed & ~grown), f"{name}: pixels changed outside every page"
     # Measured: 23 (camera, landmark) pairs judged, 4 of them signposts checked for centring.
     assert judged >= 20 and ring_checks >= 3
+
+
+def test_the_telescopic_mast_is_up_for_the_calibration_drive_only(home: Renderer) -> None:
+    # Stowed, nothing of it is drawn: the live image equals that of a robot without a mast.
+    # Raised (raise_mast), its disc is drawn where its height and offset put it, and the
+    # raised renderer shares the home's static layers.
+    scene = home.scene
+    assert scene.robot is not None and scene.robot.calibration_mast is not None
+    assert scene.robot.mast_marker is None
+    state = WorldState(0.0, Pose2D(2.5, 1.5, 1.5), ((0.8, 2.4),))
+    bare = scene.model_copy(
+        update={"robot": scene.robot.model_copy(update={"calibration_mast": None})}
+    )
+    stowed = home.render("cam_living_ne", state, noise=None)
+    assert stowed.mast_marker_ellipse_pixel is None and not stowed.mast_marker_visible
+    np.testing.assert_array_equal(
+        stowed.image, home.for_scene(bare).render("cam_living_ne", state, noise=None).image
+    )
+    raised = home.for_scene(raise_mast(scene))
+    assert raised._views is home._views
+    frame = raised.render("cam_living_ne", state, noise=None)
+    assert frame.mast_marker_visible
+    mast = scene.robot.calibration_mast
+    c, s = math.cos(1.5), math.sin(1.5)
+    centre = [2.5 + c * mast.offset[0] - s * mast.offset[1], 1.5 + s * mast.offset[0], mast.height]
+    uv = home.camera("cam_living_ne").project(np.array([centre]))[0]
+    assert np.linalg.norm(frame.mast_marker_ellipse_pixel - uv) < 0.5
+    assert np.abs(frame.image.astype(int) - stowed.image.astype(int)).max() > 100
+    moved = scene.model_copy(update={"ceiling_height": scene.ceiling_height + 0.1})
+    with pytest.raises(InvalidInput, match="differ in the robot"):
+        home.for_scene(moved)
+
+
+def test_a_robot_has_one_mast() -> None:
+    data = copy.deepcopy(default_scene().model_dump(mode="json"))
+    data["robot"]["mast_marker"] = data["robot"]["calibration_mast"]
+    with pytest.raises(InvalidInput, match="one mast"):
+        load_scene(data)
