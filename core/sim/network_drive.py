@@ -14,7 +14,9 @@
 3. `observe_marker`: every camera sees the robot's marker at every stop: rendered and detected
    in the image (`mode="images"`), or its true projection plus Gaussian noise of `sigma_px`
    (`mode="projections"`, for studies of the pixel noise); `sigma_px` measured against the
-   true image centre is returned beside them (truth used only to score).
+   true image centre is returned beside them (truth used only to score). A robot with a
+   telescopic mast raises it for the drive: its disc, 1.2 m up on the default robot, is seen
+   with the top marker, and a marker above another gives each camera its tilt at every stop.
 4. `drive_marker_calibration`: 1-3 and core.calibration.network.calibrate_network_marker.
 
 The true cameras and the true stops are returned for scoring only (`calibration_errors`,
@@ -729,7 +731,8 @@ def drive_marker_calibration(
     a second pass for cameras that saw fewer than `revisit_below` (`drive_and_observe`), the
     marker observed (`mode`, `sigma_px`) and the joint calibration. `camera_poses` optionally
     caps how many stops a named camera sees (robustness checks); `renderer` reuses one whose
-    static layers are built; `max_drive_s` bounds the drive's simulated length (seconds).
+    static layers are built; `max_drive_s` bounds the drive's simulated length (seconds). The
+    robot's telescopic mast, if it has one, is raised for the drive (core.sim.scene.raise_mast).
     Raises InvalidInput for a scene without cameras or marker."""
     if scene.robot is None or scene.robot.marker is None:
         raise InvalidInput("network-calibration needs a scene whose robot carries a marker")
@@ -737,7 +740,6 @@ def drive_marker_calibration(
         raise InvalidInput("network-calibration needs a scene with cameras")
     if stops < 4:
         raise InvalidInput(f"a calibration drive needs at least 4 stops, got {stops}")
-    # The drive raises the robot's telescopic mast, if it has one (scene.raise_mast).
     scene = raise_mast(scene)
     rng = np.random.default_rng(seed)
     renderer = renderer.for_scene(scene) if renderer is not None else Renderer(scene)
