@@ -741,6 +741,7 @@ def drive_marker_calibration(
     if stops < 4:
         raise InvalidInput(f"a calibration drive needs at least 4 stops, got {stops}")
     scene = raise_mast(scene)
+    assert scene.robot is not None  # raising the mast keeps the robot
     rng = np.random.default_rng(seed)
     renderer = renderer.for_scene(scene) if renderer is not None else Renderer(scene)
     session = show_chessboard(renderer, rng, views=board_views, noise=noise)
