@@ -715,7 +715,7 @@ export async function renderFloor(main) {
           { class: "floor-foot" },
           h(
             "label",
-            { class: "small", style: { display: "inline-flex", gap: "0.4em", alignItems: "center" } },
+            { class: "small inline" },
             historyToggle,
             "show ended targets (last 10 min)",
           ),
