@@ -192,6 +192,27 @@ def accuracy_study(
     return tuple(rows)
 
 
+def drive_programme(
+    minutes: float, stops: int = 32, revisit_below: int = 20
+) -> tuple[float, int, int]:
+    """Return the calibration drive of at most `minutes` as (its length in seconds, its
+    planned stops, the second pass's floor): `stops` and `revisit_below` are per 5 minutes of
+    drive and scale with its length. Raises InvalidInput for a length that is not a number
+    of more than 0 and at most MAX_DRIVE_S / 60 minutes (checked before anything is planned:
+    the programme's size follows the length asked)."""
+    if not (math.isfinite(minutes) and 0 < minutes <= MAX_DRIVE_S / 60.0):
+        raise InvalidInput(
+            f"minutes must be a drive of more than 0 and at most {MAX_DRIVE_S / 60.0:g} "
+            f"minutes, got {minutes}"
+        )
+    budget = 60.0 * minutes
+    return (
+        budget,
+        max(4, round(stops * budget / DRIVE_S)),
+        round(revisit_below * budget / DRIVE_S),
+    )
+
+
 def network_calibration(
     scene: Scene | None = None,
     seed: int = 0,
@@ -234,14 +255,7 @@ def network_calibration(
     renderer = Renderer(scene)
     budget = DRIVE_S
     if minutes is not None:
-        if not (math.isfinite(minutes) and 0 < minutes <= MAX_DRIVE_S / 60.0):
-            raise InvalidInput(
-                f"minutes must be a drive of more than 0 and at most {MAX_DRIVE_S / 60.0:g} "
-                f"minutes, got {minutes}"
-            )
-        budget = 60.0 * minutes
-        stops = max(4, round(stops * budget / DRIVE_S))
-        revisit_below = round(revisit_below * budget / DRIVE_S)
+        budget, stops, revisit_below = drive_programme(minutes, stops, revisit_below)
     md = drive_marker_calibration(
         scene,
         seed,

@@ -6,6 +6,7 @@ from typing import Literal
 
 from pydantic import Field
 
+from core.sim.network_scenarios import MAX_DRIVE_S
 from server.schemas.common import ReadSchema, Schema
 
 
@@ -49,10 +50,24 @@ class Scenario(ReadSchema):
     description: str
 
 
+# The longest calibration drive a run may ask for (minutes): its programme grows with it.
+MAX_DRIVE_MINUTES = MAX_DRIVE_S / 60.0
+
+
 class NetworkOptions(Schema):
     seed: int = Field(0, ge=0, le=2**31 - 1)
     target: Literal["marker"] = "marker"
-    stops: int = Field(32, ge=6, le=200, description="Stops of the robot's planned drive.")
+    stops: int = Field(
+        32, ge=6, le=200, description="Stops planned per 5 minutes of the robot's drive."
+    )
+    minutes: float = Field(
+        5.0,
+        gt=0,
+        le=MAX_DRIVE_MINUTES,
+        allow_inf_nan=False,
+        description="The longest the calibration drive may last (simulated minutes); its "
+        "planned stops scale with it.",
+    )
     study: bool = Field(
         True, description="Also report the accuracy against drive length and pixel noise."
     )

@@ -16,7 +16,13 @@ from core.errors import InvalidInput, PatternNotFound
 from core.sim import Scene, SensorNoise
 from core.sim.network_drive import drive_marker_calibration
 from core.sim.network_registration import can_register, register_network
-from core.sim.network_scenarios import INTRINSICS_FROM_BOARD, accuracy_study, camera_errors
+from core.sim.network_scenarios import (
+    DRIVE_S,
+    INTRINSICS_FROM_BOARD,
+    accuracy_study,
+    camera_errors,
+    drive_programme,
+)
 from core.sim.render import renderer_for
 from core.sim.scenario_records import CameraCalibrationError
 
@@ -147,6 +153,7 @@ def calibrate_network(
         default_scene(),
         int(options.get("seed", 0)),
         stops=int(options.get("stops", 32)),
+        minutes=float(options.get("minutes", DRIVE_S / 60.0)),
         study=bool(options.get("study", True)),
         progress=progress,
     )
@@ -227,12 +234,14 @@ def network_calibration_drive(
     seed: int,
     *,
     stops: int = 32,
+    minutes: float = DRIVE_S / 60.0,
     study: bool = True,
     progress: Progress = _no_progress,
 ) -> dict[str, Any]:
     """Return the result of calibrating the scene's cameras by the robot's marker
-    (core.sim.network_drive: each camera's own chessboard calibration, the robot driving
-    `stops` stops, the marker detected in rendered images, the joint calibration with the
+    (core.sim.network_drive: each camera's own chessboard calibration, the robot driving for
+    at most `minutes` through `stops` planned stops per 5 minutes (drive_programme), the
+    marker detected in rendered images, the joint calibration with the
     odometry as prior), registered to the world by the robot's tour of the signposts where the
     home has them (core.sim.network_registration; `registration`, and each camera's errors in
     the start pose's frame beside its registered ones), with each calibrated camera's K, dist,
@@ -246,7 +255,16 @@ def network_calibration_drive(
     # Shared with the running twin: the static layer of each camera is built once.
     renderer = renderer_for(scene)
     progress("driving the robot and calibrating", 0.0)
-    md = drive_marker_calibration(scene, seed, stops=stops, noise=SensorNoise(), renderer=renderer)
+    budget, stops, revisit_below = drive_programme(minutes, stops)
+    md = drive_marker_calibration(
+        scene,
+        seed,
+        stops=stops,
+        revisit_below=revisit_below,
+        noise=SensorNoise(),
+        renderer=renderer,
+        max_drive_s=budget,
+    )
     net = md.calibration
     start_frame = None
     registration: dict[str, Any] | None = None

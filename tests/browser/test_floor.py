@@ -229,6 +229,7 @@ def test_network_calibration_from_the_page(twin_service, browser_page: Page):
     page = browser_page
     sign_in(page, twin_service.base_url, twin_service.token)
     page.get_by_test_id("nav-calibration").click()
+    page.get_by_test_id("network-minutes").fill("5")  # spec 02's drive of at most 5 minutes
     page.get_by_test_id("network-calibrate").click()
     page.wait_for_function(
         "() => location.hash.includes('/runs/') || "
@@ -243,6 +244,7 @@ def test_network_calibration_from_the_page(twin_service, browser_page: Page):
     expect(page.get_by_test_id("run-status")).to_have_text("succeeded", timeout=180_000)
 
     run = twin_service.api("GET", f"/calibration-runs/{run_id}")
+    assert run["options"]["minutes"] == 5 and run["result"]["drive_s"] <= 300.0
     cams = run["result"]["cameras"]
     assert len(cams) >= 4
     rows = page.get_by_test_id("network-results").locator("tbody tr")

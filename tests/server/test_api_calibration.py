@@ -524,15 +524,16 @@ def test_progress_is_reported_and_shutdown_hands_the_run_back(make_settings, adm
 
 
 def test_network_drive_result_is_stored_and_read_with_its_diagnostics():
-    # The service's network run on the twin (a shortened drive, no accuracy study): what it
-    # stores reads back through the run schema with the fields, labelled.
+    # The service's network run on the twin (a drive shortened by the user's `minutes`, its
+    # programme scaled with it: 16 planned stops; no accuracy study): what it stores reads back
+    # through the run schema with the fields, labelled.
     from core.sim import default_scene
     from server.schemas.calibration import NetworkRunResult
     from server.services.calibration import network_calibration_drive
 
-    result = network_calibration_drive(default_scene(), 2, stops=16, study=False)
+    result = network_calibration_drive(default_scene(), 2, minutes=2.5, study=False)
     read = NetworkRunResult.model_validate(result)
-    assert read.drive_s is not None and 0 < read.drive_s < 300
+    assert read.drive_s is not None and 60 < read.drive_s <= 150
     assert read.sigma_px is not None and 0 < read.sigma_px < 1.0
     assert read.intrinsics_from and "chessboard" in read.intrinsics_from
     assert read.rms_px is not None and read.rms_whitened is not None

@@ -14,6 +14,7 @@ from core.sim.network_drive import (
     plan_stops,
     show_chessboard,
 )
+from core.sim.network_scenarios import drive_programme
 from core.sim.scenarios import (
     SCENARIOS,
     board_mounting,
@@ -140,6 +141,16 @@ def test_the_drive_length_is_the_callers() -> None:
         network_calibration(seed=3, minutes=0.0)
     with pytest.raises(InvalidInput, match="at most 30"):  # refused before anything is planned
         network_calibration(seed=3, minutes=1e6)
+
+
+def test_the_drive_programme_scales_with_its_length() -> None:
+    # 32 planned stops and a second pass below 20 stops per 5 minutes of drive.
+    assert drive_programme(5.0) == (300.0, 32, 20)
+    assert drive_programme(7.5) == (450.0, 48, 30)
+    assert drive_programme(0.5, stops=16) == (30.0, 4, 2)  # never fewer than 4 stops
+    for bad in (0.0, -1.0, 30.5, float("nan"), float("inf")):
+        with pytest.raises(InvalidInput, match="minutes"):
+            drive_programme(bad)
 
 
 def test_a_camera_seeing_too_few_poses_is_reported_by_name() -> None:

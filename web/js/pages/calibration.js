@@ -336,6 +336,17 @@ function networkPanel() {
     value: "0",
     testid: "network-seed",
   });
+  // The drive's length (simulated minutes, at most 30): spec 02's drive is 5 minutes; a
+  // longer one gives a camera seen from few stops more of them (the run's bound says how much).
+  const minutes = h("input", {
+    id: "network-minutes",
+    type: "number",
+    min: 1,
+    max: 30,
+    step: 0.5,
+    value: "5",
+    testid: "network-minutes",
+  });
   const button = h(
     "button",
     {
@@ -348,7 +359,13 @@ function networkPanel() {
         try {
           const run = await api("/calibration-runs", {
             method: "POST",
-            json: { kind: "network", options: { seed: Number(seed.value) || 0 } },
+            json: {
+              kind: "network",
+              options: {
+                seed: Number(seed.value) || 0,
+                minutes: minutes.value === "" ? 5 : Number(minutes.value),
+              },
+            },
           });
           toast(`Network calibration run #${run.id} started`);
           location.hash = `#/calibration/runs/${run.id}`;
@@ -363,13 +380,14 @@ function networkPanel() {
   );
   return panel(
     "Network calibration",
-    "Every ceiling camera at once: the digital twin drives the robot's marker over the floor; " +
-      "each camera's focal length and pose come from its view of the marker, then a joint " +
-      "refinement",
+    "Every ceiling camera at once: each camera's intrinsics from a chessboard shown to it, " +
+      "then the digital twin drives the robot's marker over the floor (its mast raised) and " +
+      "every camera's pose comes from a joint refinement with the odometry",
     h(
       "div",
       { class: "form-grid" },
       h("label", { for: "network-seed" }, "Seed (noise and drive)", seed),
+      h("label", { for: "network-minutes" }, "Drive (minutes, at most 30)", minutes),
       h("div", null, button),
     ),
     error,
