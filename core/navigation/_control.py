@@ -273,16 +273,18 @@ class AdaptiveLaw(SpotFollower):
     the speed. On a curve V changes at rate |dV/dt| = V^2 kappa and the error stays bounded,
     of order V^2 kappa / (K omega_n) with omega_n = sqrt(Gamma) the adaptation's natural rate.
 
-    Gains: K = 12 /s, Gamma = 25 /s^2. The error obeys e'' + K e' + Gamma e = dV/dt, so on a
-    curve of curvature kappa at speed V it settles near V^2 kappa / Gamma (2 mm for the
-    0.05 m/s^2 the twin's spot turns with), with natural rate omega_n = sqrt(Gamma) = 5 rad/s
-    and damping K / (2 omega_n) = 1.2. On a straight stretch what is left is the wheel slip
+    Gains: K = 8 /s, Gamma = 12 /s^2. The error obeys e'' + K e' + Gamma e = dV/dt, so on a
+    curve of curvature kappa at speed V it settles near V^2 kappa / Gamma (4 mm for the
+    0.05 m/s^2 the twin's spot turns with), with natural rate omega_n = sqrt(Gamma) = 3.5 rad/s
+    and damping K / (2 omega_n) = 1.15. On a straight stretch what is left is the wheel slip
     the odometry does not see, a random walk in the robot's position that the loop corrects
-    at its bandwidth K: the steady error falls as K grows, while a larger Gamma passes more of
-    it into v^. Chosen on the twin's 10 m tour (seeds 20-39; measured on seeds 100-159): the
-    former K = 3, Gamma = 9 left a steady error of 4.5 mm median and up to 8.4 mm, these
-    gains 3.4 mm and up to 4.5 mm; the RMS over the tour fell from 7.8 mm median to 4.7 mm
-    (the curves' V^2 kappa / Gamma). K beyond ~15 gains nothing more.
+    at its bandwidth K: the steady error falls as K grows. Gamma is bounded by the base: with
+    Gamma = 16 or more, a start a few centimetres off the spot drives the turn rate into its
+    acceleration limit and the loop settles into a limit cycle (heading swinging by 0.4 rad),
+    seen on the twin with K from 6 to 12. Chosen on the twin's 10 m tour (seeds 20-39) and a
+    1 m leg started 11 cm off (seeds 1-40, no cycle); measured on the tour's seeds 100-159:
+    the former K = 3, Gamma = 9 left a steady error of 4.5 mm median and up to 8.4 mm, these
+    gains 3.4 mm and up to 4.5 mm (RMS over the tour 7.8 -> 7.2 mm median, the curves' share).
     Latency: the measurement (age a) is moved on by v^ a before use. Saturation and anti-windup:
     when |v| or |omega| would exceed its limit the command is scaled down and the adaptation
     frozen for that step (conditional integration), and |v^| is bounded by v_max, so a long
@@ -297,8 +299,8 @@ class AdaptiveLaw(SpotFollower):
         lookahead: float = 0.6,
         limits: Limits | None = None,
         *,
-        K: float = 12.0,
-        Gamma: float = 25.0,
+        K: float = 8.0,
+        Gamma: float = 12.0,
     ):
         super().__init__(lookahead, limits)
         self.K, self.Gamma = K, Gamma

@@ -20,12 +20,24 @@ def test_shipped_calibration_is_the_drive_made_again() -> None:
     assert shipped.source == "shipped"
     again = calibrate_installation(scene, shipped.seed)
     assert [c.name for c in again.cameras] == [c.name for c in shipped.cameras]
+    ref_a, ref_b = again.cameras[0].T_world_camera, shipped.cameras[0].T_world_camera
     for a, b in zip(again.cameras, shipped.cameras, strict=True):
         # The drive is deterministic for its seed; the file keeps floats to full precision, so
-        # only the solvers' last bits (BLAS threading) may differ.
+        # only the solvers' last bits (BLAS threading) may differ: the network itself (each
+        # camera's intrinsics and its pose relative to the first) agrees to 1e-9 here.
         np.testing.assert_allclose(a.K, b.K, rtol=1e-7)
-        np.testing.assert_allclose(a.T_world_camera, b.T_world_camera, atol=1e-7)
         np.testing.assert_allclose(a.dist, b.dist, atol=1e-7)
+        np.testing.assert_allclose(
+            np.linalg.inv(ref_a) @ a.T_world_camera,
+            np.linalg.inv(ref_b) @ b.T_world_camera,
+            atol=1e-7,
+        )
+        # Its move into the world (the signpost tour's registration, from rendered images)
+        # is less repeatable across processors: the file made on one machine and the drive
+        # made again on another differed by 4.4 um and 6e-7 rad there, a thousandth of the
+        # registration's own deviation (~1 cm, 0.16 deg). A stale file, from another drive,
+        # is millimetres off.
+        np.testing.assert_allclose(a.T_world_camera, b.T_world_camera, atol=2e-5)
 
 
 def test_installed_cameras_against_the_twin() -> None:
