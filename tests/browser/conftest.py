@@ -243,6 +243,18 @@ def read_scene(port: int, timeout: float = 10.0) -> dict[str, dict[str, Any]]:
     raise TimeoutError(f"the viser server on port {port} sent no complete scene in {timeout} s")
 
 
+def assert_scene_frame_is_proxied(frame: Any, base_url: str) -> None:
+    """The scene iframe shows the proxied viser page and its client connects through the proxy.
+
+    Once loaded, viser's client writes the WebSocket server it derived from the page's path
+    into the address (`?websocket=ws://host/api/v1/scene/view`); wait for that, then read it."""
+    page = f"{base_url}/api/v1/scene/view/"
+    relay = "ws://" + base_url.split("://", 1)[1] + "/api/v1/scene/view"
+    expected = f"{page}?websocket={relay}"
+    frame.wait_for_url(lambda url: url != page, timeout=10_000)
+    assert frame.url == expected
+
+
 @pytest.fixture
 def scene_reader():
     """Return read_scene(port, timeout) (a fixture, so tests need not import conftest)."""

@@ -22,7 +22,7 @@ except ImportError:  # pragma: no cover - depends on the environment
         raise  # in CI the browser tests must run
     pytest.skip("playwright is not installed (pip install -e '.[dev]')", allow_module_level=True)
 
-from tests.browser.conftest import CHROMIUM_ARGS
+from tests.browser.conftest import CHROMIUM_ARGS, assert_scene_frame_is_proxied
 
 
 def test_a_browser_session_leaves_no_token_in_urls_storage_or_logs(
@@ -102,7 +102,7 @@ def test_a_browser_session_leaves_no_token_in_urls_storage_or_logs(
                 expect(iframe).to_have_attribute("src", "/api/v1/scene/view/")
                 frame = iframe.element_handle().content_frame()
                 frame.wait_for_load_state()
-                assert frame.url == f"{svc.base_url}/api/v1/scene/view/"
+                assert_scene_frame_is_proxied(frame, svc.base_url)
                 frame.locator("canvas").first.wait_for(state="attached")
                 deadline_ms = 10_000
                 while not scene_frames and deadline_ms > 0:
