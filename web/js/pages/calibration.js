@@ -341,7 +341,7 @@ function networkPanel() {
   const minutes = h("input", {
     id: "network-minutes",
     type: "number",
-    min: 1,
+    min: 0.5,
     max: 30,
     step: 0.5,
     value: "5",
