@@ -11,6 +11,13 @@ detections as they arrive.
 """
 
 from core.localization.bounds import CramerRaoBound, cramer_rao_bound
+from core.localization.boxes import (
+    BOX_SIDES,
+    BoxNoise,
+    FootMeasurement,
+    box_foot,
+    cut_mask,
+)
 from core.localization.cameras import NetworkCamera
 from core.localization.coverage import CoverageMap, coverage_map
 from core.localization.detect import BodyDetection, BodyModel, locate_body_axis
@@ -36,13 +43,16 @@ from core.localization.tracking import (
 )
 
 __all__ = [
+    "BOX_SIDES",
     "BodyDetection",
     "BodyModel",
     "Box",
+    "BoxNoise",
     "CoverageMap",
     "CramerRaoBound",
     "DoorGap",
     "FloorEstimate",
+    "FootMeasurement",
     "FrameDetection",
     "FrameResult",
     "NetworkCamera",
@@ -54,8 +64,10 @@ __all__ = [
     "Tracker",
     "TrackerConfig",
     "Wall",
+    "box_foot",
     "coverage_map",
     "cramer_rao_bound",
+    "cut_mask",
     "cv_process_noise",
     "cv_transition",
     "detect_frame",
