@@ -16,8 +16,8 @@ from typing import Annotated
 import httpx
 from fastapi import APIRouter, HTTPException, Path, Request, WebSocket, status
 from fastapi.responses import Response
-from starlette.websockets import WebSocketDisconnect
-from websockets.asyncio.client import connect
+from starlette.websockets import WebSocketDisconnect, WebSocketState
+from websockets.asyncio.client import ClientConnection, connect
 from websockets.exceptions import ConnectionClosed, InvalidHandshake
 
 from server.api.deps import AuthRefused, ReadAccess, websocket_caller
@@ -101,8 +101,31 @@ async def scene_socket(websocket: WebSocket) -> None:
         await websocket.close(code=status.WS_1011_INTERNAL_ERROR)
         return
     await websocket.accept(subprotocol=who.subprotocol)
+    # Either side may leave at any time (a browser closing its tab, viser stopping): the relay
+    # then ends quietly, closing the other side; a client that goes away is no error.
+    tasks = [
+        asyncio.create_task(_to_viser(websocket, upstream)),
+        asyncio.create_task(_to_browser(upstream, websocket)),
+    ]
+    try:
+        await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
+    finally:
+        for task in tasks:
+            task.cancel()
+        # A service shutting down cancels this handler too: the tasks end first all the same.
+        await asyncio.gather(*tasks, return_exceptions=True)
+        with contextlib.suppress(ConnectionClosed, OSError):
+            await upstream.close()
+        if websocket.application_state == WebSocketState.CONNECTED:
+            # Starlette's WebSocketDisconnect for a browser already gone (uvicorn's
+            # ClientDisconnected, an OSError, beneath it); RuntimeError once closed.
+            with contextlib.suppress(WebSocketDisconnect, OSError, RuntimeError):
+                await websocket.close()
 
-    async def to_viser() -> None:
+
+async def _to_viser(websocket: WebSocket, upstream: ClientConnection) -> None:
+    """Pass the browser's messages to viser until either side closes."""
+    with contextlib.suppress(WebSocketDisconnect, ConnectionClosed, OSError, RuntimeError):
         while True:
             message = await websocket.receive()
             if message["type"] == "websocket.disconnect":
@@ -112,24 +135,12 @@ async def scene_socket(websocket: WebSocket) -> None:
             elif message.get("text") is not None:
                 await upstream.send(message["text"])
 
-    async def to_browser() -> None:
+
+async def _to_browser(upstream: ClientConnection, websocket: WebSocket) -> None:
+    """Pass viser's messages to the browser until either side closes."""
+    with contextlib.suppress(WebSocketDisconnect, ConnectionClosed, OSError, RuntimeError):
         async for data in upstream:
             if isinstance(data, bytes):
                 await websocket.send_bytes(data)
             else:
                 await websocket.send_text(data)
-
-    tasks = [asyncio.create_task(to_viser()), asyncio.create_task(to_browser())]
-    try:
-        await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
-    finally:
-        for task in tasks:
-            task.cancel()
-        for task in tasks:
-            with contextlib.suppress(
-                asyncio.CancelledError, ConnectionClosed, WebSocketDisconnect, RuntimeError
-            ):
-                await task
-        await upstream.close()
-        with contextlib.suppress(RuntimeError):
-            await websocket.close()

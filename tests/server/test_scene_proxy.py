@@ -4,18 +4,27 @@ viewer may ask it to be published through viser's share service."""
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
+import os
 import shutil
+import signal
 import socket
+import subprocess
+import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
 
+import httpx
 import msgspec
 import pytest
 import viser
 import zstandard
 from fastapi.testclient import TestClient
 from starlette.websockets import WebSocketDisconnect
+from websockets.asyncio.client import connect
+from websockets.exceptions import ConnectionClosed
 
 from server.app import create_app
 from server.scene import SceneService
@@ -162,3 +171,78 @@ def test_a_viewer_cannot_ask_for_a_share_url():
             server.request_share_url()
     finally:
         scene.stop()
+
+
+def test_a_viewer_that_goes_away_leaves_no_traceback_in_the_service_log(repo_root, tmp_path):
+    """The service started as a user starts it; viewers of the proxied scene leave in each way a
+    browser can: closing the WebSocket, dropping the connection (a tab killed, a laptop lid
+    shut) before or after the first message, and staying while the service stops."""
+    token = "scene-proxy-test-admin-token"
+    port, viser_port = free_port(), free_port()
+    env = {k: v for k, v in os.environ.items() if not k.startswith("INTSPACE_")}
+    env.update(
+        INTSPACE_DATA_DIR=str(tmp_path),
+        INTSPACE_SIMULATION="false",
+        INTSPACE_VISER_ENABLED="true",
+        INTSPACE_VISER_PORT=str(viser_port),
+        INTSPACE_ADMIN_TOKEN=token,
+        PYTHONUNBUFFERED="1",
+    )
+    log_path = tmp_path / "serve.log"
+    with log_path.open("wb") as log:
+        process = subprocess.Popen(
+            [sys.executable, "-m", "server.cli", "serve", "--port", str(port)],
+            cwd=repo_root,
+            env=env,
+            stdout=log,
+            stderr=subprocess.STDOUT,
+        )
+    url = f"ws://127.0.0.1:{port}/api/v1/scene/view"
+    headers = {"Authorization": f"Bearer {token}"}
+
+    async def viewers() -> list[str]:
+        left = []
+        for how in ("close", "drop", "drop before the first message"):
+            ws = await connect(
+                url, additional_headers=headers, subprotocols=[VISER_PROTOCOL], max_size=None
+            )
+            if how != "drop before the first message":
+                assert messages(await ws.recv())  # the scene came through the proxy
+            if how == "close":
+                await ws.close()
+            else:
+                ws.transport.abort()  # no closing handshake: the TCP connection just ends
+            left.append(how)
+            await asyncio.sleep(0.5)  # the relay notices and ends
+        # The last viewer stays while the service stops (Ctrl-C): its relay is cancelled.
+        ws = await connect(
+            url, additional_headers=headers, subprotocols=[VISER_PROTOCOL], max_size=None
+        )
+        assert messages(await ws.recv())
+        process.send_signal(signal.SIGINT)
+        with contextlib.suppress(ConnectionClosed):
+            async for _ in ws:
+                pass
+        left.append("stayed to the end")
+        return left
+
+    try:
+        deadline = time.monotonic() + 90
+        while True:
+            assert process.poll() is None, log_path.read_text(errors="replace")
+            with contextlib.suppress(httpx.TransportError):
+                if httpx.get(f"http://127.0.0.1:{port}/api/v1/health", timeout=2).is_success:
+                    break
+            assert time.monotonic() < deadline, "intspace serve did not answer within 90 s"
+            time.sleep(0.2)
+        assert len(asyncio.run(viewers())) == 4
+        assert process.wait(timeout=20) == 0
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait(10)
+    log = log_path.read_text(errors="replace")
+    # Each viewer was relayed (uvicorn logs the accepted handshakes), and none left a trace.
+    assert log.count('"WebSocket /api/v1/scene/view" [accepted]') == 4, log
+    assert "Traceback" not in log and "Exception in ASGI application" not in log, log
+    assert "ERROR" not in log, log
