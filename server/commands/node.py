@@ -9,8 +9,13 @@ detections to the service (spec 08).
 
 SRC: a USB index, a video file, an RTSP or HTTP(S) MJPEG URL (the service's own
 /api/v1/cameras/{id}/stream.mjpg included). The token comes from INTSPACE_TOKEN only (never a
-flag: command lines are visible to every user of the machine). A camera the registry does not
-know, a bad file or no token: one line on stderr and exit code 2.
+flag: command lines are visible to every user of the machine).
+
+Exit codes, each failure said in one line on stderr: 0 when every source ended (video files)
+or the node was stopped (Ctrl-C, SIGTERM); 2 for a bad command line or configuration file, no
+token, or a camera the registry does not know or has not calibrated; 3 for a source that cannot
+be opened at start (no such file, connection refused, ...). A stream that drops later is
+reopened with back-off, never an exit.
 """
 
 from __future__ import annotations
@@ -24,6 +29,7 @@ from pathlib import Path
 from core.errors import InvalidInput
 
 EXIT_USAGE = 2
+EXIT_SOURCE = 3
 DEFAULT_API = "http://127.0.0.1:8000/api/v1"
 
 
@@ -42,7 +48,19 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--space", type=int, metavar="ID", help="the space the camera belongs to")
     p.add_argument("--api", metavar="URL", help=f"the service (default {DEFAULT_API})")
     p.add_argument("--fps", type=float, metavar="N", help="detections per second at most")
-    p.add_argument("--fast", action="store_true", help="replay a video file as fast as it decodes")
+    p.add_argument(
+        "--fast",
+        action="store_true",
+        help="replay a video file or recording as fast as it is detected in: every frame, "
+        "stamped with the clip's own timing",
+    )
+    p.add_argument(
+        "--summary",
+        type=float,
+        metavar="S",
+        default=60.0,
+        help="log what the node did every S seconds (default 60; 0: only at the end)",
+    )
     p.add_argument(
         "--background-frames",
         type=int,
@@ -64,9 +82,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     calibrate.register(p.add_subparsers(dest="node_command", metavar="{calibrate}"))
 
 
-def _fail(message: str) -> int:
+def _fail(message: str, code: int = EXIT_USAGE) -> int:
     print(f"intspace node: error: {' '.join(message.split())}", file=sys.stderr, flush=True)
-    return EXIT_USAGE
+    return code
 
 
 def _api_url(url: str) -> str:
@@ -125,7 +143,9 @@ def run_node(args: argparse.Namespace) -> int:
     from server.commands._signals import stop_on_signals
     from server.node.client import NodeError
     from server.node.runner import Node
+    from server.node.sources import SourceUnavailable, quiet_video_libraries
 
+    quiet_video_libraries()
     logging.basicConfig(level=logging.INFO, format="intspace node: %(message)s", stream=sys.stderr)
     logging.getLogger("httpx").setLevel(logging.WARNING)
     token = os.environ.get("INTSPACE_TOKEN", "").strip()
@@ -135,14 +155,19 @@ def run_node(args: argparse.Namespace) -> int:
         config = _config(args)
     except InvalidInput as exc:
         return _fail(str(exc))
+    if not 0 <= args.summary <= 86_400:
+        return _fail("--summary must lie in [0, 86400] seconds")
     api = _api_url(args.api or config.api or DEFAULT_API)
-    node = Node(config, api, token)
+    node = Node(config, api, token, summary_s=args.summary)
     try:
         node.prepare()
         if args.record is not None:
             from server.node.record import Recorder
 
             node.recorder = Recorder.create(args.record, node)
+    except SourceUnavailable as exc:
+        node.client.close()
+        return _fail(str(exc), EXIT_SOURCE)
     except (NodeError, InvalidInput) as exc:
         node.client.close()
         return _fail(str(exc))

@@ -71,3 +71,21 @@ class NewestFrame:
     def closed(self) -> bool:
         """Whether `close` was called."""
         return self._closed
+
+
+class HandOver(NewestFrame):
+    """A newest-frame holder whose producer can wait until its frame was taken, so that a fast
+    replay (a video file or a recording with --fast) hands every frame to the detector."""
+
+    def take(self, timeout: float | None = None) -> Frame | None:
+        """Return the newest frame not taken yet (NewestFrame.take) and wake the producer."""
+        frame = super().take(timeout)
+        with self._cond:
+            self._cond.notify_all()
+        return frame
+
+    def wait_taken(self, seq: int, stop: threading.Event) -> None:
+        """Wait until frame `seq` was taken (or the holder closed, or `stop`)."""
+        with self._cond:
+            while self._taken < seq and not self._closed and not stop.is_set():
+                self._cond.wait(0.1)

@@ -42,7 +42,7 @@ from typing import TYPE_CHECKING, Any, ClassVar, Literal
 import cv2
 
 from core.errors import InvalidInput
-from server.node.frames import Frame, NewestFrame
+from server.node.frames import Frame, HandOver
 from server.node.sources import Source
 
 if TYPE_CHECKING:
@@ -257,24 +257,6 @@ def recorded_frames(root: Path, camera: str) -> Iterator[RecordedFrame]:
             yield RecordedFrame(seq, t, folder / name, detections)
 
 
-class _HandOver(NewestFrame):
-    """A newest-frame holder whose producer can wait until its frame was taken, so that a fast
-    replay hands every frame to the detector."""
-
-    def take(self, timeout: float | None = None) -> Frame | None:
-        """Return the newest frame not taken yet (NewestFrame.take) and wake the producer."""
-        frame = super().take(timeout)
-        with self._cond:
-            self._cond.notify_all()
-        return frame
-
-    def wait_taken(self, seq: int, stop: threading.Event) -> None:
-        """Wait until frame `seq` was taken (or the holder closed, or `stop`)."""
-        with self._cond:
-            while self._taken < seq and not self._closed and not stop.is_set():
-                self._cond.wait(0.1)
-
-
 class _ReplayClock:
     """One time offset per recording and process: the first frame of any of its cameras is
     captured when the first of its sources starts."""
@@ -316,7 +298,7 @@ class RecordingSource(Source):
         self.root = Path(root)
         self.realtime = realtime
         self._clock = clock
-        self._handover = _HandOver()
+        self._handover = HandOver()
         self.frames = self._handover
         # Fail at start-up, not in the reader thread: the camera must be in the recording.
         next(iter(recorded_frames(self.root, name)), None)

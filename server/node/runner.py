@@ -1,20 +1,24 @@
 """One camera node's threads: per camera a reader (sources) and a detector; one uploader; one
-heartbeat. The detector calls core.localization.detections.detect_frame, as the twin does."""
+heartbeat, which also logs a summary every `summary_s` seconds. The detector calls
+core.localization.detections.detect_frame, as the twin does."""
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 from urllib.parse import urlsplit
 
 import cv2
+import httpx
 import numpy as np
 from numpy.typing import NDArray
 
-from core.errors import IntspaceError
+from core.errors import IntspaceError, InvalidInput
 from core.localization import NetworkCamera
 from core.localization.detect import MarkerDetectorConfig, PersonDetector
 from core.localization.detections import FrameDetection, detect_frame
@@ -22,11 +26,20 @@ from server.node.client import NodeError, ServiceClient, Uploader
 from server.node.clock import StageDelays
 from server.node.config import CameraConfig, NodeConfig
 from server.node.masks import apply_mask, polygon_mask
-from server.node.sources import MjpegHttpSource, OpenCvSource, Source
+from server.node.sources import (
+    TIMEOUT_S,
+    MjpegHttpSource,
+    OpenCvSource,
+    Source,
+    SourceUnavailable,
+    describe_source,
+)
 
 log = logging.getLogger("intspace.node")
 
 HEARTBEAT_S = 1.0
+# How often the node logs what it did (frames, detections posted, dropped, reconnects).
+SUMMARY_S = 60.0
 
 
 def _origin(url: str) -> tuple[str, str, int | None]:
@@ -35,14 +48,24 @@ def _origin(url: str) -> tuple[str, str, int | None]:
     return parts.scheme, (parts.hostname or "").lower(), port
 
 
-def make_source(camera: CameraConfig, api: str, token: str) -> Source:
+def make_source(
+    camera: CameraConfig, api: str, token: str, clock: Callable[[], float] = time.time
+) -> Source:
     """Return the source of `camera`: httpx MJPEG for the service's own streams (with the
-    token: it is sent to the service's own address only) or when asked, OpenCV otherwise."""
+    token: it is sent to the service's own address only) or when asked, OpenCV otherwise.
+    `clock` is the service's (a file replayed fast is stamped from it). Raises InvalidInput
+    for a live camera asked to play fast (realtime false): only a file or a recording can."""
     src = camera.source
     from server.node.record import RecordingSource, is_recording
 
     if is_recording(src):  # a folder written by `intspace node --record`
         return RecordingSource(camera.name, str(src), realtime=camera.realtime)
+    is_file = isinstance(src, str) and "://" not in src
+    if not camera.realtime and not is_file:
+        raise InvalidInput(
+            f"camera {camera.name!r}: {describe_source(src)} is a live camera; --fast (realtime: "
+            "false) replays a video file or a recording as fast as it is detected in"
+        )
     is_http = isinstance(src, str) and src.lower().startswith(("http://", "https://"))
     if is_http and camera.reader != "opencv":
         assert isinstance(src, str)
@@ -50,7 +73,7 @@ def make_source(camera: CameraConfig, api: str, token: str) -> Source:
         if ours or camera.reader == "mjpeg":
             headers = {"Authorization": f"Bearer {token}"} if ours else {}
             return MjpegHttpSource(camera.name, src, headers)
-    return OpenCvSource(camera.name, src, realtime=camera.realtime)
+    return OpenCvSource(camera.name, src, realtime=camera.realtime, clock=clock)
 
 
 def observation(camera_id: int, t: float, d: FrameDetection) -> dict[str, Any] | None:
@@ -84,6 +107,7 @@ class CameraRun:
     mask: NDArray[np.bool_] | None
     people: PersonDetector = field(default_factory=PersonDetector)
     detected: int = 0
+    detections: int = 0
     learned: int = 0
     problem: str | None = None
 
@@ -91,8 +115,11 @@ class CameraRun:
 class Node:
     """The cameras of a configuration, read, detected in and reported until stopped."""
 
-    def __init__(self, config: NodeConfig, api: str, token: str) -> None:
+    def __init__(
+        self, config: NodeConfig, api: str, token: str, *, summary_s: float = SUMMARY_S
+    ) -> None:
         self.config = config
+        self.summary_s = float(summary_s)
         self.api = api
         self.client = ServiceClient(api, token)
         self.uploader = Uploader(self.client)
@@ -103,33 +130,56 @@ class Node:
         self._threads: list[threading.Thread] = []
         # A server.node.record.Recorder (--record DIR): keeps each processed frame.
         self.recorder: Any = None
+        # Why the node stopped before its sources ended (a fast replay fell behind), if so.
+        self.failure: str | None = None
         # Per processed frame: capture to its arrival here (the stream), waiting for the
         # detector, decoding and detecting (s). The uploader has the rest, to the service.
         self.delays = StageDelays(("capture to received", "waiting", "decode and detect"))
 
     def prepare(self) -> None:
-        """Fetch each camera's registry row and calibration. Raises NodeError for an unknown
-        or uncalibrated camera, or a bad mask."""
-        for cam in self.config.cameras:
-            row = self.client.camera(cam.name, self.config.space)
-            if row.get("K") is None or row.get("T_world_camera") is None:
-                raise NodeError(
-                    f"camera {cam.name!r} (id {row['id']}) has no intrinsics or pose in the "
-                    "registry; calibrate it before running its node"
-                )
-            size = (int(row["width"]), int(row["height"]))
-            try:
-                network = NetworkCamera.from_pose(
-                    row["K"], row.get("dist"), row["T_world_camera"], size, cam.name
-                )
-                mask = polygon_mask(size, cam.masks)
-            except IntspaceError as exc:
-                raise NodeError(f"camera {cam.name!r}: {exc}") from exc
-            source = make_source(cam, self.api, self._token)
-            self.cameras.append(CameraRun(cam, int(row["id"]), size, network, source, mask))
+        """Open each camera's source, then fetch its registry row and calibration. Raises
+        SourceUnavailable for a source that does not open, NodeError for an unknown or
+        uncalibrated camera or a bad mask, InvalidInput for a bad source setting."""
+        sources: list[Source] = []
+        try:
+            for cam in self.config.cameras:
+                source = make_source(cam, self.api, self._token, self._service_time)
+                sources.append(source)
+                try:
+                    source.check()
+                except SourceUnavailable as exc:
+                    raise SourceUnavailable(f"camera {cam.name!r}: {exc}") from None
+            for cam, source in zip(self.config.cameras, sources, strict=True):
+                self.cameras.append(self._camera_run(cam, source))
+        except BaseException:
+            for source in sources:
+                source.stop()
+            raise
+
+    def _service_time(self) -> float:
+        return time.time() + self.client.offset
+
+    def _camera_run(self, cam: CameraConfig, source: Source) -> CameraRun:
+        row = self.client.camera(cam.name, self.config.space)
+        if row.get("K") is None or row.get("T_world_camera") is None:
+            raise NodeError(
+                f"camera {cam.name!r} (id {row['id']}) has no intrinsics or pose in the "
+                "registry; calibrate it before running its node"
+            )
+        size = (int(row["width"]), int(row["height"]))
+        try:
+            network = NetworkCamera.from_pose(
+                row["K"], row.get("dist"), row["T_world_camera"], size, cam.name
+            )
+            mask = polygon_mask(size, cam.masks)
+        except IntspaceError as exc:
+            raise NodeError(f"camera {cam.name!r}: {exc}") from exc
+        return CameraRun(cam, int(row["id"]), size, network, source, mask)
 
     def run(self) -> int:
-        """Run until `stop_event` is set or every source ended; return the exit code."""
+        """Run until `stop_event` is set or every source ended; return the exit code (0, or 1
+        when a fast replay fell behind its clip)."""
+        self._announce_replays()
         self.uploader.start()
         for run in self.cameras:
             run.source.start()
@@ -142,7 +192,7 @@ class Node:
                 "camera %s (id %d): reading %s",
                 run.config.name,
                 run.camera_id,
-                run.config.source,
+                describe_source(run.config.source),
             )
         beat = threading.Thread(target=self._heartbeat_loop, name="heartbeat", daemon=True)
         beat.start()
@@ -161,8 +211,14 @@ class Node:
                 run.source.stop()
             for thread in self._threads:
                 thread.join(5)
+            for run in self.cameras:
+                # A reader inside OpenCV's read (up to its 2 s timeout) must not be there when
+                # the interpreter exits: the process would abort instead of exiting.
+                run.source.join(TIMEOUT_S + 1.0)
             self.uploader.stop()
             self._heartbeat()
+            self._check_replays()
+            self._summary("at the end")
             log.info(
                 "posted %d detection(s) and %d empty frame(s); %d camera frame(s) came too late "
                 "to be tracked",
@@ -188,6 +244,9 @@ class Node:
             if self.recorder is not None:
                 self.recorder.close()
             self.client.close()
+        if self.failure is not None:
+            log.error("stopped: %s", self.failure)
+            return 1
         return 0
 
     def _detect_loop(self, run: CameraRun) -> None:
@@ -231,6 +290,7 @@ class Node:
             kept = [o for o in obs if o is not None]
             if found:
                 self.uploader.push(kept)
+                run.detections += len(kept)
             else:
                 # Nothing seen is news too: the tracker need not wait for this camera up to t.
                 self.uploader.push_empty(run.camera_id, t)
@@ -251,8 +311,84 @@ class Node:
         run.problem = message
 
     def _heartbeat_loop(self) -> None:
+        next_summary = time.monotonic() + self.summary_s
         while not self.stop_event.wait(HEARTBEAT_S):
             self._heartbeat()
+            self._check_replays()
+            if self.summary_s > 0 and time.monotonic() >= next_summary:
+                next_summary += self.summary_s
+                self._summary("so far")
+
+    def _announce_replays(self) -> None:
+        """Tell the service's tracker, before a fast replay starts, that its cameras saw nothing
+        up to now (an empty frame each): its first frames then find the space's tracker made
+        and the service warm, instead of waiting behind the first post of a cold service
+        (above a second on a loaded machine) and reaching the tracker too late."""
+        fast = [run.camera_id for run in self.cameras if not run.config.realtime]
+        if not fast:
+            return
+        now = self._service_time()
+        body = {"observations": [], "empty_frames": [{"camera_id": c, "t": now} for c in fast]}
+        with contextlib.suppress(httpx.TransportError):
+            self.client.request("POST", "/observations", json=body)
+
+    def _check_replays(self) -> None:
+        """Stop the node when a fast replay's frames reach the service too late to be tracked.
+
+        A fast replay stamps its frames with the clip's own timing from when it started; a
+        detector slower than the clip falls further behind those times with every frame, and
+        the service's tracker refuses frames older than its window (INTSPACE_TRACKER_LATENCY_S)
+        as late. Every frame tracked with the clip's timing is then impossible: the node says
+        so and stops, rather than post frames the tracker throws away."""
+        fast = [run for run in self.cameras if not run.config.realtime]
+        if not fast or not self.uploader.late or self.failure is not None:
+            return
+        rates = []
+        for run in fast:
+            stats = run.source.stats
+            clip = getattr(run.source, "fps", 0.0)
+            rates.append(
+                f"camera {run.config.name}: {run.detected} frame(s) detected in at "
+                f"{stats.fps(time.time()):.1f}/s" + (f", the clip has {clip:g}/s" if clip else "")
+            )
+        self.failure = (
+            f"a fast replay fell behind its clip's own timing and the service refused "
+            f"{self.uploader.late} frame(s) as too late to be tracked ({'; '.join(rates)}): "
+            "the detector is slower than the clip on this machine. Replay at the clip's own "
+            "pace (without --fast: frames the detector cannot take are dropped, as from a live "
+            "camera), or give the service a longer INTSPACE_TRACKER_LATENCY_S"
+        )
+        self.stop_event.set()
+
+    def _summary(self, when: str) -> None:
+        """Log, per camera, what the node did since it started: frames read, detected in and
+        dropped (replaced by a newer one before the detector took them), reconnects; and what
+        was posted."""
+        for run in self.cameras:
+            stats = run.source.stats
+            log.info(
+                "summary %s: camera %s: %d frame(s) read (%.1f/s now), %d detected in, %d "
+                "dropped, %d detection(s); %d stall(s), %d reconnect(s)",
+                when,
+                run.config.name,
+                stats.frames,
+                stats.fps(time.time()),
+                run.detected,
+                run.source.frames.dropped,
+                run.detections,
+                stats.stalls,
+                stats.reconnects,
+            )
+        log.info(
+            "summary %s: %d detection(s) and %d empty frame(s) posted, %d waiting, %d dropped "
+            "while the service was unreachable, %d frame(s) too late to be tracked",
+            when,
+            self.uploader.posted,
+            self.uploader.posted_empty,
+            self.uploader.pending,
+            self.uploader.dropped,
+            self.uploader.late,
+        )
 
     def _heartbeat(self) -> None:
         now = time.time()

@@ -5,36 +5,151 @@
   things OpenCV's FFmpeg reader cannot give per source. The JPEG is decoded by the detector.
 * Everything else with OpenCV (`OpenCvSource`): a USB index (the platform's backend), a video
   file, an RTSP or HTTP URL (the FFmpeg backend with open and read timeouts of 2 s). A file is
-  replayed at its own frame rate, or as fast as it decodes, and ends.
+  replayed at its own frame rate, or (fast) as fast as the detector takes its frames, every one
+  of them, stamped with the clip's own timing; it ends with the file.
 
-A read that times out (no frame for 2 s) is a stall; the source is reopened with back-off
-(0.25 s doubling to 1 s: a camera that returns waits at most 1 s for the next attempt, then
-the open, which FFmpeg spends about 2 s probing an RTSP stream in; spec 08 asks for 5 s).
-Counters: frames, stalls, reconnects; frames per second over the last 2 s.
+`check` opens a source before its thread starts: a source that cannot be opened then is an
+error (`SourceUnavailable`, saying which source, why and what to do), not a retry. Once a
+stream has been opened, losing it is not: a read that times out (no frame for 2 s) is a stall,
+and the source is reopened with back-off, 0.5 s doubling to 2 s for the first minute of an
+outage (spec 08: a camera that returns is read again within 5 s, and FFmpeg spends about 2 s
+probing an RTSP stream it opens), then doubling to 30 s (a camera gone for good costs a
+connection attempt every half minute). Each change of state is said once: connected, stalled
+or lost, reconnecting, still down after a minute, back. The FFmpeg and OpenCV libraries' own
+messages (two lines per failed attempt) are silenced (`quiet_video_libraries`).
+
+Counters: frames, stalls, reconnects; frames per second over the last 2 s. URLs are shown with
+their password masked (`describe_source`).
 """
 
 from __future__ import annotations
 
 import logging
+import math
+import os
+import socket
+import sys
 import threading
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Literal
+from urllib.parse import urlsplit, urlunsplit
 
 import cv2
 import httpx
 
 from core.errors import InvalidInput
-from server.node.frames import Frame, NewestFrame
+from server.node.frames import Frame, HandOver, NewestFrame
 from server.node.mjpeg import MjpegParser, boundary_of
 
 log = logging.getLogger("intspace.node")
 
 TIMEOUT_S = 2.0
-_BACKOFF_FIRST_S = 0.25
-_BACKOFF_MAX_S = 1.0
+BACKOFF_FIRST_S = 0.5
+# The longest wait between attempts during the first minute of an outage, and after it.
+BACKOFF_EARLY_MAX_S = 2.0
+BACKOFF_EARLY_S = 60.0
+BACKOFF_MAX_S = 30.0
 _FPS_WINDOW_S = 2.0
+# FFmpeg's AV_LOG_QUIET.
+_FFMPEG_QUIET = "-8"
+
+
+class SourceUnavailable(Exception):
+    """A source that cannot be opened at start: its message names the source, says why and
+    what to do, and is the one line the node prints before it exits."""
+
+
+def quiet_video_libraries() -> None:
+    """Keep FFmpeg's and OpenCV's own messages (\"[tcp @ 0x...] Connection refused\", \"[ WARN:0]
+    ... can't open\") out of the node's output: the node says what happened once, in its own
+    words. A user who wants them sets OPENCV_FFMPEG_LOGLEVEL (FFmpeg's level, read when OpenCV
+    first opens an FFmpeg capture) or OPENCV_LOG_LEVEL (read when cv2 is imported)."""
+    os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", _FFMPEG_QUIET)
+    if "OPENCV_LOG_LEVEL" not in os.environ:
+        cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+
+
+def describe_source(source: int | str) -> str:
+    """Return a source as it may be shown: a USB index, a path, or a URL with its password
+    masked (an IP camera's URL often carries the camera's credentials)."""
+    if isinstance(source, int):
+        return f"USB camera {source}"
+    if "://" not in source:
+        return source
+    parts = urlsplit(source)
+    if parts.password is None:
+        return source
+    host = parts.hostname or ""
+    if parts.port is not None:
+        host = f"{host}:{parts.port}"
+    return urlunsplit(parts._replace(netloc=f"{parts.username}:***@{host}"))
+
+
+def _endpoint(url: str) -> tuple[str, int] | None:
+    parts = urlsplit(url)
+    default = {"rtsp": 554, "rtsps": 322, "http": 80, "https": 443}.get(parts.scheme.lower())
+    try:
+        port = parts.port or default
+    except ValueError:
+        return None
+    if not parts.hostname or port is None:
+        return None
+    return parts.hostname, port
+
+
+def unreachable(url: str) -> str | None:
+    """Return why a TCP connection to the URL's host and port fails (it does not resolve, it
+    is refused, it times out), None when it succeeds or the URL names no host."""
+    endpoint = _endpoint(url)
+    if endpoint is None:
+        return None
+    host, port = endpoint
+    try:
+        with socket.create_connection((host, port), timeout=TIMEOUT_S):
+            return None
+    except socket.gaierror:
+        return f"the host name {host!r} does not resolve (check the address, or use the IP)"
+    except ConnectionRefusedError:
+        return (
+            f"{host}:{port} refused the connection (the camera is off, or serves on another port)"
+        )
+    except TimeoutError:
+        return f"{host}:{port} did not answer within {TIMEOUT_S:g} s (wrong address, firewall)"
+    except OSError as exc:
+        return f"{host}:{port}: {exc.strerror or exc}"
+
+
+def _why_not_opened(source: int | str) -> str:
+    """Return why OpenCV could not open a source, and what to do (it says only that it did not)."""
+    if isinstance(source, int):
+        device = Path(f"/dev/video{source}")
+        if sys.platform.startswith("linux") and not device.exists():
+            return (
+                f"there is no {device}: plug the camera in, or give another index (ls /dev/video*)"
+            )
+        if sys.platform.startswith("linux") and not os.access(device, os.R_OK):
+            return f"no permission to read {device}: add this user to the 'video' group"
+        return "the camera did not open: is another program using it?"
+    if "://" not in source:
+        path = Path(source)
+        if not path.exists():
+            return "no such file: give a video file, a recording folder, a USB index or a URL"
+        if path.is_dir():
+            return "a folder, but not a recording (no recording.json in it)"
+        if not os.access(path, os.R_OK):
+            return "permission denied: make the file readable by this user"
+        return "FFmpeg cannot decode it: not a video, or in a codec this OpenCV lacks"
+    why = unreachable(source)
+    if why is not None:
+        return why
+    return (
+        "the server answered but gave no video: check the URL's path and the user and password "
+        "in it (the camera's manual gives its stream's URL)"
+    )
 
 
 @dataclass
@@ -69,12 +184,27 @@ class Source:
 
     def __init__(self, name: str) -> None:
         self.name = name
-        self.frames = NewestFrame()
+        self.frames: NewestFrame = NewestFrame()
         self.stats = SourceStats()
         self.finished = threading.Event()
         self._stop = threading.Event()
         self._seq = 0
         self._thread = threading.Thread(target=self._run, name=f"source-{name}", daemon=True)
+        # The outage under way: since when (monotonic), the attempts made, the reasons said
+        # (each once), whether the slower back-off was announced.
+        self._down_since: float | None = None
+        self._attempts = 0
+        self._said: set[str] = set()
+        self._slow = False
+
+    @property
+    def label(self) -> str:
+        """Return the source as it may be shown (a URL's password masked)."""
+        return self.name
+
+    def check(self) -> None:
+        """Open the source once, before `start`. Raises SourceUnavailable saying why it cannot
+        be read. The base class has nothing to check."""
 
     def start(self) -> None:
         """Start reading."""
@@ -90,6 +220,18 @@ class Source:
         self._thread.join(timeout)
 
     def _publish(self, t: float | None, *, image=None, jpeg: bytes | None = None) -> None:
+        if self.stats.frames == 0:
+            log.info("camera %s: connected to %s", self.name, self.label)
+        elif self._down_since is not None:
+            log.info(
+                "camera %s: back after %.1f s (%d reconnect attempt(s))",
+                self.name,
+                time.monotonic() - self._down_since,
+                self._attempts,
+            )
+        self._down_since, self._attempts, self._slow = None, 0, False
+        self._said.clear()
+        self.stats.error = None
         self._seq += 1
         received = time.time()
         self.stats.frame(received, t)
@@ -101,21 +243,46 @@ class Source:
             log.warning("camera %s: %s", self.name, message)
         self.stats.error = message
 
+    def _lost(self, reason: str) -> None:
+        """The stream stopped giving frames, or an attempt to reopen it failed, for `reason`."""
+        self.stats.error = reason
+        if self._down_since is None:
+            self._down_since = time.monotonic()
+            log.warning("camera %s: %s", self.name, reason)
+            log.info(
+                "camera %s: reconnecting (every %g s doubling to %g s, then to %g s after a "
+                "minute)",
+                self.name,
+                BACKOFF_FIRST_S,
+                BACKOFF_EARLY_MAX_S,
+                BACKOFF_MAX_S,
+            )
+        elif reason not in self._said:
+            log.warning("camera %s: still unreachable: %s", self.name, reason)
+        self._said.add(reason)
+
+    def _backoff(self) -> float:
+        """Return how long to wait before the next attempt of the outage under way."""
+        down = 0.0 if self._down_since is None else time.monotonic() - self._down_since
+        cap = BACKOFF_EARLY_MAX_S if down < BACKOFF_EARLY_S else BACKOFF_MAX_S
+        if cap == BACKOFF_MAX_S and not self._slow:
+            log.warning(
+                "camera %s: still down after %.0f s; trying again at most every %g s",
+                self.name,
+                down,
+                BACKOFF_MAX_S,
+            )
+            self._slow = True
+        return min(BACKOFF_FIRST_S * 2.0 ** min(self._attempts, 16), cap)
+
     def _run(self) -> None:
-        backoff = _BACKOFF_FIRST_S
-        opened_once = False
         try:
             while not self._stop.is_set():
-                if opened_once:
-                    self.stats.reconnects += 1
-                opened_once = True
-                before = self.stats.frames
                 if self._read() == "ended":
                     return
-                if self.stats.frames > before:
-                    backoff = _BACKOFF_FIRST_S
-                self._stop.wait(backoff)
-                backoff = min(2 * backoff, _BACKOFF_MAX_S)
+                self._stop.wait(self._backoff())
+                self._attempts += 1
+                self.stats.reconnects += 1
         finally:
             self.finished.set()
             self.frames.close()
@@ -133,44 +300,92 @@ class MjpegHttpSource(Source):
         self._headers = dict(headers or {})
         self._client = httpx.Client(timeout=httpx.Timeout(TIMEOUT_S), headers=self._headers)
 
+    @property
+    def label(self) -> str:
+        """Return the URL, its password masked."""
+        return describe_source(self.url)
+
+    def check(self) -> None:
+        """Raise SourceUnavailable unless the URL answers 200 with a multipart stream."""
+        where = f"cannot open {self.label}"
+        try:
+            with self._client.stream("GET", self.url) as response:
+                if response.status_code != 200:
+                    hint = {
+                        401: "the stream wants credentials (for the service's own streams: a "
+                        "token that may read this camera in INTSPACE_TOKEN)",
+                        403: "the credentials may not read this stream",
+                        404: "no stream at that path: check the URL",
+                    }.get(response.status_code, "check the URL")
+                    raise SourceUnavailable(
+                        f"{where}: it answered {response.status_code} "
+                        f"{response.reason_phrase}; {hint}"
+                    )
+                boundary_of(response.headers.get("content-type", ""))
+        except httpx.TransportError as exc:
+            why = unreachable(self.url) or f"{type(exc).__name__}: {exc}"
+            raise SourceUnavailable(f"{where}: {why}") from None
+        except InvalidInput as exc:
+            raise SourceUnavailable(
+                f"{where}: {exc}, not an MJPEG stream (give the camera's MJPEG URL, or its RTSP "
+                "URL)"
+            ) from None
+
     def _read(self) -> Literal["ended", "retry"]:
         try:
             with self._client.stream("GET", self.url) as response:
                 if response.status_code != 200:
                     response.read()
                     detail = response.text[:200].replace("\n", " ")
-                    self._problem(f"{self.url} answered {response.status_code}: {detail}")
+                    self._lost(f"{self.label} answered {response.status_code}: {detail}")
                     return "retry"
                 parser = MjpegParser(boundary_of(response.headers.get("content-type", "")))
-                if self.stats.error is not None:
-                    log.warning("camera %s: reading %s again", self.name, self.url)
-                self.stats.error = None
                 for chunk in response.iter_bytes():
                     for part in parser.feed(chunk):
                         self._publish(part.timestamp, jpeg=part.body)
                     if self._stop.is_set():
                         return "ended"
-            self._problem(f"{self.url}: the stream ended")
+            self._lost("stalled: the stream ended")
             self.stats.stalls += 1
         except httpx.TimeoutException:
-            self._problem(f"{self.url}: no data for {TIMEOUT_S:g} s (stalled)")
+            self._lost(f"stalled: no data for {TIMEOUT_S:g} s")
             self.stats.stalls += 1
         except httpx.TransportError as exc:
-            self._problem(f"{self.url}: {type(exc).__name__}: {exc}")
+            self._lost(f"connection lost: {type(exc).__name__}: {exc}")
         except InvalidInput as exc:
-            self._problem(f"{self.url}: {exc}")
+            self._lost(f"{self.label}: {exc}")
         return "retry"
 
 
 class OpenCvSource(Source):
-    """A USB index, video file or RTSP/HTTP URL read with OpenCV. A file plays at its own
-    frame rate (`realtime`) or as fast as it decodes, once."""
+    """A USB index, video file or RTSP/HTTP URL read with OpenCV. A file plays once: at its own
+    frame rate (`realtime`), or as fast as the detector takes its frames, every one, frame k
+    stamped t0 + k / (the file's frame rate), t0 the `clock` (the service's) at the first."""
 
-    def __init__(self, name: str, source: int | str, *, realtime: bool = True) -> None:
+    def __init__(
+        self,
+        name: str,
+        source: int | str,
+        *,
+        realtime: bool = True,
+        clock: Callable[[], float] = time.time,
+    ) -> None:
         super().__init__(name)
         self.source = source
         self.is_file = isinstance(source, str) and "://" not in source
         self.realtime = realtime
+        self._clock = clock
+        self._cap: cv2.VideoCapture | None = None  # opened by check, read by the thread
+        self.fps = 0.0  # the frame rate a file says it has (0: unknown, or not a file)
+        self._handover: HandOver | None = None
+        if self.is_file and not realtime:
+            self._handover = HandOver()
+            self.frames = self._handover
+
+    @property
+    def label(self) -> str:
+        """Return the source, a URL's password masked."""
+        return describe_source(self.source)
 
     def _open(self) -> cv2.VideoCapture:
         params = [
@@ -183,31 +398,68 @@ class OpenCvSource(Source):
             return cv2.VideoCapture(self.source, cv2.CAP_ANY, params)
         return cv2.VideoCapture(self.source, cv2.CAP_FFMPEG, params)
 
-    def _read(self) -> Literal["ended", "retry"]:
+    def check(self) -> None:
+        """Open the capture (kept for the reader). Raises SourceUnavailable saying why it does
+        not open, or why a file cannot be replayed fast (it does not say its frame rate)."""
         cap = self._open()
+        if not cap.isOpened():
+            cap.release()
+            raise SourceUnavailable(f"cannot open {self.label}: {_why_not_opened(self.source)}")
+        if self._handover is not None and not _frame_rate(cap):
+            cap.release()
+            raise SourceUnavailable(
+                f"{self.label} does not say its frame rate, which --fast needs to give its "
+                "frames the clip's own timing: replay it at its own pace (without --fast)"
+            )
+        self._cap = cap
+
+    def _read(self) -> Literal["ended", "retry"]:
+        cap, self._cap = self._cap or self._open(), None
         try:
             if not cap.isOpened():
-                self._problem(f"cannot open {self.source!r}")
-                return "ended" if self.is_file else "retry"
-            self.stats.error = None
-            period = 0.0
-            if self.is_file and self.realtime:
-                fps = cap.get(cv2.CAP_PROP_FPS)
-                period = 1.0 / fps if fps and fps > 0 else 0.0
+                if self.is_file:
+                    self._problem(f"cannot open {self.label}: {_why_not_opened(self.source)}")
+                    return "ended"
+                self._lost(f"cannot open {self.label}: {_why_not_opened(self.source)}")
+                return "retry"
+            fps = self.fps = _frame_rate(cap)
+            period = 1.0 / fps if self.is_file and self.realtime and fps else 0.0
             next_time = time.monotonic()
+            t0: float | None = None
+            k = 0
             while not self._stop.is_set():
                 ok, image = cap.read()
                 if not ok or image is None:
                     if self.is_file:
-                        log.info("camera %s: %s ended", self.name, self.source)
+                        log.info("camera %s: %s ended after %d frame(s)", self.name, self.label, k)
                         return "ended"
-                    self._problem(f"{self.source!r}: no frame for {TIMEOUT_S:g} s (stalled)")
+                    self._lost(f"stalled: no frame for {TIMEOUT_S:g} s")
                     self.stats.stalls += 1
                     return "retry"
-                self._publish(None, image=image)
+                if self._handover is not None:
+                    # Every frame, at the clip's own pace in its stamps, not in the wall's.
+                    t0 = self._clock() if t0 is None else t0
+                    self._publish(t0 + k / fps, image=image)
+                    self._handover.wait_taken(self._seq, self._stop)
+                else:
+                    self._publish(None, image=image)
+                k += 1
                 if period:
                     next_time = max(next_time + period, time.monotonic() - period)
                     self._stop.wait(max(0.0, next_time - time.monotonic()))
             return "ended"
         finally:
             cap.release()
+
+    def stop(self) -> None:
+        """Stop reading; release a capture opened by `check` and never read."""
+        super().stop()
+        if self._cap is not None and not self._thread.is_alive():
+            self._cap.release()
+            self._cap = None
+
+
+def _frame_rate(cap: cv2.VideoCapture) -> float:
+    """Return the frame rate a capture reports, 0 when it reports none (or nonsense)."""
+    fps = float(cap.get(cv2.CAP_PROP_FPS))
+    return fps if math.isfinite(fps) and 0 < fps <= 1000 else 0.0

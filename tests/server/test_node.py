@@ -488,15 +488,18 @@ def test_video_file_source_reads_every_frame_once_then_ends(tmp_path):
     for k in range(12):
         writer.write(np.full((48, 64, 3), 20 * k, np.uint8))
     writer.release()
-    source = OpenCvSource("clip", str(path), realtime=False)
+    source = OpenCvSource("clip", str(path), realtime=False, clock=lambda: 1000.0)
+    source.check()
     taken = []
     source.start()
     while (frame := source.frames.take(timeout=5)) is not None:
         taken.append(frame)
-        time.sleep(0.005)  # a detector slower than the file: some frames are replaced
+        time.sleep(0.005)  # a detector slower than the file: it still gets every frame
     source.join(5)
     assert source.finished.is_set() and source.stats.frames == 12
-    assert len(taken) + source.frames.dropped == 12
+    assert len(taken) == 12 and source.frames.dropped == 0
+    # The clip's own timing: frame k at t0 + k / 25 s, t0 the clock at the first frame.
+    np.testing.assert_allclose([f.t for f in taken], 1000.0 + np.arange(12) / 25.0, atol=1e-9)
     assert taken[-1].seq == 12 and taken[-1].image is not None
     assert abs(float(taken[-1].image.mean()) - 220) < 3  # the last frame, decoded (MJPG)
 

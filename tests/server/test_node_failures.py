@@ -1,0 +1,168 @@
+"""What a user sees when `intspace node` cannot do what it was asked: a source that does not
+open at start is one line and exit code 3 (never a retry loop, never FFmpeg's own messages), a
+live camera cannot be replayed --fast (exit 2), and a video file replayed --fast is processed
+frame by frame with the clip's own timing. A stream that stops and returns is in
+test_rtsp_source.py (the node says it once, then that it is back, and keeps posting)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import httpx
+import numpy as np
+import pytest
+from node_helpers import free_port, node_env, serve_without_twin
+
+from core.sim import WorldState, default_scene
+from core.sim.installation import installed_calibration
+from core.sim.motion import Pose2D
+from core.sim.render import renderer_for
+
+TOKEN = "node-failures-test-admin-token"
+CAMERA = "cam_living_sw"
+
+
+def _node(repo_root: Path, *args: str, timeout: float = 60) -> subprocess.CompletedProcess:
+    env = node_env()
+    env["INTSPACE_TOKEN"] = TOKEN
+    return subprocess.run(
+        [sys.executable, "-m", "server.cli", "node", *args],
+        cwd=repo_root,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
+
+
+@pytest.mark.parametrize(
+    ("source", "shown", "why"),
+    [
+        ("{tmp}/nowhere.mp4", "{tmp}/nowhere.mp4", "no such file"),
+        # An IP camera's URL with its credentials, on a port nobody listens on.
+        (
+            "rtsp://admin:s3cret@127.0.0.1:{port}/stream1",
+            "rtsp://admin:***@127.0.0.1:{port}/stream1",
+            "refused the connection",
+        ),
+        ("http://127.0.0.1:{port}/video.mjpg", "http://127.0.0.1:{port}/video.mjpg", "refused"),
+    ],
+    ids=["missing file", "rtsp refused", "http refused"],
+)
+def test_a_source_that_cannot_be_opened_at_start_is_one_line_and_exit_code_3(
+    repo_root, tmp_path, source, shown, why
+):
+    port = free_port()  # bound and released: nothing listens there
+    source, shown = (s.format(tmp=tmp_path, port=port) for s in (source, shown))
+    # The service is never reached: the source is opened first.
+    api = f"http://127.0.0.1:{free_port()}/api/v1"
+    done = _node(repo_root, "--source", source, "--camera", "door", "--api", api)
+    assert done.returncode == 3, done.stderr
+    lines = done.stderr.splitlines()
+    # One line: which camera and source, why; no FFmpeg or OpenCV message ("[tcp @ 0x...]",
+    # "[ WARN:0@...] ... can't open"), no traceback, and the URL's password masked.
+    assert len(lines) == 1, done.stderr
+    assert lines[0].startswith(f"intspace node: error: camera 'door': cannot open {shown}: ")
+    assert why in lines[0] and "s3cret" not in done.stderr
+
+
+def test_a_live_camera_is_not_replayed_fast(repo_root):
+    url = f"rtsp://127.0.0.1:{free_port()}/cam"
+    done = _node(repo_root, "--source", url, "--camera", "door", "--fast")
+    assert done.returncode == 2, done.stderr
+    assert done.stderr.count("\n") == 1 and "is a live camera" in done.stderr
+
+
+def test_a_file_replayed_fast_is_processed_frame_by_frame_with_the_clips_timing(
+    repo_root, tmp_path
+):
+    """A 20-frame clip of the twin's robot crossing the living room at 0.6 m/s, 5 frames per
+    second, replayed --fast: every frame read and detected in, none dropped or late; frame k
+    stamped t0 + k / 5 s; the robot's track on the service follows the clip's motion."""
+    fps, frames, speed = 5.0, 20, 0.6
+    scene = default_scene()
+    renderer = renderer_for(scene)
+    away = tuple((1e4, 1e4) for _ in scene.people)
+
+    def truth(k: int) -> tuple[float, float]:
+        return 1.5 + speed * k / fps, 2.0
+
+    clip = tmp_path / "clip.avi"
+    writer = cv2.VideoWriter(str(clip), cv2.VideoWriter_fourcc(*"MJPG"), fps, (640, 480))
+    for k in range(frames):
+        pose = Pose2D(*truth(k), 0.0)
+        writer.write(renderer.render(CAMERA, WorldState(k / fps, pose, away), rng=k).image)
+    writer.release()
+
+    service, api = serve_without_twin(repo_root, tmp_path / "service", TOKEN)
+    http = httpx.Client(base_url=api, headers={"Authorization": f"Bearer {TOKEN}"}, timeout=10)
+    try:
+        space = http.post("/spaces", json={"name": "replay"}).json()["id"]
+        # The camera as its installation calibrated it (not the twin's true camera).
+        cal = {c.name: c for c in installed_calibration(scene).cameras}[CAMERA]
+        created = http.post(
+            "/cameras",
+            json={
+                "name": CAMERA,
+                "space_id": space,
+                "width": 640,
+                "height": 480,
+                "K": cal.K.tolist(),
+                "dist": cal.dist.tolist(),
+                "T_world_camera": cal.T_world_camera.tolist(),
+            },
+        )
+        assert created.status_code == 201, created.text
+        record = tmp_path / "recording"
+        done = _node(
+            repo_root,
+            *("--source", str(clip), "--camera", CAMERA, "--space", str(space), "--api", api),
+            *("--fast", "--record", str(record)),
+        )
+        assert done.returncode == 0, done.stderr
+        assert f"camera {CAMERA}: 20 frame(s) read" in done.stderr, done.stderr
+        assert "20 detected in, 0 dropped" in done.stderr, done.stderr
+        assert "0 frame(s) too late to be tracked" in done.stderr, done.stderr
+
+        # Every frame, stamped with the clip's own timing (the recording keeps the stamps).
+        (folder,) = [p for p in record.iterdir() if p.is_dir()]
+        index = [json.loads(line) for line in (folder / "index.jsonl").read_text().splitlines()]
+        stamps = np.array([item["t"] for item in index])
+        assert len(stamps) == frames
+        np.testing.assert_allclose(np.diff(stamps), 1.0 / fps, atol=1e-6)
+
+        # The service tracks the frames when their times come (up to 4 s from the start).
+        def track() -> list[dict]:
+            items = http.get("/targets", params={"kind": "robot", "state": "all"}).json()["items"]
+            if len(items) != 1:
+                return []
+            points = http.get(f"/targets/{items[0]['id']}/track").json()["points"]
+            return points if points and points[-1]["t"] >= stamps[-1] - 1e-6 else []
+
+        deadline = time.monotonic() + 20
+        while not (points := track()):
+            assert time.monotonic() < deadline, http.get("/targets?state=all").json()
+            time.sleep(0.2)
+        # The robot enters the camera's view part way: the track has the frames after that.
+        assert len(points) >= frames // 2, points
+        errors = []
+        for point in points:
+            k = (point["t"] - stamps[0]) * fps
+            assert abs(k - round(k)) < 1e-3, point  # at a frame's time
+            errors.append(np.hypot(*(np.array(point["xy"]) - truth(round(k)))))
+        # 5 cm: spec 08's position RMSE for points at a known height (the marker's); with its
+        # installed calibration one camera puts the marker within about a centimetre. A track
+        # timed otherwise than the clip would lag its motion by speed x error (0.12 m a frame).
+        assert max(errors) < 0.05, errors
+    finally:
+        http.close()
+        service.send_signal(2)
+        try:
+            service.wait(20)
+        except subprocess.TimeoutExpired:
+            service.kill()
