@@ -137,23 +137,21 @@ class Node:
         self.delays = StageDelays(("capture to received", "waiting", "decode and detect"))
 
     def prepare(self) -> None:
-        """Open each camera's source, then fetch its registry row and calibration. Raises
-        SourceUnavailable for a source that does not open, NodeError for an unknown or
-        uncalibrated camera or a bad mask, InvalidInput for a bad source setting."""
-        sources: list[Source] = []
+        """Fetch each camera's registry row and calibration, then open its source. Raises
+        NodeError for an unknown or uncalibrated camera or a bad mask, InvalidInput for a bad
+        source setting, SourceUnavailable for a source that does not open."""
         try:
             for cam in self.config.cameras:
                 source = make_source(cam, self.api, self._token, self._service_time)
-                sources.append(source)
-                try:
-                    source.check()
-                except SourceUnavailable as exc:
-                    raise SourceUnavailable(f"camera {cam.name!r}: {exc}") from None
-            for cam, source in zip(self.config.cameras, sources, strict=True):
                 self.cameras.append(self._camera_run(cam, source))
+            for run in self.cameras:
+                try:
+                    run.source.check()
+                except SourceUnavailable as exc:
+                    raise SourceUnavailable(f"camera {run.config.name!r}: {exc}") from None
         except BaseException:
-            for source in sources:
-                source.stop()
+            for run in self.cameras:
+                run.source.stop()
             raise
 
     def _service_time(self) -> float:

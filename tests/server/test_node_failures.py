@@ -7,9 +7,12 @@ test_rtsp_source.py (the node says it once, then that it is back, and keeps post
 from __future__ import annotations
 
 import json
+import signal
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -18,13 +21,53 @@ import numpy as np
 import pytest
 from node_helpers import free_port, node_env, serve_without_twin
 
-from core.sim import WorldState, default_scene
+from core.sim import Scene, WorldState, default_scene
 from core.sim.installation import installed_calibration
 from core.sim.motion import Pose2D
 from core.sim.render import renderer_for
 
 TOKEN = "node-failures-test-admin-token"
+HEADERS = {"Authorization": f"Bearer {TOKEN}"}
 CAMERA = "cam_living_sw"
+
+
+@dataclass
+class Service:
+    api: str
+    space: int
+    scene: Scene
+
+
+@pytest.fixture(scope="module")
+def service(repo_root: Path, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Service]:
+    """`intspace serve` without the twin, with CAMERA in a space as its installation calibrated
+    it (not the twin's true camera)."""
+    scene = default_scene()
+    process, api = serve_without_twin(repo_root, tmp_path_factory.mktemp("service"), TOKEN)
+    try:
+        with httpx.Client(base_url=api, headers=HEADERS, timeout=10) as http:
+            space = http.post("/spaces", json={"name": "replay"}).json()["id"]
+            cal = {c.name: c for c in installed_calibration(scene).cameras}[CAMERA]
+            created = http.post(
+                "/cameras",
+                json={
+                    "name": CAMERA,
+                    "space_id": space,
+                    "width": 640,
+                    "height": 480,
+                    "K": cal.K.tolist(),
+                    "dist": cal.dist.tolist(),
+                    "T_world_camera": cal.T_world_camera.tolist(),
+                },
+            )
+            assert created.status_code == 201, created.text
+        yield Service(api, space, scene)
+    finally:
+        process.send_signal(signal.SIGINT)
+        try:
+            process.wait(20)
+        except subprocess.TimeoutExpired:
+            process.kill()
 
 
 def _node(repo_root: Path, *args: str, timeout: float = 60) -> subprocess.CompletedProcess:
@@ -55,37 +98,58 @@ def _node(repo_root: Path, *args: str, timeout: float = 60) -> subprocess.Comple
     ids=["missing file", "rtsp refused", "http refused"],
 )
 def test_a_source_that_cannot_be_opened_at_start_is_one_line_and_exit_code_3(
-    repo_root, tmp_path, source, shown, why
+    repo_root, tmp_path, service, source, shown, why
 ):
     port = free_port()  # bound and released: nothing listens there
     source, shown = (s.format(tmp=tmp_path, port=port) for s in (source, shown))
-    # The service is never reached: the source is opened first.
-    api = f"http://127.0.0.1:{free_port()}/api/v1"
-    done = _node(repo_root, "--source", source, "--camera", "door", "--api", api)
+    started = time.monotonic()
+    done = _node(
+        repo_root,
+        "--source",
+        source,
+        "--camera",
+        CAMERA,
+        "--space",
+        str(service.space),
+        "--api",
+        service.api,
+    )
+    print(f"exit {done.returncode} after {time.monotonic() - started:.1f} s: {done.stderr}")
     assert done.returncode == 3, done.stderr
     lines = done.stderr.splitlines()
     # One line: which camera and source, why; no FFmpeg or OpenCV message ("[tcp @ 0x...]",
     # "[ WARN:0@...] ... can't open"), no traceback, and the URL's password masked.
     assert len(lines) == 1, done.stderr
-    assert lines[0].startswith(f"intspace node: error: camera 'door': cannot open {shown}: ")
+    assert lines[0].startswith(f"intspace node: error: camera '{CAMERA}': cannot open {shown}: ")
     assert why in lines[0] and "s3cret" not in done.stderr
 
 
-def test_a_live_camera_is_not_replayed_fast(repo_root):
+def test_a_live_camera_is_not_replayed_fast(repo_root, service):
     url = f"rtsp://127.0.0.1:{free_port()}/cam"
-    done = _node(repo_root, "--source", url, "--camera", "door", "--fast")
+    done = _node(
+        repo_root,
+        "--source",
+        url,
+        "--camera",
+        CAMERA,
+        "--space",
+        str(service.space),
+        "--api",
+        service.api,
+        "--fast",
+    )
     assert done.returncode == 2, done.stderr
     assert done.stderr.count("\n") == 1 and "is a live camera" in done.stderr
 
 
 def test_a_file_replayed_fast_is_processed_frame_by_frame_with_the_clips_timing(
-    repo_root, tmp_path
+    repo_root, tmp_path, service
 ):
     """A 20-frame clip of the twin's robot crossing the living room at 0.6 m/s, 5 frames per
     second, replayed --fast: every frame read and detected in, none dropped or late; frame k
     stamped t0 + k / 5 s; the robot's track on the service follows the clip's motion."""
     fps, frames, speed = 5.0, 20, 0.6
-    scene = default_scene()
+    scene = service.scene
     renderer = renderer_for(scene)
     away = tuple((1e4, 1e4) for _ in scene.people)
 
@@ -99,29 +163,13 @@ def test_a_file_replayed_fast_is_processed_frame_by_frame_with_the_clips_timing(
         writer.write(renderer.render(CAMERA, WorldState(k / fps, pose, away), rng=k).image)
     writer.release()
 
-    service, api = serve_without_twin(repo_root, tmp_path / "service", TOKEN)
-    http = httpx.Client(base_url=api, headers={"Authorization": f"Bearer {TOKEN}"}, timeout=10)
+    http = httpx.Client(base_url=service.api, headers=HEADERS, timeout=10)
     try:
-        space = http.post("/spaces", json={"name": "replay"}).json()["id"]
-        # The camera as its installation calibrated it (not the twin's true camera).
-        cal = {c.name: c for c in installed_calibration(scene).cameras}[CAMERA]
-        created = http.post(
-            "/cameras",
-            json={
-                "name": CAMERA,
-                "space_id": space,
-                "width": 640,
-                "height": 480,
-                "K": cal.K.tolist(),
-                "dist": cal.dist.tolist(),
-                "T_world_camera": cal.T_world_camera.tolist(),
-            },
-        )
-        assert created.status_code == 201, created.text
         record = tmp_path / "recording"
         done = _node(
             repo_root,
-            *("--source", str(clip), "--camera", CAMERA, "--space", str(space), "--api", api),
+            *("--source", str(clip), "--camera", CAMERA, "--space", str(service.space)),
+            *("--api", service.api),
             *("--fast", "--record", str(record)),
         )
         assert done.returncode == 0, done.stderr
@@ -161,8 +209,3 @@ def test_a_file_replayed_fast_is_processed_frame_by_frame_with_the_clips_timing(
         assert max(errors) < 0.05, errors
     finally:
         http.close()
-        service.send_signal(2)
-        try:
-            service.wait(20)
-        except subprocess.TimeoutExpired:
-            service.kill()
