@@ -41,6 +41,7 @@ log = logging.getLogger("intspace.node")
 
 EXIT_USAGE = 2
 EXIT_FAILED = 1
+EXIT_SOURCE = 3  # the camera's stream cannot be opened (as `intspace node`)
 # ROS camera_calibration's spans of x, y, size and skew that make a good set of views.
 PARAM_RANGES = np.array([0.7, 0.7, 0.4, 0.5])
 PARAM_NAMES = ("X", "Y", "Size", "Skew")
@@ -312,7 +313,10 @@ def _calibrate(args: argparse.Namespace, input_fn: Callable[[str], str]) -> int:
     from server.node.client import NodeError, ServiceClient
     from server.node.config import CameraConfig, parse_source
     from server.node.runner import make_source
+    from server.node.sources import SourceUnavailable, quiet_video_libraries
     from server.schemas.calibration import implausible_square
+
+    quiet_video_libraries()
 
     token = os.environ.get("INTSPACE_TOKEN", "").strip()
     if not token:
@@ -343,7 +347,12 @@ def _calibrate(args: argparse.Namespace, input_fn: Callable[[str], str]) -> int:
             f"{source}: show it the {args.board[0]}x{args.board[1]} chessboard and move it "
             "across the image, near and far, tilted left, right, up and down."
         )
-        _capture(make_source(config, api, token), capture, args.timeout)
+        source = make_source(config, api, token)
+        try:
+            source.check()
+        except SourceUnavailable as exc:
+            raise CalibrateError(str(exc), EXIT_SOURCE) from None
+        _capture(source, capture, args.timeout)
         if len(capture.views) < MIN_VIEWS_TO_SUBMIT:
             raise CalibrateError(
                 f"only {len(capture.views)} view(s) kept ({capture.seen} of {capture.frames} "
