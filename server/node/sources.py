@@ -54,6 +54,10 @@ BACKOFF_EARLY_MAX_S = 2.0
 BACKOFF_EARLY_S = 60.0
 BACKOFF_MAX_S = 30.0
 _FPS_WINDOW_S = 2.0
+# A fast replay's clip starts this far ahead of the clock (s): its first frames, detected and
+# posted within it, are never behind the service's window however busy the machine is for a
+# moment; the frames ahead of the clock wait in the service's reorder buffer until their time.
+FAST_LEAD_S = 0.5
 # FFmpeg's AV_LOG_QUIET.
 _FFMPEG_QUIET = "-8"
 
@@ -360,7 +364,8 @@ class MjpegHttpSource(Source):
 class OpenCvSource(Source):
     """A USB index, video file or RTSP/HTTP URL read with OpenCV. A file plays once: at its own
     frame rate (`realtime`), or as fast as the detector takes its frames, every one, frame k
-    stamped t0 + k / (the file's frame rate), t0 the `clock` (the service's) at the first."""
+    stamped t0 + k / (the file's frame rate), t0 the `clock` (the service's) at the first plus
+    FAST_LEAD_S."""
 
     def __init__(
         self,
@@ -438,7 +443,7 @@ class OpenCvSource(Source):
                     return "retry"
                 if self._handover is not None:
                     # Every frame, at the clip's own pace in its stamps, not in the wall's.
-                    t0 = self._clock() if t0 is None else t0
+                    t0 = self._clock() + FAST_LEAD_S if t0 is None else t0
                     self._publish(t0 + k / fps, image=image)
                     self._handover.wait_taken(self._seq, self._stop)
                 else:

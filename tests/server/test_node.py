@@ -481,7 +481,7 @@ def test_mjpeg_source_reconnects_with_backoff_and_reads_again_when_the_camera_re
 
 
 def test_video_file_source_reads_every_frame_once_then_ends(tmp_path):
-    from server.node.sources import OpenCvSource
+    from server.node.sources import FAST_LEAD_S, OpenCvSource
 
     path = tmp_path / "clip.avi"
     writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 25.0, (64, 48))
@@ -498,8 +498,10 @@ def test_video_file_source_reads_every_frame_once_then_ends(tmp_path):
     source.join(5)
     assert source.finished.is_set() and source.stats.frames == 12
     assert len(taken) == 12 and source.frames.dropped == 0
-    # The clip's own timing: frame k at t0 + k / 25 s, t0 the clock at the first frame.
-    np.testing.assert_allclose([f.t for f in taken], 1000.0 + np.arange(12) / 25.0, atol=1e-9)
+    # The clip's own timing: frame k at t0 + k / 25 s, t0 the clock at the first frame plus the
+    # lead that keeps a replay's first frames ahead of the service's window.
+    t0 = 1000.0 + FAST_LEAD_S
+    np.testing.assert_allclose([f.t for f in taken], t0 + np.arange(12) / 25.0, atol=1e-9)
     assert taken[-1].seq == 12 and taken[-1].image is not None
     assert abs(float(taken[-1].image.mean()) - 220) < 3  # the last frame, decoded (MJPG)
 
