@@ -1013,13 +1013,11 @@ def _rectify(
     P = (Y[:, None, None] * R[:, 1] + X[None, :, None] * R[:, 0] + t).reshape(-1, 3)
     uv = ctx.project(P).reshape(len(g), len(g), 2)
     big = (len(g) - 1) * step + 1
-    mx = cv2.resize(uv[..., 0].astype(np.float32), (big, big), interpolation=cv2.INTER_LINEAR)
-    my = cv2.resize(uv[..., 1].astype(np.float32), (big, big), interpolation=cv2.INTER_LINEAR)
+    # Both coordinates in one two-channel map (one resize; remap reads it as (x, y) pairs).
+    m = cv2.resize(uv.astype(np.float32), (big, big), interpolation=cv2.INTER_LINEAR)[:px, :px]
     if grey:
-        return cv2.remap(ctx.grey, mx[:px, :px], my[:px, :px], cv2.INTER_LINEAR, borderValue=255)
-    return cv2.remap(
-        ctx.image, mx[:px, :px], my[:px, :px], cv2.INTER_LINEAR, borderValue=(255, 255, 255)
-    )
+        return cv2.remap(ctx.grey, m, None, cv2.INTER_LINEAR, borderValue=255)
+    return cv2.remap(ctx.image, m, None, cv2.INTER_LINEAR, borderValue=(255, 255, 255))
 
 
 def _module_px(ctx: _Context, R: Array, t: Array, side: float) -> float:
@@ -1107,6 +1105,20 @@ def _decode(grey: Image, fallback: bool = True) -> tuple[str | None, Array | Non
     return None, None
 
 
+# The free search of the symbol's axes rectifies a 96 px patch of half side 0.62 qr_side and
+# keeps its pixels within 0.71 * 1.02 qr_side of the centre (the symbol's half diagonal and a
+# margin): that disc is the same in every patch.
+_ANGLE_PATCH_PX = 96
+_yy, _xx = np.mgrid[0:_ANGLE_PATCH_PX, 0:_ANGLE_PATCH_PX]
+_ANGLE_OUTSIDE = (
+    np.hypot(_xx - _ANGLE_PATCH_PX / 2 + 0.5, _yy - _ANGLE_PATCH_PX / 2 + 0.5)
+    * 2
+    * 0.62
+    / _ANGLE_PATCH_PX
+    > 0.71 * 1.02
+)
+
+
 def _symbol_angle(ctx: _Context, R: Array, t: Array, qr_side: float, *, free: bool) -> float | None:
     """Return the rotation psi about the normal that puts x along the symbol's rows, from the
     three finder patterns (no decoding): the symbol's axes from the dark modules' minimum-area
@@ -1119,12 +1131,10 @@ def _symbol_angle(ctx: _Context, R: Array, t: Array, qr_side: float, *, free: bo
     psi0 = 0.0
     if free:
         half = qr_side * 0.62
-        px = 96
+        px = _ANGLE_PATCH_PX
         grey = cv2.cvtColor(_rectify(ctx, R, t, half, px), cv2.COLOR_BGR2GRAY)
         _, dark = cv2.threshold(grey, 0, 255, cv2.THRESH_BINARY_INV | cv2.THRESH_OTSU)
-        yy, xx = np.mgrid[0:px, 0:px]
-        r = np.hypot(xx - px / 2 + 0.5, yy - px / 2 + 0.5) * 2 * half / px
-        dark[r > 0.71 * qr_side * 1.02] = 0
+        dark[_ANGLE_OUTSIDE] = 0
         pts = np.column_stack(np.nonzero(dark)[::-1]).astype(np.float32)
         if len(pts) < 20:
             return None
