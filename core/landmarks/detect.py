@@ -156,7 +156,7 @@ def detect_landmarks(
             raise InvalidInput("up must be a non-zero direction")
         upv = upv / np.linalg.norm(upv)
     b, g, r = cv2.split(img)
-    ctx = _Context(img, cv2.max(cv2.max(b, g), r), Km, d, upv, decode)
+    ctx = _Context(img, Km, d, upv, decode)
     blue = cv2.subtract(b, cv2.max(g, r))
     red = cv2.subtract(r, cv2.max(g, b))
     # A candidate whose geometry fails (degenerate fit, distortion not invertible there) is not
@@ -199,7 +199,6 @@ def detect_landmarks(
 @dataclass(frozen=True)
 class _Context:
     image: Image
-    grey: Image  # the per-pixel maximum of the channels: the blue frame and red rings white
     K: Array
     dist: Array
     up: Array | None
@@ -245,7 +244,7 @@ def _undistort_each(ctx: _Context, points: list[Array]) -> list[Array | None]:
 
 def _holed_components(score: Image) -> list[tuple[Image, Image]]:
     """Return (outer contour, largest hole contour) of every thresholded component with a hole."""
-    mask = (score > SCORE_THRESHOLD).astype(np.uint8)
+    _, mask = cv2.threshold(score, SCORE_THRESHOLD, 1, cv2.THRESH_BINARY)  # score > threshold
     contours, hier = cv2.findContours(mask, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_NONE)
     if hier is None:
         return []
@@ -1016,8 +1015,31 @@ def _rectify(
     # Both coordinates in one two-channel map (one resize; remap reads it as (x, y) pairs).
     m = cv2.resize(uv.astype(np.float32), (big, big), interpolation=cv2.INTER_LINEAR)[:px, :px]
     if grey:
-        return cv2.remap(ctx.grey, m, None, cv2.INTER_LINEAR, borderValue=255)
-    return cv2.remap(ctx.image, m, None, cv2.INTER_LINEAR, borderValue=(255, 255, 255))
+        return _remap_grey(ctx.image, m)
+    return cv2.remap(  # type: ignore[call-overload]  # (x, y) pairs in one map, none second
+        ctx.image, m, None, cv2.INTER_LINEAR, borderValue=(255, 255, 255)
+    )
+
+
+def _remap_grey(image: Image, m: Image) -> Image:
+    """Return cv2.remap (bilinear, border 255) of the image's per-pixel channel maximum (the blue
+    frame and the red rings white) at the map m (float32 (x, y) pairs), computing that maximum
+    only where the map reads: pixels floor(min) to floor(max) + 1 of each coordinate, clipped
+    to the image. A map shifted by an integer keeps its fractions, so the result is that of
+    the whole image's maximum."""
+    h, w = image.shape[:2]
+    lo = np.floor(m.reshape(-1, 2).min(0))
+    hi = np.floor(m.reshape(-1, 2).max(0))
+    x0, y0 = max(int(lo[0]), 0), max(int(lo[1]), 0)
+    x1, y1 = min(int(hi[0]) + 2, w), min(int(hi[1]) + 2, h)
+    if x1 <= x0 or y1 <= y0:
+        return np.full(m.shape[:2], 255, np.uint8)
+    b, g, r = cv2.split(image[y0:y1, x0:x1])
+    grey = cv2.max(cv2.max(b, g), r)
+    shift = np.array([x0, y0], np.float32)
+    return cv2.remap(  # type: ignore[call-overload]  # (x, y) pairs in one map, none second
+        grey, m - shift, None, cv2.INTER_LINEAR, borderValue=255
+    )
 
 
 def _module_px(ctx: _Context, R: Array, t: Array, side: float) -> float:
