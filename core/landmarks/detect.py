@@ -312,25 +312,29 @@ def _iso_points(score: Image, roi: tuple[int, int, int, int], inside: Image) -> 
     gxi = cv2.Sobel(patch, cv2.CV_32F, 1, 0, ksize=3)
     gyi = cv2.Sobel(patch, cv2.CV_32F, 0, 1, ksize=3)
     xs, ys, keys = [], [], []
+    width = patch.shape[1]
+    # Gathers by flat index into the raveled (contiguous) ROI arrays: numpy's two-dimensional
+    # fancy indexing recomputes the flat index at every gather.
+    flat_patch, flat_above, flat_lb = patch.ravel(), above.ravel(), lb.ravel()
+    flat_gx, flat_gy = gxi.ravel(), gyi.ravel()
     for axis in (1, 0):
-        a = patch[:, :-1] if axis == 1 else patch[:-1, :]
-        b = patch[:, 1:] if axis == 1 else patch[1:, :]
         ia = above[:, :-1] if axis == 1 else above[:-1, :]
         ib = above[:, 1:] if axis == 1 else above[1:, :]
         # (flat indices: numpy's two-dimensional nonzero is several times slower)
         yy, xx = np.divmod(np.flatnonzero(ia != ib), ia.shape[1])
         if len(yy) == 0:
             continue
-        va, vb = a[yy, xx], b[yy, xx]
+        ka = yy * width + xx  # the crossing's first pixel, then its neighbour along the axis
+        kb = ka + (1 if axis == 1 else width)
+        va, vb = flat_patch.take(ka), flat_patch.take(kb)
         f = (level - va) / (vb - va)
-        yb, xb = (yy, xx + 1) if axis == 1 else (yy + 1, xx)
-        lab_b = np.where(ia[yy, xx] == 1, lb[yb, xb], lb[yy, xx])
+        lab_b = np.where(flat_above.take(ka) == 1, flat_lb.take(kb), flat_lb.take(ka))
         px = xx + (f if axis == 1 else 0.0)
         py = yy + (f if axis == 0 else 0.0)
         # The score's gradient (toward the pattern) against the direction from the centre: an
         # outer edge has the pattern on its inner side.
-        gx = gxi[yy, xx] + gxi[yb, xb]
-        gy = gyi[yy, xx] + gyi[yb, xb]
+        gx = flat_gx.take(ka) + flat_gx.take(kb)
+        gy = flat_gy.take(ka) + flat_gy.take(kb)
         outer_edge = gx * (px - cx) + gy * (py - cy) < 0
         xs.append(px)
         ys.append(py)
