@@ -156,7 +156,7 @@ def detect_landmarks(
             raise InvalidInput("up must be a non-zero direction")
         upv = upv / np.linalg.norm(upv)
     b, g, r = cv2.split(img)
-    ctx = _Context(img, Km, d, upv, decode)
+    ctx = _Context(img, cv2.max(cv2.max(b, g), r), Km, d, upv, decode)
     blue = cv2.subtract(b, cv2.max(g, r))
     red = cv2.subtract(r, cv2.max(g, b))
     # A candidate whose geometry fails (degenerate fit, distortion not invertible there) is not
@@ -199,6 +199,7 @@ def detect_landmarks(
 @dataclass(frozen=True)
 class _Context:
     image: Image
+    grey: Image  # the per-pixel maximum of the channels: the blue frame and red rings white
     K: Array
     dist: Array
     up: Array | None
@@ -1017,38 +1018,10 @@ def _rectify(
     uv = ctx.project(P).reshape(len(g), len(g), 2)
     big = (len(g) - 1) * step + 1
     # Both coordinates in one two-channel map (one resize; remap reads it as (x, y) pairs).
-    uv32 = uv.astype(np.float32)
-    m = cv2.resize(uv32, (big, big), interpolation=cv2.INTER_LINEAR)[:px, :px]
-    if grey:
-        # Bilinear resizing blends neighbours, so the map stays within the grid's extremes.
-        flat = uv32.reshape(-1, 2)
-        return _remap_grey(
-            ctx.image, m, flat[:, 0].min(), flat[:, 1].min(), flat[:, 0].max(), flat[:, 1].max()
-        )
+    m = cv2.resize(uv.astype(np.float32), (big, big), interpolation=cv2.INTER_LINEAR)[:px, :px]
+    src, border = (ctx.grey, 255) if grey else (ctx.image, (255, 255, 255))
     return cv2.remap(  # type: ignore[call-overload]  # (x, y) pairs in one map, none second
-        ctx.image, m, None, cv2.INTER_LINEAR, borderValue=(255, 255, 255)
-    )
-
-
-def _remap_grey(
-    image: Image, m: Image, x_min: float, y_min: float, x_max: float, y_max: float
-) -> Image:
-    """Return cv2.remap (bilinear, border 255) of the image's per-pixel channel maximum (the blue
-    frame and the red rings white) at the map m (float32 (x, y) pairs, within the given
-    bounds), computing that maximum only where the map reads: pixels floor(min) to
-    floor(max) + 1 of each coordinate, clipped to the image. A map shifted by an integer keeps
-    its fractions, so the result is that of the whole image's maximum."""
-    h, w = image.shape[:2]
-    x0, y0 = max(math.floor(x_min), 0), max(math.floor(y_min), 0)
-    x1, y1 = min(math.floor(x_max) + 2, w), min(math.floor(y_max) + 2, h)
-    if x1 <= x0 or y1 <= y0:
-        return np.full(m.shape[:2], 255, np.uint8)
-    b, g, r = cv2.split(image[y0:y1, x0:x1])
-    grey = cv2.max(cv2.max(b, g), r)
-    # (cv2's subtraction: numpy's broadcast over pairs costs 20x more on this view.)
-    shifted = cv2.subtract(m, (float(x0), float(y0), 0.0, 0.0))  # type: ignore[call-overload]
-    return cv2.remap(  # type: ignore[call-overload]  # (x, y) pairs in one map, none second
-        grey, shifted, None, cv2.INTER_LINEAR, borderValue=255
+        src, m, None, cv2.INTER_LINEAR, borderValue=border
     )
 
 
