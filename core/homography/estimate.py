@@ -769,19 +769,22 @@ def _denormalize(g: Array, cov_g: Array, Ts: Array, Td: Array) -> tuple[Array, A
     H = Td^-1 H_n Ts / (.)[2,2]; the covariance propagates by the Jacobian of that map (linear
     in H_n, then the gauge normalisation H[2,2] = 1), so row/column 8 come out zero.
     """
-    k, tx, ty = Td[0, 0], Td[0, 2], Td[1, 2]  # Td = [[k, 0, tx], [0, k, ty], [0, 0, 1]]
+    (k, _, tx), (_, _, ty), _ = Td.tolist()  # Td = [[k, 0, tx], [0, k, ty], [0, 0, 1]]
     td_inv = np.array([[1.0 / k, 0.0, -tx / k], [0.0, 1.0 / k, -ty / k], [0.0, 0.0, 1.0]])
     h_raw = td_inv @ _h_from_params(g) @ Ts
-    h22 = h_raw[2, 2]
+    h = h_raw.ravel()
+    h22 = float(h[8])
     H = _unit_h22(h_raw)
     # Row-major vec(A X B) = kron(A, B^T) vec(X); columns 0..7 are the free entries of H_n.
     m = (td_inv[:, None, :, None] * Ts.T[None, :, None, :]).reshape(9, 9)[:, :8]
-    h = h_raw.ravel()
-    jac = (m - np.outer(h, m[8]) / h22) / h22
+    jac = m - h[:, None] * (m[8] / h22)
+    jac *= 1.0 / h22
     cov = jac @ cov_g @ jac.T
     cov[8, :] = 0.0
     cov[:, 8] = 0.0
-    return H, 0.5 * (cov + cov.T)
+    cov += cov.T
+    cov *= 0.5
+    return H, cov
 
 
 def fit_homography(
