@@ -5,8 +5,9 @@ Two cases (spec 01, section 1):
 * world-plane homography: src are exact metric plane coordinates, only dst is noisy; the ML
   estimate minimises the transfer error in dst (`method="transfer"`, H&Z eq. 4.6);
 * plane-induced homography between two images: both sides are noisy; the ML estimate is the gold
-  standard (`method="gold"`, H&Z alg. 4.3, eq. 4.8), solved by the sparse Schur-complement LM
-  with the corrected first-image points as local blocks.
+  standard (`method="gold"`, H&Z alg. 4.3, eq. 4.8), solved by Gauss-Newton with the corrected
+  first-image points eliminated by their Schur complement in closed form (`_GoldGaussNewton`),
+  handing over to the damped sparse LM (core.optim) when an undamped step fails.
 
 Every iterative estimate runs in Hartley-normalised coordinates (H&Z alg. 4.2) with the gauge
 H_n[2,2] = 1 and the residuals kept in the input units (pixels), then maps H and its covariance
@@ -809,9 +810,12 @@ def fit_homography(
             (H&Z eq. 4.6); the ML estimate when src is exact (world-plane homography).
         "gold": gold-standard ML (H&Z alg. 4.3): minimises
             sum ||x_i - x^_i||^2 + ||x'_i - pi(H x^_i)||^2 (eq. 4.8) over H and the corrected
-            points x^_i, by the sparse Schur-complement LM; the ML estimate under equal isotropic
-            Gaussian noise in both images (plane-induced homography).
-        The LM methods start from the DLT and stop after `max_iterations`.
+            points x^_i, by Gauss-Newton with the points eliminated in closed form (the sparse
+            LM's Schur complement written out per point; the damped sparse LM takes over when a
+            step fails); the ML estimate under equal isotropic Gaussian noise in both images
+            (plane-induced homography).
+        The iterative methods start from the DLT (and, for "gold", the Sampson points) and stop
+        after `max_iterations`.
     robust: False, or True / "ransac" for LO-RANSAC (Chum, Matas & Kittler 2003) on 4-point
         minimal samples scored by the truncated dst transfer error (MSAC), with inliers at
         transfer error < `ransac_threshold` (input units of dst), refitting the DLT on the
