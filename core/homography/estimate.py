@@ -5,8 +5,9 @@ Two cases (spec 01, section 1):
 * world-plane homography: src are exact metric plane coordinates, only dst is noisy; the ML
   estimate minimises the transfer error in dst (`method="transfer"`, H&Z eq. 4.6);
 * plane-induced homography between two images: both sides are noisy; the ML estimate is the gold
-  standard (`method="gold"`, H&Z alg. 4.3, eq. 4.8), solved by the sparse Schur-complement LM
-  with the corrected first-image points as local blocks.
+  standard (`method="gold"`, H&Z alg. 4.3, eq. 4.8), solved by Gauss-Newton with the corrected
+  first-image points eliminated by their Schur complement in closed form (`_GoldGaussNewton`),
+  handing over to the damped sparse LM (core.optim) when an undamped step fails.
 
 Every iterative estimate runs in Hartley-normalised coordinates (H&Z alg. 4.2) with the gauge
 H_n[2,2] = 1 and the residuals kept in the input units (pixels), then maps H and its covariance
@@ -15,15 +16,18 @@ back to the input coordinates with the gauge H[2,2] = 1.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy.linalg.lapack import dposv as _posv
+from scipy.linalg.lapack import dsyev as _syev
 
 from core._validate import as_points
 from core.errors import DegenerateConfiguration, InvalidInput
-from core.optim import SparseLMResult, solve_sparse_lm
+from core.optim import solve_sparse_lm
 
 Array = NDArray[np.float64]
 Method = Literal["gold", "transfer", "dlt"]
@@ -47,6 +51,15 @@ _RANSAC_BATCH_ELEMENTS = 400_000
 _LM_PTOL = 1e-6
 
 
+def _dot(a: Array, b: Array) -> float:
+    """Return sum(a * b) of two equal-shaped contiguous arrays. Past 8,192 elements without
+    BLAS: OpenBLAS runs dot products of more than 10,000 elements on several threads, which on
+    busy cores costs milliseconds where the arithmetic takes microseconds."""
+    if a.size <= 8192:
+        return float(np.vdot(a, b))
+    return float(np.einsum("i,i->", a.ravel(), b.ravel()))
+
+
 def _normalize_t(points: Array, name: str) -> tuple[Array, Array]:
     """Return (T (3, 3), normalised points transposed (2, N)) by Hartley normalisation (H&Z
     alg. 4.2: centroid at the origin, mean distance sqrt(2); the transform of
@@ -56,18 +69,21 @@ def _normalize_t(points: Array, name: str) -> tuple[Array, Array]:
     collinear points. Rows are contiguous: every later per-point operation runs on them.
     """
     n = len(points)
-    q = np.ascontiguousarray(points.T)
-    c = q.sum(axis=1) / n
-    q -= c[:, None]
-    mean_dist = float(np.sqrt(q[0] * q[0] + q[1] * q[1]).sum()) / n
+    q = np.array(points.T, order="C")
+    cx, cy = (np.add.reduce(q, axis=1) / n).tolist()
+    q[0] -= cx
+    q[1] -= cy
+    r = q[0] * q[0]
+    r += q[1] * q[1]
+    mean_dist = float(np.add.reduce(np.sqrt(r, out=r))) / n
     if not mean_dist > 0.0:
         raise DegenerateConfiguration(f"all {name} points coincide; spread the points out")
-    k = np.sqrt(2.0) / mean_dist
+    k = math.sqrt(2.0) / mean_dist
     q *= k
     # Eigenvalues of the centred scatter (2 x 2): the smallest ~ 0 means all points on a line.
-    (sxx, sxy), (_, syy) = q @ q.T
+    (sxx, sxy), (_, syy) = np.einsum("in,jn->ij", q, q).tolist()
     half_tr, det = 0.5 * (sxx + syy), sxx * syy - sxy * sxy
-    lam_max = half_tr + np.sqrt(max(half_tr * half_tr - det, 0.0))
+    lam_max = half_tr + math.sqrt(max(half_tr * half_tr - det, 0.0))
     lam_min = det / lam_max
     if lam_min <= _COLLINEAR_TOL**2 * lam_max:
         raise DegenerateConfiguration(
@@ -78,7 +94,7 @@ def _normalize_t(points: Array, name: str) -> tuple[Array, Array]:
             f"three of the four {name} points are collinear; "
             "no three of four points may lie on a line"
         )
-    T = np.array([[k, 0.0, -k * c[0]], [0.0, k, -k * c[1]], [0.0, 0.0, 1.0]])
+    T = np.array([[k, 0.0, -k * cx], [0.0, k, -k * cy], [0.0, 0.0, 1.0]])
     return T, q
 
 
@@ -92,36 +108,69 @@ def check_homography_configuration(src: Array, dst: Array) -> None:
     _normalize_t(np.asarray(dst, dtype=np.float64), "dst")
 
 
+# Index pairs of e = (x, y, 1) into the monomials (x x, x y, y y, x, y, 1): e_i e_j = E[_EE[i][j]].
+_EE = ((0, 1, 3), (1, 2, 4), (3, 4, 5))
+
+
+def _dlt_index() -> NDArray[np.intp]:
+    """Return the indices that gather A^T A (9 x 9, row-major) of the DLT from the flattened
+    Q = (1, u, v, u^2 + v^2) (4, N) times the monomials (6, N) transposed, with a zero appended
+    (index 24): A's u-row (p, 0, -u p) and v-row (0, p, -v p), p = (x, y, 1), give the blocks
+    [0:3, 0:3] = [3:6, 3:6] = sum p p^T, [0:3, 6:9] = -sum u p p^T,
+    [3:6, 6:9] = -sum v p p^T, [6:9, 6:9] = sum (u^2 + v^2) p p^T and [0:3, 3:6] = 0 (the
+    signs are applied to the gathered entries)."""
+    idx = np.full((9, 9), 24, dtype=np.intp)
+    for i in range(3):
+        for j in range(3):
+            e = _EE[i][j]
+            idx[i, j] = idx[3 + i, 3 + j] = e
+            idx[i, 6 + j] = idx[6 + j, i] = 6 + e
+            idx[3 + i, 6 + j] = idx[6 + j, 3 + i] = 12 + e
+            idx[6 + i, 6 + j] = 18 + e
+    return idx.ravel()
+
+
+_DLT_IDX = _dlt_index()
+_DLT_SIGN = np.where((np.arange(81) // 9 >= 6) != (np.arange(81) % 9 >= 6), -1.0, 1.0)
+
+
+def _monomials(p: Array) -> Array:
+    """Return (x x, x y, y y, x, y, 1) (6, N) of points p (2, N)."""
+    e = np.empty((6, p.shape[1]))
+    x, y = p
+    np.multiply(x, x, out=e[0])
+    np.multiply(x, y, out=e[1])
+    np.multiply(y, y, out=e[2])
+    e[3:5] = p
+    e[5] = 1.0
+    return e
+
+
 def _dlt_normalized(ps_t: Array, pd_t: Array) -> Array:
     """Return H (3x3, unit Frobenius norm) with pd ~ H ps, from the 2N x 9 DLT system (H&Z
     eq. 4.3) on points (transposed, (2, N)) that are already Hartley-normalised."""
     n = ps_t.shape[1]
-    # A's u-row is (p, 0, -u p) and its v-row (0, p, -v p) with p = (x, y, 1): A^T A follows
-    # from the Gram products of the rows f = (p, -u p, -v p) (9, N) without forming A.
-    f = np.empty((9, n))
-    f[0:2], f[2] = ps_t, 1.0
-    np.multiply(f[0:3], -pd_t[0], out=f[3:6])
-    np.multiply(f[0:3], -pd_t[1], out=f[6:9])
-    m1 = f[0:3] @ f.T  # (3, 9)
-    m2 = f[3:9] @ f[3:9].T  # (6, 6)
-    ata = np.zeros((9, 9))
-    ata[0:3, 0:3] = ata[3:6, 3:6] = m1[:, 0:3]
-    ata[0:3, 6:9] = m1[:, 3:6]
-    ata[3:6, 6:9] = m1[:, 6:9]
-    ata[6:9, 6:9] = m2[0:3, 0:3] + m2[3:6, 3:6]
-    ata[6:9, 0:6] = ata[0:6, 6:9].T
+    # A^T A without forming A: every entry is a weight (1, u, v or u^2 + v^2) times a monomial
+    # of (x, y), so one (4 x N) (N x 6) product holds them all.
+    w = np.empty((4, n))
+    w[0] = 1.0
+    w[1:3] = pd_t
+    np.multiply(pd_t[0], pd_t[0], out=w[3])
+    w[3] += pd_t[1] * pd_t[1]
+    q = np.zeros(25)
+    q[:24] = (w @ _monomials(ps_t).T).ravel()
+    ata = (q[_DLT_IDX] * _DLT_SIGN).reshape(9, 9)
     # The right singular vector of A's smallest singular value, as the eigenvector of A^T A
     # (9 x 9): O(n) and one small LAPACK call (an SVD of the 2N x 9 matrix costs more, and far
     # more again when a threaded BLAS competes for busy cores). On normalised points the
     # eigenvector keeps ~1e-13 relative accuracy for exact data.
-    lam, vec = np.linalg.eigh(ata)
-    sv = np.sqrt(np.maximum(lam[::-1], 0.0))
-    null = vec[:, 0]
-    if sv[-2] <= 1e-7 * sv[0]:
+    lam, vec, info = _syev(ata)
+    # Singular values are the square roots: the second smallest <= 1e-7 of the largest.
+    if info != 0 or max(float(lam[1]), 0.0) <= 1e-14 * float(lam[8]):
         raise DegenerateConfiguration(
             "the DLT system has a null space of dimension > 1; the points do not fix a homography"
         )
-    return null.reshape(3, 3)
+    return vec[:, 0].reshape(3, 3)
 
 
 def _pair_inputs(src: ArrayLike, dst: ArrayLike) -> tuple[Array, Array]:
@@ -392,6 +441,284 @@ def _sampson_src(hn: Array, ps_t: Array, pd_t: Array, src_scale: float, dst_scal
 
 
 # --------------------------------------------------------------------------------------------
+# Gold standard by Gauss-Newton with the corrected points eliminated in closed form
+#
+# For fixed H the corrected point x^_i enters only its own two residual pairs, so the Schur
+# complement of the 2 x 2 point blocks has a closed form per point. Linearising
+# pi(H x^) ~ pi_0 + P_x dx + P_g dg at the current (H, x^) (P_x = d pi / d x^ (2 x 2),
+# P_g = d pi / d g (2 x 8)) and minimising over dx first,
+#     min_dx ws^2 ||x - x^ - dx||^2 + wd^2 ||x' - pi_0 - P_x dx - P_g dg||^2
+#       = (c - P_g dg)^T Omega (c - P_g dg),   c = x' - pi_0 - P_x (x - x^),
+#     Omega = (wd^-2 I + ws^-2 P_x P_x^T)^-1 = ws^2 M^-1,   M = k I + P_x P_x^T,  k = ws^2 / wd^2
+# (ws, wd: the pixels per normalised unit of each image), reached at
+#     x^_new = x + P_x^T M^-1 (c - P_g dg)
+# (the Sampson correction of the linearised constraint). So the Gauss-Newton step of all
+# 8 + 2n parameters is the weighted least-squares step dg of S dg = sum_i P_g,i^T Omega_i c_i,
+# S = sum_i P_g,i^T Omega_i P_g,i: the Schur complement U - sum_i W_i V_i^-1 W_i^T of the
+# sparse LM written out (Woodbury: wd^2 I - wd^2 P_x V^-1 P_x^T wd^2 = Omega), then the points
+# by back-substitution (H&Z A6.3 with the 2 x 2 inverses in closed form). Every product of
+# P_g's rows is a weight times a monomial of x^ = (x, y): S and the right-hand side are
+# gathered from one (9 x n) (n x 6) matrix product.
+
+
+def _gold_index() -> tuple[NDArray[np.intp], Array]:
+    """Return (index, sign) that gather S (8 x 8, row-major) then the right-hand side (8,) from
+    the flattened Q = W E^T (9 x 6), W the per-point weights of `_GoldGaussNewton._weights`.
+
+    With P_g's u-row iw (e, 0, -u e_xy) and v-row iw (0, e, -v e_xy) (e = (x, y, 1),
+    iw = 1 / (h3 . e)) and Omega = [[o00, o01], [o01, o11]]: S's blocks are
+    [0:3, 0:3] = sum o00 iw^2 e e^T, [0:3, 3:6] = sum o01 iw^2 e e^T,
+    [3:6, 3:6] = sum o11 iw^2 e e^T, [0:3, 6:8] = -sum alpha_u e e_xy^T,
+    [3:6, 6:8] = -sum alpha_v e e_xy^T, [6:8, 6:8] = sum (u, v) . alpha e_xy e_xy^T with
+    alpha = Omega (u, v) iw^2; the right-hand side is (sum rho_u e, sum rho_v e,
+    -sum (u, v) . rho e_xy) with rho = Omega c iw.
+    """
+    idx = np.zeros((8, 8), dtype=np.intp)
+    sign = np.ones((8, 8))
+    for i in range(3):
+        for j in range(3):
+            idx[i, j] = _EE[i][j]
+            idx[i, 3 + j] = idx[3 + j, i] = 6 + _EE[i][j]
+            idx[3 + i, 3 + j] = 12 + _EE[i][j]
+        for j in range(2):
+            for row, w in ((i, 3), (3 + i, 4)):
+                idx[row, 6 + j] = idx[6 + j, row] = 6 * w + _EE[i][j]
+                sign[row, 6 + j] = sign[6 + j, row] = -1.0
+    for i in range(2):
+        for j in range(2):
+            idx[6 + i, 6 + j] = 30 + _EE[i][j]
+    rhs = np.array([39, 40, 41, 45, 46, 47, 51, 52])
+    rhs_sign = np.array([1.0, 1.0, 1.0, 1.0, 1.0, 1.0, -1.0, -1.0])
+    return np.concatenate([idx.ravel(), rhs]), np.concatenate([sign.ravel(), rhs_sign])
+
+
+_GOLD_IDX, _GOLD_SIGN = _gold_index()
+# The right-hand side's entries of Q = W E^T (9 x 6) in the (3 x 3) product of W[6:9] and the
+# monomials (x, y, 1) alone.
+_GRAD_IDX = np.array([0, 1, 2, 3, 4, 5, 6, 7])
+# Undamped steps the closed-form solver takes before it hands over to the damped sparse LM:
+# from the DLT and the Sampson points it converges in two (the cost's relative decrease per
+# step runs ~1e-1, ~1e-6, ~1e-11 at sigma = 0.5 px), so more means a hard problem.
+_GOLD_GN_STEPS = 8
+# A step whose predicted decrease is below this fraction of the cost leaves the next one close
+# enough to the minimum to keep the Jacobians (see `_GoldGaussNewton.solve`).
+_GOLD_CHORD = 1e-2
+
+
+@dataclass(frozen=True)
+class _GoldSolution:
+    """The gold standard's optimum in normalised coordinates (see `_GoldGaussNewton`)."""
+
+    g: Array  # (8,) free entries of H_n
+    x_hat: Array  # (2, N) corrected first-image points
+    cost: float  # 0.5 sum of squared residuals (pixels)
+    information: Array  # (8, 8) reduced Gauss-Newton matrix S (unit-variance residuals)
+    iterations: int
+    information_inverse: Array | None = None  # S^-1 when the solver has it
+
+
+class _GoldGaussNewton:
+    """Gauss-Newton on the gold-standard cost (H&Z eq. 4.8) with the corrected points
+    eliminated per point in closed form (see the section comment); every per-point quantity
+    is a contiguous length-N row, so an iteration is a few dozen vectorised operations."""
+
+    def __init__(self, ps_t: Array, pd_t: Array, src_scale: float, dst_scale: float) -> None:
+        n = ps_t.shape[1]
+        self.ps, self.pd = ps_t, pd_t
+        self.ws2 = 1.0 / (src_scale * src_scale)
+        self.wd2 = 1.0 / (dst_scale * dst_scale)
+        self.k = self.ws2 / self.wd2
+        self.P = np.empty((4, n))  # P_x rows: du/dx, du/dy, dv/dx, dv/dy
+        self.O = np.empty((3, n))  # M^-1 rows: (00, 01, 11)
+        self.M = np.empty((3, n))
+        self.V = np.empty((3, n))
+        self.W = np.empty((9, n))
+        self.E = np.empty((6, n))
+        self.E[5] = 1.0
+
+    def evaluate(self, H: Array, xh: Array) -> tuple[float, Array, Array, Array, Array]:
+        """Return (cost, 1 / w (N,), pi(H x^) (2, N), x' - pi (2, N), x - x^ (2, N)) at H and
+        the homogeneous corrected points xh (3, N)."""
+        ph = H @ xh
+        iw = np.divide(1.0, ph[2])
+        uv = ph[:2]
+        uv *= iw
+        rd = self.pd - uv
+        es = self.ps - xh[:2]
+        cost = 0.5 * (self.wd2 * _dot(rd, rd) + self.ws2 * _dot(es, es))
+        return cost, iw, uv, rd, es
+
+    def jacobian(self, H: Array, iw: Array, uv: Array) -> None:
+        """Fill P (P_x) and O (M^-1) at the current point."""
+        P, O, m, v = self.P, self.O, self.M, self.V
+        # P_x = (H[:2, :2] - pi H[2, :2]) / w, the chain rule on pi = (H x)_12 / w: each entry
+        # is linear in (1, u, v) / w, so one (4 x 3) (3 x N) product gives them all.
+        v[0] = iw
+        np.multiply(uv, iw, out=v[1:3])
+        h0, h1, h2 = H[0], H[1], H[2]
+        lin = np.array(
+            [
+                [h0[0], -h2[0], 0.0],
+                [h0[1], -h2[1], 0.0],
+                [h1[0], 0.0, -h2[0]],
+                [h1[1], 0.0, -h2[1]],
+            ]
+        )
+        np.matmul(lin, v, out=P)
+        # m = (M11, -M01, M00) of M = k I + P_x P_x^T, so that M^-1 = m / det(M).
+        sq = P * P
+        sr = sq.reshape(2, 2, -1)
+        np.add(sr[::-1, 0], sr[::-1, 1], out=m[::2])
+        m[::2] += self.k
+        t = P[0:2] * P[2:4]
+        np.negative(t[0], out=m[1])
+        m[1] -= t[1]
+        det = m[0] * m[2]
+        det -= m[1] * m[1]
+        np.divide(m, det, out=O)
+
+    def offset(self, rd: Array, es: Array) -> Array:
+        """Return c = x' - pi - P_x (x - x^), the linearised dst residual at x^ = x."""
+        pr = self.P.reshape(2, 2, -1)
+        c = rd - pr[:, 0] * es[0]
+        c -= pr[:, 1] * es[1]
+        return c
+
+    def correct(self, eps: Array, out: Array) -> None:
+        """Write x^ = x + P_x^T M^-1 eps into out (2, N)."""
+        O, P = self.O, self.P
+        z = O[0:2] * eps[0]  # (M^-1)'s rows (00, 01) and (01, 11)
+        z += O[1:3] * eps[1]
+        np.multiply(P[0:2], z[0], out=out)
+        out += P[2:4] * z[1]
+        out += self.ps
+
+    def reduced_system(
+        self, iw: Array, uv: Array, c: Array, xh: Array
+    ) -> tuple[Array, Array, float]:
+        """Return (S (8 x 8), rhs (8,), c^T Omega c summed) at the current linearisation."""
+        O, W, E = self.O, self.W, self.E
+        iw2 = iw * iw
+        np.multiply(O, iw2, out=W[0:3])
+        alpha = W[3:5]
+        np.multiply(O[0:2], uv[0], out=alpha)
+        alpha += O[1:3] * uv[1]
+        alpha *= iw2
+        np.multiply(uv[0], alpha[0], out=W[5])
+        W[5] += uv[1] * alpha[1]
+        rho = W[6:8]
+        np.multiply(O[0:2], c[0], out=rho)
+        rho += O[1:3] * c[1]
+        c_omega_c = self.ws2 * _dot(c, rho)
+        rho *= iw
+        np.multiply(uv[0], rho[0], out=W[8])
+        W[8] += uv[1] * rho[1]
+        x, y = xh[0], xh[1]
+        np.multiply(x, x, out=E[0])
+        np.multiply(x, y, out=E[1])
+        np.multiply(y, y, out=E[2])
+        E[3:5] = xh[:2]
+        t = (W @ E.T).ravel()[_GOLD_IDX]
+        t *= _GOLD_SIGN
+        t *= self.ws2
+        return t[:64].reshape(8, 8), t[64:], c_omega_c
+
+    def gradient(self, iw: Array, uv: Array, c: Array, xh: Array) -> tuple[Array, float]:
+        """Return (rhs (8,), c^T Omega c summed) of `reduced_system` alone (its weights 6-8
+        against the monomials (x, y, 1)), with the current M^-1."""
+        O, W, E = self.O, self.W, self.E
+        rho = W[6:8]
+        np.multiply(O[0:2], c[0], out=rho)
+        rho += O[1:3] * c[1]
+        c_omega_c = self.ws2 * _dot(c, rho)
+        rho *= iw
+        np.multiply(uv[0], rho[0], out=W[8])
+        W[8] += uv[1] * rho[1]
+        E[3:5] = xh[:2]
+        t = (W[6:9] @ E[3:6].T).ravel()[_GRAD_IDX]
+        t *= _GOLD_SIGN[64:]
+        t *= self.ws2
+        return t, c_omega_c
+
+    def solve(self, hn: Array, max_steps: int, ptol: float) -> tuple[_GoldSolution, bool]:
+        """Return (the last accepted iterate, converged) from H_n = hn and the Sampson points.
+
+        Converged: the step's predicted decrease fell below ptol of the cost, and the step was
+        taken (unless it raised the cost) without linearising again, as `solve_sparse_lm` does
+        with ptol; the information is then that of the previous iterate. Not converged: a step
+        raised the cost or S was not positive definite before that, or max_steps ran out; the
+        iterate is the best so far, for the damped LM to continue from.
+        """
+        n = self.ps.shape[1]
+        H = hn.copy()
+        xh = np.empty((3, n))
+        xh[2] = 1.0
+        xh[:2] = self.ps
+        cost, iw, uv, rd, es = self.evaluate(H, xh)
+        # The Sampson start: the corrected points for H fixed (dg = 0, x^ = x, so c = x' - pi).
+        self.jacobian(H, iw, uv)
+        self.correct(rd, xh[:2])
+        cost, iw, uv, rd, es = self.evaluate(H, xh)
+        xn = np.empty_like(xh)
+        xn[2] = 1.0
+        d = np.zeros(9)
+        # Right-hand sides of each step's Cholesky solve: the gradient, then the identity, so
+        # the step that ends the solve also gives S^-1 for the covariance.
+        b = np.zeros((8, 9))
+        b[:, 1:] = np.eye(8)
+        steps = 0
+        chord = False
+        while steps < max_steps:
+            steps += 1
+            if chord:
+                # Close to the minimum (the previous step's predicted decrease below
+                # _GOLD_CHORD of the cost) P_x, M^-1 and S are kept from the previous
+                # linearisation and only the residuals and the gradient are new: the iterate
+                # moved by about one standard deviation of H, which changes them by
+                # ~(sigma / sqrt(n)) / (image size), and the step is that fraction off the
+                # Gauss-Newton step (<1e-3 of a standard deviation; the stopping rule itself
+                # allows 0.045 at n = 1000).
+                c = self.offset(rd, es)
+                rhs, c_omega_c = self.gradient(iw, uv, c, xh)
+            else:
+                # Exact Jacobians at the first step: keeping the Sampson start's (the points
+                # moved by ~sigma) leaves the second step's decrease ~20x larger, at the
+                # stopping threshold, so a third step would often be needed.
+                self.jacobian(H, iw, uv)
+                c = self.offset(rd, es)
+                S, rhs, c_omega_c = self.reduced_system(iw, uv, c, xh)
+            b[:, 0] = rhs
+            _, x, info = _posv(S, b)
+            dg = x[:, 0]
+            # The decrease to the linear model's minimum, 0.5 (c^T Omega c - rhs . dg).
+            predicted = cost - 0.5 * (c_omega_c - float(rhs @ dg))
+            if info != 0 or not np.isfinite(predicted):
+                break
+            d[:8] = dg
+            D = d.reshape(3, 3)
+            q = D @ xh
+            eps = uv * q[2]
+            np.subtract(q[:2], eps, out=eps)
+            eps *= iw
+            np.subtract(c, eps, out=eps)  # c - P_g dg
+            self.correct(eps, xn[:2])
+            Hn = H + D
+            trial = self.evaluate(Hn, xn)
+            last = predicted <= ptol * cost
+            chord = predicted <= _GOLD_CHORD * cost
+            if trial[0] <= cost:
+                H, xh, xn = Hn, xn, xh
+                cost, iw, uv, rd, es = trial
+            elif not last:
+                break
+            if last:
+                g = H.ravel()[:8].copy()
+                return _GoldSolution(g, xh[:2], cost, S, steps, x[:, 1:]), True
+        nan = np.full((8, 8), np.nan)
+        return _GoldSolution(H.ravel()[:8].copy(), xh[:2], cost, nan, steps), False
+
+
+# --------------------------------------------------------------------------------------------
 # Result and public estimator
 
 
@@ -443,19 +770,22 @@ def _denormalize(g: Array, cov_g: Array, Ts: Array, Td: Array) -> tuple[Array, A
     H = Td^-1 H_n Ts / (.)[2,2]; the covariance propagates by the Jacobian of that map (linear
     in H_n, then the gauge normalisation H[2,2] = 1), so row/column 8 come out zero.
     """
-    k, tx, ty = Td[0, 0], Td[0, 2], Td[1, 2]  # Td = [[k, 0, tx], [0, k, ty], [0, 0, 1]]
+    (k, _, tx), (_, _, ty), _ = Td.tolist()  # Td = [[k, 0, tx], [0, k, ty], [0, 0, 1]]
     td_inv = np.array([[1.0 / k, 0.0, -tx / k], [0.0, 1.0 / k, -ty / k], [0.0, 0.0, 1.0]])
     h_raw = td_inv @ _h_from_params(g) @ Ts
-    h22 = h_raw[2, 2]
+    h = h_raw.ravel()
+    h22 = float(h[8])
     H = _unit_h22(h_raw)
     # Row-major vec(A X B) = kron(A, B^T) vec(X); columns 0..7 are the free entries of H_n.
     m = (td_inv[:, None, :, None] * Ts.T[None, :, None, :]).reshape(9, 9)[:, :8]
-    h = h_raw.ravel()
-    jac = (m - np.outer(h, m[8]) / h22) / h22
+    jac = m - h[:, None] * (m[8] / h22)
+    jac *= 1.0 / h22
     cov = jac @ cov_g @ jac.T
     cov[8, :] = 0.0
     cov[:, 8] = 0.0
-    return H, 0.5 * (cov + cov.T)
+    cov += cov.T
+    cov *= 0.5
+    return H, cov
 
 
 def fit_homography(
@@ -480,9 +810,12 @@ def fit_homography(
             (H&Z eq. 4.6); the ML estimate when src is exact (world-plane homography).
         "gold": gold-standard ML (H&Z alg. 4.3): minimises
             sum ||x_i - x^_i||^2 + ||x'_i - pi(H x^_i)||^2 (eq. 4.8) over H and the corrected
-            points x^_i, by the sparse Schur-complement LM; the ML estimate under equal isotropic
-            Gaussian noise in both images (plane-induced homography).
-        The LM methods start from the DLT and stop after `max_iterations`.
+            points x^_i, by Gauss-Newton with the points eliminated in closed form (the sparse
+            LM's Schur complement written out per point; the damped sparse LM takes over when a
+            step fails); the ML estimate under equal isotropic Gaussian noise in both images
+            (plane-induced homography).
+        The iterative methods start from the DLT (and, for "gold", the Sampson points) and stop
+        after `max_iterations`.
     robust: False, or True / "ransac" for LO-RANSAC (Chum, Matas & Kittler 2003) on 4-point
         minimal samples scored by the truncated dst transfer error (MSAC), with inliers at
         transfer error < `ransac_threshold` (input units of dst), refitting the DLT on the
@@ -524,42 +857,74 @@ def fit_homography(
     g0 = hn.ravel()[:8]
     src_scale, dst_scale = float(Ts[0, 0]), float(Td[0, 0])
 
-    lm: SparseLMResult
+    m = ps_t.shape[1]
     corrected: Array | None = None
     if method == "gold":
-        gold = _GoldStandardProblem(ps_t, pd_t, src_scale, dst_scale)
-        x0 = _sampson_src(hn, ps_t, pd_t, src_scale, dst_scale)
-        lm = solve_sparse_lm(gold, g0, x0, max_iterations=max_iterations, ptol=_LM_PTOL)
-        x_hat = (lm.x_local - Ts[:2, 2]) / src_scale
+        fit = _fit_gold(ps_t, pd_t, hn, src_scale, dst_scale, max_iterations)
+        g, information, cost, iterations = fit.g, fit.information, fit.cost, fit.iterations
+        inverse = fit.information_inverse
+        n_residuals, n_parameters = 4 * m, 8 + 2 * m
+        x_hat = ((fit.x_hat - Ts[:2, 2:]) / src_scale).T
         if robust:
             corrected = np.full((n, 2), np.nan)
             corrected[inliers] = x_hat
         else:
             corrected = x_hat
     else:
-        transfer = _TransferProblem(ps_t, pd_t, dst_scale)
         lm = solve_sparse_lm(
-            transfer,
+            _TransferProblem(ps_t, pd_t, dst_scale),
             g0,
-            np.zeros((ps_t.shape[1], 0)),
+            np.zeros((m, 0)),
             max_iterations=0 if method == "dlt" else max_iterations,
             ptol=_LM_PTOL,
         )
+        g, information, cost, iterations = lm.x_global, lm.information, lm.cost, lm.iterations
+        inverse = None
+        n_residuals, n_parameters = 2 * m, 8
+    # Residual variance 2 cost / (N - d) (NaN without redundancy, n = 4).
+    dof = n_residuals - n_parameters
+    variance = 2.0 * cost / dof if dof > 0 else float("nan")
     # The gauge H_n[2,2] = 1 leaves no freedom, so S is invertible (pinv would cost 8x more).
-    try:
-        cov_g = np.asarray(lm.residual_variance * np.linalg.inv(lm.information), np.float64)
-    except np.linalg.LinAlgError:
-        cov_g = lm.global_covariance()
-    H, cov = _denormalize(lm.x_global, cov_g, Ts, Td)
+    if inverse is not None:
+        cov_g: Array = variance * inverse
+    else:
+        try:
+            cov_g = variance * np.asarray(np.linalg.inv(information), np.float64)
+        except np.linalg.LinAlgError:
+            cov_g = variance * np.linalg.pinv(information, hermitian=True).astype(np.float64)
+    H, cov = _denormalize(g, cov_g, Ts, Td)
     return HomographyFit(
         H=H,
-        rms=lm.rms,
+        rms=float(np.sqrt(2.0 * cost / n_residuals)),
         cov=cov,
         inliers=inliers,
-        iterations=lm.iterations,
+        iterations=iterations,
         method=method,
         src_corrected=corrected,
         ransac_iterations=ransac_iterations,
+    )
+
+
+def _fit_gold(
+    ps_t: Array, pd_t: Array, hn: Array, src_scale: float, dst_scale: float, max_iterations: int
+) -> _GoldSolution:
+    """Return the gold standard's optimum from the DLT estimate hn: closed-form Gauss-Newton
+    from the Sampson points, handed over to the damped sparse LM when a step fails."""
+    solver = _GoldGaussNewton(ps_t, pd_t, src_scale, dst_scale)
+    sol, converged = solver.solve(hn, min(max_iterations, _GOLD_GN_STEPS), _LM_PTOL)
+    if converged:
+        return sol
+    # A step that raised the cost (a problem far from linear, e.g. points near the horizon)
+    # or the step cap: the damped sparse LM continues from the best iterate.
+    lm = solve_sparse_lm(
+        _GoldStandardProblem(ps_t, pd_t, src_scale, dst_scale),
+        sol.g,
+        sol.x_hat.T,
+        max_iterations=max(max_iterations - sol.iterations, 0),
+        ptol=_LM_PTOL,
+    )
+    return _GoldSolution(
+        lm.x_global, lm.x_local.T, lm.cost, lm.information, sol.iterations + lm.iterations
     )
 
 

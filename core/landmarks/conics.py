@@ -96,43 +96,57 @@ def fit_ellipse(points: ArrayLike, *, iterations: int = 10) -> ConicFit:
     a1 = v[:, ok[0]]
     c = np.concatenate([a1, T @ a1])
     c /= np.linalg.norm(c)
-    M2 = np.empty((len(x), 6))
-    M2[:, 0], M2[:, 1], M2[:, 2], M2[:, 3], M2[:, 4], M2[:, 5] = x * x, x * y, y * y, x, y, 1.0
+    # The monomials and the Jacobian are stored one row per coefficient (6, N): every update
+    # below is then an operation on contiguous rows.
+    n = len(x)
+    M2 = np.empty((6, n))
+    np.multiply(x, x, out=M2[0])
+    np.multiply(x, y, out=M2[1])
+    np.multiply(y, y, out=M2[2])
+    M2[3], M2[4], M2[5] = x, y, 1.0
+    two_x, two_y = 2.0 * x, 2.0 * y
 
-    def gradient(c: Array) -> tuple[Array, Array]:
-        # d(x^T C x)/dx and /dy of the conic at the points.
-        return 2 * c[0] * x + c[1] * y + c[3], c[1] * x + 2 * c[2] * y + c[4]
+    def residuals(c: Array) -> tuple[Array, Array, Array, Array]:
+        # f = x^T C x, its gradient (d/dx, d/dy) and the Sampson distance r = f / |gradient|.
+        f = c @ M2
+        gx = c[0] * two_x
+        gx += c[1] * y
+        gx += c[3]
+        gy = c[1] * x
+        gy += c[2] * two_y
+        gy += c[4]
+        inv_g = gx * gx
+        inv_g += gy * gy
+        np.sqrt(inv_g, out=inv_g)
+        np.divide(1.0, inv_g, out=inv_g)
+        return f * inv_g, gx, gy, inv_g
 
-    J = np.empty((len(x), 6))
-    r = np.zeros(len(x))
+    J = np.empty((6, n))
+    r = np.zeros(n)
     for _ in range(iterations):
-        f = M2 @ c
-        gx, gy = gradient(c)
-        g = np.sqrt(gx * gx + gy * gy)
-        r = f / g
-        # d r / d c = M2 / g - f / g^3 (gx d gx / d c + gy d gy / d c).
-        w = f / g**3
-        J[:] = M2 / g[:, None]
-        J[:, 0] -= w * 2 * x * gx
-        J[:, 1] -= w * (y * gx + x * gy)
-        J[:, 2] -= w * 2 * y * gy
-        J[:, 3] -= w * gx
-        J[:, 4] -= w * gy
+        r, gx, gy, inv_g = residuals(c)
+        # d r / d c = M2 / g - f / g^3 (gx d gx / d c + gy d gy / d c), with f / g^3 = r / g^2.
+        np.multiply(M2, inv_g, out=J)
+        w = r * inv_g
+        w *= inv_g
+        wx, wy = w * gx, w * gy
+        J[0] -= wx * two_x
+        J[1] -= wx * y + wy * x
+        J[2] -= wy * two_y
+        J[3] -= wx
+        J[4] -= wy
         # Normal equations in the tangent space of the unit sphere (c c^T fills the null
         # direction of the scale, so the 6x6 system is regular and the step is tangent).
-        A = J.T @ J
-        step = np.linalg.solve(A + np.trace(A) * np.outer(c, c), -(J.T @ r))
+        A = J @ J.T
+        step = np.linalg.solve(A + np.trace(A) * np.outer(c, c), -(J @ r))
         c = c + step
         c /= np.linalg.norm(c)
         # Gauss-Newton converges quadratically here: after a step under 1e-7, what remains is of
         # its square, far below the fit's own noise.
         if np.linalg.norm(step) < 1e-7:
             break
-    f = M2 @ c
-    gx, gy = gradient(c)
-    g = np.sqrt(gx * gx + gy * gy)
-    r = f / g
-    n = len(x)
+    r, _, _, _ = residuals(c)
+    J = J.T
     sigma2 = float(r @ r) / max(n - 5, 1)
     # The pseudo-inverse of P A P (P = I - c c^T, the tangent space): P A P and c c^T act on
     # orthogonal subspaces, so (P A P + c c^T)^-1 = (P A P)^+ + c c^T.

@@ -245,7 +245,7 @@ def _undistort_each(ctx: _Context, points: list[Array]) -> list[Array | None]:
 
 def _holed_components(score: Image) -> list[tuple[Image, Image]]:
     """Return (outer contour, largest hole contour) of every thresholded component with a hole."""
-    mask = (score > SCORE_THRESHOLD).astype(np.uint8)
+    _, mask = cv2.threshold(score, SCORE_THRESHOLD, 1, cv2.THRESH_BINARY)  # score > threshold
     contours, hier = cv2.findContours(mask, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_NONE)
     if hier is None:
         return []
@@ -313,25 +313,29 @@ def _iso_points(score: Image, roi: tuple[int, int, int, int], inside: Image) -> 
     gxi = cv2.Sobel(patch, cv2.CV_32F, 1, 0, ksize=3)
     gyi = cv2.Sobel(patch, cv2.CV_32F, 0, 1, ksize=3)
     xs, ys, keys = [], [], []
+    width = patch.shape[1]
+    # Gathers by flat index into the raveled (contiguous) ROI arrays: numpy's two-dimensional
+    # fancy indexing recomputes the flat index at every gather.
+    flat_patch, flat_above, flat_lb = patch.ravel(), above.ravel(), lb.ravel()
+    flat_gx, flat_gy = gxi.ravel(), gyi.ravel()
     for axis in (1, 0):
-        a = patch[:, :-1] if axis == 1 else patch[:-1, :]
-        b = patch[:, 1:] if axis == 1 else patch[1:, :]
         ia = above[:, :-1] if axis == 1 else above[:-1, :]
         ib = above[:, 1:] if axis == 1 else above[1:, :]
         # (flat indices: numpy's two-dimensional nonzero is several times slower)
         yy, xx = np.divmod(np.flatnonzero(ia != ib), ia.shape[1])
         if len(yy) == 0:
             continue
-        va, vb = a[yy, xx], b[yy, xx]
+        ka = yy * width + xx  # the crossing's first pixel, then its neighbour along the axis
+        kb = ka + (1 if axis == 1 else width)
+        va, vb = flat_patch.take(ka), flat_patch.take(kb)
         f = (level - va) / (vb - va)
-        yb, xb = (yy, xx + 1) if axis == 1 else (yy + 1, xx)
-        lab_b = np.where(ia[yy, xx] == 1, lb[yb, xb], lb[yy, xx])
+        lab_b = np.where(flat_above.take(ka) == 1, flat_lb.take(kb), flat_lb.take(ka))
         px = xx + (f if axis == 1 else 0.0)
         py = yy + (f if axis == 0 else 0.0)
         # The score's gradient (toward the pattern) against the direction from the centre: an
         # outer edge has the pattern on its inner side.
-        gx = gxi[yy, xx] + gxi[yb, xb]
-        gy = gyi[yy, xx] + gyi[yb, xb]
+        gx = flat_gx.take(ka) + flat_gx.take(kb)
+        gy = flat_gy.take(ka) + flat_gy.take(kb)
         outer_edge = gx * (px - cx) + gy * (py - cy) < 0
         xs.append(px)
         ys.append(py)
@@ -1013,12 +1017,11 @@ def _rectify(
     P = (Y[:, None, None] * R[:, 1] + X[None, :, None] * R[:, 0] + t).reshape(-1, 3)
     uv = ctx.project(P).reshape(len(g), len(g), 2)
     big = (len(g) - 1) * step + 1
-    mx = cv2.resize(uv[..., 0].astype(np.float32), (big, big), interpolation=cv2.INTER_LINEAR)
-    my = cv2.resize(uv[..., 1].astype(np.float32), (big, big), interpolation=cv2.INTER_LINEAR)
-    if grey:
-        return cv2.remap(ctx.grey, mx[:px, :px], my[:px, :px], cv2.INTER_LINEAR, borderValue=255)
-    return cv2.remap(
-        ctx.image, mx[:px, :px], my[:px, :px], cv2.INTER_LINEAR, borderValue=(255, 255, 255)
+    # Both coordinates in one two-channel map (one resize; remap reads it as (x, y) pairs).
+    m = cv2.resize(uv.astype(np.float32), (big, big), interpolation=cv2.INTER_LINEAR)[:px, :px]
+    src, border = (ctx.grey, 255) if grey else (ctx.image, (255, 255, 255))
+    return cv2.remap(  # type: ignore[call-overload]  # (x, y) pairs in one map, none second
+        src, m, None, cv2.INTER_LINEAR, borderValue=border
     )
 
 
@@ -1107,6 +1110,20 @@ def _decode(grey: Image, fallback: bool = True) -> tuple[str | None, Array | Non
     return None, None
 
 
+# The free search of the symbol's axes rectifies a 96 px patch of half side 0.62 qr_side and
+# keeps its pixels within 0.71 * 1.02 qr_side of the centre (the symbol's half diagonal and a
+# margin): that disc is the same in every patch.
+_ANGLE_PATCH_PX = 96
+_yy, _xx = np.mgrid[0:_ANGLE_PATCH_PX, 0:_ANGLE_PATCH_PX]
+_ANGLE_OUTSIDE = (
+    np.hypot(_xx - _ANGLE_PATCH_PX / 2 + 0.5, _yy - _ANGLE_PATCH_PX / 2 + 0.5)
+    * 2
+    * 0.62
+    / _ANGLE_PATCH_PX
+    > 0.71 * 1.02
+)
+
+
 def _symbol_angle(ctx: _Context, R: Array, t: Array, qr_side: float, *, free: bool) -> float | None:
     """Return the rotation psi about the normal that puts x along the symbol's rows, from the
     three finder patterns (no decoding): the symbol's axes from the dark modules' minimum-area
@@ -1119,12 +1136,10 @@ def _symbol_angle(ctx: _Context, R: Array, t: Array, qr_side: float, *, free: bo
     psi0 = 0.0
     if free:
         half = qr_side * 0.62
-        px = 96
+        px = _ANGLE_PATCH_PX
         grey = cv2.cvtColor(_rectify(ctx, R, t, half, px), cv2.COLOR_BGR2GRAY)
         _, dark = cv2.threshold(grey, 0, 255, cv2.THRESH_BINARY_INV | cv2.THRESH_OTSU)
-        yy, xx = np.mgrid[0:px, 0:px]
-        r = np.hypot(xx - px / 2 + 0.5, yy - px / 2 + 0.5) * 2 * half / px
-        dark[r > 0.71 * qr_side * 1.02] = 0
+        dark[_ANGLE_OUTSIDE] = 0
         pts = np.column_stack(np.nonzero(dark)[::-1]).astype(np.float32)
         if len(pts) < 20:
             return None
