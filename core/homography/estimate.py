@@ -25,6 +25,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.linalg.lapack import dposv as _posv
 from scipy.linalg.lapack import dsyev as _syev
 
+from core._numeric import dot
 from core._validate import as_points
 from core.errors import DegenerateConfiguration, InvalidInput
 from core.optim import solve_sparse_lm
@@ -49,15 +50,6 @@ _RANSAC_BATCH_ELEMENTS = 400_000
 # standard): the Jacobian is unchanged to first order and the step itself lands on the
 # minimum to second order, so no further linearisation is needed.
 _LM_PTOL = 1e-6
-
-
-def _dot(a: Array, b: Array) -> float:
-    """Return sum(a * b) of two equal-shaped contiguous arrays. Past 8,192 elements without
-    BLAS: OpenBLAS runs dot products of more than 10,000 elements on several threads, which on
-    busy cores costs milliseconds where the arithmetic takes microseconds."""
-    if a.size <= 8192:
-        return float(np.vdot(a, b))
-    return float(np.einsum("i,i->", a.ravel(), b.ravel()))
 
 
 def _normalize_t(points: Array, name: str) -> tuple[Array, Array]:
@@ -545,7 +537,7 @@ class _GoldGaussNewton:
         uv *= iw
         rd = self.pd - uv
         es = self.ps - xh[:2]
-        cost = 0.5 * (self.wd2 * _dot(rd, rd) + self.ws2 * _dot(es, es))
+        cost = 0.5 * (self.wd2 * dot(rd, rd) + self.ws2 * dot(es, es))
         return cost, iw, uv, rd, es
 
     def jacobian(self, H: Array, iw: Array, uv: Array) -> None:
@@ -609,7 +601,7 @@ class _GoldGaussNewton:
         rho = W[6:8]
         np.multiply(O[0:2], c[0], out=rho)
         rho += O[1:3] * c[1]
-        c_omega_c = self.ws2 * _dot(c, rho)
+        c_omega_c = self.ws2 * dot(c, rho)
         rho *= iw
         np.multiply(uv[0], rho[0], out=W[8])
         W[8] += uv[1] * rho[1]
@@ -630,7 +622,7 @@ class _GoldGaussNewton:
         rho = W[6:8]
         np.multiply(O[0:2], c[0], out=rho)
         rho += O[1:3] * c[1]
-        c_omega_c = self.ws2 * _dot(c, rho)
+        c_omega_c = self.ws2 * dot(c, rho)
         rho *= iw
         np.multiply(uv[0], rho[0], out=W[8])
         W[8] += uv[1] * rho[1]

@@ -31,6 +31,7 @@ from typing import Literal, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
+from core._numeric import dot
 from core.errors import ConvergenceError, InvalidInput
 
 Array = NDArray[np.float64]
@@ -204,7 +205,7 @@ def _schur(
 def _half_sum_sq(a: Array) -> float:
     """Return 0.5 * sum(a**2) without copying a transposed (Fortran-ordered) view."""
     flat = (a.T if a.T.flags.c_contiguous else a).ravel()
-    return 0.5 * float(flat @ flat)
+    return 0.5 * dot(flat, flat)
 
 
 def _inf_norm(a: Array) -> float:
