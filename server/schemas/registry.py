@@ -230,6 +230,17 @@ def camera_model_problem(
     return None
 
 
+ScoreThreshold = Annotated[
+    float,
+    Field(
+        ge=0,
+        le=1,
+        allow_inf_nan=False,
+        description="A detector's boxes scored below this are dropped at ingest.",
+    ),
+]
+
+
 class CameraCreate(_PoseInput):
     name: Name
     width: PixelCount
@@ -238,6 +249,7 @@ class CameraCreate(_PoseInput):
     K: Matrix3 | None = None
     dist: Distortion | None = None
     T_world_camera: RigidTransform | None = None
+    score_threshold: ScoreThreshold = 0.5
 
 
 class CameraUpdate(_PoseInput):
@@ -248,6 +260,7 @@ class CameraUpdate(_PoseInput):
     K: Matrix3 | None = None
     dist: Distortion | None = None
     T_world_camera: RigidTransform | None = None
+    score_threshold: ScoreThreshold | None = None
 
 
 class CameraHeartbeat(Schema):
@@ -295,6 +308,7 @@ class CameraRead(ReadSchema):
     T_world_camera: list[list[float]] | None
     status: Literal["uncalibrated", "nominal", "calibrated"]
     calibration_run_id: int | None
+    score_threshold: float = 0.5
     created_at: UtcDatetime
     updated_at: UtcDatetime
     health: CameraHealth | None = Field(
