@@ -3,6 +3,7 @@ its node's latest frame, and a detector's boxes as observations."""
 
 from __future__ import annotations
 
+import json
 import time
 
 import cv2
@@ -60,11 +61,10 @@ def test_placement_finds_the_wrong_pair_and_is_applied_once(client, admin):
     # Not applied yet: the camera is unplaced; the run is a stored calibration run.
     assert client.get(f"/api/v1/cameras/{cid}", headers=admin).json()["T_world_camera"] is None
     run = client.get(f"/api/v1/calibration-runs/{placed['run_id']}", headers=admin).json()
-    assert (run["kind"], run["status"], run["result"]["rejected"]) == ("placement", "succeeded", [3])
+    assert (run["kind"], run["status"]) == ("placement", "succeeded")
+    assert run["result"]["rejected"] == [3]
     for _ in range(2):  # applying twice changes nothing the second time
-        applied = client.post(
-            f"/api/v1/calibration-runs/{placed['run_id']}/apply", headers=admin
-        )
+        applied = client.post(f"/api/v1/calibration-runs/{placed['run_id']}/apply", headers=admin)
         assert applied.status_code == 200, applied.text
     camera = applied.json()
     assert camera["T_world_camera"] == placed["T_world_camera"] and camera["K"] == placed["K"]
@@ -140,6 +140,11 @@ def test_a_node_uploads_the_latest_frame_once_a_second(client, admin):
     assert client.get(f"/api/v1/cameras/{other}/frame.jpg", headers=admin).status_code == 404
 
 
+def _json(value):
+    # SQLite hands a JSON column back as text, PostgreSQL's driver as the decoded value.
+    return json.loads(value) if isinstance(value, str) else value
+
+
 def _placed_camera(client, admin, **extra) -> int:
     cam = _true_camera()
     return _camera(
@@ -168,13 +173,12 @@ def test_boxes_are_stored_with_score_and_cut_and_refused_when_bad(client, admin,
         ).all()
     engine.dispose()
     assert len(rows) == 3
-    u, v, cxx, cyy, kind, stored_box, score, cut = rows[0]
+    u, v, cxx, cyy, kind, stored_box, score, _ = rows[0]
     assert (u, v, kind, score) == (320.0, 260.0, "person", 0.9)
     # The foot's covariance of core.localization.box_foot's model (40 x 110 px box).
     assert np.isclose(cxx, (0.10 * 40) ** 2) and np.isclose(cyy, (0.04 * 110) ** 2)
-    as_list = stored_box if isinstance(stored_box, list) else __import__("json").loads(stored_box)
-    assert as_list == box["box"]
-    cuts = [r[7] if not isinstance(r[7], str) else __import__("json").loads(r[7]) for r in rows]
+    assert _json(stored_box) == box["box"]
+    cuts = [_json(r[7]) for r in rows]
     assert cuts == [[], ["bottom"], ["left", "top"]]
     # Cut on the left: the foot's sigma_u is half the visible width (20 px).
     assert np.isclose(rows[2][2], 20.0**2)
