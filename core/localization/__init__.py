@@ -17,6 +17,7 @@ from core.localization.boxes import (
     FootMeasurement,
     box_foot,
     cut_mask,
+    foot_on_axis,
 )
 from core.localization.cameras import NetworkCamera
 from core.localization.coverage import CoverageMap, coverage_map
@@ -71,6 +72,7 @@ __all__ = [
     "cv_process_noise",
     "cv_transition",
     "detect_frame",
+    "foot_on_axis",
     "line_of_sight",
     "locate_body_axis",
     "locate_ml",

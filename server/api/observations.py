@@ -26,7 +26,15 @@ from fastapi import APIRouter, Depends, HTTPException, Request, status
 from fastapi.responses import JSONResponse
 from sqlalchemy import select
 
-from core.localization import PointStatus, box_foot, cut_mask, locate_ml
+from core.localization import (
+    FootMeasurement,
+    NetworkCamera,
+    PointStatus,
+    box_foot,
+    cut_mask,
+    foot_on_axis,
+    locate_ml,
+)
 from server.api.deps import SessionDep, require_write
 from server.api.errors import PROBLEM_RESPONSES, FieldProblem
 from server.db.models import Camera
@@ -89,7 +97,7 @@ def post_observations(
     _check_empty_frames(obs, empty, refused, who)
     rows = _camera_rows(session, camera_ids)
     space_of = {cid: row.space_id for cid, row in rows.items()}
-    m = _measure(obs, rows)
+    m = _measure(obs, rows, cameras)
     if live is not None:
         _check_labels(obs, space_of, live)
     labelled = [i for i, o in enumerate(obs) if o.target is not None and m.keep[i] and m.tracked[i]]
@@ -237,9 +245,12 @@ class _Measured:
     tracked: np.ndarray
 
 
-def _measure(obs: list[Observation], rows: dict[int, _CameraRow]) -> _Measured:
-    """Return the measured pixels of the observations: their pixels, or their boxes' foot
-    points (core.localization.box_foot). Raises FieldProblem 422 naming a box outside its
+def _measure(
+    obs: list[Observation], rows: dict[int, _CameraRow], cameras: dict[int, NetworkCamera]
+) -> _Measured:
+    """Return the measured pixels of the observations: their pixels, or their boxes' feet
+    (core.localization.box_foot) moved to the body's axis by the camera's geometry
+    (core.localization.foot_on_axis). Raises FieldProblem 422 naming a box outside its
     camera's image (by more than _BOX_MARGIN of the image's size)."""
     n = len(obs)
     pixel = np.zeros((n, 2))
@@ -267,7 +278,16 @@ def _measure(obs: list[Observation], rows: dict[int, _CameraRow]) -> _Measured:
             f"{w}x{h} image; a box is in the camera's distorted pixels",
         )
     foot = box_foot(boxes, cut_mask(obs[i].cut or () for i in boxed))
-    pixel[boxed], cov[boxed], tracked[boxed] = foot.pixel, foot.cov, foot.measured
+    on = np.array([obs[i].camera_id for i in boxed])
+    for cid in np.unique(on).tolist():
+        mine = np.flatnonzero(on == cid)
+        axis = foot_on_axis(
+            boxes[mine],
+            FootMeasurement(foot.pixel[mine], foot.cov[mine], foot.measured[mine]),
+            cameras[cid],
+        )
+        at = [boxed[k] for k in mine]
+        pixel[at], cov[at], tracked[at] = axis.pixel, axis.cov, axis.measured
     threshold = np.array([rows[obs[i].camera_id].score_threshold for i in boxed])
     score = np.array([1.0 if obs[i].score is None else obs[i].score for i in boxed])
     keep[boxed] = score >= threshold

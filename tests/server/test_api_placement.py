@@ -8,9 +8,10 @@ import time
 
 import cv2
 import numpy as np
+import pytest
 from sqlalchemy import create_engine, text
 
-from core.localization import NetworkCamera
+from core.localization import NetworkCamera, box_foot, cut_mask, foot_on_axis
 
 K = [[600.0, 0.0, 319.5], [0.0, 600.0, 239.5], [0.0, 0.0, 1.0]]
 SIZE = (640, 480)
@@ -174,14 +175,22 @@ def test_boxes_are_stored_with_score_and_cut_and_refused_when_bad(client, admin,
     engine.dispose()
     assert len(rows) == 3
     u, v, cxx, cyy, kind, stored_box, score, _ = rows[0]
-    assert (u, v, kind, score) == (320.0, 260.0, "person", 0.9)
-    # The foot's covariance of core.localization.box_foot's model (40 x 110 px box).
-    assert np.isclose(cxx, (0.10 * 40) ** 2) and np.isclose(cyy, (0.04 * 110) ** 2)
+    assert (kind, score) == ("person", 0.9)
+    # The foot the service measured: the one core function's (box_foot, then moved to the
+    # body's axis with the camera's geometry), stored as the detection's pixel.
+    expected = foot_on_axis(
+        [box["box"]] * 2,
+        box_foot([box["box"]] * 2, cut_mask([[], ["left", "top"]])),
+        _true_camera(),
+    )
+    np.testing.assert_allclose([u, v, cxx, cyy], [*expected.pixel[0], *np.diag(expected.cov[0])])
+    # The box's bottom centre (320, 260) moved up the image: the axis is behind the near edge.
+    assert abs(u - 320.0) < 15 and 220 < v < 259
     assert _json(stored_box) == box["box"]
     cuts = [_json(r[7]) for r in rows]
     assert cuts == [[], ["bottom"], ["left", "top"]]
-    # Cut on the left: the foot's sigma_u is half the visible width (20 px).
-    assert np.isclose(rows[2][2], 20.0**2)
+    # Cut on the left: sigma_u widened to half the visible width, so more u variance.
+    assert rows[2][2] == pytest.approx(expected.cov[1, 0, 0]) and rows[2][2] > 4 * cxx
 
     bad = {
         "box": ({**box, "box": [340.0, 150.0, 300.0, 260.0]}, "observations.0.box"),
