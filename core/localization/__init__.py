@@ -13,6 +13,7 @@ detections as they arrive.
 from core.localization.bounds import CramerRaoBound, cramer_rao_bound
 from core.localization.boxes import (
     BOX_SIDES,
+    DEFAULT_BOX_NOISE,
     BoxNoise,
     FootMeasurement,
     box_foot,
@@ -45,6 +46,7 @@ from core.localization.tracking import (
 
 __all__ = [
     "BOX_SIDES",
+    "DEFAULT_BOX_NOISE",
     "BodyDetection",
     "BodyModel",
     "Box",
