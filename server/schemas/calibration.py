@@ -231,11 +231,21 @@ class NetworkRunResult(ReadSchema):
 MAX_PLACEMENT_POINTS = 1000
 
 
+PlacementPixel = Annotated[
+    list[Annotated[float, Field(ge=-1e5, le=1e5, allow_inf_nan=False)]],
+    Field(min_length=2, max_length=2),
+]
+PlacementFloor = Annotated[
+    list[Annotated[float, Field(ge=-1e4, le=1e4, allow_inf_nan=False)]],
+    Field(min_length=2, max_length=2),
+]
+
+
 class PlacementPoint(Schema):
     """One pixel of the camera's image and the world point it shows."""
 
-    pixel: Point2 = Field(description="[u, v] in the camera's (distorted) pixels.")
-    floor: Point2 = Field(description="[x, y] on the floor plan, metres (world frame).")
+    pixel: PlacementPixel = Field(description="[u, v] in the camera's (distorted) pixels.")
+    floor: PlacementFloor = Field(description="[x, y] on the floor plan, metres (world frame).")
     z: Annotated[float, Field(ge=-10, le=10, allow_inf_nan=False)] = Field(
         0.0, description="Height of the point above the floor, metres (0: on the floor)."
     )

@@ -43,7 +43,9 @@ def _body(X, uv, **extra):
     return {"points": points, **extra}
 
 
-def test_placement_finds_the_wrong_pair_and_is_applied_once(client, admin):
+def test_placement_finds_the_wrong_pair_is_applied_once_and_refuses_degenerate_points(
+    client, admin
+):
     cid = _camera(client, admin)
     X, uv = _points()
     uv[3] += [30.0, -20.0]  # a click on the neighbouring tile's corner
@@ -72,6 +74,21 @@ def test_placement_finds_the_wrong_pair_and_is_applied_once(client, admin):
     history = client.get(f"/api/v1/cameras/{cid}/calibrations", headers=admin).json()
     assert history["total"] == 1
 
+    # Degenerate points are refused with the reason, and store nothing.
+    few = client.post(f"/api/v1/cameras/{cid}/placement", json=_body(X[:3], uv[:3]), headers=admin)
+    assert few.status_code == 422 and "at least 4" in few.json()["detail"]
+    line = np.stack([np.linspace(1, 4, 6), np.linspace(1, 3, 6), np.zeros(6)], 1)
+    on_line = client.post(
+        f"/api/v1/cameras/{cid}/placement",
+        json=_body(line, _true_camera().project(line)),
+        headers=admin,
+    )
+    assert on_line.status_code == 422 and "line" in on_line.json()["detail"]
+    missing = client.post("/api/v1/cameras/999999/placement", json=_body(X, uv), headers=admin)
+    assert missing.status_code == 404
+    runs = client.get("/api/v1/calibration-runs", headers=admin).json()
+    assert runs["total"] == 1  # the placement above; nothing for refused input
+
 
 def test_placement_with_known_intrinsics_applies_at_once(client, admin):
     cid = _camera(client, admin, K=K, dist=[0.0] * 5)
@@ -85,24 +102,6 @@ def test_placement_with_known_intrinsics_applies_at_once(client, admin):
     camera = client.get(f"/api/v1/cameras/{cid}", headers=admin).json()
     assert camera["T_world_camera"] == placed["T_world_camera"] and camera["K"] == K
     assert np.linalg.norm(np.array(camera["T_world_camera"])[:3, 3] - [0.2, 0.3, 2.6]) < 0.05
-
-
-def test_degenerate_placements_are_refused_with_the_reason(client, admin):
-    cid = _camera(client, admin)
-    X, uv = _points()
-    few = client.post(f"/api/v1/cameras/{cid}/placement", json=_body(X[:3], uv[:3]), headers=admin)
-    assert few.status_code == 422 and "at least 4" in few.json()["detail"]
-    line = np.stack([np.linspace(1, 4, 6), np.linspace(1, 3, 6), np.zeros(6)], 1)
-    on_line = client.post(
-        f"/api/v1/cameras/{cid}/placement",
-        json=_body(line, _true_camera().project(line)),
-        headers=admin,
-    )
-    assert on_line.status_code == 422 and "line" in on_line.json()["detail"]
-    missing = client.post("/api/v1/cameras/999999/placement", json=_body(X, uv), headers=admin)
-    assert missing.status_code == 404
-    runs = client.get("/api/v1/calibration-runs", headers=admin).json()
-    assert runs["total"] == 0  # nothing stored for refused input
 
 
 def _jpeg(size=SIZE, value=90) -> bytes:

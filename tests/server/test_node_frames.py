@@ -10,12 +10,16 @@ import time
 
 import cv2
 import numpy as np
+import pytest
 
 from server.node.config import CameraConfig, NodeConfig
 from server.node.frames import Frame
 from server.node.runner import Node
 
 
+# The node's side is the same on both databases (the service's side runs on both in
+# test_api_placement.py).
+@pytest.mark.parametrize("database_url", ["sqlite"], indirect=True)
 def test_node_uploads_an_unplaced_cameras_frames_at_most_once_a_second(client, admin):
     cid = client.post(
         "/api/v1/cameras", json={"name": "porch", "width": 320, "height": 240}, headers=admin
