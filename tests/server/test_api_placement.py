@@ -138,6 +138,9 @@ def test_a_node_uploads_the_latest_frame_once_a_second(client, admin):
     cut_short = client.put(f"/api/v1/cameras/{other}/frame", content=jpeg[:300], headers=writer)
     assert cut_short.status_code == 422
     assert client.get(f"/api/v1/cameras/{other}/frame.jpg", headers=admin).status_code == 404
+    # A deleted camera's frame goes with it.
+    assert client.delete(f"/api/v1/cameras/{cid}", headers=admin).status_code == 204
+    assert client.get(f"/api/v1/cameras/{cid}/frame.jpg", headers=admin).status_code == 404
 
 
 def _json(value):
