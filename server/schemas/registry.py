@@ -262,6 +262,12 @@ class CameraUpdate(_PoseInput):
     T_world_camera: RigidTransform | None = None
     score_threshold: ScoreThreshold | None = None
 
+    @model_validator(mode="after")
+    def _threshold_not_cleared(self) -> CameraUpdate:
+        if "score_threshold" in self.model_fields_set and self.score_threshold is None:
+            raise ValueError("score_threshold is a number from 0 to 1; it cannot be cleared")
+        return self
+
 
 class CameraHeartbeat(Schema):
     """What a camera node reports about a camera every second: its frame rate (frames per
