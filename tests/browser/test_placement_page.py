@@ -102,3 +102,6 @@ def test_a_camera_is_placed_by_clicking_its_image_and_the_plan(service, browser_
     # focal length free 7 pairs place the camera to ~5 cm (1 sigma): 0.2 m is 4 sigma.
     assert np.linalg.norm(centre - [0.5, 0.5, 2.6]) < 0.2
     assert placed["K"] is not None and placed["status"] == "calibrated"
+    # The run it applied is a calibration run like any other, shown with its residuals.
+    page.goto(f"{service.base_url}/#/calibration/runs/{placed['calibration_run_id']}")
+    expect(page.get_by_test_id("placement-result")).to_contain_text("Camera placed")
