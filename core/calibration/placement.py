@@ -22,8 +22,9 @@ A clicked pair can be wrong (the wrong tile corner, a swapped pair), so the fit 
 3. refinement: the reprojection error sum_i ||x_i - pi(K, dist, R, t; X_i)||^2 of the inliers is
    minimised over (f, rvec, t), or (rvec, t) with known intrinsics, by the project's sparse LM
    (core.optim) with the distortion fixed: the maximum-likelihood estimate under i.i.d. Gaussian
-   pixel noise. The inliers are then chosen again from the refined residuals (same rule, the
-   least-squares scale of the inliers' fit) until they no longer change.
+   pixel noise. The inliers are then chosen again (`_consistent`): each pair's residual is
+   tested as a prediction of the others (its leverage removed) against a robust scale, until
+   the set no longer changes.
 
 A wrong pair is found when N >= 6 (at N = 4 or 5 a wrong pair can still be fitted by a
 different camera). The covariance of (f, rvec, t) is the Gauss-Newton inverse
