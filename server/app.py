@@ -24,6 +24,7 @@ from server.api import (
     maps,
     observations,
     paths,
+    placement,
     projectors,
     robots,
     rooms,
@@ -43,6 +44,7 @@ from server.api.limits import RequestSizeLimit
 from server.db.session import make_engine, make_session_factory
 from server.security import AuthFailureLimiter, SecurityHeaders, install_log_redaction
 from server.services.auth import TokenCache
+from server.services.frames import LatestFrames
 from server.services.runs import LeasePolicy, RunExecutor
 from server.services.scene_sync import SceneSync
 from server.services.targets import LiveTargets
@@ -70,6 +72,7 @@ def api_router() -> APIRouter:
         arms,
         landmarks,
         calibration_runs,
+        placement,
         tasks,
         tokens,
         session,
@@ -221,6 +224,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.token_cache = TokenCache()
     app.state.auth_limiter = AuthFailureLimiter(settings.auth_failure_limit)
     app.state.scene_sync = SceneSync(None)
+    app.state.latest_frames = LatestFrames()
     app.state.viser_host = "127.0.0.1"
     app.state.viser_port = settings.viser_port
 

@@ -22,8 +22,10 @@ def repo_root() -> Path:
 
 @pytest.fixture(scope="session")
 def shared_data_dir() -> Path:
-    """Return <repo>/../shared/data (published data sets used as ground truth)."""
-    return REPO_ROOT.parent / "shared" / "data"
+    """Return <repo>/../shared/data (published data sets used as ground truth), or the folder
+    INTSPACE_TEST_SHARED_DATA names (a checkout that is not beside `shared`)."""
+    named = os.environ.get("INTSPACE_TEST_SHARED_DATA")
+    return Path(named) if named else REPO_ROOT.parent / "shared" / "data"
 
 
 def _postgres_unavailable(reason: str) -> None:

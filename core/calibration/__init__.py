@@ -1,4 +1,5 @@
-"""Camera calibration from planes: Zhang, single view, pose, pattern detection, interchange."""
+"""Camera calibration from planes: Zhang, single view, pose, placement from floor points,
+pattern detection, interchange."""
 
 from core.calibration.detect import (
     CharucoSpec,
@@ -20,6 +21,7 @@ from core.calibration.io import (
     to_opencv_yaml,
     to_ros_yaml,
 )
+from core.calibration.placement import CameraPlacement, place_camera
 from core.calibration.pose import (
     PoseEstimate,
     estimate_plane_pose,
@@ -42,6 +44,7 @@ __all__ = [
     "DISTORTION_MODELS",
     "CalibrationRecord",
     "CameraCalibration",
+    "CameraPlacement",
     "CharucoSpec",
     "Chessboard",
     "CircleGrid",
@@ -61,6 +64,7 @@ __all__ = [
     "from_opencv_yaml",
     "from_ros_yaml",
     "intrinsics_from_homographies",
+    "place_camera",
     "plane_points",
     "pose_from_homography",
     "to_opencv_json",

@@ -13,10 +13,12 @@ detections as they arrive.
 from core.localization.bounds import CramerRaoBound, cramer_rao_bound
 from core.localization.boxes import (
     BOX_SIDES,
+    DEFAULT_BOX_NOISE,
     BoxNoise,
     FootMeasurement,
     box_foot,
     cut_mask,
+    foot_on_axis,
 )
 from core.localization.cameras import NetworkCamera
 from core.localization.coverage import CoverageMap, coverage_map
@@ -44,6 +46,7 @@ from core.localization.tracking import (
 
 __all__ = [
     "BOX_SIDES",
+    "DEFAULT_BOX_NOISE",
     "BodyDetection",
     "BodyModel",
     "Box",
@@ -71,6 +74,7 @@ __all__ = [
     "cv_process_noise",
     "cv_transition",
     "detect_frame",
+    "foot_on_axis",
     "line_of_sight",
     "locate_body_axis",
     "locate_ml",

@@ -18,6 +18,12 @@ mask, the box stops at the cut and not at the person:
 * a cut left or right side: the centre moves by up to half the hidden width; sigma_u is raised
   to half the visible width, which covers a person whose hidden part is as wide as what shows;
 * a cut top changes nothing at the feet.
+
+The bottom centre is the body's near edge, not its centre: a body of radius r (BodyModel, an
+adult's half shoulder width) stands with its axis r further from the camera, in plan, than the
+point the box's bottom shows (the steepest ray grazes the base's nearest point; see
+core.localization.detect.locate_body_axis). The tracker follows body axes, so that cameras on
+opposite sides agree; `foot_on_axis` moves a camera's feet there, with r's spread added.
 """
 
 from __future__ import annotations
@@ -30,6 +36,10 @@ from numpy.typing import ArrayLike, NDArray
 
 from core._validate import as_points
 from core.errors import InvalidInput
+from core.geometry.camera import undistort_points
+from core.localization._projection import distort_to_pixels, project_plane
+from core.localization.cameras import NetworkCamera
+from core.localization.ground import PointStatus, locate_monocular
 
 Array = NDArray[np.float64]
 
@@ -114,3 +124,67 @@ def box_foot(
     cov[:, 1, 1] = s_v**2
     measured = ~c[:, BOX_SIDES.index("bottom")]
     return FootMeasurement(pixel=pixel, cov=cov, measured=measured)
+
+
+def foot_on_axis(
+    boxes: ArrayLike,
+    foot: FootMeasurement,
+    camera: NetworkCamera,
+    *,
+    radius: float = 0.2,
+    radius_sigma: float = 0.03,
+) -> FootMeasurement:
+    """Return the feet of `foot` (box_foot of `boxes` (N, 4), seen by `camera`) moved to the
+    foot of each body's vertical axis, on the floor.
+
+    Two corrections of the bottom centre, both from the camera's geometry:
+
+    * lean: a tilted camera images a vertical body leaning towards the vertical vanishing point
+      v_z ~ K R e_z, so the box's horizontal centre is halfway between the images of the feet
+      and the head, not above the feet. With the box's bottom and top centres undistorted
+      (x_c, v_b), (x_c, v_t) and the axis through v_z and the box's middle (x_c, v_m), the feet
+      are at u_f = x_c + (v_b - v_m) s, s = (c x_c - a) / (c v_m - b) for v_z = (a, b, c);
+    * near edge: the feet's ray meets the floor at F (core.localization.locate_monocular, with
+      the foot's covariance), the body's nearest point; the axis is P = F + r u, u the
+      horizontal unit vector from the camera's centre to F, r = `radius` (m).
+
+    P projects back to the pixel reported, with the covariance J (cov_F + radius_sigma^2 u u^T)
+    J^T, J = d pixel / d(X, Y) at P. A foot whose ray does not meet the floor in front of the
+    camera is no longer `measured`.
+    """
+    if not (np.isfinite(radius) and radius >= 0 and np.isfinite(radius_sigma)):
+        raise InvalidInput("radius and radius_sigma must be finite, radius >= 0")
+    b = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
+    pixel, cov, measured = foot.pixel.copy(), foot.cov.copy(), foot.measured.copy()
+    idx = np.flatnonzero(measured)
+    if idx.size == 0:
+        return FootMeasurement(pixel, cov, measured)
+    xc = 0.5 * (b[idx, 0] + b[idx, 2])
+    ends = np.stack([np.stack([xc, b[idx, 3]], -1), np.stack([xc, b[idx, 1]], -1)], 1)
+    ideal = undistort_points(ends.reshape(-1, 2), camera.K, camera.dist, to_pixels=True)
+    ideal = ideal.reshape(-1, 2, 2)
+    a_, b_, c_ = camera.K @ camera.R[:, 2]
+    x_i = 0.5 * (ideal[:, 0, 0] + ideal[:, 1, 0])
+    v_b, v_t = ideal[:, 0, 1], ideal[:, 1, 1]
+    v_m = 0.5 * (v_b + v_t)
+    den = c_ * v_m - b_
+    slope = np.where(np.abs(den) > 1e-9, (c_ * x_i - a_) / np.where(den == 0, 1.0, den), 0.0)
+    feet = np.stack([x_i + (v_b - v_m) * slope, v_b], -1)
+    m = np.linalg.solve(camera.K, np.c_[feet, np.ones(len(feet))].T).T[:, :2]
+    feet_px = distort_to_pixels(camera, m)[0]
+    floor = locate_monocular(camera, feet_px, 0.0, pixel_cov=cov[idx])
+    ok = floor.status == PointStatus.OK
+    good = idx[ok]
+    measured[idx[~ok]] = False
+    if good.size:
+        F = floor.point[ok, :2]
+        d = F - camera.center[:2]
+        u = d / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-9)
+        P = F + radius * u
+        proj = project_plane(camera, P, 0.0, jacobian=True)
+        assert proj.jacobian is not None
+        cov_floor = floor.point_cov[ok, :2, :2] + radius_sigma**2 * u[:, :, None] * u[:, None, :]
+        J = proj.jacobian
+        pixel[good] = proj.pixels
+        cov[good] = J @ cov_floor @ J.transpose(0, 2, 1)
+    return FootMeasurement(pixel, cov, measured)

@@ -55,6 +55,7 @@ from server.schemas.paths import ProjectorRunCreate
 from server.schemas.registry import CameraRead, ProjectorRead
 from server.schemas.twin import NetworkRunCreate
 from server.services.calibration import decode_image
+from server.services.placement import placement_values
 from server.services.runs import RunExecutor
 
 router = APIRouter(
@@ -266,7 +267,8 @@ def apply_calibration_run(run_id: RunId, session: SessionDep, scene: SceneDep):
     changes nothing and adds no history entry. A network run sets intrinsics and pose of
     every camera it calibrated and returns the list of them. A hand-eye run sets its arm's
     T_ee_camera, records it in the arm's hand-eye history and returns the arm. A projector run
-    sets the projector's pose, records it in its history and returns the projector."""
+    sets the projector's pose, records it in its history and returns the projector. A
+    placement run sets its camera's pose (and K when it estimated it) and returns the camera."""
     run = get_or_404(session, CalibrationRun, run_id, "calibration run")
     if run.status != RUN_SUCCEEDED or run.result is None:
         raise HTTPException(
@@ -279,6 +281,8 @@ def apply_calibration_run(run_id: RunId, session: SessionDep, scene: SceneDep):
         return apply_projector_run(run, session, scene)
     if run.kind == "network":
         return _apply_network(run, session, scene)
+    if run.kind == "placement":
+        return apply_placement(run, session, scene)
     if run.camera_id is None:
         raise HTTPException(
             status.HTTP_409_CONFLICT, detail=f"the camera of run {run_id} was deleted"
@@ -299,6 +303,42 @@ def apply_calibration_run(run_id: RunId, session: SessionDep, scene: SceneDep):
                 calibration_run_id=run.id,
                 K=run.result["K"],
                 dist=run.result["dist"],
+                rms=run.result.get("rms"),
+                image_width=width,
+                image_height=height,
+            )
+        )
+        session.commit()
+        session.refresh(camera)
+        scene.camera_changed(camera)
+    return camera
+
+
+def apply_placement(run: CalibrationRun, session, scene) -> Camera:
+    """Set a camera's pose (and K and distortion when the run estimated them) from a
+    placement run, recording it in the camera's calibration history; applying the run the
+    camera already has changes nothing."""
+    assert run.result is not None
+    if run.camera_id is None:
+        raise HTTPException(
+            status.HTTP_409_CONFLICT, detail=f"the camera of run {run.id} was deleted"
+        )
+    camera = get_or_404(session, Camera, run.camera_id, "camera")
+    width, height = run.result["image_size"]
+    if (width, height) != (camera.width, camera.height):
+        raise HTTPException(
+            status.HTTP_409_CONFLICT,
+            detail=f"run {run.id} placed a {width}x{height} camera but camera {camera.id} is "
+            f"{camera.width}x{camera.height}; place it again",
+        )
+    values = placement_values(run.result)
+    if _set_calibration(session, camera.id, run.id, values):
+        session.add(
+            CameraCalibration(
+                camera_id=camera.id,
+                calibration_run_id=run.id,
+                K=values.get("K", camera.K),
+                dist=values.get("dist", camera.dist or [0.0] * 5),
                 rms=run.result.get("rms"),
                 image_width=width,
                 image_height=height,

@@ -220,6 +220,7 @@ def delete_camera(
     session.commit()
     scene.camera_removed(camera_id)
     health_book(request).forget(camera_id)
+    request.app.state.latest_frames.forget(camera_id)  # its node's last frame
 
 
 @router.get(

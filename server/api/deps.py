@@ -45,6 +45,7 @@ INGEST_ROUTES = tuple(
     for method, pattern in (
         ("POST", r"/api/v1/observations"),
         ("POST", r"/api/v1/cameras/\d+/heartbeat"),
+        ("PUT", r"/api/v1/cameras/\d+/frame"),
         ("GET", r"/api/v1/cameras/\d+"),
         ("GET", r"/api/v1/cameras/\d+/stream\.mjpg"),
     )
@@ -230,8 +231,8 @@ async def _check_ingest(request: Request, principal: Principal) -> None:
     if not any(request.method == m and rx.fullmatch(path) for m, rx in INGEST_ROUTES):
         raise AuthRefused(
             status.HTTP_403_FORBIDDEN,
-            "an ingest token may only post observations and heartbeats and read its cameras "
-            "and their streams",
+            "an ingest token may only post observations, heartbeats and frames and read its "
+            "cameras and their streams",
         )
     if principal.camera_ids is None:
         return

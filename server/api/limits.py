@@ -27,6 +27,8 @@ BODY_LIMITS: tuple[tuple[str, re.Pattern[str], int], ...] = (
     ("POST", re.compile(r"^/api/v1/calibration-runs$"), 8 * MiB),
     # One photo (its own 16 MiB file cap and the pixel cap still apply).
     ("POST", re.compile(r"^/api/v1/landmarks/detect$"), 32 * MiB),
+    # A camera node's latest frame (server.api.placement.MAX_FRAME_BYTES).
+    ("PUT", re.compile(r"^/api/v1/cameras/\d+/frame$"), 4 * MiB),
     ("*", re.compile(r"^/api/v1/"), 1 * MiB),
 )
 

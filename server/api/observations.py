@@ -7,7 +7,10 @@ table before the answer, then queued for the tracker of the cameras' space
 frames in which nothing was detected (`empty_frames`: camera and capture time); they are not
 stored, but reach the tracker, which then knows it need not wait for those cameras' frames up
 to those times, so the tracks follow with the delay of the slowest camera instead of the
-tracker's whole reorder window. Detections that carry a
+tracker's whole reorder window. A detection may be a detector's box instead of a pixel (any
+detector: Frigate's, a user's own): its foot point and covariance come from
+core.localization.box_foot, a box scored below its camera's `score_threshold` is dropped, and
+one whose bottom is cut is stored but not tracked. Detections that carry a
 `target` label are also located at once by maximum likelihood on the plane, per (target, t),
 and returned, as before the tracker existed.
 """
@@ -15,6 +18,7 @@ and returned, as before the tracker existed.
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 from typing import Annotated
 
 import numpy as np
@@ -22,7 +26,15 @@ from fastapi import APIRouter, Depends, HTTPException, Request, status
 from fastapi.responses import JSONResponse
 from sqlalchemy import select
 
-from core.localization import PointStatus, locate_ml
+from core.localization import (
+    FootMeasurement,
+    NetworkCamera,
+    PointStatus,
+    box_foot,
+    cut_mask,
+    foot_on_axis,
+    locate_ml,
+)
 from server.api.deps import SessionDep, require_write
 from server.api.errors import PROBLEM_RESPONSES, FieldProblem
 from server.db.models import Camera
@@ -83,22 +95,29 @@ def post_observations(
                 f"{refused[o.camera_id]}; calibrate and pose it before sending its detections",
             )
     _check_empty_frames(obs, empty, refused, who)
-    space_of = _spaces(session, camera_ids)
+    rows = _camera_rows(session, camera_ids)
+    space_of = {cid: row.space_id for cid, row in rows.items()}
+    m = _measure(obs, rows, cameras)
     if live is not None:
         _check_labels(obs, space_of, live)
-    labelled = [i for i, o in enumerate(obs) if o.target is not None]
-    positions = _locate_labelled(obs, labelled, cameras) if labelled else []
+    labelled = [i for i, o in enumerate(obs) if o.target is not None and m.keep[i] and m.tracked[i]]
+    positions = _locate_labelled(obs, labelled, cameras, m) if labelled else []
     detections = [
         DetectionIn(
             camera_id=o.camera_id,
             t=o.t,
-            pixel=(o.pixel[0], o.pixel[1]),
-            cov=_cov(o),
-            kind=o.kind or "unknown",
+            pixel=(float(m.pixel[i, 0]), float(m.pixel[i, 1])),
+            cov=((m.cov[i, 0, 0], m.cov[i, 0, 1]), (m.cov[i, 1, 0], m.cov[i, 1, 1])),
+            kind=o.kind or ("person" if o.box is not None else "unknown"),
             height=o.height,
             label=o.target,
+            box=None if o.box is None else (o.box[0], o.box[1], o.box[2], o.box[3]),
+            score=o.score,
+            cut=None if o.box is None else tuple(o.cut or ()),
+            tracked=bool(m.tracked[i]),
         )
-        for o in obs
+        for i, o in enumerate(obs)
+        if m.keep[i]
     ]
     if tracking is not None:
         marks = [(f.camera_id, f.t) for f in empty]
@@ -192,12 +211,90 @@ def _cov(o) -> tuple[tuple[float, float], tuple[float, float]]:
     return ((s2, 0.0), (0.0, s2))
 
 
-def _spaces(session, camera_ids: list[int]) -> dict[int, int | None]:
-    rows = session.execute(select(Camera.id, Camera.space_id).where(Camera.id.in_(camera_ids)))
-    return {cid: sid for cid, sid in rows}
+@dataclass(frozen=True)
+class _CameraRow:
+    space_id: int | None
+    score_threshold: float
+    width: int
+    height: int
 
 
-def _locate_labelled(every, index: list[int], cameras) -> list[dict]:
+def _camera_rows(session, camera_ids: list[int]) -> dict[int, _CameraRow]:
+    rows = session.execute(
+        select(
+            Camera.id, Camera.space_id, Camera.score_threshold, Camera.width, Camera.height
+        ).where(Camera.id.in_(camera_ids))
+    )
+    return {r[0]: _CameraRow(r[1], float(r[2]), int(r[3]), int(r[4])) for r in rows}
+
+
+# A box may reach past the image by this fraction of its size (a detector's box around a
+# person at the edge); further, it is not a box of this camera.
+_BOX_MARGIN = 0.25
+
+
+@dataclass(frozen=True)
+class _Measured:
+    """Every observation's measured pixel (N, 2) and covariance (N, 2, 2); `keep`: not a box
+    scored under its camera's threshold; `tracked`: gives a floor position (not a box with a
+    cut bottom)."""
+
+    pixel: np.ndarray
+    cov: np.ndarray
+    keep: np.ndarray
+    tracked: np.ndarray
+
+
+def _measure(
+    obs: list[Observation], rows: dict[int, _CameraRow], cameras: dict[int, NetworkCamera]
+) -> _Measured:
+    """Return the measured pixels of the observations: their pixels, or their boxes' feet
+    (core.localization.box_foot) moved to the body's axis by the camera's geometry
+    (core.localization.foot_on_axis). Raises FieldProblem 422 naming a box outside its
+    camera's image (by more than _BOX_MARGIN of the image's size)."""
+    n = len(obs)
+    pixel = np.zeros((n, 2))
+    cov = np.zeros((n, 2, 2))
+    keep = np.ones(n, dtype=bool)
+    tracked = np.ones(n, dtype=bool)
+    boxed = [i for i, o in enumerate(obs) if o.box is not None]
+    for i, o in enumerate(obs):
+        if o.pixel is not None:
+            pixel[i] = o.pixel
+            cov[i] = _cov(o)
+    if not boxed:
+        return _Measured(pixel, cov, keep, tracked)
+    boxes = np.array([obs[i].box for i in boxed], dtype=np.float64)
+    size = np.array([(rows[obs[i].camera_id].width, rows[obs[i].camera_id].height) for i in boxed])
+    lo, hi = -_BOX_MARGIN * size, (1.0 + _BOX_MARGIN) * size
+    outside = np.any(boxes[:, :2] < lo, axis=1) | np.any(boxes[:, 2:] > hi, axis=1)
+    if np.any(outside):
+        k = int(np.argmax(outside))
+        w, h = size[k]
+        raise FieldProblem(
+            422,
+            f"observations.{boxed[k]}.box",
+            f"box {boxes[k].tolist()} is outside camera {obs[boxed[k]].camera_id}'s "
+            f"{w}x{h} image; a box is in the camera's distorted pixels",
+        )
+    foot = box_foot(boxes, cut_mask(obs[i].cut or () for i in boxed))
+    on = np.array([obs[i].camera_id for i in boxed])
+    for cid in np.unique(on).tolist():
+        mine = np.flatnonzero(on == cid)
+        axis = foot_on_axis(
+            boxes[mine],
+            FootMeasurement(foot.pixel[mine], foot.cov[mine], foot.measured[mine]),
+            cameras[cid],
+        )
+        at = [boxed[k] for k in mine]
+        pixel[at], cov[at], tracked[at] = axis.pixel, axis.cov, axis.measured
+    threshold = np.array([rows[obs[i].camera_id].score_threshold for i in boxed])
+    score = np.array([1.0 if obs[i].score is None else obs[i].score for i in boxed])
+    keep[boxed] = score >= threshold
+    return _Measured(pixel, cov, keep, tracked)
+
+
+def _locate_labelled(every, index: list[int], cameras, measured: _Measured) -> list[dict]:
     """Return the ML floor position of each labelled (target, t, height) group of the
     observations `every[i]` for i in `index`."""
     obs = [every[i] for i in index]
@@ -215,8 +312,8 @@ def _locate_labelled(every, index: list[int], cameras) -> list[dict]:
         if g is None:
             g = groups[key] = len(groups)
         cam[i], group[i] = column[o.camera_id], g
-        pix[i] = o.pixel
-        cov[i] = _cov(o)
+        pix[i] = measured.pixel[index[i]]
+        cov[i] = measured.cov[index[i]]
     C, B = len(camera_ids), len(groups)
     pair = cam * B + group
     _, first, counts = np.unique(pair, return_index=True, return_counts=True)

@@ -87,20 +87,33 @@ def camera_frame(
     request: Request,
     overlay: Annotated[bool, Query(description="Draw the detections.")] = False,
 ) -> Response:
-    """Return the latest twin frame of the camera as JPEG, with the detections drawn (circles
-    and labels) when `overlay`."""
+    """Return the camera's latest frame as JPEG: a twin camera's latest render, with the
+    detections drawn (circles and labels) when `overlay`; a real camera's latest frame its
+    node uploaded (PUT /cameras/{id}/frame; no overlay)."""
     twin = getattr(request.app.state, "twin", None)
+    frame = twin.frame(camera_id) if twin is not None else None
+    if frame is None:
+        uploaded = request.app.state.latest_frames.get(camera_id)
+        if uploaded is not None:
+            return Response(
+                uploaded.jpeg,
+                media_type="image/jpeg",
+                headers={
+                    "Cache-Control": "no-store",
+                    "X-Frame-Received": f"{uploaded.received:.3f}",
+                },
+            )
     if twin is None:
         raise HTTPException(
             status.HTTP_404_NOT_FOUND,
-            detail="no frame: the digital twin is not running (INTSPACE_SIMULATION=true)",
+            detail=f"no frame of camera {camera_id}: its camera node has sent none "
+            "(intspace node uploads one a second) and the digital twin is not running",
         )
-    frame = twin.frame(camera_id)
     if frame is None:
         reason = (
             "it has not rendered a frame yet"
             if camera_id in twin.camera_ids.values()
-            else "it is not a camera of the twin"
+            else "it is not a camera of the twin and its camera node has sent no frame"
         )
         raise HTTPException(
             status.HTTP_404_NOT_FOUND, detail=f"no frame of camera {camera_id}: {reason}"

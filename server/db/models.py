@@ -71,6 +71,8 @@ class Camera(Timestamped, Base):
     calibration_run_id: Mapped[int | None] = mapped_column(
         ForeignKey("calibration_runs.id", ondelete="SET NULL", use_alter=True)
     )
+    # Boxes of a detector scored below this are dropped at ingest (migration 0009).
+    score_threshold: Mapped[float] = mapped_column(Float, default=0.5, server_default="0.5")
 
 
 class Projector(Timestamped, Base):
@@ -262,7 +264,10 @@ class TrackPoint(Timestamped, Base):
 class Detection(Timestamped, Base):
     """One detection a camera sent (spec 08): camera, capture time (Unix seconds), distorted
     pixel (u, v) with its covariance (cxx, cxy, cyy) px^2, kind, the height (m) of the point it
-    measures, and the label when the sender knew the target."""
+    measures, and the label when the sender knew the target. A detector's box (migration 0009):
+    `box` [x0, y0, x1, y1] distorted px, its `score` (0-1) and the sides `cut` by the image's
+    edge or a mask; (u, v) is then the box's foot point (core.localization.box_foot), not
+    tracked when the bottom is cut."""
 
     __tablename__ = "detections"
 
@@ -280,6 +285,9 @@ class Detection(Timestamped, Base):
     kind: Mapped[str] = mapped_column(String(20))
     height: Mapped[float] = mapped_column(Float)
     label: Mapped[str | None] = mapped_column(String(200))
+    box: Mapped[list[float] | None] = mapped_column(JSON(none_as_null=True))
+    score: Mapped[float | None] = mapped_column(Float)
+    cut: Mapped[list[str] | None] = mapped_column(JSON(none_as_null=True))
 
 
 class SemanticObject(Timestamped, Base):

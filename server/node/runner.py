@@ -25,6 +25,7 @@ from core.localization.detections import FrameDetection, detect_frame
 from server.node.client import NodeError, ServiceClient, Uploader
 from server.node.clock import StageDelays
 from server.node.config import CameraConfig, NodeConfig
+from server.node.frame_upload import FrameUploads
 from server.node.masks import apply_mask, polygon_mask
 from server.node.sources import (
     TIMEOUT_S,
@@ -104,7 +105,7 @@ class CameraRun:
     config: CameraConfig
     camera_id: int
     size: tuple[int, int]
-    network: NetworkCamera
+    network: NetworkCamera | None  # None: not placed yet, frames are uploaded, nothing detected
     source: Source
     mask: NDArray[np.bool_] | None
     people: PersonDetector = field(default_factory=PersonDetector)
@@ -125,6 +126,7 @@ class Node:
         self.api = api
         self.client = ServiceClient(api, token)
         self.uploader = Uploader(self.client)
+        self.frames = FrameUploads(self.client)
         self._token = token
         self._marker = MarkerDetectorConfig(colour=config.marker.colour)
         self.cameras: list[CameraRun] = []
@@ -141,9 +143,10 @@ class Node:
         self.delays = StageDelays(("capture to received", "waiting", "decode and detect"))
 
     def prepare(self) -> None:
-        """Fetch each camera's registry row and calibration, then open its source. Raises
-        NodeError for an unknown or uncalibrated camera or a bad mask, InvalidInput for a bad
-        source setting, SourceUnavailable for a source that does not open."""
+        """Fetch each camera's registry row and calibration, then open its source (a camera
+        without a calibration only has its frames uploaded, for placing it). Raises NodeError
+        for an unknown camera or a bad mask, InvalidInput for a bad source setting,
+        SourceUnavailable for a source that does not open."""
         try:
             for cam in self.config.cameras:
                 source = make_source(cam, self.api, self._token, self._service_time)
@@ -163,19 +166,26 @@ class Node:
 
     def _camera_run(self, cam: CameraConfig, source: Source) -> CameraRun:
         row = self.client.camera(cam.name, self.config.space)
-        if row.get("K") is None or row.get("T_world_camera") is None:
-            raise NodeError(
-                f"camera {cam.name!r} (id {row['id']}) has no intrinsics or pose in the "
-                "registry; calibrate it before running its node"
-            )
         size = (int(row["width"]), int(row["height"]))
+        network: NetworkCamera | None = None
         try:
-            network = NetworkCamera.from_pose(
-                row["K"], row.get("dist"), row["T_world_camera"], size, cam.name
-            )
+            if row.get("K") is not None and row.get("T_world_camera") is not None:
+                network = NetworkCamera.from_pose(
+                    row["K"], row.get("dist"), row["T_world_camera"], size, cam.name
+                )
             mask = polygon_mask(size, cam.masks)
         except IntspaceError as exc:
             raise NodeError(f"camera {cam.name!r}: {exc}") from exc
+        if network is None:
+            # Its frames let the dashboard place it; detections wait for its pose.
+            log.warning(
+                "camera %r (id %s) has no intrinsics or pose in the registry: uploading its "
+                "frames only; place it (the dashboard's camera page, or POST "
+                "/api/v1/cameras/%s/placement) and restart the node to detect",
+                cam.name,
+                row["id"],
+                row["id"],
+            )
         return CameraRun(cam, int(row["id"]), size, network, source, mask)
 
     def run(self) -> int:
@@ -274,6 +284,9 @@ class Node:
                     f"frames are {image.shape[1]}x{image.shape[0]} px but the registry's "
                     f"calibration is for {run.size[0]}x{run.size[1]}: skipping them",
                 )
+                continue
+            self.frames.offer(run.camera_id, None if frame.jpeg else image, frame.jpeg)
+            if run.network is None:
                 continue
             image = apply_mask(image, run.mask)
             t = frame.t if frame.t is not None else frame.received + self.client.offset
@@ -405,6 +418,7 @@ class Node:
         )
 
     def _heartbeat(self) -> None:
+        self.frames.send_due()
         now = time.time()
         offset = self.client.offset
         for run in self.cameras:

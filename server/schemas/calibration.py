@@ -227,6 +227,64 @@ class NetworkRunResult(ReadSchema):
     )
 
 
+# A camera placed from more clicked points than this is not being placed by hand.
+MAX_PLACEMENT_POINTS = 1000
+
+
+PlacementPixel = Annotated[
+    list[Annotated[float, Field(ge=-1e5, le=1e5, allow_inf_nan=False)]],
+    Field(min_length=2, max_length=2),
+]
+PlacementFloor = Annotated[
+    list[Annotated[float, Field(ge=-1e4, le=1e4, allow_inf_nan=False)]],
+    Field(min_length=2, max_length=2),
+]
+
+
+class PlacementPoint(Schema):
+    """One pixel of the camera's image and the world point it shows."""
+
+    pixel: PlacementPixel = Field(description="[u, v] in the camera's (distorted) pixels.")
+    floor: PlacementFloor = Field(description="[x, y] on the floor plan, metres (world frame).")
+    z: Annotated[float, Field(ge=-10, le=10, allow_inf_nan=False)] = Field(
+        0.0, description="Height of the point above the floor, metres (0: on the floor)."
+    )
+
+
+class PlacementCreate(Schema):
+    """Floor points of a camera: at least 4 pixels whose world positions are known."""
+
+    points: Annotated[list[PlacementPoint], Field(min_length=1, max_length=MAX_PLACEMENT_POINTS)]
+    apply: bool = Field(
+        False, description="Apply the result to the camera at once (pose, and K when estimated)."
+    )
+
+
+class PlacementStd(ReadSchema):
+    position_m: list[float] = Field(description="Of the camera's centre (x, y, z), metres.")
+    rotation_deg: list[float] = Field(
+        description="Of its orientation, as small rotations about the world's x, y, z, degrees."
+    )
+    f_px: float | None = Field(description="Of the focal length, pixels; null when K was known.")
+
+
+class PlacementRunResult(ReadSchema):
+    """A camera placed from floor points (core.calibration.place_camera)."""
+
+    kind: Literal["placement"]
+    camera_id: int
+    T_world_camera: list[list[float]]
+    K: list[list[float]]
+    dist: list[float]
+    f_estimated: bool = Field(description="Whether the focal length was estimated (no K known).")
+    residuals_px: list[float] = Field(description="Per point, |projected - clicked|, pixels.")
+    residuals: list[list[float]] = Field(description="Per point, projected - clicked [du, dv].")
+    rejected: list[int] = Field(description="Indices of the points left out as wrong pairs.")
+    rms: float = Field(description="RMS reprojection error of the points kept, pixels.")
+    std: PlacementStd
+    image_size: list[int]
+
+
 class RunProgress(ReadSchema):
     """How far a run's current (or last) attempt has come."""
 
@@ -315,17 +373,24 @@ class ProjectorRunResult(ReadSchema):
 
 
 class CalibrationRunRead(ReadSchema):
-    """A calibration run of any kind: intrinsics, network, hand-eye (with its arm) or
-    projector, with its status, progress and result."""
+    """A calibration run of any kind: intrinsics, network, hand-eye (with its arm), projector
+    or placement (a camera placed from floor points), with its status, progress and result."""
 
     id: int
     kind: str
-    source: Literal["correspondences", "images", "twin", "poses"]
+    source: Literal["correspondences", "images", "twin", "poses", "points"]
     status: RunStatus
     camera_id: int | None
     arm_id: int | None = Field(None, description="A hand-eye run's arm.")
     options: dict[str, Any]
-    result: CalibrationResult | NetworkRunResult | HandEyeRunResult | ProjectorRunResult | None
+    result: (
+        PlacementRunResult
+        | CalibrationResult
+        | NetworkRunResult
+        | HandEyeRunResult
+        | ProjectorRunResult
+        | None
+    )
     error: str | None
     created_at: UtcDatetime
     updated_at: UtcDatetime

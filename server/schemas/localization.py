@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-from pydantic import Field, model_validator
+from pydantic import Field, field_validator, model_validator
 
 from server.schemas.common import Finite, Id, ReadSchema, Schema, UtcDatetime
 
@@ -19,25 +19,68 @@ MAX_OBSERVATIONS = 20_000
 
 
 Kind = Literal["robot", "person", "unknown"]
+# A box coordinate beyond this (pixels) is not of any camera's image.
+MAX_BOX_COORDINATE = 100_000.0
+BoxCoordinate = Annotated[
+    float, Field(ge=-MAX_BOX_COORDINATE, le=MAX_BOX_COORDINATE, allow_inf_nan=False)
+]
+Box = Annotated[list[BoxCoordinate], Field(min_length=4, max_length=4)]
+BoxSide = Literal["bottom", "top", "left", "right"]
 
 
 class Observation(Schema):
-    """One detection: the camera, its capture time (Unix seconds on the service's clock), the
-    distorted pixel and its uncertainty (sigma_px, or a 2x2 covariance px^2; 1 px when
-    neither), its kind where the sender knows it, the height (m) of the point it measures, and
-    the target's label only when the sender knows which target it is."""
+    """One detection: the camera, its capture time (Unix seconds on the service's clock), and
+    either a distorted pixel with its uncertainty (sigma_px, or a 2x2 covariance px^2; 1 px
+    when neither) and the height (m) of the point it measures, or a detector's box
+    [x0, y0, x1, y1] (distorted px) with its score (0-1) and the sides cut by the image's edge
+    or a mask, whose foot point (bottom centre, on the floor) and covariance the service
+    measures (core.localization.box_foot); its kind where the sender knows it (a box: person
+    unless said), and the target's label only when the sender knows which target it is."""
 
     camera_id: Id
     t: Finite
-    pixel: Pixel
+    pixel: Pixel | None = None
     sigma_px: Annotated[float, Field(gt=0, le=1000, allow_inf_nan=False)] | None = None
     cov: Cov2 | None = None
+    box: Box | None = Field(None, description="[x0, y0, x1, y1], distorted pixels.")
+    score: Annotated[float, Field(ge=0, le=1, allow_inf_nan=False)] | None = Field(
+        None,
+        description="The detector's score of the box; below the camera's threshold it is dropped.",
+    )
+    cut: Annotated[list[BoxSide], Field(max_length=4)] | None = Field(
+        None,
+        description="Sides of the box cut by the image's edge or a mask; a cut bottom is "
+        "stored but gives no floor position.",
+    )
     kind: Kind | None = None
     target: Annotated[str, Field(min_length=1, max_length=200)] | None = None
     height: Annotated[float, Field(ge=-10, le=10, allow_inf_nan=False)] = 0.0
 
+    @field_validator("box")
+    @classmethod
+    def _ordered_box(cls, box: list[float] | None) -> list[float] | None:
+        if box is not None and (box[0] >= box[2] or box[1] >= box[3]):
+            raise ValueError(f"a box is [x0, y0, x1, y1] with x0 < x1 and y0 < y1, got {box}")
+        return box
+
     @model_validator(mode="after")
     def _one_uncertainty(self) -> Observation:
+        if (self.pixel is None) == (self.box is None):
+            raise ValueError(
+                "give either pixel (with its height) or box, not both"
+                if self.pixel is not None
+                else "an observation needs a pixel or a box; it has neither"
+            )
+        if self.box is None and (self.score is not None or self.cut is not None):
+            raise ValueError("score and cut describe a box; send them with box, not pixel")
+        if self.box is not None:
+            if self.sigma_px is not None or self.cov is not None:
+                raise ValueError(
+                    "a box's foot covariance comes from its size (core.localization.box_foot); "
+                    "drop sigma_px and cov"
+                )
+            if self.height != 0.0:
+                raise ValueError("a box's foot point is on the floor: drop height")
         if self.sigma_px is not None and self.cov is not None:
             raise ValueError("give sigma_px or cov, not both")
         if self.cov is not None:

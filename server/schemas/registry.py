@@ -230,6 +230,17 @@ def camera_model_problem(
     return None
 
 
+ScoreThreshold = Annotated[
+    float,
+    Field(
+        ge=0,
+        le=1,
+        allow_inf_nan=False,
+        description="A detector's boxes scored below this are dropped at ingest.",
+    ),
+]
+
+
 class CameraCreate(_PoseInput):
     name: Name
     width: PixelCount
@@ -238,6 +249,7 @@ class CameraCreate(_PoseInput):
     K: Matrix3 | None = None
     dist: Distortion | None = None
     T_world_camera: RigidTransform | None = None
+    score_threshold: ScoreThreshold = 0.5
 
 
 class CameraUpdate(_PoseInput):
@@ -248,6 +260,13 @@ class CameraUpdate(_PoseInput):
     K: Matrix3 | None = None
     dist: Distortion | None = None
     T_world_camera: RigidTransform | None = None
+    score_threshold: ScoreThreshold | None = None
+
+    @model_validator(mode="after")
+    def _threshold_not_cleared(self) -> CameraUpdate:
+        if "score_threshold" in self.model_fields_set and self.score_threshold is None:
+            raise ValueError("score_threshold is a number from 0 to 1; it cannot be cleared")
+        return self
 
 
 class CameraHeartbeat(Schema):
@@ -295,6 +314,7 @@ class CameraRead(ReadSchema):
     T_world_camera: list[list[float]] | None
     status: Literal["uncalibrated", "nominal", "calibrated"]
     calibration_run_id: int | None
+    score_threshold: float = 0.5
     created_at: UtcDatetime
     updated_at: UtcDatetime
     health: CameraHealth | None = Field(

@@ -292,6 +292,11 @@ def compute(
         from server.services.paths import calibrate_projector_run
 
         return calibrate_projector_run(run.inputs, run.options, progress)
+    if run.kind == "placement":
+        # Made finished by POST /cameras/{id}/placement; computed again only if re-queued.
+        from server.services.placement import compute_placement
+
+        return compute_placement(run.camera_id or 0, run.inputs)
     if run.source == "images":
         files = session.execute(
             select(CalibrationRunFile.filename, CalibrationRunFile.data)

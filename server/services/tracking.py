@@ -96,7 +96,9 @@ _RUNS_PER_QUERY = 200
 @dataclass(frozen=True)
 class DetectionIn:
     """One detection to ingest: camera id, capture time (s), distorted pixel (2,), its 2x2
-    covariance px^2, kind, height (m) of the measured point, label or None."""
+    covariance px^2, kind, height (m) of the measured point, label or None; a detector's box
+    (x0, y0, x1, y1), score and cut sides when it came as a box, and whether it measures a
+    floor position (`tracked` False: a box whose bottom is cut, stored only)."""
 
     camera_id: int
     t: float
@@ -105,6 +107,10 @@ class DetectionIn:
     kind: str
     height: float
     label: str | None = None
+    box: tuple[float, float, float, float] | None = None
+    score: float | None = None
+    cut: tuple[str, ...] | None = None
+    tracked: bool = True
 
 
 @dataclass(frozen=True)
@@ -551,6 +557,9 @@ class TrackingService:
                 "kind": d.kind,
                 "height": d.height,
                 "label": d.label,
+                "box": None if d.box is None else list(d.box),
+                "score": d.score,
+                "cut": None if d.cut is None else list(d.cut),
             }
             for d in detections
         ]
@@ -562,11 +571,17 @@ class TrackingService:
         else:
             session.execute(Detection.__table__.insert(), rows)
         session.commit()
+        stored = len(detections)
+        if not all(d.tracked for d in detections):
+            # Stored, but no floor position: not for the tracker.
+            keep = [k for k, d in enumerate(detections) if d.tracked]
+            detections = [detections[k] for k in keep]
+            ids = None if ids is None else [ids[k] for k in keep]
         frames = camera_frames(detections, ids)
         if blank:
             frames = sorted(frames + blank, key=lambda f: (f.t, f.camera_id))
-        late = self.submit(frames, space_of)
-        return IngestResult(len(detections), len(frames), late)
+        late = self.submit(frames, space_of) if frames else 0
+        return IngestResult(stored, len(frames), late)
 
     def submit(self, frames: Sequence[CameraFrame], space_of: dict[int, int | None]) -> int:
         """Queue camera frames for their spaces' trackers; return how many came too late (older

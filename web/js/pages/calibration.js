@@ -721,6 +721,39 @@ function resultView(run) {
 /** A 4x4 pose as its rotation matrix and translation (metres), in a table. */
 const poseTable = (T, testid) => matrixTable(T, 4, testid);
 
+/** A placement run's result: the camera's pose and K from floor points, every point's
+ * residual (the pairs left out included) and the standard deviations. */
+function placementResultView(run) {
+  const r = run.result;
+  const std = r.std || {};
+  return h(
+    "div",
+    { class: "grid two", testid: "placement-result" },
+    panel(
+      "Camera placed from floor points",
+      `T_world_camera and K; RMS ${fmt(r.rms, 3)} px over the pairs kept` +
+        (r.rejected.length ? `; left out: ${r.rejected.map((k) => `#${k + 1}`).join(", ")}` : ""),
+      poseTable(r.T_world_camera, "placement-T"),
+      matrixTable(r.K, 2, "placement-K"),
+      h(
+        "dl",
+        { class: "facts" },
+        h("dt", null, "Position std"),
+        h("dd", { class: "num" }, `${(std.position_m || []).map((v) => fmt(v * 100, 2)).join(", ")} cm`),
+        h("dt", null, "Rotation std"),
+        h("dd", { class: "num" }, `${(std.rotation_deg || []).map((v) => fmt(v, 3)).join(", ")}°`),
+        h("dt", null, "Focal length std"),
+        h("dd", { class: "num" }, std.f_px != null ? `${fmt(std.f_px, 2)} px` : "K known"),
+      ),
+    ),
+    panel(
+      "Residual per pair",
+      "Reprojection error of each clicked pair, pixels",
+      barChart(r.residuals_px, { reference: r.rms, title: "Residual per pair (px)" }),
+    ),
+  );
+}
+
 /** A projector run's result: the mount T_world_projector, its spread and its twin errors. */
 function projectorResultView(run) {
   const r = run.result;
@@ -1064,6 +1097,8 @@ export async function renderRun(main, [id], _query, setTitle) {
       mount(body, projectorResultView(run));
     else if (run.status === "succeeded" && run.result && run.kind === "hand-eye")
       mount(body, handEyeResultView(run));
+    else if (run.status === "succeeded" && run.result && run.kind === "placement")
+      mount(body, placementResultView(run));
     else if (run.status === "succeeded" && run.result?.K) mount(body, resultView(run));
     else if (run.status === "failed" || run.status === "interrupted")
       mount(

@@ -2,6 +2,7 @@
 
 import { api, download, list } from "../api.js";
 import { barChart } from "../plot.js";
+import { placePanel } from "./placement.js";
 import {
   badge,
   errorBox,
@@ -62,7 +63,7 @@ function liveView(id) {
             { class: "empty", testid: "camera-live-missing" },
             response.status === 404
               ? "No live image: the digital twin is not running, or it has no frame of this " +
-                  "camera yet."
+                  "camera yet, and no camera node has sent one."
               : `No live image (HTTP ${response.status}).`,
           ),
         );
@@ -514,10 +515,12 @@ export async function renderCamera(main, [id], _query, setTitle) {
     : null;
 
   const live = liveView(id);
+  const place = await placePanel(cam, () => location.reload());
   mount(
     main,
     h("div", { class: "grid wide-left" }, intrinsics, details),
     h("div", { class: "grid two" }, live.panel, pose),
+    place,
     residuals,
     panel("Calibration history", "Every calibration applied to this camera, newest first", history),
   );

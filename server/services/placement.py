@@ -1,0 +1,92 @@
+"""Placement runs: a camera placed from floor points, created finished (the fit takes
+milliseconds), stored like any calibration run and applied through the same route.
+
+A run of kind "placement" (source "points") keeps the clicked pairs as its inputs and the
+camera's intrinsics it was computed with; its result is the camera's pose T_world_camera, K
+(estimated when the camera had none), every point's residual and the standard deviations.
+Applying it sets the camera's pose, and its K and distortion when they were estimated.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from core.calibration import place_camera
+from server.db.base import utcnow
+from server.db.models import RUN_SUCCEEDED, CalibrationRun, Camera
+from server.schemas.calibration import PlacementCreate
+
+
+def placement_inputs(body: PlacementCreate, camera: Camera) -> dict[str, Any]:
+    """Return the stored inputs of a placement of `camera`: its points, image size and the
+    intrinsics it has now (None: the focal length is estimated)."""
+    return {
+        "points": [p.model_dump() for p in body.points],
+        "image_size": [camera.width, camera.height],
+        "K": camera.K,
+        "dist": camera.dist,
+    }
+
+
+def compute_placement(camera_id: int, inputs: dict[str, Any]) -> dict[str, Any]:
+    """Return the result of a placement run's inputs (raising core's typed errors)."""
+    points = inputs["points"]
+    world = np.array([[*p["floor"], p.get("z", 0.0)] for p in points], dtype=np.float64)
+    pixels = np.array([p["pixel"] for p in points], dtype=np.float64).reshape(-1, 2)
+    K = inputs.get("K")
+    fit = place_camera(
+        world.reshape(-1, 3),
+        pixels,
+        tuple(inputs["image_size"]),
+        None if K is None else np.asarray(K),
+        None if K is None else inputs.get("dist"),
+    )
+    return {
+        "kind": "placement",
+        "camera_id": camera_id,
+        "T_world_camera": fit.T_world_camera.tolist(),
+        "K": fit.K.tolist(),
+        "dist": fit.dist.tolist(),
+        "f_estimated": fit.f_estimated,
+        "residuals_px": fit.residuals_px.tolist(),
+        "residuals": fit.residuals.tolist(),
+        "rejected": fit.rejected.tolist(),
+        "rms": fit.rms,
+        "std": {
+            "position_m": fit.std_position_m.tolist(),
+            "rotation_deg": fit.std_rotation_deg.tolist(),
+            "f_px": fit.std_f_px,
+        },
+        "image_size": list(inputs["image_size"]),
+    }
+
+
+def placement_run(body: PlacementCreate, camera: Camera) -> CalibrationRun:
+    """Return a finished placement run of `camera` (not yet added to a session)."""
+    inputs = placement_inputs(body, camera)
+    result = compute_placement(camera.id, inputs)
+    now = utcnow()
+    return CalibrationRun(
+        kind="placement",
+        source="points",
+        status=RUN_SUCCEEDED,
+        camera_id=camera.id,
+        inputs=inputs,
+        options={},
+        result=result,
+        attempts=0,
+        started_at=now,
+        finished_at=now,
+    )
+
+
+def placement_values(result: dict[str, Any]) -> dict[str, Any]:
+    """Return the camera columns a placement result sets: the pose, and K and distortion when
+    they were estimated (a camera with known intrinsics keeps them)."""
+    values: dict[str, Any] = {"T_world_camera": result["T_world_camera"]}
+    if result.get("f_estimated"):
+        values["K"] = result["K"]
+        values["dist"] = result["dist"]
+    return values
