@@ -20,7 +20,7 @@ from server.node.runner import Node
 # The node's side is the same on both databases (the service's side runs on both in
 # test_api_placement.py).
 @pytest.mark.parametrize("database_url", ["sqlite"], indirect=True)
-def test_node_uploads_an_unplaced_cameras_frames_at_most_once_a_second(client, admin):
+def test_node_uploads_an_unplaced_cameras_frames_at_most_once_a_second(client, admin, tmp_path):
     cid = client.post(
         "/api/v1/cameras", json={"name": "porch", "width": 320, "height": 240}, headers=admin
     ).json()["id"]
@@ -29,7 +29,13 @@ def test_node_uploads_an_unplaced_cameras_frames_at_most_once_a_second(client, a
         json={"name": "porch node", "scopes": ["ingest"], "camera_ids": [cid]},
         headers=admin,
     ).json()["token"]
-    config = NodeConfig(cameras=[CameraConfig(name="porch", source="/dev/null-camera")])
+    # A real file the node opens at start; the test hands its reader's queue its own frames.
+    clip = str(tmp_path / "porch.avi")
+    writer = cv2.VideoWriter(clip, cv2.VideoWriter_fourcc(*"MJPG"), 5.0, (320, 240))
+    for _ in range(3):
+        writer.write(np.zeros((240, 320, 3), np.uint8))
+    writer.release()
+    config = NodeConfig(cameras=[CameraConfig(name="porch", source=clip)])
     node = Node(config, "http://testserver/api/v1", token)
     node.client._http = client  # the app's own transport
     client.headers["Authorization"] = f"Bearer {token}"
