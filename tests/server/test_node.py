@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from core.errors import InvalidInput
-from server.api.cameras import CameraHealthBook
+from server.services.camera_health import CameraHealthBook
 from server.cli import main
 from server.node.clock import ClockOffset
 from server.node.frames import Frame, NewestFrame
