@@ -35,7 +35,7 @@ from core.sim.installation import installed_calibration
 from core.sim.motion import Patrol
 from core.sim.occluders import scene_occluders
 from core.sim.render import camera_model, renderer_for
-from server.db.models import Camera, CameraCalibration, Robot, Room, Space
+from server.db.models import Camera, CameraCalibration, Landmark, Projector, Robot, Room, Space
 from server.schemas.registry import CameraHeartbeat
 from server.services.tracking import DetectionIn
 
@@ -133,6 +133,38 @@ def bootstrap_space(session: Session, scene: Scene) -> tuple[int, dict[str, int]
         select(Camera.id, Camera.name).where(Camera.space_id == space.id, Camera.name.in_(names))
     ).all()
     return space.id, {name: id for id, name in rows}
+
+
+def register_devices(session: Session, space_id: int, scene: Scene) -> None:
+    """Register the scene's projector and printed landmarks in space `space_id` where they are
+    missing (a projector by name, a landmark by payload), so a restart adds nothing twice and
+    what a user changed stays.
+
+    What an installer knows is entered, not the twin's truth: the projector without a pose
+    (uncalibrated until a projector calibration run is applied) and the landmarks with their
+    kind, payload and printed size but no world pose (the survey locates them)."""
+    projector = scene.projector
+    if projector is not None:
+        known = session.scalar(
+            select(Projector.id).where(
+                Projector.space_id == space_id, Projector.name == projector.name
+            )
+        )
+        if known is None:
+            # A laser spot has no image: the registry's projector-as-camera is 1 x 1 pixels.
+            session.add(Projector(space_id=space_id, name=projector.name, width=1, height=1))
+    payloads = set(
+        session.scalars(select(Landmark.payload).where(Landmark.space_id == space_id)).all()
+    )
+    for landmark in scene.landmarks:
+        if landmark.payload and landmark.payload not in payloads:
+            session.add(
+                Landmark(
+                    space_id=space_id, kind="qr", payload=landmark.payload, size_m=landmark.size
+                )
+            )
+            payloads.add(landmark.payload)
+    session.commit()
 
 
 def registry_cameras(
@@ -250,6 +282,7 @@ class Twin:
         """Register the scene's space in the registry (first start) and map its cameras."""
         with self._factory() as session:
             self.space_id, self.camera_ids = bootstrap_space(session, self.scene)
+            register_devices(session, self.space_id, self.scene)
         if self._tracking is not None:
             # The floor plan is what an installer knows of the home (not the twin's truth).
             self._tracking.set_floor_plan(self.space_id, scene_occluders(self.scene))

@@ -1,17 +1,20 @@
 """The digital twin's cameras report their health as camera nodes do: online while their frames
 come, stalled while the twin is paused, with the frame rate, skipped frames and the newest
-frame's time; a camera nobody reports on stays offline."""
+frame's time; a camera nobody reports on stays offline. The twin's projector and printed
+landmarks enter the registry with its home, once."""
 
 from __future__ import annotations
 
 import time
 
+import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
 from core.sim import default_scene
 from server.app import create_app
 from server.services.camera_health import STALLED_AFTER_S
+from server.services.twin import bootstrap_space, register_devices
 
 RATE_HZ = 4.0
 
@@ -98,3 +101,35 @@ def test_twin_cameras_report_their_health(twin_client, admin):
     # A camera of another space that no node reports on: offline, never seen.
     health = client.get(f"/api/v1/cameras/{foreign}", headers=admin).json()["health"]
     assert health == {**health, "status": "offline", "since": None, "fps": None}
+
+
+def test_twin_registers_its_projector_and_landmarks_once(client, admin):
+    scene = default_scene()
+    with client.app.state.session_factory() as session:
+        space, _ = bootstrap_space(session, scene)
+        register_devices(session, space, scene)
+    projectors = client.get(f"/api/v1/projectors?space_id={space}", headers=admin).json()
+    (projector,) = projectors["items"]
+    # Entered as an installer knows it: uncalibrated, its mount found by a calibration run.
+    assert projector["name"] == scene.projector.name and projector["T_world_projector"] is None
+    landmarks = client.get(f"/api/v1/landmarks?space_id={space}", headers=admin).json()["items"]
+    assert sorted(lm["payload"] for lm in landmarks) == sorted(lm.payload for lm in scene.landmarks)
+    sizes = {lm.payload: lm.size for lm in scene.landmarks}
+    assert all(lm["size_m"] == sizes[lm["payload"]] for lm in landmarks)
+    # No world pose: that is the twin's truth, which the survey measures.
+    assert all(lm["kind"] == "qr" and lm["T_world_landmark"] is None for lm in landmarks)
+
+    # A second start adds nothing and keeps what a user changed.
+    moved = np.eye(4)
+    moved[:3, 3] = [1.0, 2.0, 0.9]
+    body = {"T_world_landmark": moved.tolist()}
+    lm_id = landmarks[0]["id"]
+    assert client.patch(f"/api/v1/landmarks/{lm_id}", json=body, headers=admin).status_code == 200
+    with client.app.state.session_factory() as session:
+        assert bootstrap_space(session, scene)[0] == space
+        register_devices(session, space, scene)
+    assert client.get("/api/v1/projectors", headers=admin).json()["total"] == 1
+    again = client.get(f"/api/v1/landmarks?space_id={space}", headers=admin).json()
+    assert again["total"] == len(scene.landmarks)
+    kept = client.get(f"/api/v1/landmarks/{lm_id}", headers=admin).json()
+    assert np.allclose(kept["T_world_landmark"], moved)
