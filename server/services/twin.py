@@ -271,6 +271,7 @@ class Twin:
         self._last_scene = 0.0
         self._last_image = 0.0
         self._tracks_shown: set[str] = set()
+        self._in_scene = False
         self.steps = 0
         self.errors: deque[float] = deque(maxlen=_ERRORS_KEPT)
         self._detectors: dict[str, PersonDetector] = {}
@@ -619,6 +620,10 @@ class Twin:
             return
         self._last_scene = now
         try:
+            if not self._scene_sync.shows(self.space_id):
+                self._leave_scene(scene)
+                return
+            self._in_scene = True
             robot = self.scene.robot
             if state.robot is not None and robot is not None:
                 scene.upsert_agent(
@@ -645,7 +650,11 @@ class Twin:
                     }
                 )
             _, items = self._targets.snapshot()
-            live = {i["label"]: i for i in items if i["kind"] in ("robot", "person")}
+            live = {
+                i["label"]: i
+                for i in items
+                if i["kind"] in ("robot", "person") and i["space_id"] == self.space_id
+            }
             shown = set(live)
             for label, item in live.items():
                 scene.set_track(label, self._targets.track(label)[-300:], item["cov"])
@@ -658,3 +667,17 @@ class Twin:
                     scene.set_camera_image(frame.camera_id, frame.image)
         except Exception:
             log.exception("pushing the twin to the 3D scene failed")
+
+    def _leave_scene(self, scene: Any) -> None:
+        """Take the twin's bodies and tracks out of the 3D scene while it shows another space
+        (once: nothing is sent while it stays away)."""
+        if not self._in_scene:
+            return
+        self._in_scene = False
+        if self.scene.robot is not None:
+            scene.remove_agent("robot")
+        for walker in self.scene.people:
+            scene.remove_agent(f"walker-{walker.name}")
+        for label in self._tracks_shown:
+            scene.set_track(label, [])
+        self._tracks_shown = set()
