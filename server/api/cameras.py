@@ -10,11 +10,13 @@ from fastapi.responses import PlainTextResponse
 from sqlalchemy import select
 
 from server.api._crud import (
+    Unassigned,
     apply_changes,
     check_camera_model,
     check_references,
     check_unique_name,
     get_or_404,
+    in_space,
     paginate,
 )
 from server.api.deps import PageDep, ReadAccess, SceneDep, SessionDep, WriteAccess
@@ -53,14 +55,14 @@ def list_cameras(
     page: PageDep,
     request: Request,
     space_id: Annotated[int | None, Query(ge=1, le=MAX_ID)] = None,
+    unassigned: Unassigned = False,
     status: Annotated[Literal["uncalibrated", "nominal", "calibrated"] | None, Query()] = None,
     name: Annotated[str | None, Query(min_length=1, max_length=200)] = None,
 ):
-    """Return a page of cameras with their health, optionally of one space, one status or
-    one name."""
+    """Return a page of cameras with their health, optionally of one space (and those of no
+    space), one status or one name."""
     stmt = select(Camera).order_by(Camera.id)
-    if space_id is not None:
-        stmt = stmt.where(Camera.space_id == space_id)
+    stmt = in_space(stmt, Camera.space_id, space_id, unassigned)
     if status is not None:
         stmt = stmt.where(Camera.status == status)
     if name is not None:
