@@ -379,6 +379,7 @@ class Twin:
                 "running": self.running,
                 "paused": self._paused.is_set(),
                 "scene": self.scene.name,
+                "space_id": self.space_id,
                 "sim_time": self.sim_time,
                 "steps": self.steps,
                 "rate_hz": self.rate_hz,
