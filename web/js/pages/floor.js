@@ -754,21 +754,21 @@ export async function renderFloor(main) {
         panel("Digital twin", "The simulated home: clock and controls", twinBox, twinNotice),
         panel(
           "Targets",
-          "Latest position of each target; std: one standard deviation along the worst direction",
+          "Latest position of each target; σ: one standard deviation along the worst direction",
           emptyNote,
           h(
             "div",
             { class: "table-wrap" },
             h(
               "table",
-              { testid: "targets-table" },
+              { testid: "targets-table", class: "compact" },
               h(
                 "thead",
                 null,
                 h(
                   "tr",
                   null,
-                  ["Target", "Kind", "State", "x (m)", "y (m)", "Std (mm)"].map((t, i) =>
+                  ["Target", "Kind", "State", "x (m)", "y (m)", "σ (mm)"].map((t, i) =>
                     h("th", { class: i >= 3 ? "num" : null }, t),
                   ),
                 ),
