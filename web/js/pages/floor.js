@@ -754,7 +754,7 @@ export async function renderFloor(main) {
         panel("Digital twin", "The simulated home: clock and controls", twinBox, twinNotice),
         panel(
           "Targets",
-          "Latest position of each target; σ: one standard deviation along the worst direction",
+          "Latest position of each target; sd: one standard deviation along the worst direction",
           emptyNote,
           h(
             "div",
@@ -768,7 +768,7 @@ export async function renderFloor(main) {
                 h(
                   "tr",
                   null,
-                  ["Target", "Kind", "State", "x (m)", "y (m)", "σ (mm)"].map((t, i) =>
+                  ["Target", "Kind", "State", "x (m)", "y (m)", "sd (mm)"].map((t, i) =>
                     h("th", { class: i >= 3 ? "num" : null }, t),
                   ),
                 ),
