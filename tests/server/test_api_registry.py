@@ -278,7 +278,11 @@ def test_request_size_limit(make_settings, admin):
 def test_scene_link_uses_the_callers_host(client):
     response = client.get("/api/v1/scene", headers={"Host": "livingroom.local:8000"})
     # The scene is served through the API's own origin (its proxy under /api/v1/scene/view/).
-    assert response.json() == {"viser_url": "http://livingroom.local:8000/api/v1/scene/view/"}
+    # No scene runs in this process: it shows no space.
+    assert response.json() == {
+        "viser_url": "http://livingroom.local:8000/api/v1/scene/view/",
+        "space_id": None,
+    }
 
 
 def test_openapi_documents_the_api(client):
