@@ -244,6 +244,7 @@ class Twin:
         # Capture times of the latest instants (their frame rate) and the frame periods skipped
         # since the start because steps came late (the cameras' dropped frames).
         self._frame_times: deque[float] = deque(maxlen=_FPS_FRAMES + 1)
+        self._last_frame_t: float | None = None  # kept across a pause or a reset
         self.dropped = 0
         self._seed = seed
         self.rate_hz = float(rate_hz)
@@ -447,15 +448,16 @@ class Twin:
             return
         with self._lock:
             times = list(self._frame_times)
+            last = self._last_frame_t
         if len(times) >= 2 and times[-1] > times[0]:
             fps = (len(times) - 1) / (times[-1] - times[0])
         else:
-            fps = self.rate_hz if times else 0.0
+            fps = self.rate_hz if last is not None else 0.0
         beat = CameraHeartbeat(
             fps=min(fps, 10_000.0),
             dropped=self.dropped,
             clock_offset_s=0.0,
-            last_frame_t=times[-1] if times else None,
+            last_frame_t=last,
         )
         for camera_id in self.camera_ids.values():
             self._health.beat(camera_id, beat)
@@ -506,6 +508,7 @@ class Twin:
             frames = {cid: CameraFrame(cid, name, stamp, image) for name, cid, image in rendered}
             self._frames.update(frames)
             self._frame_times.append(stamp)
+            self._last_frame_t = stamp
         robot = self.scene.robot
         marker_height = robot.marker.height if robot is not None and robot.marker else 0.0
         network = self._network()
