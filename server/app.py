@@ -44,6 +44,7 @@ from server.api.limits import RequestSizeLimit
 from server.db.session import make_engine, make_session_factory
 from server.security import AuthFailureLimiter, SecurityHeaders, install_log_redaction
 from server.services.auth import TokenCache
+from server.services.camera_health import CameraHealthBook
 from server.services.frames import LatestFrames
 from server.services.runs import LeasePolicy, RunExecutor
 from server.services.scene_sync import SceneSync
@@ -102,6 +103,7 @@ def _start_twin(settings: Settings, factory, live: LiveTargets, app: FastAPI):
         rate_hz=settings.twin_rate_hz,
         seed=settings.twin_seed,
         detect=settings.twin_detection == "internal",
+        health=app.state.camera_health,
     )
     twin.bootstrap()
     return twin
@@ -225,6 +227,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.auth_limiter = AuthFailureLimiter(settings.auth_failure_limit)
     app.state.scene_sync = SceneSync(None)
     app.state.latest_frames = LatestFrames()
+    app.state.camera_health = CameraHealthBook()
     app.state.viser_host = "127.0.0.1"
     app.state.viser_port = settings.viser_port
 

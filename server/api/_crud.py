@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
-from typing import Any, TypeVar
+from typing import Annotated, Any, TypeVar
 
-from fastapi import HTTPException, status
-from sqlalchemy import Select, func, select
+from fastapi import HTTPException, Query, status
+from sqlalchemy import Select, func, or_, select
 from sqlalchemy.orm import Session
 
 from server.api.deps import Pagination
@@ -14,6 +14,28 @@ from server.db.base import Base
 from server.schemas.registry import camera_model_problem
 
 M = TypeVar("M", bound=Base)
+S = TypeVar("S", bound=Select[Any])
+
+# A list route's `unassigned` filter: the devices registered in no space.
+Unassigned = Annotated[
+    bool,
+    Query(
+        description="With space_id: that space's rows and those of no space; alone: only "
+        "those of no space."
+    ),
+]
+
+
+def in_space(stmt: S, column: Any, space_id: int | None, unassigned: bool) -> S:
+    """Return `stmt` keeping the rows whose `column` is `space_id` and, with `unassigned`,
+    those of no space (only those when `space_id` is None); every row when neither is set."""
+    if space_id is not None and unassigned:
+        return stmt.where(or_(column == space_id, column.is_(None)))
+    if space_id is not None:
+        return stmt.where(column == space_id)
+    if unassigned:
+        return stmt.where(column.is_(None))
+    return stmt
 
 
 def get_or_404(session: Session, model: type[M], id: int, what: str) -> M:

@@ -15,7 +15,14 @@ from sqlalchemy import select
 from core.errors import InvalidInput
 from core.landmarks import detect_landmarks
 from core.landmarks.artwork import to_pdf, to_png, to_svg
-from server.api._crud import apply_changes, check_references, get_or_404, paginate
+from server.api._crud import (
+    Unassigned,
+    apply_changes,
+    check_references,
+    get_or_404,
+    in_space,
+    paginate,
+)
 from server.api.deps import PageDep, ReadAccess, SceneDep, SessionDep, SettingsDep, WriteAccess
 from server.api.errors import PROBLEM_RESPONSES, FieldProblem
 from server.api.limits import check_image_size
@@ -39,12 +46,13 @@ def list_landmarks(
     session: SessionDep,
     page: PageDep,
     space_id: Annotated[int | None, Query(ge=1, le=MAX_ID)] = None,
+    unassigned: Unassigned = False,
     kind: Annotated[LandmarkKind | None, Query()] = None,
 ):
-    """Return a page of landmarks, optionally of one space or one kind."""
+    """Return a page of landmarks, optionally of one space (and those of no space) or one
+    kind."""
     stmt = select(Landmark).order_by(Landmark.id)
-    if space_id is not None:
-        stmt = stmt.where(Landmark.space_id == space_id)
+    stmt = in_space(stmt, Landmark.space_id, space_id, unassigned)
     if kind is not None:
         stmt = stmt.where(Landmark.kind == kind)
     return paginate(session, stmt, page)

@@ -8,11 +8,13 @@ from fastapi import APIRouter, Path, Query, status
 from sqlalchemy import select
 
 from server.api._crud import (
+    Unassigned,
     apply_changes,
     check_camera_model,
     check_references,
     check_unique_name,
     get_or_404,
+    in_space,
     paginate,
 )
 from server.api.deps import PageDep, ReadAccess, SessionDep, WriteAccess
@@ -30,11 +32,11 @@ def list_projectors(
     session: SessionDep,
     page: PageDep,
     space_id: Annotated[int | None, Query(ge=1, le=MAX_ID)] = None,
+    unassigned: Unassigned = False,
 ):
-    """Return a page of projectors, optionally of one space."""
+    """Return a page of projectors, optionally of one space (and those of no space)."""
     stmt = select(Projector).order_by(Projector.id)
-    if space_id is not None:
-        stmt = stmt.where(Projector.space_id == space_id)
+    stmt = in_space(stmt, Projector.space_id, space_id, unassigned)
     return paginate(session, stmt, page)
 
 

@@ -8,10 +8,12 @@ from fastapi import APIRouter, Path, Query, status
 from sqlalchemy import select
 
 from server.api._crud import (
+    Unassigned,
     apply_changes,
     check_references,
     check_unique_name,
     get_or_404,
+    in_space,
     paginate,
 )
 from server.api.deps import PageDep, ReadAccess, SessionDep, WriteAccess
@@ -37,11 +39,11 @@ def list_robots(
     session: SessionDep,
     page: PageDep,
     space_id: Annotated[int | None, Query(ge=1, le=MAX_ID)] = None,
+    unassigned: Unassigned = False,
 ):
-    """Return a page of robots, optionally of one space."""
+    """Return a page of robots, optionally of one space (and those of no space)."""
     stmt = select(Robot).order_by(Robot.id)
-    if space_id is not None:
-        stmt = stmt.where(Robot.space_id == space_id)
+    stmt = in_space(stmt, Robot.space_id, space_id, unassigned)
     return paginate(session, stmt, page)
 
 

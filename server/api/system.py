@@ -8,10 +8,13 @@ from fastapi import APIRouter, HTTPException, Request, status
 from fastapi.responses import FileResponse, RedirectResponse
 
 import server
-from server.api.deps import SessionDep, SettingsDep
+from server.api._crud import get_or_404
+from server.api.deps import SceneDep, SessionDep, SettingsDep, WriteAccess
+from server.api.errors import PROBLEM_RESPONSES
 from server.db.migrate import current_revision
+from server.db.models import Space
 from server.db.session import storage_problem
-from server.schemas.system import Health, SceneLink
+from server.schemas.system import Health, SceneLink, SceneSpace
 
 router = APIRouter(tags=["system"])
 
@@ -39,11 +42,36 @@ def health(request: Request, session: SessionDep, settings: SettingsDep) -> Heal
 
 
 @router.get("/scene", response_model=SceneLink)
-def scene_link(request: Request) -> SceneLink:
-    """Return the address of the live 3D scene on the host and port the caller used: the
-    service proxies the viser viewer (which listens on loopback only) under /api/v1/scene/view/,
-    behind the same credentials as the API."""
-    return SceneLink(viser_url=str(request.base_url).rstrip("/") + SCENE_VIEW_PATH)
+def scene_link(request: Request, scene: SceneDep) -> SceneLink:
+    """Return the address of the live 3D scene on the host and port the caller used (the
+    service proxies the viser viewer, which listens on loopback only, under /api/v1/scene/view/,
+    behind the same credentials as the API) and the space it shows."""
+    return SceneLink(
+        viser_url=str(request.base_url).rstrip("/") + SCENE_VIEW_PATH,
+        space_id=scene.space_id if scene.scene is not None else None,
+    )
+
+
+@router.put(
+    "/scene",
+    response_model=SceneLink,
+    dependencies=[WriteAccess],
+    responses=PROBLEM_RESPONSES,
+)
+def show_space(
+    body: SceneSpace, request: Request, session: SessionDep, scene: SceneDep
+) -> SceneLink:
+    """Show another space in the live 3D scene (for every viewer): its floor plan, cameras,
+    robot, landmarks and maps, and no other space's. 404: no such space; 409: the scene does
+    not run in this process."""
+    get_or_404(session, Space, body.space_id, "space")
+    if scene.scene is None:
+        raise HTTPException(
+            status.HTTP_409_CONFLICT,
+            detail="the 3D scene does not run in this process (INTSPACE_VISER_ENABLED)",
+        )
+    scene.show(session, body.space_id)
+    return scene_link(request, scene)
 
 
 @router.get("/docs", include_in_schema=False)

@@ -21,6 +21,9 @@ from server.services.targets import LIVE
 
 router = APIRouter(tags=["localization"], responses=PROBLEM_RESPONSES)
 TargetId = Annotated[int, Path(ge=1, le=MAX_ID)]
+SpaceFilter = Annotated[
+    int | None, Query(ge=1, le=MAX_ID, description="Only the targets of this space.")
+]
 # The stream's fastest rate (messages per second): a change waits at most 1 / _STREAM_HZ s for
 # the previous message's slot, yet a tracker updating on every camera frame (ten cameras at
 # 10 Hz) does not send a browser a hundred messages a second.
@@ -38,14 +41,18 @@ def list_targets(
         Literal["live", "all"],
         Query(description="live: confirmed and coasting targets; all: ended ones too."),
     ] = "live",
+    space_id: SpaceFilter = None,
 ):
     """Return a page of targets with their latest position and life cycle state, newest
-    first (by last update): the live ones, or all with state=all; optionally of one kind."""
+    first (by last update): the live ones, or all with state=all; optionally of one kind or
+    one space."""
     stmt = select(Target).order_by(Target.last_seen.desc().nulls_last(), Target.id.desc())
     if state == "live":
         stmt = stmt.where(Target.state.in_(LIVE))
     if kind is not None:
         stmt = stmt.where(Target.kind == kind)
+    if space_id is not None:
+        stmt = stmt.where(Target.space_id == space_id)
     return paginate(session, stmt, page)
 
 
@@ -58,14 +65,17 @@ def list_tracks(
     ] = None,
     points: Annotated[int, Query(ge=1, le=2000, description="Newest points per target.")] = 400,
     targets: Annotated[int, Query(ge=1, le=200, description="Newest targets.")] = 50,
+    space_id: SpaceFilter = None,
 ):
-    """Return the recent track of each of the newest targets (live, or all) in one answer: the
-    newest `points` points at or after `since`, oldest first, so a page draws where everyone
-    went without a request per target."""
+    """Return the recent track of each of the newest targets (live, or all; of one space or
+    every one) in one answer: the newest `points` points at or after `since`, oldest first, so
+    a page draws where everyone went without a request per target."""
     since = time.time() - 60.0 if since is None else since
     stmt = select(Target).where(Target.last_seen >= since)
     if state == "live":
         stmt = stmt.where(Target.state.in_(LIVE))
+    if space_id is not None:
+        stmt = stmt.where(Target.space_id == space_id)
     rows = session.scalars(
         stmt.order_by(Target.last_seen.desc().nulls_last(), Target.id.desc()).limit(targets)
     ).all()
@@ -133,7 +143,8 @@ async def stream_targets(websocket: WebSocket) -> None:
     `Authorization: Bearer <read token>`, by offering the subprotocols `intspace` and
     `bearer.<read token>` (the answer names only `intspace`), or with the dashboard's session
     cookie from the service's own page; tokens in the URL are refused. A refused credential
-    closes the socket with code 1008 and the reason."""
+    closes the socket with code 1008 and the reason. `?space_id=N` streams only that space's
+    targets (a message is still sent when another space's change, with the same targets)."""
     if "token" in websocket.query_params:
         await websocket.accept()
         await websocket.close(
@@ -148,6 +159,17 @@ async def stream_targets(websocket: WebSocket) -> None:
         await websocket.accept()
         await websocket.close(code=status.WS_1008_POLICY_VIOLATION, reason=refused.detail[:120])
         return
+    raw_space = websocket.query_params.get("space_id")
+    space_id: int | None = None
+    if raw_space is not None:
+        if not raw_space.isdigit() or not 1 <= int(raw_space) <= MAX_ID:
+            await websocket.accept()
+            await websocket.close(
+                code=status.WS_1008_POLICY_VIOLATION,
+                reason=f"space_id must be an integer from 1 to {MAX_ID}",
+            )
+            return
+        space_id = int(raw_space)
     await websocket.accept(subprotocol=who.subprotocol)
     live = websocket.app.state.targets
     seen = -1
@@ -166,7 +188,7 @@ async def stream_targets(websocket: WebSocket) -> None:
             if live.version != seen:
                 wait = max(0.0, last_sent + 1.0 / _STREAM_HZ - loop.time())
                 if wait == 0.0:
-                    seen, text = _positions_message(live)
+                    seen, text = _positions_message(live, space_id)
                     last_sent = loop.time()
                     await websocket.send_text(text)
                     continue
@@ -186,17 +208,24 @@ async def stream_targets(websocket: WebSocket) -> None:
         receiving.cancel()
 
 
-# The last positions message of each live-targets store, by its version: every subscriber of
-# a version sends the same text, encoded once (the streams all run on the event loop's thread).
-_ENCODED: weakref.WeakKeyDictionary[Any, tuple[int, str]] = weakref.WeakKeyDictionary()
+# The last positions message of each live-targets store and space (None: every space), by its
+# version: every subscriber of a version sends the same text, encoded once (the streams all run
+# on the event loop's thread).
+_ENCODED: weakref.WeakKeyDictionary[Any, dict[int | None, tuple[int, str]]] = (
+    weakref.WeakKeyDictionary()
+)
 
 
-def _positions_message(live: Any) -> tuple[int, str]:
-    """Return (version, the stream's JSON text) of the live targets now."""
-    hit = _ENCODED.get(live)
+def _positions_message(live: Any, space_id: int | None = None) -> tuple[int, str]:
+    """Return (version, the stream's JSON text) of the live targets now (of one space, or of
+    every space when `space_id` is None)."""
+    cache = _ENCODED.setdefault(live, {})
+    hit = cache.get(space_id)
     if hit is not None and hit[0] == live.version:
         return hit
     version, items = live.snapshot()
+    if space_id is not None:
+        items = [i for i in items if i["space_id"] == space_id]
     text = json.dumps(
         {
             "type": "positions",
@@ -206,7 +235,7 @@ def _positions_message(live: Any) -> tuple[int, str]:
         separators=(",", ":"),
         ensure_ascii=False,
     )
-    _ENCODED[live] = (version, text)
+    cache[space_id] = (version, text)
     return version, text
 
 

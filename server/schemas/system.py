@@ -4,7 +4,9 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, ConfigDict, Field
+
+from server.schemas.common import MAX_ID
 
 
 class Health(BaseModel):
@@ -20,3 +22,16 @@ class Health(BaseModel):
 
 class SceneLink(BaseModel):
     viser_url: str
+    space_id: int | None = Field(
+        None,
+        description="The space the 3D scene shows (null when no space exists or the scene "
+        "does not run in this process).",
+    )
+
+
+class SceneSpace(BaseModel):
+    """Which space the 3D scene shows."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    space_id: int = Field(ge=1, le=MAX_ID)

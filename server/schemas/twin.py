@@ -15,6 +15,7 @@ class TwinState(ReadSchema):
     running: bool = False
     paused: bool = False
     scene: str | None = None
+    space_id: int | None = Field(None, description="The space the twin's home is registered as.")
     sim_time: float | None = None
     steps: int = 0
     rate_hz: float | None = None

@@ -1,15 +1,18 @@
 """Pushes registry changes (rooms, cameras) to the live 3D scene after they are committed.
 
-The scene's methods only record the change and return; drawing happens on its own thread. A
-scene failure is logged and never fails the request that caused it."""
+The scene shows one space at a time (the first, the twin's home, until another is chosen with
+PUT /scene): its rooms, cameras, landmarks and maps, and the devices of no space; another
+space's are left out, so two homes are never drawn over each other. The scene's methods only
+record the change and return; drawing happens on its own thread. A scene failure is logged and
+never fails the request that caused it."""
 
 from __future__ import annotations
 
 import logging
 from typing import TYPE_CHECKING, Any
 
-from sqlalchemy import select
-from sqlalchemy.orm import Session
+from sqlalchemy import or_, select
+from sqlalchemy.orm import Session, object_session
 
 from core.landmarks import PayloadError, decode_payload
 from server.db.models import (
@@ -59,9 +62,15 @@ def arm_view(arm: Arm, agent: str, q: Any = None) -> dict[str, Any]:
     }
 
 
-def shown_robot_arms(session: Session) -> list[Arm]:
-    """Return the arms of the robot the scene shows (the first space's first robot)."""
-    space = select(Space.id).order_by(Space.id).limit(1).scalar_subquery()
+def first_space(session: Session) -> int | None:
+    """Return the id of the first space (the twin's home when the twin runs), None if none."""
+    return session.scalar(select(Space.id).order_by(Space.id).limit(1))
+
+
+def shown_robot_arms(session: Session, space_id: int | None = None) -> list[Arm]:
+    """Return the arms of the robot the scene shows (the first robot of `space_id`, by default
+    the first space's)."""
+    space = first_space(session) if space_id is None else space_id
     robot = session.scalar(
         select(Robot.id).where(Robot.space_id == space).order_by(Robot.id).limit(1)
     )
@@ -70,12 +79,14 @@ def shown_robot_arms(session: Session) -> list[Arm]:
     return list(session.scalars(select(Arm).where(Arm.robot_id == robot).order_by(Arm.id)))
 
 
-def landmark_views(session: Session) -> list[dict[str, Any]]:
-    """Return the scene's description of every registry landmark with a pose: a QR landmark
-    named by its payload ("#id name", kind "object" or "signpost"), any other by its id."""
-    rows = session.scalars(
-        select(Landmark).where(Landmark.T_world_landmark.is_not(None)).order_by(Landmark.id)
-    )
+def landmark_views(session: Session, space_id: int | None = None) -> list[dict[str, Any]]:
+    """Return the scene's description of every registry landmark with a pose (of one space
+    when `space_id` is given): a QR landmark named by its payload ("#id name", kind "object" or
+    "signpost"), any other by its id."""
+    stmt = select(Landmark).where(Landmark.T_world_landmark.is_not(None))
+    if space_id is not None:
+        stmt = stmt.where(or_(Landmark.space_id == space_id, Landmark.space_id.is_(None)))
+    rows = session.scalars(stmt.order_by(Landmark.id))
     out = []
     for row in rows:
         name, kind = f"landmark {row.id}", row.kind
@@ -89,11 +100,13 @@ def landmark_views(session: Session) -> list[dict[str, Any]]:
     return out
 
 
-def semantic_views(session: Session) -> list[dict[str, Any]]:
-    """Return the scene's description of every space's semantic objects (id "space:mark")."""
-    rows = session.scalars(
-        select(SemanticObject).order_by(SemanticObject.space_id, SemanticObject.mark_id)
-    )
+def semantic_views(session: Session, space_id: int | None = None) -> list[dict[str, Any]]:
+    """Return the scene's description of the semantic objects (id "space:mark") of every
+    space, or of one."""
+    stmt = select(SemanticObject)
+    if space_id is not None:
+        stmt = stmt.where(SemanticObject.space_id == space_id)
+    rows = session.scalars(stmt.order_by(SemanticObject.space_id, SemanticObject.mark_id))
     return [
         {
             "id": f"{r.space_id}:{r.mark_id}",
@@ -106,13 +119,18 @@ def semantic_views(session: Session) -> list[dict[str, Any]]:
     ]
 
 
-def navigation_views(session: Session) -> tuple[list[dict[str, Any]], list[list[str]]]:
-    """Return every space's navigation places (id "space:mark", at the pose their payload
-    carries) and edges, as the scene takes them."""
-    places = session.scalars(
-        select(NavigationPlace).order_by(NavigationPlace.space_id, NavigationPlace.mark_id)
-    )
-    edges = session.scalars(select(NavigationEdge).order_by(NavigationEdge.id))
+def navigation_views(
+    session: Session, space_id: int | None = None
+) -> tuple[list[dict[str, Any]], list[list[str]]]:
+    """Return the navigation places (id "space:mark", at the pose their payload carries) and
+    edges of every space, or of one, as the scene takes them."""
+    place_stmt = select(NavigationPlace)
+    edge_stmt = select(NavigationEdge)
+    if space_id is not None:
+        place_stmt = place_stmt.where(NavigationPlace.space_id == space_id)
+        edge_stmt = edge_stmt.where(NavigationEdge.space_id == space_id)
+    places = session.scalars(place_stmt.order_by(NavigationPlace.space_id, NavigationPlace.mark_id))
+    edges = session.scalars(edge_stmt.order_by(NavigationEdge.id))
     return (
         [
             {
@@ -132,19 +150,70 @@ class SceneSync:
 
     def __init__(self, scene: SceneService | None) -> None:
         self.scene = scene
+        # The space the scene shows; None until `load` or `show` picks one.
+        self.space_id: int | None = None
 
-    def rooms_changed(self, session: Session) -> None:
-        """Send the whole floor plan (every room) to the scene."""
+    def _space(self, session: Session) -> int | None:
+        """Return the space shown: the chosen one while it exists, else the first."""
+        if self.space_id is None or session.get(Space, self.space_id) is None:
+            self.space_id = first_space(session)
+        return self.space_id
+
+    def shows(self, space_id: int | None) -> bool:
+        """Return whether the scene runs here and shows space `space_id`."""
+        return self.scene is not None and space_id is not None and space_id == self.space_id
+
+    def show(self, session: Session, space_id: int) -> None:
+        """Show space `space_id` instead of the one shown: the other space's cameras leave the
+        scene, this one's floor plan, cameras, robot arms, landmarks and maps come in."""
         if self.scene is None:
             return
-        rooms = session.scalars(select(Room).order_by(Room.id)).all()
+        self.space_id = space_id
+        keep = set(
+            session.scalars(
+                select(Camera.id).where(or_(Camera.space_id == space_id, Camera.space_id.is_(None)))
+            )
+        )
+        try:
+            shown = list(self.scene.cameras())
+        except Exception:
+            log.exception("reading the scene's cameras failed")
+            shown = []
+        for camera_id in shown:
+            if camera_id not in keep:
+                self._call("remove_camera", camera_id)
+        for arm_id in self._shown_arms():
+            self._call("remove_arm", arm_id)
+        self.load(session)
+
+    def _shown_arms(self) -> list[str]:
+        try:
+            return list(self.scene.arms()) if self.scene is not None else []
+        except Exception:
+            log.exception("reading the scene's arms failed")
+            return []
+
+    def rooms_changed(self, session: Session) -> None:
+        """Send the floor plan (every room of the space shown) to the scene."""
+        if self.scene is None:
+            return
+        stmt = select(Room).where(Room.space_id == self._space(session))
+        rooms = session.scalars(stmt.order_by(Room.id)).all()
         plan = [{"id": r.id, "name": r.name, "polygon": r.polygon} for r in rooms]
         self._call("set_floor_plan", plan)
 
     def camera_changed(self, camera: Camera) -> None:
-        """Send one camera's (new) state to the scene."""
-        if self.scene is not None:
+        """Send one camera's (new) state to the scene; a camera of another space than the
+        one shown leaves it (it may have just been moved there)."""
+        if self.scene is None:
+            return
+        session = object_session(camera)
+        if session is not None:
+            self._space(session)
+        if camera.space_id is None or camera.space_id == self.space_id:
             self._call("upsert_camera", camera_view(camera))
+        else:
+            self._call("remove_camera", camera.id)
 
     def camera_removed(self, camera_id: int) -> None:
         """Remove a camera from the scene."""
@@ -188,26 +257,30 @@ class SceneSync:
         self._call("set_projector", {**view, "spot": spot})
 
     def landmarks_changed(self, session: Session) -> None:
-        """Send every placed landmark of the registry to the scene."""
+        """Send every placed landmark of the space shown to the scene."""
         if self.scene is not None:
-            self._call("set_landmarks", landmark_views(session))
+            self._call("set_landmarks", landmark_views(session, self._space(session)))
 
     def maps_changed(self, session: Session) -> None:
-        """Send the semantic and navigation maps (every space's) to the scene."""
+        """Send the semantic and navigation maps of the space shown to the scene."""
         if self.scene is None:
             return
-        self._call("set_semantic_objects", semantic_views(session))
-        self._call("set_navigation_graph", *navigation_views(session))
+        space_id = self._space(session)
+        self._call("set_semantic_objects", semantic_views(session, space_id))
+        self._call("set_navigation_graph", *navigation_views(session, space_id))
 
     def load(self, session: Session) -> None:
-        """Send the floor plan, every camera and the arms of the robot the scene shows (at
-        home), the placed landmarks and the maps, e.g. when the scene starts."""
+        """Send the floor plan, the cameras and the arms of the robot (at home) of the space
+        shown (the first space unless one was chosen), its placed landmarks and its maps, e.g.
+        when the scene starts."""
+        space_id = self._space(session)
         if self.scene is None:
             return
         self.rooms_changed(session)
-        for camera in session.scalars(select(Camera).order_by(Camera.id)):
+        cameras = select(Camera).where(or_(Camera.space_id == space_id, Camera.space_id.is_(None)))
+        for camera in session.scalars(cameras.order_by(Camera.id)):
             self.camera_changed(camera)
-        for arm in shown_robot_arms(session):
+        for arm in shown_robot_arms(session, space_id):
             self.arm_changed(arm)
         self.landmarks_changed(session)
         self.maps_changed(session)

@@ -6,7 +6,10 @@ what a camera node calls too). The detections, unlabelled and stamped with the f
 time on the service's clock (the twin's clock mapped to Unix seconds), go to the same ingest as
 POST /observations (server.services.tracking): stored, then tracked by the space's one tracker.
 The latest frame of each camera and its detections are kept for the API; the live 3D scene gets
-the agents, tracks and images at a throttled rate.
+the agents, tracks and images at a throttled rate. Each loop reports its cameras' health to the
+service's camera health book, as a camera node's heartbeat does for its cameras (frame rate,
+frames skipped, the newest frame's time): a paused twin's cameras are stalled, a dead loop's
+offline.
 
 The twin's scene is also the calibration object of the "network" calibration runs.
 """
@@ -32,10 +35,12 @@ from core.sim.installation import installed_calibration
 from core.sim.motion import Patrol
 from core.sim.occluders import scene_occluders
 from core.sim.render import camera_model, renderer_for
-from server.db.models import Camera, CameraCalibration, Robot, Room, Space
+from server.db.models import Camera, CameraCalibration, Landmark, Projector, Robot, Room, Space
+from server.schemas.registry import CameraHeartbeat
 from server.services.tracking import DetectionIn
 
 if TYPE_CHECKING:
+    from server.services.camera_health import CameraHealthBook
     from server.services.scene_sync import SceneSync
     from server.services.targets import LiveTargets
     from server.services.tracking import TrackingService
@@ -54,6 +59,8 @@ _ERRORS_KEPT = 2000
 # previous step, up to this (a stalled machine), so the world never jumps further at once.
 MAX_CATCH_UP_S = 1.0
 _IMAGE_HZ = 1.0
+# The frame rate reported as the cameras' health is measured over this many recent frames.
+_FPS_FRAMES = 10
 
 
 # --------------------------------------------------------------------------------------------
@@ -128,6 +135,38 @@ def bootstrap_space(session: Session, scene: Scene) -> tuple[int, dict[str, int]
     return space.id, {name: id for id, name in rows}
 
 
+def register_devices(session: Session, space_id: int, scene: Scene) -> None:
+    """Register the scene's projector and printed landmarks in space `space_id` where they are
+    missing (a projector by name, a landmark by payload), so a restart adds nothing twice and
+    what a user changed stays.
+
+    What an installer knows is entered, not the twin's truth: the projector without a pose
+    (uncalibrated until a projector calibration run is applied) and the landmarks with their
+    kind, payload and printed size but no world pose (the survey locates them)."""
+    projector = scene.projector
+    if projector is not None:
+        known = session.scalar(
+            select(Projector.id).where(
+                Projector.space_id == space_id, Projector.name == projector.name
+            )
+        )
+        if known is None:
+            # A laser spot has no image: the registry's projector-as-camera is 1 x 1 pixels.
+            session.add(Projector(space_id=space_id, name=projector.name, width=1, height=1))
+    payloads = set(
+        session.scalars(select(Landmark.payload).where(Landmark.space_id == space_id)).all()
+    )
+    for landmark in scene.landmarks:
+        if landmark.payload and landmark.payload not in payloads:
+            session.add(
+                Landmark(
+                    space_id=space_id, kind="qr", payload=landmark.payload, size_m=landmark.size
+                )
+            )
+            payloads.add(landmark.payload)
+    session.commit()
+
+
 def registry_cameras(
     session: Session, ids: list[int]
 ) -> tuple[dict[int, NetworkCamera], dict[int, str]]:
@@ -185,6 +224,7 @@ class Twin:
         seed: int = 0,
         clock: Any = time.time,
         detect: bool = True,
+        health: CameraHealthBook | None = None,
     ) -> None:
         self.scene = scene
         # False: the twin only renders; camera nodes read its streams and post the detections.
@@ -198,6 +238,14 @@ class Twin:
         # Unix time of the twin's clock zero: a frame at sim time s was captured at epoch + s.
         self._epoch = clock()
         self._scene_sync = scene_sync
+        # Where the cameras' health goes. Without detection the camera nodes reading the twin's
+        # streams report it, as they do for any camera, so the twin does not speak for them.
+        self._health = health if detect else None
+        # Capture times of the latest instants (their frame rate) and the frame periods skipped
+        # since the start because steps came late (the cameras' dropped frames).
+        self._frame_times: deque[float] = deque(maxlen=_FPS_FRAMES + 1)
+        self._last_frame_t: float | None = None  # kept across a pause or a reset
+        self.dropped = 0
         self._seed = seed
         self.rate_hz = float(rate_hz)
         self._renderer = renderer_for(scene)
@@ -224,6 +272,7 @@ class Twin:
         self._last_scene = 0.0
         self._last_image = 0.0
         self._tracks_shown: set[str] = set()
+        self._in_scene = False
         self.steps = 0
         self.errors: deque[float] = deque(maxlen=_ERRORS_KEPT)
         self._detectors: dict[str, PersonDetector] = {}
@@ -235,6 +284,7 @@ class Twin:
         """Register the scene's space in the registry (first start) and map its cameras."""
         with self._factory() as session:
             self.space_id, self.camera_ids = bootstrap_space(session, self.scene)
+            register_devices(session, self.space_id, self.scene)
         if self._tracking is not None:
             # The floor plan is what an installer knows of the home (not the twin's truth).
             self._tracking.set_floor_plan(self.space_id, scene_occluders(self.scene))
@@ -247,6 +297,7 @@ class Twin:
         self.sim_time = 0.0
         self._pose = self._base.state.pose if self._base is not None else None
         self._epoch = self._clock()
+        self._frame_times.clear()
         self.errors = deque(maxlen=_ERRORS_KEPT)
         # (capture time, sim time, robot x, robot y) of recent frames, for scoring only.
         self._truth: deque[tuple[float, float, float, float]] = deque(maxlen=_ERRORS_KEPT)
@@ -298,6 +349,7 @@ class Twin:
         """Continue after `pause`; the twin's clock goes on from the service's clock now."""
         with self._lock:
             self._epoch = self._clock() - self.sim_time
+            self._frame_times.clear()  # the pause is not a slow frame rate
         if self._tracking is not None:
             self._tracking.release(self.space_id)
         self._paused.clear()
@@ -328,6 +380,7 @@ class Twin:
                 "running": self.running,
                 "paused": self._paused.is_set(),
                 "scene": self.scene.name,
+                "space_id": self.space_id,
                 "sim_time": self.sim_time,
                 "steps": self.steps,
                 "rate_hz": self.rate_hz,
@@ -372,6 +425,7 @@ class Twin:
                 most = max(1, int(MAX_CATCH_UP_S / period + 1e-9))
                 periods = max(1, min(round(owed / period), most))
                 owed -= periods * period
+                self.dropped += periods - 1
                 try:
                     self.step(periods * period)
                 except Exception:
@@ -379,10 +433,34 @@ class Twin:
             else:
                 last, owed = None, 0.0
             self._last_step = time.monotonic()
+            self._report_health()
             next_time = max(next_time + period, time.monotonic())
             if self._wake.wait(max(0.0, next_time - time.monotonic())):
                 self._wake.clear()
                 next_time = time.monotonic()
+
+    def _report_health(self) -> None:
+        """Report every camera's health to the service's book, as a camera node's heartbeat
+        does: the frame rate of the latest instants (the set rate before two exist), the frame
+        periods skipped, the newest frame's capture time; the twin keeps the service's clock
+        (offset 0) and its cameras never stall or reconnect as streams do."""
+        if self._health is None:
+            return
+        with self._lock:
+            times = list(self._frame_times)
+            last = self._last_frame_t
+        if len(times) >= 2 and times[-1] > times[0]:
+            fps = (len(times) - 1) / (times[-1] - times[0])
+        else:
+            fps = self.rate_hz if last is not None else 0.0
+        beat = CameraHeartbeat(
+            fps=min(fps, 10_000.0),
+            dropped=self.dropped,
+            clock_offset_s=0.0,
+            last_frame_t=last,
+        )
+        for camera_id in self.camera_ids.values():
+            self._health.beat(camera_id, beat)
 
     def _network(self) -> dict[int, NetworkCamera]:
         # The registry's calibration, as a camera node reads it: the detector locates a person
@@ -429,6 +507,8 @@ class Twin:
             stamp = self._epoch + t
             frames = {cid: CameraFrame(cid, name, stamp, image) for name, cid, image in rendered}
             self._frames.update(frames)
+            self._frame_times.append(stamp)
+            self._last_frame_t = stamp
         robot = self.scene.robot
         marker_height = robot.marker.height if robot is not None and robot.marker else 0.0
         network = self._network()
@@ -544,6 +624,10 @@ class Twin:
             return
         self._last_scene = now
         try:
+            if not self._scene_sync.shows(self.space_id):
+                self._leave_scene(scene)
+                return
+            self._in_scene = True
             robot = self.scene.robot
             if state.robot is not None and robot is not None:
                 scene.upsert_agent(
@@ -570,7 +654,11 @@ class Twin:
                     }
                 )
             _, items = self._targets.snapshot()
-            live = {i["label"]: i for i in items if i["kind"] in ("robot", "person")}
+            live = {
+                i["label"]: i
+                for i in items
+                if i["kind"] in ("robot", "person") and i["space_id"] == self.space_id
+            }
             shown = set(live)
             for label, item in live.items():
                 scene.set_track(label, self._targets.track(label)[-300:], item["cov"])
@@ -583,3 +671,17 @@ class Twin:
                     scene.set_camera_image(frame.camera_id, frame.image)
         except Exception:
             log.exception("pushing the twin to the 3D scene failed")
+
+    def _leave_scene(self, scene: Any) -> None:
+        """Take the twin's bodies and tracks out of the 3D scene while it shows another space
+        (once: nothing is sent while it stays away)."""
+        if not self._in_scene:
+            return
+        self._in_scene = False
+        if self.scene.robot is not None:
+            scene.remove_agent("robot")
+        for walker in self.scene.people:
+            scene.remove_agent(f"walker-{walker.name}")
+        for label in self._tracks_shown:
+            scene.set_track(label, [])
+        self._tracks_shown = set()

@@ -29,8 +29,9 @@ def test_navigation_page_calibrates_the_projector_and_applies_it(start_service, 
     with start_service(env) as service:
         service.api("POST", "/twin/pause")  # the run projects the spots: no frames needed
         space = service.api("GET", "/spaces")["items"][0]["id"]  # the twin's home
-        body = {"name": "ceiling_projector", "space_id": space, "width": 1, "height": 1}
-        projector = service.api("POST", "/projectors", body)
+        # The twin registered its projector with its home, uncalibrated.
+        (projector,) = service.api("GET", f"/projectors?space_id={space}")["items"]
+        assert projector["name"] == "ceiling_projector"
         assert projector["T_world_projector"] is None
 
         page.goto(f"{service.base_url}/")

@@ -101,6 +101,39 @@ def test_rooms_belong_to_a_space(client, admin):
     assert client.get("/api/v1/rooms", headers=admin).json()["total"] == 0
 
 
+def test_devices_of_one_space_and_of_none(client, admin):
+    bodies = {
+        "cameras": {"width": 640, "height": 480},
+        "landmarks": {"kind": "qr", "size_m": 0.1},
+        "projectors": {"width": 1, "height": 1},
+        "robots": {},
+    }
+    home, flat = (
+        client.post("/api/v1/spaces", json={"name": name}, headers=admin).json()["id"]
+        for name in ("home", "flat")
+    )
+    for resource, fields in bodies.items():
+        ids = {}
+        for label, space in (("home", home), ("flat", flat), ("none", None)):
+            body = {**fields, "space_id": space}
+            body["payload" if resource == "landmarks" else "name"] = label
+            response = client.post(f"/api/v1/{resource}", json=body, headers=admin)
+            assert response.status_code == 201, response.text
+            ids[label] = response.json()["id"]
+
+        def listed(query: str, resource: str = resource) -> set[int]:
+            response = client.get(f"/api/v1/{resource}?{query}", headers=admin)
+            assert response.status_code == 200, response.text
+            return {row["id"] for row in response.json()["items"]}
+
+        assert listed(f"space_id={home}") == {ids["home"]}, resource
+        assert listed(f"space_id={home}&unassigned=true") == {ids["home"], ids["none"]}, resource
+        assert listed("unassigned=true") == {ids["none"]}, resource
+        assert listed("unassigned=false") == set(ids.values()), resource
+        bad = client.get(f"/api/v1/{resource}?unassigned=maybe", headers=admin)
+        assert bad.status_code == 422, resource
+
+
 def test_pagination_windows_and_total(client, admin):
     for i in range(7):
         body = {"name": f"cam-{i}", "width": 640, "height": 480}
@@ -242,7 +275,11 @@ def test_request_size_limit(make_settings, admin):
 def test_scene_link_uses_the_callers_host(client):
     response = client.get("/api/v1/scene", headers={"Host": "livingroom.local:8000"})
     # The scene is served through the API's own origin (its proxy under /api/v1/scene/view/).
-    assert response.json() == {"viser_url": "http://livingroom.local:8000/api/v1/scene/view/"}
+    # No scene runs in this process: it shows no space.
+    assert response.json() == {
+        "viser_url": "http://livingroom.local:8000/api/v1/scene/view/",
+        "space_id": None,
+    }
 
 
 def test_openapi_documents_the_api(client):

@@ -461,3 +461,60 @@ def test_a_notified_empty_frame_moves_the_tracker_on(client, admin):
     tracking._read_notified()
     assert _processed(tracking, base + 4)
     assert client.app.state.targets.latest("cup")[1] == T - 0.1
+
+
+def test_targets_tracks_and_stream_of_one_space(client, admin):
+    """Two spaces, one target in each: every read of targets keeps to the space asked for."""
+    cameras = _cameras()
+    spaces = [
+        client.post("/api/v1/spaces", json={"name": name}, headers=admin).json()["id"]
+        for name in ("home", "flat")
+    ]
+    now = time.time()
+    for space, label, xy in zip(spaces, ("a", "b"), ([2.0, 1.5], [1.0, 2.0]), strict=True):
+        body = {
+            "name": f"cam-{space}",
+            "width": 640,
+            "height": 480,
+            "K": K,
+            "dist": DIST,
+            "T_world_camera": cameras[0].T_world_camera.tolist(),
+            "space_id": space,
+        }
+        cid = client.post("/api/v1/cameras", json=body, headers=admin).json()["id"]
+        pixel = cameras[0].project(np.array([[*xy, 0.0]]))[0].tolist()
+        obs = {"camera_id": cid, "t": now, "pixel": pixel, "target": label}
+        response = client.post("/api/v1/observations", json={"observations": [obs]}, headers=admin)
+        assert response.status_code == 200, response.text
+
+    def labels(path: str) -> list[str]:
+        deadline = time.monotonic() + 5
+        while True:
+            body = client.get(path, headers=admin).json()
+            rows = body.get("items", body.get("tracks"))
+            if len(rows) >= 1 or time.monotonic() > deadline:
+                return sorted(r["label"] for r in rows)
+            time.sleep(0.1)
+
+    assert labels("/api/v1/targets?state=all") == ["a", "b"]
+    assert labels(f"/api/v1/targets?state=all&space_id={spaces[0]}") == ["a"]
+    assert labels(f"/api/v1/targets?state=all&space_id={spaces[1]}") == ["b"]
+    since = now - 1
+    assert labels(f"/api/v1/targets/tracks?state=all&since={since}&space_id={spaces[1]}") == ["b"]
+    assert client.get("/api/v1/targets?space_id=0", headers=admin).status_code == 422
+
+    # A labelled target stays live for a minute after its last detection: each space's stream
+    # names its own target and no other.
+    bearer = {"Authorization": "Bearer test-admin-token"}
+    for space, label in zip(spaces, ("a", "b"), strict=True):
+        with client.websocket_connect(f"/api/v1/ws/targets?space_id={space}", headers=bearer) as ws:
+            deadline = time.monotonic() + 5
+            while True:
+                message = ws.receive_json()
+                if message["targets"] or time.monotonic() > deadline:
+                    break
+        assert [t["label"] for t in message["targets"]] == [label]
+    with pytest.raises(WebSocketDisconnect) as info:
+        with client.websocket_connect("/api/v1/ws/targets?space_id=x", headers=bearer) as ws:
+            ws.receive_json()
+    assert info.value.code == 1008

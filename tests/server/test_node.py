@@ -18,13 +18,13 @@ import numpy as np
 import pytest
 
 from core.errors import InvalidInput
-from server.api.cameras import CameraHealthBook
 from server.cli import main
 from server.node.clock import ClockOffset
 from server.node.frames import Frame, NewestFrame
 from server.node.masks import apply_mask, polygon_mask
 from server.node.mjpeg import MjpegParser, boundary_of
 from server.schemas.registry import CameraHeartbeat
+from server.services.camera_health import CameraHealthBook
 
 TOKEN = "node-test-admin-token"
 HEADERS = {"Authorization": f"Bearer {TOKEN}"}

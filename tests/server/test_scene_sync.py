@@ -66,3 +66,43 @@ def test_scene_is_loaded_from_the_database_at_start(make_settings, admin):
         scene = client.app.state.scene_sync.scene
         assert scene.flush(10.0)
         assert [c.name for c in scene.cameras().values()] == ["c"]
+
+
+@pytest.mark.parametrize("database_url", ["sqlite"], indirect=True)
+def test_the_scene_shows_one_space_at_a_time(make_settings, admin):
+    settings = make_settings(viser_enabled=True, viser_port=_free_port())
+    with TestClient(create_app(settings)) as client:
+        scene = client.app.state.scene_sync.scene
+        polygons = {"home": [[0, 0], [5, 0], [5, 4], [0, 4]], "flat": [[0, 0], [3, 0], [3, 9.6]]}
+        spaces, cameras = {}, {}
+        for name, polygon in polygons.items():
+            space = client.post("/api/v1/spaces", json={"name": name}, headers=admin).json()["id"]
+            room = {"space_id": space, "name": f"{name}-room", "polygon": polygon}
+            assert client.post("/api/v1/rooms", json=room, headers=admin).status_code == 201
+            body = {"name": f"{name}-cam", "width": 640, "height": 480, "space_id": space}
+            cameras[name] = client.post("/api/v1/cameras", json=body, headers=admin).json()["id"]
+            spaces[name] = space
+        body = {"name": "spare", "width": 640, "height": 480}
+        spare = client.post("/api/v1/cameras", json=body, headers=admin).json()["id"]
+
+        # The first space until another is chosen; a camera of no space is shown in any.
+        assert client.get("/api/v1/scene").json()["space_id"] == spaces["home"]
+        assert scene.flush(10.0)
+        assert [r.name for r in scene.rooms()] == ["home-room"]
+        assert set(scene.cameras()) == {cameras["home"], spare}
+
+        answer = client.put("/api/v1/scene", json={"space_id": spaces["flat"]}, headers=admin)
+        assert answer.status_code == 200 and answer.json()["space_id"] == spaces["flat"]
+        assert scene.flush(10.0)
+        assert [r.name for r in scene.rooms()] == ["flat-room"]
+        assert set(scene.cameras()) == {cameras["flat"], spare}
+        # A camera moved to the space not shown leaves the scene.
+        move = {"space_id": spaces["home"]}
+        client.patch(f"/api/v1/cameras/{cameras['flat']}", json=move, headers=admin)
+        assert scene.flush(10.0)
+        assert set(scene.cameras()) == {spare}
+
+        missing = client.put("/api/v1/scene", json={"space_id": 999}, headers=admin)
+        assert missing.status_code == 404
+        assert client.put("/api/v1/scene", json={"space_id": spaces["home"]}).status_code == 401
+        assert client.get("/api/v1/scene").json()["space_id"] == spaces["flat"]

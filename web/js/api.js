@@ -139,3 +139,67 @@ export async function download(path, filename) {
   a.remove();
   setTimeout(() => URL.revokeObjectURL(url), 10_000);
 }
+
+// -- the space the dashboard shows -----------------------------------------------------------
+// The chosen space's id is remembered in this browser (localStorage holds that number only);
+// every page reads its devices, targets and maps for that space.
+
+const SPACE_KEY = "intspace.space";
+let spaces = [];
+let space = null;
+
+function storedSpaceId() {
+  try {
+    return Number(localStorage.getItem(SPACE_KEY)) || null;
+  } catch {
+    return null; // storage disabled: the first space each time
+  }
+}
+
+/** Read the spaces (again) and resolve the chosen one: the remembered id while it exists, else
+ * the first space. Returns {spaces, space}; no spaces (or reads refused) gives {[], null}. */
+export async function loadSpaces() {
+  try {
+    // A refusal is for the page to report (it reads the registry too).
+    const page = await api("/spaces?limit=200&offset=0", { checkingToken: true });
+    spaces = page.items || [];
+  } catch {
+    spaces = [];
+  }
+  const wanted = space?.id ?? storedSpaceId();
+  space = spaces.find((sp) => sp.id === wanted) || spaces[0] || null;
+  return { spaces, space };
+}
+
+/** Return the chosen space ({id, name, description}) or null when there is none. */
+export function currentSpace() {
+  return space;
+}
+
+/** Choose the space the pages show and remember it in this browser; pages are told. */
+export function chooseSpace(id) {
+  const next = spaces.find((sp) => sp.id === Number(id));
+  if (!next) return;
+  space = next;
+  try {
+    localStorage.setItem(SPACE_KEY, String(next.id));
+  } catch {
+    /* not remembered: the choice holds until the page is reloaded */
+  }
+  window.dispatchEvent(new CustomEvent("space-changed"));
+}
+
+/**
+ * Return `path` scoped to the chosen space: `space_id=N`, and with `unassigned` the devices of
+ * no space too (a device list); unchanged when there is no space yet.
+ */
+export function inSpace(path, { unassigned = false } = {}) {
+  if (!space) return path;
+  const sep = path.includes("?") ? "&" : "?";
+  return `${path}${sep}space_id=${space.id}${unassigned ? "&unassigned=true" : ""}`;
+}
+
+/** Return the space with this id among those last read, or null. */
+export function spaceById(id) {
+  return spaces.find((sp) => sp.id === id) || null;
+}

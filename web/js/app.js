@@ -1,6 +1,14 @@
 // The dashboard's entry point: hash router, sign-in, service badge.
 
-import { api, currentSession, loadSession, signIn, signOut } from "./api.js";
+import {
+  api,
+  chooseSpace,
+  currentSession,
+  loadSession,
+  loadSpaces,
+  signIn,
+  signOut,
+} from "./api.js";
 import { errorBox, h, mount } from "./ui.js";
 import { renderOverview } from "./pages/overview.js";
 import { renderCameras, renderCamera } from "./pages/cameras.js";
@@ -69,6 +77,9 @@ async function route() {
   document.title = `${pageTitle} · intspace`;
   main.setAttribute("aria-busy", "true");
   mount(main, h("p", { class: "muted", testid: "loading" }, "Loading…"));
+  // The spaces are read again on every page, so one created meanwhile can be picked.
+  renderSpacePicker(await loadSpaces());
+  if (seq !== renderSeq) return;
   // Each render draws into its own detached view, shown only if it is still the current one:
   // a slow page finishing after the user moved on must not overwrite the newer page.
   const view = h("div", { class: "view" });
@@ -97,6 +108,27 @@ async function route() {
       document.documentElement.dataset.ready = "true";
     }
   }
+}
+
+/** The header's space picker: every page shows the space chosen here (remembered per browser). */
+function renderSpacePicker({ spaces, space }) {
+  const box = document.getElementById("space-picker");
+  if (!spaces.length) {
+    mount(box);
+    return;
+  }
+  const select = h(
+    "select",
+    {
+      id: "space-select",
+      testid: "space-picker",
+      disabled: spaces.length < 2,
+      title: spaces.length < 2 ? "The only space" : "Show another space",
+      onChange: (ev) => chooseSpace(ev.currentTarget.value),
+    },
+    spaces.map((sp) => h("option", { value: String(sp.id), selected: sp.id === space?.id }, sp.name)),
+  );
+  mount(box, h("label", { for: "space-select", class: "small muted" }, "Space"), select);
 }
 
 function renderAuth(notice = "") {
@@ -205,6 +237,7 @@ function decorateNav() {
 }
 
 window.addEventListener("hashchange", route);
+window.addEventListener("space-changed", route);
 window.addEventListener("auth-changed", () => {
   renderAuth();
   route();

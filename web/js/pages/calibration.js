@@ -1,6 +1,6 @@
 // Calibration runs: start one (chessboard photos or a correspondences file), watch it, apply it.
 
-import { api, list } from "../api.js";
+import { api, inSpace, list } from "../api.js";
 import { barChart } from "../plot.js";
 import {
   duration,
@@ -396,12 +396,29 @@ function networkPanel() {
 
 export async function renderCalibration(main, _params, query) {
   const [{ items: cameras }, runs] = await Promise.all([
-    list("/cameras", { limit: 200 }),
+    list(inSpace("/cameras", { unassigned: true }), { limit: 200 }),
     list("/calibration-runs", { limit: 50 }).then(
       (v) => ({ v }),
       (e) => ({ e }),
     ),
   ]);
+  // A camera linked from its page is offered even when it is of another space than the one
+  // picked; the runs shown are the space's cameras' and those of no camera.
+  const linked = Number(query.get("camera"));
+  if (linked && !cameras.some((c) => c.id === linked)) {
+    try {
+      cameras.push(await api(`/cameras/${linked}`));
+    } catch {
+      /* gone: the form offers the space's cameras */
+    }
+  }
+  if (runs.v) {
+    const ids = new Set(cameras.map((c) => c.id));
+    const kept = runs.v.items.filter((r) => !r.camera_id || ids.has(r.camera_id));
+    // Of the newest 50 runs, those of this space: their count is all the page knows.
+    if (kept.length < runs.v.items.length) runs.v.total = kept.length;
+    runs.v.items = kept;
+  }
   const runsBody = runs.e
     ? errorBox(runs.e, "runs-error")
     : runs.v.items.length

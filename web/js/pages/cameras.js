@@ -1,6 +1,7 @@
-// Cameras: the table with an add form, and one camera's intrinsics, history and exports.
+// Cameras: the chosen space's table with an add form, and one camera's health, latest image,
+// intrinsics, history and exports.
 
-import { api, download, list } from "../api.js";
+import { api, currentSpace, download, inSpace, list, spaceById } from "../api.js";
 import { barChart } from "../plot.js";
 import { placePanel } from "./placement.js";
 import {
@@ -20,6 +21,7 @@ import {
 const DIST_NAMES = ["k1", "k2", "p1", "p2", "k3"];
 const LIVE_MS = 500; // about 2 frames a second
 const LIVE_RETRY_MS = 5000; // when there is no frame (no twin): look again now and then
+const HEALTH_MS = 2000; // the camera's health is read again this often
 
 /**
  * The camera's latest frame with its detections drawn, refreshed about twice a second. The image
@@ -56,17 +58,7 @@ function liveView(id) {
         wait = LIVE_RETRY_MS;
         img.hidden = true;
         status.textContent = "";
-        mount(
-          missing,
-          h(
-            "p",
-            { class: "empty", testid: "camera-live-missing" },
-            response.status === 404
-              ? "No live image: the digital twin is not running, or it has no frame of this " +
-                  "camera yet, and no camera node has sent one."
-              : `No live image (HTTP ${response.status}).`,
-          ),
-        );
+        mount(missing, noImage(response.status, await reasonOf(response)));
       } else {
         const blob = await response.blob();
         if (stopped) return;
@@ -109,11 +101,133 @@ function liveView(id) {
   };
 }
 
+/** The service's reason for an answer without an image (its problem detail), or "". */
+async function reasonOf(response) {
+  try {
+    const body = await response.json();
+    return typeof body.detail === "string" ? body.detail : "";
+  } catch {
+    return "";
+  }
+}
+
+function noImage(status, reason) {
+  return h(
+    "p",
+    { class: "empty", testid: "camera-live-missing" },
+    status === 404 ? "No image yet" : `No image (HTTP ${status})`,
+    reason ? `: ${reason}.` : ".",
+    status === 404
+      ? h(
+          "span",
+          { class: "small muted", style: { display: "block", marginTop: "6px" } },
+          "A camera's latest image is shown once its source delivers one: the digital twin " +
+            "for its own cameras, a camera node for the others.",
+        )
+      : null,
+  );
+}
+
 function cameraStatus(c) {
   return c.status || (c.K ? "calibrated" : "uncalibrated");
 }
 
-function addCameraForm(onCreated) {
+/** Count cameras as the table shows them: calibrated (Status) and online (Health). */
+export function cameraCounts(cameras) {
+  return {
+    calibrated: cameras.filter((c) => cameraStatus(c) === "calibrated").length,
+    online: cameras.filter((c) => c.health?.status === "online").length,
+  };
+}
+
+/** A camera's health as a badge: online (green), stalled (amber), offline (red once seen,
+ * grey when it never reported). */
+export function healthBadge(health, testid) {
+  const st = health?.status || "offline";
+  const kind = st === "online" ? "ok" : st === "stalled" ? "warn" : health?.since ? "bad" : "idle";
+  return h("span", { class: `badge ${kind}`, testid }, st);
+}
+
+function ago(t) {
+  if (t === null || t === undefined) return "";
+  const s = Math.max(0, Date.now() / 1000 - t);
+  if (s < 90) return `${s.toFixed(s < 10 ? 1 : 0)} s ago`;
+  if (s < 5400) return `${(s / 60).toFixed(0)} min ago`;
+  return `${(s / 3600).toFixed(1)} h ago`;
+}
+
+function clockTime(t) {
+  return t === null || t === undefined
+    ? "–"
+    : new Date(t * 1000).toLocaleTimeString([], { hour12: false });
+}
+
+/** The camera's health facts: status since when, frame rate, stalls, reconnects, drops and the
+ * clock offset its source reports (a camera node's heartbeat; the twin's loop for its own). */
+function healthFacts(health) {
+  const hl = health || { status: "offline" };
+  const row = (label, testid, value) => [
+    h("dt", null, label),
+    h("dd", { class: "num", testid: `camera-health-${testid}` }, value),
+  ];
+  const count = (v) => (v === null || v === undefined ? "–" : String(v));
+  return h(
+    "dl",
+    { class: "facts", testid: "camera-health" },
+    h("dt", null, "Status"),
+    h("dd", null, healthBadge(hl, "camera-health-status")),
+    row(
+      "Since",
+      "since",
+      hl.since ? `${clockTime(hl.since)} (${ago(hl.since)})` : "never reported",
+    ),
+    row("Frame rate", "fps", hl.fps === null || hl.fps === undefined ? "–" : `${fmt(hl.fps, 1)} /s`),
+    row("Stalls", "stalls", count(hl.stalls)),
+    row("Reconnects", "reconnects", count(hl.reconnects)),
+    row("Dropped frames", "dropped", count(hl.dropped)),
+    row("Dropped detections", "dropped-detections", count(hl.dropped_detections)),
+    row(
+      "Clock offset",
+      "clock-offset",
+      hl.clock_offset_s === null || hl.clock_offset_s === undefined
+        ? "–"
+        : `${fmt(hl.clock_offset_s * 1000, 1)} ms`,
+    ),
+    row("Newest frame", "last-frame", hl.last_frame_t ? ago(hl.last_frame_t) : "–"),
+  );
+}
+
+/** The camera's health, read again every HEALTH_MS. Returns {panel, stop}. */
+function healthView(id, initial) {
+  const box = h("div", null, healthFacts(initial));
+  let stopped = false;
+  let timer = null;
+  const tick = async () => {
+    if (stopped) return;
+    try {
+      const cam = await api(`/cameras/${id}`);
+      if (!stopped) mount(box, healthFacts(cam.health));
+    } catch {
+      /* the next read says more; the last health stays shown */
+    }
+    if (!stopped) timer = setTimeout(tick, HEALTH_MS);
+  };
+  timer = setTimeout(tick, HEALTH_MS);
+  return {
+    panel: panel(
+      "Health",
+      "From its source every second: a camera node's heartbeat, or the digital twin for its " +
+        "own cameras. Offline: no report for 5 s; stalled: reports but no frame.",
+      box,
+    ),
+    stop: () => {
+      stopped = true;
+      clearTimeout(timer);
+    },
+  };
+}
+
+function addCameraForm(space, onCreated) {
   const error = h("div");
   const name = h("input", {
     id: "cam-name",
@@ -161,6 +275,7 @@ function addCameraForm(onCreated) {
               name: name.value.trim(),
               width: Number(width.value),
               height: Number(height.value),
+              space_id: space ? space.id : null,
             },
           });
           toast(`Camera “${cam.name}” added`);
@@ -187,7 +302,8 @@ function addCameraForm(onCreated) {
 }
 
 export async function renderCameras(main) {
-  const { items, total } = await list("/cameras", { limit: 200 });
+  const space = currentSpace();
+  const { items, total } = await list(inSpace("/cameras", { unassigned: true }), { limit: 200 });
   const table = h(
     "table",
     { testid: "camera-table" },
@@ -197,8 +313,8 @@ export async function renderCameras(main) {
       h(
         "tr",
         null,
-        ["Name", "Image", "Status", "fx", "fy", "cx", "cy", "Pose", "Updated"].map((t, i) =>
-          h("th", { class: i >= 3 && i <= 6 ? "num" : null, scope: "col" }, t),
+        ["Name", "Image", "Status", "Health", "fx", "fy", "cx", "cy", "Pose", "Updated"].map(
+          (t, i) => h("th", { class: i >= 4 && i <= 7 ? "num" : null, scope: "col" }, t),
         ),
       ),
     ),
@@ -215,9 +331,21 @@ export async function renderCameras(main) {
               if (ev.target.tagName !== "A") location.hash = `#/cameras/${c.id}`;
             },
           },
-          h("td", null, h("a", { href: `#/cameras/${c.id}` }, c.name)),
+          h(
+            "td",
+            null,
+            h("a", { href: `#/cameras/${c.id}` }, c.name),
+            space && c.space_id === null
+              ? h("span", { class: "small muted", testid: `camera-no-space-${c.id}` }, " (no space)")
+              : null,
+          ),
           h("td", { class: "num" }, `${c.width} × ${c.height}`),
           h("td", null, badge(cameraStatus(c))),
+          h(
+            "td",
+            { title: c.health?.fps ? `${fmt(c.health.fps, 1)} frames/s` : null },
+            healthBadge(c.health, `camera-health-${c.id}`),
+          ),
           [0, 4, 2, 5].map((k) =>
             h("td", { class: "num" }, c.K ? fmt(c.K[Math.floor(k / 3)][k % 3], 2) : "–"),
           ),
@@ -231,14 +359,16 @@ export async function renderCameras(main) {
     main,
     panel(
       "Add a camera",
-      "Register a camera by name and image size; calibrate it afterwards",
-      addCameraForm((cam) => {
+      space
+        ? `Register a camera of ${space.name} by name and image size; calibrate it afterwards`
+        : "Register a camera by name and image size; calibrate it afterwards",
+      addCameraForm(space, (cam) => {
         location.hash = `#/cameras/${cam.id}`;
       }),
     ),
     panel(
-      `Cameras (${total})`,
-      "Click a camera for its intrinsics, calibration history and exports",
+      space ? `Cameras of ${space.name} (${total})` : `Cameras (${total})`,
+      "Click a camera for its health, latest image, intrinsics, calibration history and exports",
       items.length
         ? h(
             "div",
@@ -251,7 +381,7 @@ export async function renderCameras(main) {
         : h(
             "p",
             { class: "empty", testid: "camera-table-empty" },
-            "No cameras yet. Add one above.",
+            space ? `No cameras in ${space.name} yet. Add one above.` : "No cameras yet. Add one above.",
           ),
     ),
   );
@@ -423,6 +553,8 @@ export async function renderCamera(main, [id], _query, setTitle) {
       { class: "facts", testid: "camera-facts" },
       h("dt", null, "Status"),
       h("dd", null, badge(cameraStatus(cam))),
+      h("dt", null, "Space"),
+      h("dd", { testid: "camera-space" }, spaceName(cam.space_id)),
       h("dt", null, "Image size"),
       h("dd", { class: "num" }, `${cam.width} × ${cam.height} px`),
       h("dt", null, "Calibrated by"),
@@ -515,14 +647,28 @@ export async function renderCamera(main, [id], _query, setTitle) {
     : null;
 
   const live = liveView(id);
+  const health = healthView(id, cam.health);
   const place = await placePanel(cam, () => location.reload());
   mount(
     main,
-    h("div", { class: "grid wide-left" }, intrinsics, details),
-    h("div", { class: "grid two" }, live.panel, pose),
+    h(
+      "div",
+      { class: "grid wide-left", style: { alignItems: "start" } },
+      live.panel,
+      h("div", { class: "grid" }, health.panel, details),
+    ),
+    h("div", { class: "grid wide-left" }, intrinsics, pose),
     place,
     residuals,
     panel("Calibration history", "Every calibration applied to this camera, newest first", history),
   );
-  return live.stop;
+  return () => {
+    live.stop();
+    health.stop();
+  };
+}
+
+function spaceName(spaceId) {
+  if (spaceId === null || spaceId === undefined) return "none";
+  return spaceById(spaceId)?.name || `space ${spaceId}`;
 }

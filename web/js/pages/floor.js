@@ -1,7 +1,8 @@
-// Floor: the plan seen from above with the coverage heat map under it, the live positions of
-// the robot and people (2-sigma covariance ellipses, tracks) and the digital twin's controls.
+// Floor: the chosen space's plan seen from above with the coverage heat map under it, the live
+// positions of its robot and people (2-sigma covariance ellipses, tracks) and, in the twin's
+// home, the digital twin's controls.
 
-import { api, list } from "../api.js";
+import { api, currentSpace, inSpace, list, spaceById } from "../api.js";
 import { drawRooms, eventToWorld, planTransform } from "../floorplan.js";
 import { fmt, h, infoBox, mount, panel, s, toastError } from "../ui.js";
 
@@ -152,13 +153,17 @@ async function settle(promise) {
 }
 
 export async function renderFloor(main) {
+  const space = currentSpace();
   const [rooms, cameras, twin0, coverage, targets0] = await Promise.all([
-    list("/rooms", { limit: 200 }),
-    settle(list("/cameras", { limit: 200 })),
+    list(inSpace("/rooms"), { limit: 200 }),
+    settle(list(inSpace("/cameras", { unassigned: true }), { limit: 200 })),
     settle(api("/twin")),
-    settle(api("/maps/coverage?format=json")),
-    settle(api("/targets")),
+    settle(api(inSpace("/maps/coverage?format=json"))),
+    settle(api(inSpace("/targets"))),
   ]);
+  // The twin's controls and ground truth belong to its home: another space has neither.
+  const twinElsewhere =
+    space && twin0.value?.enabled && twin0.value.space_id && twin0.value.space_id !== space.id;
   const cams = (cameras.value?.items || []).filter((c) => Array.isArray(c.T_world_camera));
   const cov = coverage.value && Array.isArray(coverage.value.x) ? coverage.value : null;
 
@@ -474,7 +479,7 @@ export async function renderFloor(main) {
   // went before the page opened.
   const initial = targetsOf(targets0.value);
   try {
-    const recent = await api(`/targets/tracks?points=${TRACK_POINTS}`);
+    const recent = await api(inSpace(`/targets/tracks?points=${TRACK_POINTS}`));
     for (const tr of recent.tracks || []) {
       const pts = tr.points.map((p) => [p[1], p[2]]);
       if (pts.length) tracks.set(tr.label, pts);
@@ -492,7 +497,7 @@ export async function renderFloor(main) {
     historyNote.textContent = "";
     if (!historyToggle.checked) return;
     const since = Date.now() / 1000 - 600;
-    const body = await api(`/targets/tracks?state=all&since=${since}&targets=200`);
+    const body = await api(inSpace(`/targets/tracks?state=all&since=${since}&targets=200`));
     const ended = (body.tracks || []).filter((tr) => tr.state === "ended");
     historyNote.textContent = `${ended.length} ended in the last 10 min`;
     for (const tr of ended) {
@@ -514,7 +519,7 @@ export async function renderFloor(main) {
   const poll = async () => {
     if (stopped) return;
     try {
-      accept(targetsOf(await api("/targets")));
+      accept(targetsOf(await api(inSpace("/targets"))));
     } catch (err) {
       sourceBadge.textContent = `positions unavailable (${err.status || "offline"})`;
       sourceBadge.className = "badge bad";
@@ -531,7 +536,8 @@ export async function renderFloor(main) {
   try {
     const proto = location.protocol === "https:" ? "wss" : "ws";
     // The session cookie authenticates the stream (the service checks the page's Origin).
-    socket = new WebSocket(`${proto}://${location.host}/api/v1/ws/targets`, ["intspace"]);
+    const only = space ? `?space_id=${space.id}` : "";
+    socket = new WebSocket(`${proto}://${location.host}/api/v1/ws/targets${only}`, ["intspace"]);
     const fallback = setTimeout(() => {
       if (socket && socket.readyState !== WebSocket.OPEN) {
         socket.close();
@@ -676,9 +682,21 @@ export async function renderFloor(main) {
     }
     if (again && !stopped) twinTimer = setTimeout(refreshTwin, TWIN_MS);
   };
-  if (twin0.error || twin0.value?.enabled === false) twinOff(twin0.error);
-  else drawTwin(twin0.value);
-  twinTimer = setTimeout(refreshTwin, TWIN_MS);
+  if (twinElsewhere) {
+    const home = spaceById(twin0.value.space_id)?.name || `space ${twin0.value.space_id}`;
+    mount(
+      twinBox,
+      infoBox(
+        `The digital twin runs in ${home}, not in ${space.name}: the positions here come from ` +
+          `${space.name}'s own cameras. Pick ${home} in the header for the twin's controls.`,
+        "twin-elsewhere",
+      ),
+    );
+  } else {
+    if (twin0.error || twin0.value?.enabled === false) twinOff(twin0.error);
+    else drawTwin(twin0.value);
+    twinTimer = setTimeout(refreshTwin, TWIN_MS);
+  }
 
   // -- layout ----------------------------------------------------------------------------------
   const key = h(
@@ -736,21 +754,21 @@ export async function renderFloor(main) {
         panel("Digital twin", "The simulated home: clock and controls", twinBox, twinNotice),
         panel(
           "Targets",
-          "Latest position of each target; std: one standard deviation along the worst direction",
+          "Latest position of each target; sd: one standard deviation along the worst direction",
           emptyNote,
           h(
             "div",
             { class: "table-wrap" },
             h(
               "table",
-              { testid: "targets-table" },
+              { testid: "targets-table", class: "compact" },
               h(
                 "thead",
                 null,
                 h(
                   "tr",
                   null,
-                  ["Target", "Kind", "State", "x (m)", "y (m)", "Std (mm)"].map((t, i) =>
+                  ["Target", "Kind", "State", "x (m)", "y (m)", "sd (mm)"].map((t, i) =>
                     h("th", { class: i >= 3 ? "num" : null }, t),
                   ),
                 ),

@@ -1,7 +1,8 @@
 // Landmarks: the registry's landmarks with their printable artwork, detection on an uploaded
 // photo (outlines and labels drawn over it), and the semantic and navigation maps read so far.
 
-import { api, list } from "../api.js";
+import { api, currentSpace, inSpace, list } from "../api.js";
+import { drawRooms, planTransform } from "../floorplan.js";
 import { errorBox, fmt, h, mount, panel, s, sig, toastError } from "../ui.js";
 
 const BASE = "/api/v1";
@@ -27,6 +28,17 @@ function printLinks(landmark) {
   );
 }
 
+/** What a landmark's payload names, read from its fields (core.landmarks' format: object
+ * "ISL1|O|id|class|name|room|...", signpost "ISL1|S|id|name|room|..."): "object #1 blue cup
+ * (kitchen)"; "–" for a foreign code. The service checks the checksum when it reads a
+ * landmark; this only labels the table. */
+function markOf(payload) {
+  const f = (payload || "").split("|");
+  if (f[0] !== "ISL1" || f.length < 6 || !["O", "S"].includes(f[1])) return "–";
+  const [kind, name, room] = f[1] === "O" ? ["object", f[4], f[5]] : ["signpost", f[3], f[4]];
+  return `${kind} #${f[2]} ${name}${room ? ` (${room})` : ""}`;
+}
+
 function landmarkTable(items) {
   if (!items.length) {
     return h(
@@ -44,7 +56,11 @@ function landmarkTable(items) {
       h(
         "thead",
         null,
-        h("tr", null, ["Id", "Kind", "Size", "Payload", "Print"].map((t) => h("th", null, t))),
+        h(
+          "tr",
+          null,
+          ["Id", "Kind", "Mark", "Size", "Payload", "Print"].map((t) => h("th", null, t)),
+        ),
       ),
       h(
         "tbody",
@@ -55,6 +71,7 @@ function landmarkTable(items) {
             { testid: `landmark-row-${l.id}` },
             h("td", { class: "num" }, String(l.id)),
             h("td", null, l.kind),
+            h("td", { testid: `landmark-mark-${l.id}` }, markOf(l.payload)),
             h("td", { class: "num" }, `${fmt(l.size_m * 100, 1)} cm`),
             h("td", { class: "mono payload", title: l.payload }, l.payload),
             h("td", null, printLinks(l)),
@@ -178,7 +195,7 @@ function detectForm(cameras, out) {
   const form = h(
     "form",
     {
-      class: "form-grid",
+      class: "form-grid wide detect-form",
       testid: "detect-form",
       onSubmit: async (event) => {
         event.preventDefault();
@@ -201,9 +218,9 @@ function detectForm(cameras, out) {
         }
       },
     },
-    h("div", { class: "form-row" }, h("label", { for: "landmark-photo" }, "Photo"), file),
-    h("div", { class: "form-row" }, h("label", { for: "detect-camera" }, "Camera"), camera),
-    h("div", { class: "form-actions" }, submit),
+    h("label", { for: "landmark-photo" }, "Photo", file),
+    h("label", { for: "detect-camera" }, "Camera", camera),
+    h("div", { class: "form-actions", style: { marginTop: 0 } }, submit),
   );
   return [
     usable.length
@@ -235,10 +252,9 @@ function mapTable(testid, head, rows) {
   );
 }
 
-/** The maps on the floor plan: rooms, navigation edges and places (red), objects (blue). */
+/** The maps on the floor plan, drawn as the Floor and Navigation pages draw theirs: rooms,
+ * navigation edges and places (red), objects (blue). */
 function mapPlan(rooms, semantic, navigation) {
-  const W = 640;
-  const H = 360;
   const places = navigation.features.filter((f) => f.properties.kind === "place");
   const edges = navigation.features.filter((f) => f.properties.kind === "edge");
   const pts = [
@@ -247,30 +263,20 @@ function mapPlan(rooms, semantic, navigation) {
     ...semantic.features.map((f) => f.geometry.coordinates),
   ];
   if (!pts.length) return null;
-  const xs = pts.map((p) => p[0]);
-  const ys = pts.map((p) => p[1]);
-  const [x0, x1, y0, y1] = [Math.min(...xs), Math.max(...xs), Math.min(...ys), Math.max(...ys)];
-  const pad = 28;
-  const scale = Math.min(
-    (W - 2 * pad) / Math.max(x1 - x0, 1e-6),
-    (H - 2 * pad) / Math.max(y1 - y0, 1e-6),
-  );
-  const X = (x) => (W - scale * (x1 - x0)) / 2 + (x - x0) * scale;
-  const Y = (y) => H - (H - scale * (y1 - y0)) / 2 - (y - y0) * scale; // world y up
-  return s(
+  const tf = planTransform(pts, { width: 720, minHeight: 300 });
+  const { X, Y } = tf;
+  const gRooms = s("g");
+  drawRooms(gRooms, rooms, tf);
+  const svg = s(
     "svg",
     {
-      class: "plot floorplan maps-plan",
-      viewBox: `0 0 ${W} ${H}`,
+      class: "plot floormap maps-plan",
+      viewBox: `0 0 ${tf.W} ${tf.H}`,
       role: "img",
       "aria-label": "Semantic and navigation maps on the floor plan",
       testid: "maps-plan",
     },
-    rooms
-      .filter((r) => (r.polygon || []).length >= 3)
-      .map((r) =>
-        s("polygon", { class: "room", points: r.polygon.map((p) => `${X(p[0])},${Y(p[1])}`).join(" ") }),
-      ),
+    gRooms,
     edges.map((f) => {
       const [[ax, ay], [bx, by]] = f.geometry.coordinates;
       return s("line", {
@@ -301,13 +307,17 @@ function mapPlan(rooms, semantic, navigation) {
       );
     }),
   );
+  return h("div", { class: "floor-wrap maps-wrap" }, svg);
 }
 
 async function mapsPanel() {
   let semantic;
   let navigation;
   try {
-    [semantic, navigation] = await Promise.all([api("/maps/semantic"), api("/maps/navigation")]);
+    [semantic, navigation] = await Promise.all([
+      api(inSpace("/maps/semantic")),
+      api(inSpace("/maps/navigation")),
+    ]);
   } catch (err) {
     if (err.status === 409) {
       return panel(
@@ -354,15 +364,16 @@ async function mapsPanel() {
 }
 
 export async function renderLandmarks(main) {
+  const space = currentSpace();
   const [landmarks, cameras] = await Promise.all([
-    list("/landmarks", { limit: 500 }),
-    list("/cameras", { limit: 500 }),
+    list(inSpace("/landmarks", { unassigned: true }), { limit: 500 }),
+    list(inSpace("/cameras", { unassigned: true }), { limit: 500 }),
   ]);
   const out = h("div", { class: "detect-result", testid: "detect-result" });
   mount(
     main,
     panel(
-      "Landmarks",
+      space ? `Landmarks of ${space.name}` : "Landmarks",
       "Printed at true size: the blue frame's side or the red rings' diameter is the size",
       landmarkTable(landmarks.items),
     ),

@@ -2,7 +2,7 @@
 // on the twin, its result against the twin's truth, applied to the arm), and fetch tasks on
 // the twin with their phases and episode metrics as they run.
 
-import { api, list } from "../api.js";
+import { api, inSpace, list } from "../api.js";
 import {
   errorBox,
   fmt,
@@ -534,16 +534,21 @@ function tasksPanel(arms, tasks, stops) {
 export async function renderManipulation(main) {
   const stops = {};
   const draw = async () => {
-    const [arms, robots, tasks] = await Promise.all([
+    const [allArms, robots, tasks] = await Promise.all([
       list("/arms", { limit: 200 }),
-      list("/robots", { limit: 200 }),
+      list(inSpace("/robots", { unassigned: true }), { limit: 200 }),
       list("/tasks", { limit: 10 }),
     ]);
+    // The arms of the space's robots (and of robots in no space).
+    const robotIds = new Set(robots.items.map((r) => r.id));
+    const arms = { ...allArms, items: allArms.items.filter((a) => robotIds.has(a.robot_id)) };
     const armsBox = h("div", { testid: "arms" }, armTable(arms.items, robots.items));
     const refreshArms = async () => {
-      const fresh = await list("/arms", { limit: 200 });
-      if (fresh.items.length !== arms.items.length) return draw();
-      mount(armsBox, armTable(fresh.items, robots.items));
+      const fresh = (await list("/arms", { limit: 200 })).items.filter((a) =>
+        robotIds.has(a.robot_id),
+      );
+      if (fresh.length !== arms.items.length) return draw();
+      mount(armsBox, armTable(fresh, robots.items));
     };
     for (const stop of Object.values(stops)) stop?.();
     mount(

@@ -3,7 +3,7 @@
 // (POST /paths/{id}/follow) and watch, live, its status, the robot and the spot moving on the
 // plan and the tracking error over time (uPlot), from the series GET /paths/{id} returns.
 
-import { api, list } from "../api.js";
+import { api, currentSpace, list } from "../api.js";
 import { drawRooms, eventToWorld, planTransform, pointsAttr } from "../floorplan.js";
 import { fmt, h, infoBox, mount, panel, s, statusBadge, toast, toastError } from "../ui.js";
 
@@ -96,12 +96,13 @@ function calibrationFacts(result) {
 }
 
 export async function renderNavigation(main) {
-  const spaces = await list("/spaces", { limit: 200 });
-  if (!spaces.items.length) {
+  const space = currentSpace();
+  if (!space) {
     mount(main, infoBox("No space yet: register a space and its rooms first.", "nav-empty"));
     return null;
   }
-  let spaceId = spaces.items[0].id;
+  // The space picked in the header.
+  const spaceId = space.id;
   let plan = null;
   let projectors = [];
   let start = null;
@@ -112,11 +113,6 @@ export async function renderNavigation(main) {
   let chartKey = null;
   let alive = true;
 
-  const spaceSelect = h(
-    "select",
-    { testid: "nav-space", "aria-label": "Space" },
-    spaces.items.map((sp) => h("option", { value: sp.id }, sp.name)),
-  );
   const projectorSelect = h("select", { testid: "nav-projector", "aria-label": "Projector" });
   const calProjector = h("select", { testid: "calib-projector", "aria-label": "Projector to calibrate" });
   const calImages = h("input", { type: "checkbox", testid: "calib-images", checked: true });
@@ -126,6 +122,8 @@ export async function renderNavigation(main) {
     "Calibrate projector",
   );
   const calBox = h("div", { testid: "calib-box", "aria-live": "polite" });
+  // Why the calibration cannot start, when it cannot.
+  const calWhy = h("p", { class: "small muted", testid: "calib-why", hidden: true });
   let calTimer = null;
   const lawSelect = h(
     "select",
@@ -483,6 +481,12 @@ export async function renderNavigation(main) {
       projectorSelect.value = planning;
     if (projectors.some((p) => String(p.id) === calibrating)) calProjector.value = calibrating;
     calButton.disabled = !projectors.length;
+    calWhy.hidden = projectors.length > 0;
+    calWhy.textContent = projectors.length
+      ? ""
+      : `No projector is registered in ${space.name}: register it (POST /api/v1/projectors ` +
+        "with this space's id) to calibrate it here. The digital twin registers its own " +
+        "projector in its home when the service runs with INTSPACE_SIMULATION=true.";
   }
 
   // Projector calibration on the twin: a run of kind "projector" (POST /calibration-runs),
@@ -571,10 +575,6 @@ export async function renderNavigation(main) {
       mount(calBox, h("p", { class: "small badge bad", testid: "calib-error" }, err.detail || err.message));
     }
   });
-  spaceSelect.addEventListener("change", () => {
-    spaceId = Number(spaceSelect.value);
-    loadSpace().catch(toastError);
-  });
   await loadSpace();
 
   mount(
@@ -586,7 +586,6 @@ export async function renderNavigation(main) {
       h(
         "div",
         { class: "nav-toolbar" },
-        h("label", null, "Space ", spaceSelect),
         h("label", null, "Projector ", projectorSelect),
         planBadge,
       ),
@@ -606,6 +605,7 @@ export async function renderNavigation(main) {
         h("label", null, calImages, " Detect the spots in rendered images (about 10 s)"),
         calButton,
       ),
+      calWhy,
       calBox,
     ),
     panel(

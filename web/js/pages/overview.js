@@ -1,15 +1,19 @@
-// Overview: the space, device counts, service health and a floor plan with the cameras.
+// Overview: the chosen space, its device counts, service health and a floor plan with the
+// cameras.
 
-import { api, list } from "../api.js";
+import { api, currentSpace, inSpace, list } from "../api.js";
 import { floorPlan } from "../plot.js";
 import { badge, errorBox, fmt, h, mount, panel, statusBadge, when } from "../ui.js";
+import { cameraCounts } from "./cameras.js";
 
+// [registry path, label, link, whether devices of no space count too]: the Cameras and
+// Landmarks pages list the space's devices and those of no space, and so do these counts.
 const DEVICES = [
-  ["cameras", "Cameras", "#/cameras"],
-  ["projectors", "Projectors", null],
-  ["robots", "Robots", null],
-  ["landmarks", "Landmarks", null],
-  ["rooms", "Rooms", null],
+  ["cameras", "Cameras", "#/cameras", true],
+  ["projectors", "Projectors", "#/navigation", true],
+  ["robots", "Robots", null, true],
+  ["landmarks", "Landmarks", "#/landmarks", true],
+  ["rooms", "Rooms", null, false],
 ];
 
 /** Settle every promise; failures come back as {error}. */
@@ -28,9 +32,12 @@ export async function renderOverview(main) {
   const [health, spaces, runs, ...counts] = await settle([
     api("/health"),
     list("/spaces", { limit: 20 }),
-    list("/calibration-runs", { limit: 6 }),
-    ...DEVICES.map(([path]) => list(`/${path}`, { limit: 200 })),
+    list("/calibration-runs", { limit: 20 }),
+    ...DEVICES.map(([path, , , unassigned]) =>
+      list(inSpace(`/${path}`, { unassigned }), { limit: 200 }),
+    ),
   ]);
+  const space = currentSpace();
   // One error box for the whole page when every registry read was refused (not signed in).
   const refused = [spaces, ...counts].every((r) => r.error && r.error.status === 401);
   if (refused) throw spaces.error;
@@ -42,8 +49,9 @@ export async function renderOverview(main) {
       const r = counts[i];
       let sub = "";
       if (key === "cameras" && r.value) {
-        const calibrated = r.value.items.filter((c) => c.K).length;
-        sub = `${calibrated} calibrated`;
+        // What the Cameras page's Status and Health columns say, counted.
+        const n = cameraCounts(r.value.items);
+        sub = `${n.calibrated} calibrated · ${n.online} online`;
       }
       return h(
         href ? "a" : "div",
@@ -84,29 +92,37 @@ export async function renderOverview(main) {
   );
 
   const spaceList = spaces.value ? spaces.value.items : [];
+  const others = spaceList.filter((sp) => sp.id !== space?.id);
   const spacePanel = panel(
     "Space",
     null,
     spaces.error
       ? errorBox(spaces.error)
-      : spaceList.length
+      : space
         ? h(
             "div",
             { testid: "space" },
-            spaceList.map((sp) =>
-              h(
-                "div",
-                null,
-                h("h3", { style: { fontSize: "1.05rem", color: "var(--ink)" } }, sp.name),
-                sp.description ? h("p", { class: "muted small" }, sp.description) : null,
-              ),
-            ),
+            h("h3", { style: { fontSize: "1.05rem", color: "var(--ink)" } }, space.name),
+            space.description ? h("p", { class: "muted small" }, space.description) : null,
+            others.length
+              ? h(
+                  "p",
+                  { class: "small muted", testid: "other-spaces" },
+                  `Also registered: ${others.map((sp) => sp.name).join(", ")}. ` +
+                    "Pick the space to show in the header; every page shows only its devices.",
+                )
+              : null,
           )
         : h("p", { class: "empty", testid: "space" }, "No space defined yet."),
   );
 
   const rooms = counts[DEVICES.findIndex(([k]) => k === "rooms")].value?.items || [];
   const cameras = counts[0].value?.items || [];
+  // The space's runs: those of its cameras, and those of no camera (network, projector, arm).
+  const cameraIds = new Set(cameras.map((c) => c.id));
+  const spaceRuns = (runs.value?.items || [])
+    .filter((r) => !r.camera_id || cameraIds.has(r.camera_id))
+    .slice(0, 6);
   const planPanel = panel(
     "Floor plan",
     "Rooms and the cameras with a calibrated pose, seen from above",
@@ -118,7 +134,7 @@ export async function renderOverview(main) {
     null,
     runs.error
       ? errorBox(runs.error)
-      : runs.value.items.length
+      : spaceRuns.length
         ? h(
             "div",
             { class: "table-wrap" },
@@ -139,7 +155,7 @@ export async function renderOverview(main) {
               h(
                 "tbody",
                 null,
-                runs.value.items.map((r) =>
+                spaceRuns.map((r) =>
                   h(
                     "tr",
                     null,
