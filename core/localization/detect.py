@@ -42,7 +42,8 @@ Expected size. Given the camera (calibration and pose), the marker's height and 
 blob is the marker only if it has the size and shape of the disc's image where it is: the disc
 is placed where the blob's centre's ray meets the plane of the marker's height, its rim is
 projected, and the ellipse of those second moments (a uniform ellipse's are half its rim's)
-is compared with the blob's along its two axes (`MarkerDetectorConfig.radius`). A red coat
+is compared with the blob's along its two axes and in aspect (`MarkerDetectorConfig.radius`);
+where the disc would be under two pixels across it is not looked for. A red coat
 stands upright and is many times the area of a 10 cm disc at the robot's height, a red sign
 hangs far above it: both have a disc-like blob's shape in some views, never this size and
 orientation.
@@ -116,8 +117,11 @@ class MarkerDetectorConfig:
     on a rug or a threshold (4 degrees: x1.2 on the minor axis of a disc seen 19 degrees above
     the horizon, as a street camera sees the ground 25 m away), a placed camera's focal length
     and height errors (a few percent), a disc a tenth hidden (x0.9).
-    A blob passing both with the wrong colour is also a red thing of a disc's shape and the
-    disc's size at the marker's height where it is (module docstring: "Expected size").
+    The blob's aspect, once the same edge spread (0..size_margin) is taken off both axes, must
+    also be the ellipse's within size_factor (a scale error scales both axes alike; only the
+    disc's tilt changes the aspect). Where the disc's image would be under two pixels across,
+    the marker is not looked for: a one-pixel red line has every shape a disc has there
+    (module docstring: "Expected size").
     Measured on the twin's rendered markers (264 unhidden detections of three calibration
     drives against the true image ellipse centre): blobs of 60 px and more are 0.03-0.06 px
     off per axis where the propagated deviation is about 0.022 px (mean NEES 13 for the
@@ -315,6 +319,12 @@ def _disc_like(blob: NDArray[np.uint8], area: int, cfg: MarkerDetectorConfig) ->
     return _ellipse_overlap(blob, bx, by, bw, bh) >= cfg.min_ellipse_overlap
 
 
+# The narrowest image of the marker's disc (px across its minor axis) it is looked for in: a
+# disc seen narrower is a line of single pixels, which a red stripe or a tape's fragment makes
+# alike; from two pixels across the hue mask shows its width, and the shape tests mean something.
+_MIN_MARKER_WIDTH_PX = 2.0
+
+
 def marker_ellipse(
     camera: NetworkCamera, pixel: ArrayLike, height: float, radius: float
 ) -> Array | None:
@@ -368,9 +378,21 @@ def _expected_size(
     S_blob = np.array([[mo["mu20"], mo["mu11"]], [mo["mu11"], mo["mu02"]]]) / mo["m00"]
     ev, axes = np.linalg.eigh(S_pred)
     a = 2.0 * np.sqrt(ev)  # a uniform ellipse's semi-axes are twice its standard deviations
+    if 2.0 * a[0] < _MIN_MARKER_WIDTH_PX:
+        return False  # the disc would be a line there: no shape to test
     b = 2.0 * np.sqrt(np.maximum(np.einsum("ij,ik,kj->j", axes, S_blob, axes), 0.0))
     k, margin = cfg.size_factor, cfg.size_margin
-    return bool(np.all((b >= a / k - margin) & (b <= k * a + margin)))
+    if not np.all((b >= a / k - margin) & (b <= k * a + margin)):
+        return False
+    # The shape: a scale error scales both axes alike and the edge's spread d (0..margin) is
+    # one threshold on one blur, so (b_minor - d) / (b_major - d) is the predicted aspect
+    # a_minor / a_major, but for the disc's tilt (size_factor).
+    d = np.linspace(0.0, margin, 11)
+    inner = b[1] - d
+    ok = inner > 0
+    aspect = np.maximum(b[0] - d[ok], 0.0) / inner[ok]
+    want = a[0] / a[1]
+    return bool(np.any((aspect >= want / k) & (aspect <= want * k)))
 
 
 def _marker_at(
