@@ -1190,7 +1190,8 @@ class PersonDetector:
             self._grey_age = 0
         self._grey_age += 1
         ref = self._grey
-        cur = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)[::_GAIN_STRIDE, ::_GAIN_STRIDE]
+        grid = np.ascontiguousarray(image[::_GAIN_STRIDE, ::_GAIN_STRIDE])
+        cur = cv2.cvtColor(grid, cv2.COLOR_BGR2GRAY)
         ok = (ref >= _GAIN_GREY[0]) & (ref <= _GAIN_GREY[1]) & (cur < 255)
         if np.count_nonzero(ok) < 100:
             return 1.0
