@@ -174,16 +174,22 @@ class ExposureChanges:
         if not (math.isfinite(self.limit) and self.limit > 1 + hi):
             raise InvalidInput(f"limit must exceed 1 + the largest step, got {self.limit}")
 
-    def gain(self, camera: str, t: float) -> float:
-        """Return camera `camera`'s exposure gain at time `t` (s; 1 before its first step)."""
+    def steps(self, camera: str, until: float) -> tuple[Array, Array]:
+        """Return the times (K,) s of camera `camera`'s exposure steps up to `until` (s) and its
+        gain after each (K,)."""
         n = 64
         while True:
             times, gains = _exposure_steps(self, camera, n)
-            if times[-1] > t:
+            if times[-1] > until:
                 break
             n *= 2
-        k = int(np.searchsorted(times, t, side="right"))
-        return 1.0 if k == 0 else float(gains[k - 1])
+        k = int(np.searchsorted(times, until, side="right"))
+        return times[:k], gains[:k]
+
+    def gain(self, camera: str, t: float) -> float:
+        """Return camera `camera`'s exposure gain at time `t` (s; 1 before its first step)."""
+        _, gains = self.steps(camera, t)
+        return float(gains[-1]) if len(gains) else 1.0
 
     def noise(self, camera: str, t: float, base: SensorNoise | None = None) -> SensorNoise:
         """Return `base` (default SensorNoise()) with its gain times the camera's at `t`."""

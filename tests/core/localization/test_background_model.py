@@ -190,3 +190,23 @@ def test_settings_are_checked() -> None:
             PersonDetector(**bad)
     with pytest.raises(InvalidInput):
         PersonDetector().segment(np.zeros((4, 4), np.uint8))
+
+
+def test_exposure_changes_are_seeded_steps_within_their_limit() -> None:
+    steps = ExposureChanges(interval=2.0, seed=5)
+    t = np.arange(0.0, 600.0, 0.5)
+    g = np.array([steps.gain(CAMERA, float(x)) for x in t])
+    assert g[0] == 1.0  # no step at t = 0 (a Poisson process's first step comes later)
+    assert np.all((g >= 1 / 1.6) & (g <= 1.6))
+    # Each step is 10-30 % of the gain before it.
+    times, gains = steps.steps(CAMERA, 600.0)
+    assert len(times) > 200 and np.all(np.diff(times) > 0)
+    moved = gains / np.concatenate([[1.0], gains[:-1]])
+    assert np.all((np.abs(moved - 1) >= 0.1 - 1e-12) & (np.abs(moved - 1) <= 0.3 + 1e-12))
+    assert steps.gain(CAMERA, 300.0) == ExposureChanges(interval=2.0, seed=5).gain(CAMERA, 300.0)
+    assert [steps.gain("cam_kitchen", float(x)) for x in t[:200]] != list(g[:200])
+    assert steps.noise(CAMERA, 0.0).gain == 1.0
+    with pytest.raises(InvalidInput):
+        ExposureChanges(step=(0.3, 0.1))
+    with pytest.raises(InvalidInput):
+        ExposureChanges(interval=0.0)
