@@ -70,11 +70,17 @@ def detect_frame(
     robot carries one: a mast reaches a person's height) and a blob whose fitted body is
     shorter than MIN_PERSON_HEIGHT_M. The
     person detector's learnt background also tells the marker detector what red things belong to
-    the room (core.localization.detect.detect_marker).
+    the room, and with the camera and the marker's radius (`marker.radius`) the marker must have
+    the size and shape of its disc's image at `marker_height`
+    (core.localization.detect.detect_marker).
     """
     out: list[FrameDetection] = []
     background = people.background() if people is not None else None
-    found = detect_marker(image, marker, background=background) if marker is not None else None
+    found = None
+    if marker is not None:
+        found = detect_marker(
+            image, marker, background=background, camera=camera, height=marker_height
+        )
     if found is not None:
         out.append(FrameDetection("robot", found.pixel, found.cov, float(marker_height)))
     if people is None:

@@ -37,7 +37,7 @@ from core.localization.tracking import FrameResult, Tracker, TrackerConfig, Trac
 from core.sim.crowd import Crowd, crowd_of
 from core.sim.motion import Pose2D, WorldState, simulate_patrol
 from core.sim.occluders import scene_occluders
-from core.sim.render import Renderer, camera_model, renderer_for
+from core.sim.render import ExposureChanges, Renderer, camera_model, renderer_for
 from core.sim.scene import Robot, Scene, Walker, default_scene
 
 Array = NDArray[np.float64]
@@ -515,10 +515,12 @@ def rendered_frames(
     *,
     minutes: float = TRACKING_MINUTES,
     rate_hz: float = RENDER_RATE_HZ,
+    exposure: ExposureChanges | None = None,
 ) -> tuple[list[RenderedFrame], Array]:
     """Return the `tracking` scenario's frames in capture order (every calibrated camera at
     `rate_hz` with its own phase, each image rendered with the robot patrolling and the
-    walkers, and its detections) and the robot's drive (poses (N, 3) every 0.05 s)."""
+    walkers, and its detections) and the robot's drive (poses (N, 3) every 0.05 s).
+    `exposure`: the cameras' exposure steps (None: a constant exposure)."""
     if scene.robot is None or scene.robot.marker is None:
         raise InvalidInput("the tracking scenario needs a robot with a top marker")
     rng = np.random.default_rng(seed)
@@ -528,7 +530,10 @@ def rendered_frames(
     drive = simulate_patrol(scene.robot, duration + 1.0, dt=0.05, rng=seed)
     pose = np.asarray(drive.pose)
     crowd = crowd_around(scene, pose)
-    marker = MarkerDetectorConfig(colour=scene.robot.marker.colour)
+    # The marker's size is the robot's specification, as its colour is.
+    marker = MarkerDetectorConfig(
+        colour=scene.robot.marker.colour, radius=scene.robot.marker.radius
+    )
     mast = mast_config(scene.robot)
     people = {c.name: _background(renderer, scene, c.name) for c in scene.cameras}
     period = 1.0 / rate_hz
@@ -543,7 +548,11 @@ def rendered_frames(
         where = crowd.positions([t])[0]
         walkers = tuple((float(x), float(y)) for x, y in where[1:])
         state = WorldState(t, Pose2D(*robot_poses(crowd, pose, np.array([t]))[0]), walkers)
-        image = renderer.render(spec.name, state, rng=rng).image
+        if exposure is None:
+            image = renderer.render(spec.name, state, rng=rng).image
+        else:
+            noise = exposure.noise(spec.name, t)
+            image = renderer.render(spec.name, state, rng=rng, noise=noise).image
         found = detect_frame(
             image,
             marker=marker,

@@ -37,7 +37,7 @@ from core.localization import (
 )
 from server.api.deps import SessionDep, require_write
 from server.api.errors import PROBLEM_RESPONSES, FieldProblem
-from server.db.models import Camera
+from server.db.models import Camera, Robot
 from server.schemas.localization import EmptyFrame, Observation, ObservationBatch, PositionBatch
 from server.services.auth import Principal
 from server.services.targets import LiveTargets
@@ -97,6 +97,16 @@ def post_observations(
     _check_empty_frames(obs, empty, refused, who)
     rows = _camera_rows(session, camera_ids)
     space_of = {cid: row.space_id for cid, row in rows.items()}
+    # A space with no registered robot has no robot to see: a "robot" detection there is a red
+    # thing mistaken for its marker (spec 08, "Real footage"). Dropping a kind is filtering,
+    # not association; a frame left with nothing is an empty frame to the tracker.
+    robotless = _robotless(session, space_of)
+    ignored = [o for o in obs if o.kind == "robot" and o.camera_id in robotless]
+    if ignored:
+        obs = [o for o in obs if not (o.kind == "robot" and o.camera_id in robotless)]
+        left = {(o.camera_id, o.t) for o in obs}
+        emptied = {(o.camera_id, o.t) for o in ignored} - left
+        empty = [*empty, *(EmptyFrame(camera_id=c, t=t) for c, t in sorted(emptied))]
     m = _measure(obs, rows, cameras)
     if live is not None:
         _check_labels(obs, space_of, live)
@@ -125,7 +135,13 @@ def post_observations(
         stored, frames, late = result.stored, result.frames, result.late
     else:  # pragma: no cover - the app always has its tracking service once started
         stored, frames, late = 0, 0, 0
-    body = {"stored": stored, "frames": frames, "late": late, "positions": positions}
+    body = {
+        "stored": stored,
+        "frames": frames,
+        "late": late,
+        "ignored": len(ignored),
+        "positions": positions,
+    }
     # The service's clock to the microsecond: a camera node measures its clock offset by it
     # (the Date header has whole seconds, refreshed late when the service is loaded).
     return JSONResponse(body, headers={SERVER_TIME_HEADER: f"{time.time():.6f}"})
@@ -292,6 +308,23 @@ def _measure(
     score = np.array([1.0 if obs[i].score is None else obs[i].score for i in boxed])
     keep[boxed] = score >= threshold
     return _Measured(pixel, cov, keep, tracked)
+
+
+def _robotless(session, space_of: dict[int, int | None]) -> set[int]:
+    """Return the cameras (ids of `space_of`) whose space has no robot in the registry (a
+    camera in no space: when no robot is in no space either)."""
+    spaces = set(space_of.values())
+    wanted = [s for s in spaces if s is not None]
+    held: set[int | None] = set()
+    if wanted:
+        held |= set(
+            session.scalars(select(Robot.space_id).where(Robot.space_id.in_(wanted)).distinct())
+        )
+    if None in spaces:
+        stmt = select(Robot.id).where(Robot.space_id.is_(None)).limit(1)
+        if session.scalars(stmt).first() is not None:
+            held.add(None)
+    return {cid for cid, sid in space_of.items() if sid not in held}
 
 
 def _locate_labelled(every, index: list[int], cameras, measured: _Measured) -> list[dict]:

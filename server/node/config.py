@@ -3,7 +3,7 @@
 ```yaml
 api: http://127.0.0.1:8000/api/v1     # optional; --api wins
 space: 1                              # optional: the space whose cameras these are
-marker: {colour: [220, 20, 30], height: 0.36}
+marker: {colour: [220, 20, 30], height: 0.36, radius: 0.05}
 background_frames: 30                 # frames that teach each camera's background model
 cameras:
   - name: cam_kitchen                 # the camera's name in the registry
@@ -28,6 +28,7 @@ from core.errors import InvalidInput
 # carries; a robot with another marker is configured in the file or by flags.
 DEFAULT_MARKER_COLOUR = (220, 20, 30)
 DEFAULT_MARKER_HEIGHT = 0.36
+DEFAULT_MARKER_RADIUS = 0.05
 
 Vertex = Annotated[list[float], Field(min_length=2, max_length=2)]
 
@@ -37,10 +38,12 @@ class _Model(BaseModel):
 
 
 class MarkerConfig(_Model):
-    """The robot's top marker: colour (r, g, b) and height above the floor (m)."""
+    """The robot's top marker: colour (r, g, b), height above the floor (m) and the disc's
+    radius (m): a red blob is the marker only at the size and shape this disc has there."""
 
     colour: tuple[int, int, int] = DEFAULT_MARKER_COLOUR
     height: Annotated[float, Field(gt=0, le=5)] = DEFAULT_MARKER_HEIGHT
+    radius: Annotated[float, Field(gt=0, le=1)] = DEFAULT_MARKER_RADIUS
 
 
 class CameraConfig(_Model):

@@ -128,7 +128,9 @@ class Node:
         self.uploader = Uploader(self.client)
         self.frames = FrameUploads(self.client)
         self._token = token
-        self._marker = MarkerDetectorConfig(colour=config.marker.colour)
+        self._marker = MarkerDetectorConfig(
+            colour=config.marker.colour, radius=config.marker.radius
+        )
         self.cameras: list[CameraRun] = []
         self.stop_event = threading.Event()
         self._threads: list[threading.Thread] = []

@@ -137,6 +137,11 @@ class PositionBatch(ReadSchema):
         description="Frames older than what the space's tracker already processed: stored, "
         "not tracked."
     )
+    ignored: int = Field(
+        0,
+        description="Robot detections of cameras whose space has no registered robot: neither "
+        "stored nor tracked (a red thing taken for a marker where no robot can be).",
+    )
     positions: list[Position] = Field(
         description="The labelled (target, t) groups located at once by ML on the plane."
     )

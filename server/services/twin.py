@@ -250,7 +250,7 @@ class Twin:
         self.rate_hz = float(rate_hz)
         self._renderer = renderer_for(scene)
         self._marker_cfg = (
-            MarkerDetectorConfig(colour=scene.robot.marker.colour)
+            MarkerDetectorConfig(colour=scene.robot.marker.colour, radius=scene.robot.marker.radius)
             if scene.robot is not None and scene.robot.marker is not None
             else None
         )

@@ -16,7 +16,8 @@ How a frame is made (per camera):
 3. Lens distortion by one cv2.remap with a map precomputed per camera: for every distorted
    output pixel, the ideal canvas pixel it sees (the undistortion of that pixel, Newton's method
    in core.geometry.camera.undistort_points).
-4. Optical blur (Gaussian), exposure gain and additive Gaussian sensor noise, all seeded.
+4. Optical blur (Gaussian), exposure gain and additive Gaussian sensor noise, all seeded; a
+   camera's automatic exposure stepping over time is the scenario option `ExposureChanges`.
 
 The projector's laser spot, when a frame is asked with one, is red light added to the ideal
 canvas (a Gaussian blob of the spot's size, at least a glare of ~1 px) where the camera sees it.
@@ -27,12 +28,20 @@ Pixel coordinates have their origin at the centre of the top-left pixel; colours
 BGR (OpenCV), in the scene (r, g, b).
 """
 
-from core.sim.render._camera import CameraModel, Frame, SensorNoise, camera_at, camera_model
+from core.sim.render._camera import (
+    CameraModel,
+    ExposureChanges,
+    Frame,
+    SensorNoise,
+    camera_at,
+    camera_model,
+)
 from core.sim.render._raster import _clip_near
 from core.sim.render._renderer import Renderer, _disc_image_centre, render, renderer_for
 
 __all__ = [
     "CameraModel",
+    "ExposureChanges",
     "Frame",
     "Renderer",
     "SensorNoise",

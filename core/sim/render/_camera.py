@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+import zlib
+from dataclasses import dataclass, field, replace
+from functools import lru_cache
 from typing import Any
 
 import numpy as np
@@ -145,6 +147,72 @@ class SensorNoise:
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise InvalidInput(f"SensorNoise.{name} must be finite and >= 0, got {v}")
+
+
+@dataclass(frozen=True)
+class ExposureChanges:
+    """A ceiling camera's exposure stepping as an automatic exposure does (a scenario option;
+    off unless given). At random times, a Poisson process of mean interval `interval` seconds
+    from t = 0, the gain is multiplied by 1 + s, |s| uniform in `step` (0.1-0.3: the steps of
+    consumer cameras' automatic exposure), the sign random, except that it is taken towards 1
+    when the gain would leave [1 / limit, limit]. Each camera steps on its own: its steps are
+    drawn from (`seed`, the camera's name)."""
+
+    interval: float = 60.0
+    step: tuple[float, float] = (0.1, 0.3)
+    limit: float = 1.6
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        lo, hi = self.step
+        if not (math.isfinite(self.interval) and self.interval > 0):
+            raise InvalidInput(f"interval must be > 0 seconds, got {self.interval}")
+        if not 0 <= lo <= hi < 1:
+            raise InvalidInput(
+                f"step must be (low, high) with 0 <= low <= high < 1, got {self.step}"
+            )
+        if not (math.isfinite(self.limit) and self.limit > 1 + hi):
+            raise InvalidInput(f"limit must exceed 1 + the largest step, got {self.limit}")
+
+    def steps(self, camera: str, until: float) -> tuple[Array, Array]:
+        """Return the times (K,) s of camera `camera`'s exposure steps up to `until` (s) and its
+        gain after each (K,)."""
+        n = 64
+        while True:
+            times, gains = _exposure_steps(self, camera, n)
+            if times[-1] > until:
+                break
+            n *= 2
+        k = int(np.searchsorted(times, until, side="right"))
+        return times[:k], gains[:k]
+
+    def gain(self, camera: str, t: float) -> float:
+        """Return camera `camera`'s exposure gain at time `t` (s; 1 before its first step)."""
+        _, gains = self.steps(camera, t)
+        return float(gains[-1]) if len(gains) else 1.0
+
+    def noise(self, camera: str, t: float, base: SensorNoise | None = None) -> SensorNoise:
+        """Return `base` (default SensorNoise()) with its gain times the camera's at `t`."""
+        b = base or SensorNoise()
+        return replace(b, gain=b.gain * self.gain(camera, t))
+
+
+@lru_cache(maxsize=64)
+def _exposure_steps(changes: ExposureChanges, camera: str, n: int) -> tuple[Array, Array]:
+    """Return the times (n,) s of a camera's first `n` exposure steps and its gain after each."""
+    rng = np.random.default_rng([changes.seed, zlib.crc32(camera.encode())])
+    times = np.cumsum(rng.exponential(changes.interval, n))
+    size = rng.uniform(*changes.step, n)
+    sign = rng.choice([-1.0, 1.0], n)
+    gains = np.empty(n)
+    g = 1.0
+    for k in range(n):  # each step depends on the gain before it
+        s = sign[k] * size[k]
+        if not 1.0 / changes.limit <= g * (1.0 + s) <= changes.limit:
+            s = -s
+        g *= 1.0 + s
+        gains[k] = g
+    return times, gains
 
 
 @dataclass(frozen=True, eq=False)
