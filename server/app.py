@@ -37,6 +37,7 @@ from server.api import (
     tasks,
     tokens,
     twin,
+    zones,
 )
 from server.api.errors import install_api_fallback, install_error_handlers
 from server.api.limits import RequestSizeLimit
@@ -47,6 +48,7 @@ from server.services.runs import LeasePolicy, RunExecutor
 from server.services.scene_sync import SceneSync
 from server.services.targets import LiveTargets
 from server.services.tracking import TrackingService
+from server.services.zones import ZoneService
 from server.settings import Settings
 from server.version import VERSION
 
@@ -81,6 +83,7 @@ def api_router() -> APIRouter:
         streams,
         export,
         scene_proxy,
+        zones,
     ):
         router.include_router(module.router)
     return router
@@ -163,6 +166,17 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             shared_database_url=settings.resolved_database_url if shared else None,
         )
         app.state.tracking = tracking
+        zone_service = ZoneService(
+            factory,
+            owns=tracking.owns,
+            live_xy=lambda space_id: [
+                (v["kind"], v["xy"])
+                for v in live.snapshot()[1]
+                if v["space_id"] == space_id and v["state"] in ("confirmed", "coasting")
+            ],
+        )
+        tracking.target_listeners.append(zone_service.on_targets)
+        app.state.zones = zone_service
         twin = None
         if settings.simulation:
             twin = await run_in_threadpool(_start_twin, settings, factory, live, app)
@@ -170,6 +184,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         with factory() as session:
             app.state.scene_sync.load(session)
         live.start()
+        zone_service.start()
         tracking.start()
         if twin is not None:
             twin.start()
@@ -191,6 +206,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             if getattr(app.state, "task_runner", None) is not None:
                 await run_in_threadpool(app.state.task_runner.shutdown)
             await run_in_threadpool(tracking.stop)
+            await run_in_threadpool(zone_service.stop)
             await run_in_threadpool(live.stop)
             if executor is not None:
                 interrupted = await run_in_threadpool(executor.shutdown)
@@ -218,6 +234,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.twin = None
     app.state.targets = LiveTargets(factory)
     app.state.tracking = None
+    app.state.zones = None
     app.state.token_cache = TokenCache()
     app.state.auth_limiter = AuthFailureLimiter(settings.auth_failure_limit)
     app.state.scene_sync = SceneSync(None)
