@@ -95,8 +95,10 @@ def points_in_polygons(points: ArrayLike, polygons: Sequence[ArrayLike]) -> NDAr
     safe = np.where(dy == 0.0, 1.0, dy)
     x_cross = a[None, :, 0] + (py - a[None, :, 1]) * (b[:, 0] - a[:, 0])[None, :] / safe[None, :]
     crosses = straddles & (px < x_cross)
-    counts = np.zeros((p.shape[0], len(rings)), dtype=np.int64)
-    np.add.at(counts, (slice(None), owner), crosses.astype(np.int64))
+    # Crossings per polygon: (M, E) @ (E, Z), the edges' one-hot owners.
+    owners = np.zeros((owner.size, len(rings)), dtype=np.int64)
+    owners[np.arange(owner.size), owner] = 1
+    counts = crosses.astype(np.int64) @ owners
     return (counts % 2) == 1
 
 

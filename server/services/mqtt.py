@@ -144,6 +144,7 @@ class MqttLink:
         self._loop: asyncio.AbstractEventLoop | None = None
         self._wake: asyncio.Event | None = None
         self._stopping = False
+        self._reconnect = False
         self._final: list[tuple[str, bytes]] = []
         self._thread: threading.Thread | None = None
         self.connected = False
@@ -189,6 +190,15 @@ class MqttLink:
             self._queue.append((topic, _bytes(payload), qos))
         self._poke()
         return not full
+
+    def set_will(self, will: tuple[str, bytes | str] | None) -> None:
+        """Change the last will: the connection is made again with it."""
+        with self._lock:
+            if will == self._will:
+                return
+            self._will = will
+            self._reconnect = self.connected  # not connected: the next connection has it
+        self._poke()
 
     def status(self) -> dict[str, Any]:
         """Return the connection's state: url (redacted), connected, since (Unix s: when it
@@ -340,6 +350,9 @@ class MqttLink:
             sent = await self._send_some(client)
             with self._lock:
                 stopping = self._stopping and not self._dirty and not self._queue
+                reconnect, self._reconnect = self._reconnect, False
+            if reconnect and not stopping:
+                raise aiomqtt.MqttError("connecting again with a new last will")
             if stopping:
                 for topic, payload in self._final:
                     await client.publish(topic, payload, qos=1, retain=True)
