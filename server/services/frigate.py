@@ -44,7 +44,9 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session, sessionmaker
 
 from core.errors import IntspaceError
+from core.localization import NetworkCamera
 from core.localization.boxes import BOX_SIDES, box_foot
+from core.localization.floor_spread import floor_spread_cov
 from server.db.models import Camera
 from server.services.mqtt import Message
 from server.services.tracking import DetectionIn, TrackingService
@@ -58,6 +60,21 @@ _TICK_S = 0.05
 _INBOX = 10_000
 # Frigate's stats period when only one stats message was seen (its default, s).
 _STATS_PERIOD_S = 60.0
+# A re-fed box's foot is uncertain by the distance the person may have walked since Frigate's
+# last report, at V_WALK_M_S after the first HOLD_GRACE_S; the spread is isotropic on the floor
+# (core.localization.floor_spread). Frigate reports a stationary object as soon as it moves
+# out of its box, so the box of an object last reported stationary stands for as long as
+# Frigate keeps it: its spread stops at HOLD_STILL_CAP_M. The box of an object last reported
+# active (moving) says less and less: its spread grows without bound, so after a second or so
+# the tracker leaves it out (located_std, 0.5 m) and the track coasts until Frigate's next
+# report (past STALE_M it is not fed at all). A stale box never holds a second track where the
+# person was; a person who stops is held by the tracker's coasting until Frigate calls them
+# stationary, after Frigate's `detect.stationary.threshold` frames (docs/home-automation.md
+# advises about 2 s).
+V_WALK_M_S = 1.0
+HOLD_GRACE_S = 0.5
+HOLD_STILL_CAP_M = 0.15
+STALE_M = 1.0
 # The cut mask this source builds, column by column (core's order).
 assert BOX_SIDES == ("bottom", "top", "left", "right")
 
@@ -69,13 +86,13 @@ class _Held:
     last fed detection and of its `new`."""
 
     frigate_id: str
-    camera_id: int
-    space_id: int | None
+    ref: _CameraRef
     box: np.ndarray
     cut: np.ndarray
     news: float
-    fed_t: float
     first_t: float
+    report_t: float
+    stationary: bool = False
 
 
 @dataclass(frozen=True)
@@ -84,6 +101,7 @@ class _CameraRef:
     space_id: int | None
     width: int
     height: int
+    camera: NetworkCamera | None  # None until calibrated (the tracker ignores it then too)
 
 
 class FrigateSource:
@@ -101,8 +119,8 @@ class FrigateSource:
         timeout_s: float = 60.0,
         topic_prefix: str = "frigate",
         hold_hz: float = 4.0,
-        burst_hz: float = 10.0,
-        burst_s: float = 1.2,
+        burst_hz: float = 20.0,
+        burst_s: float = 1.0,
         lag: float | None = None,
         heartbeat: Callable[[int, float, float | None], None] | None = None,
         clock: Callable[[], float] = time.time,
@@ -184,7 +202,7 @@ class FrigateSource:
         """Return the objects Frigate keeps, for display: Frigate's id, camera, last news."""
         with self._lock:
             return [
-                {"frigate_id": h.frigate_id, "camera_id": h.camera_id, "news": h.news}
+                {"frigate_id": h.frigate_id, "camera_id": h.ref.id, "news": h.news}
                 for h in self._held.values()
             ]
 
@@ -280,74 +298,103 @@ class FrigateSource:
         with self._lock:
             held = self._held.get(fid)
             if held is None:
-                held = _Held(fid, ref.id, ref.space_id, scaled, cut, now, frame_time, frame_time)
+                held = _Held(fid, ref, scaled, cut, now, frame_time, frame_time)
                 self._held[fid] = held
             else:
-                held.camera_id, held.space_id = ref.id, ref.space_id
+                held.ref = ref
                 held.box, held.cut, held.news = scaled, cut, now
-                held.fed_t = max(held.fed_t, frame_time)
-        self._feed(ref.id, ref.space_id, frame_time, [(scaled, cut)])
+                held.report_t = max(held.report_t, frame_time)
+            held.stationary = bool(after.get("stationary", False))
+        with self._lock:
+            view = [h for h in self._held.values() if h.ref.id == ref.id]
+        self._feed_view(ref, self._stamp(ref, frame_time), view)
         self.counts["fed"] += 1
 
     def hold(self) -> None:
         """Re-feed the boxes of the objects Frigate keeps (module docstring); forget those
         without news for timeout_s."""
         now = self._clock()
-        frames: dict[tuple[int, int | None], list[tuple[np.ndarray, np.ndarray]]] = {}
-        stamps: dict[int, float] = {}
         with self._lock:
             for fid, h in list(self._held.items()):
                 if now - h.news > self.timeout_s:
                     del self._held[fid]
                     self.counts["expired"] += 1
-                    continue
-                # Never behind what the camera already gave the tracker: its frames stay in
-                # capture order (the tracker's reorder buffer relies on it).
-                stamp = stamps.setdefault(
-                    h.camera_id, max(now - self.lag, self._newest.get(h.camera_id, -np.inf) + 1e-3)
-                )
-                dt = self._burst_dt if stamp - h.first_t < self._burst_s else self._hold_dt
-                if stamp - h.fed_t >= dt:
-                    h.fed_t = stamp
-                    frames.setdefault((h.camera_id, h.space_id), []).append((h.box, h.cut))
-            for camera_id in [c for c in self._newest if c not in stamps]:
+            by_camera: dict[int, list[_Held]] = {}
+            for h in self._held.values():
+                by_camera.setdefault(h.ref.id, []).append(h)
+            for camera_id in [c for c in self._newest if c not in by_camera]:
                 if now - self._newest[camera_id] > self.timeout_s:
                     del self._newest[camera_id]  # nothing held there for long: forgotten
-        for (camera_id, space_id), boxes in frames.items():
-            self._feed(camera_id, space_id, stamps[camera_id], boxes)
-            self.counts["refed"] += len(boxes)
+        for held in by_camera.values():
+            ref = held[0].ref
+            # A fifth of the lag spare: the tracker's window moves on while this frame is
+            # stored (a SQLite commit), and a frame behind it would be refused as late.
+            stamp = self._stamp(ref, now - 0.8 * self.lag)
+            burst = any(stamp - h.report_t < self._burst_s for h in held)
+            dt = self._burst_dt if burst else self._hold_dt
+            if stamp - self._newest.get(ref.id, -np.inf) >= dt:
+                self._feed_view(ref, stamp, held)
+                self.counts["refed"] += len(held)
+
+    def _feed_view(self, ref: _CameraRef, t: float, held: list[_Held]) -> None:
+        """Feed a camera frame at t of every box Frigate holds for that camera: what Frigate
+        sees there (a frame without one of them would tell the tracker the camera missed it),
+        each uncertain by the distance walked since its report."""
+        boxes = []
+        for h in held:
+            walked = V_WALK_M_S * max(0.0, t - h.report_t - HOLD_GRACE_S)
+            if h.stationary:
+                walked = min(walked, HOLD_STILL_CAP_M)
+            elif walked > STALE_M:
+                continue  # far vaguer than the tracker takes a detection: not fed
+            boxes.append((h.box, h.cut, walked))
+        if boxes:
+            self._feed(ref, t, boxes)
+
+    def _stamp(self, ref: _CameraRef, t: float) -> float:
+        """Return the capture time at which a box of Frigate's, reported at (or held until) t,
+        reaches the tracker: t, or just after what the camera already gave the tracker and
+        what the tracker already took. A camera's frames stay in capture order, and a Frigate
+        box stands until Frigate says otherwise, so the later time is still true."""
+        released = self._tracking.released(ref.space_id)
+        floor = self._newest.get(ref.id, -np.inf)
+        if released is not None:
+            floor = max(floor, released)
+        return max(t, floor + 1e-3)
 
     def _feed(
-        self,
-        camera_id: int,
-        space_id: int | None,
-        t: float,
-        boxes: list[tuple[np.ndarray, np.ndarray]],
+        self, ref: _CameraRef, t: float, boxes: list[tuple[np.ndarray, np.ndarray, float]]
     ) -> None:
+        """Ingest a camera frame of boxes (box, cut sides, floor spread m since the report)."""
         try:
-            foot = box_foot(np.stack([b for b, _ in boxes]), np.stack([c for _, c in boxes]))
+            foot = box_foot(np.stack([b for b, _, _ in boxes]), np.stack([c for _, c, _ in boxes]))
         except IntspaceError as exc:
             self.counts["ignored"] += 1
             log.debug("Frigate: box refused: %s", exc)
             return
+        spread = np.array([e for _, _, e in boxes])
+        cov = foot.cov
+        if ref.camera is not None and np.any(spread > 0):
+            cov = foot.cov + floor_spread_cov(ref.camera, foot.pixel, spread)
+        keep = foot.measured & np.all(np.isfinite(cov), axis=(1, 2))
         detections = [
             DetectionIn(
-                camera_id=camera_id,
+                camera_id=ref.id,
                 t=t,
                 pixel=(float(p[0]), float(p[1])),
                 cov=((float(c[0, 0]), float(c[0, 1])), (float(c[1, 0]), float(c[1, 1]))),
                 kind="person",
                 height=0.0,  # the foot point is on the floor
             )
-            for p, c, ok in zip(foot.pixel, foot.cov, foot.measured, strict=True)
+            for p, c, ok in zip(foot.pixel, cov, keep, strict=True)
             if ok
         ]
         if not detections:
             return
         with self._lock:
-            self._newest[camera_id] = max(self._newest.get(camera_id, -np.inf), t)
+            self._newest[ref.id] = max(self._newest.get(ref.id, -np.inf), t)
         with self._factory() as session:
-            result = self._tracking.ingest(session, detections, {camera_id: space_id})
+            result = self._tracking.ingest(session, detections, {ref.id: ref.space_id})
         self.counts["late"] += result.late
 
     def _camera(self, name: str) -> _CameraRef | None:
@@ -360,7 +407,15 @@ class FrigateSource:
         ref = None
         if len(rows) == 1:
             c = rows[0]
-            ref = _CameraRef(c.id, c.space_id, c.width, c.height)
+            cam = None
+            if c.K is not None and c.T_world_camera is not None:
+                try:
+                    cam = NetworkCamera.from_pose(
+                        c.K, c.dist, c.T_world_camera, (c.width, c.height), c.name
+                    )
+                except IntspaceError:
+                    cam = None
+            ref = _CameraRef(c.id, c.space_id, c.width, c.height, cam)
         elif len(rows) > 1:
             log.warning("Frigate: %d cameras are called %r; none is fed", len(rows), name)
         self._refs[name] = (now, ref)

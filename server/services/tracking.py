@@ -651,6 +651,13 @@ class TrackingService:
                 for track_id in set(old.states) - kept:
                     self._live.end(space_id, track_id)
 
+    def released(self, space_id: int | None) -> float | None:
+        """Return the capture time up to which the tracker of a space took its frames (a frame
+        older than that is late), None when this process does not run it."""
+        with self._lock:
+            space = self._spaces.get(space_id)
+            return None if space is None else space.buffer.released
+
     def owns(self, space_id: int | None) -> bool:
         """Whether this process runs the tracker of `space_id`."""
         with self._lock:
