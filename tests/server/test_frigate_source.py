@@ -13,8 +13,8 @@ import time
 
 import motmetrics as mm
 import numpy as np
-import pytest
 import paho.mqtt.client as paho
+import pytest
 from fastapi.testclient import TestClient
 
 from core.localization import NetworkCamera
