@@ -245,6 +245,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             ],
         )
         tracking.target_listeners.append(zone_service.on_targets)
+        zone_service.attach_tracking(tracking)
         app.state.zones = zone_service
         book = app.state.camera_health = CameraHealthBook()
         publisher, frigate, frigate_link = _start_home(

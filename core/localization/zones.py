@@ -248,6 +248,10 @@ class ZoneOccupancy:
         events.append(ZoneEvent("end", target, state.kind, None, where, t))
         return events
 
+    def targets(self) -> list[int]:
+        """Return the ids of the targets followed."""
+        return list(self._targets)
+
     def forget_except(self, live: Iterable[int]) -> list[int]:
         """Forget the targets not in `live` without events (their end was missed: a reset
         tracker); return their ids."""

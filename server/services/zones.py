@@ -34,6 +34,7 @@ log = logging.getLogger(__name__)
 
 # Reload the zones' definitions at least this often (s): changes made by another process.
 _RELOAD_S = 1.0
+_PRUNE_S = 10.0
 # A room is a zone with this inertia (s) and no loitering (spec 09).
 ROOM_INERTIA_S = 1.0
 _SLUG_RUN = re.compile(r"[^a-z0-9]+")
@@ -148,10 +149,17 @@ class ZoneService:
         *,
         owns: Callable[[int | None], bool] = lambda _: True,
         live_xy: Callable[[int], list[tuple[str, list[float]]]] | None = None,
+        tracked: Callable[[int], set[int]] | None = None,
     ) -> None:
         self._factory = factory
         self._owns = owns
         self._live_xy = live_xy
+        # The ids of a space's live tracks (the tracker's), to forget targets whose end was
+        # never reported (a tracker restarted after its process died): checked every
+        # _PRUNE_S, a target absent from two checks in a row is forgotten.
+        self._tracked = tracked
+        self._absent: dict[int, set[int]] = {}
+        self._last_prune = time.monotonic()
         self._lock = threading.Lock()
         self._spaces: dict[int, _SpaceZones] = {}
         self._defs: dict[int, list[ZoneDef]] = {}
@@ -161,6 +169,10 @@ class ZoneService:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self.errors = 0
+
+    def attach_tracking(self, tracking: Any) -> None:
+        """Use a TrackingService's `tracks` for the pruning (its live track ids per space)."""
+        self._tracked = lambda space_id: {snap.id for snap in tracking.tracks(space_id)}
 
     # -- definitions --------------------------------------------------------------------------
 
@@ -251,12 +263,16 @@ class ZoneService:
                 for sink in self.sinks:
                     sink.event(space_id, zone, e)
             if any(e.zone is not None for e in events):
-                counts = space.occupancy.occupancy()
-                for key, n in counts.items():
-                    if space.counts.get(key) != n:
-                        for sink in self.sinks:
-                            sink.occupancy(space_id, space.defs[key], n)
-                space.counts = counts
+                self._publish_counts(space_id, space)
+
+    def _publish_counts(self, space_id: int, space: _SpaceZones) -> None:
+        """Hand the sinks the zones' counts that changed. Call with the lock held."""
+        counts = space.occupancy.occupancy()
+        for key, n in counts.items():
+            if space.counts.get(key) != n:
+                for sink in self.sinks:
+                    sink.occupancy(space_id, space.defs[key], n)
+        space.counts = counts
 
     def forget_ended(self, space_id: int | None, live: Iterable[int]) -> None:
         """Drop the targets of a space not in `live` (their end was not reported: a reset)."""
@@ -314,10 +330,34 @@ class ZoneService:
             try:
                 self.reload()
                 self._drop_lost()
+                if time.monotonic() - self._last_prune >= _PRUNE_S:
+                    self._last_prune = time.monotonic()
+                    self._prune()
             except Exception:
                 self.errors += 1
                 log.exception("reloading the zones failed")
                 time.sleep(_RELOAD_S)
+
+    def _prune(self) -> None:
+        if self._tracked is None:
+            return
+        with self._lock:
+            spaces = {sid: set(space.occupancy.targets()) for sid, space in self._spaces.items()}
+        for space_id, followed in spaces.items():
+            gone = followed - self._tracked(space_id)
+            stale = gone & self._absent.get(space_id, set())
+            self._absent[space_id] = gone - stale
+            if stale:
+                with self._lock:
+                    space = self._spaces.get(space_id)
+                    if space is not None:
+                        space.occupancy.forget_except(set(space.occupancy.targets()) - stale)
+                        self._publish_counts(space_id, space)
+                log.info(
+                    "space %s: %d target(s) whose end was not reported forgotten",
+                    space_id,
+                    len(stale),
+                )
 
     def _drop_lost(self) -> None:
         with self._lock:
