@@ -370,6 +370,11 @@ def run_soak(broker: Broker, minutes: float, rate_hz: float = 5.0, seed: int = 0
             live.apply_retention(clock.t)
             status = link.status()
             heap = tracemalloc.get_traced_memory()[0] / 2**20
+            if len(rows) == 1:
+                print("  " + "  ".join(f"{k:>12}" for k in rows[0]), flush=True)
+            if rows:
+                r = rows[-1]
+                print("  " + "  ".join(f"{v:>12.1f}" for v in r.values()), flush=True)
             rows.append(
                 {
                     "minute": s / 60.0,
