@@ -3,21 +3,25 @@ the detections of intspace cameras, fed to the space's tracker through the same 
 `POST /observations` (TrackingService.ingest).
 
 Frigate reports changes, not frames. It publishes an object's `new` once its own tracker has
-confirmed it (no longer a false positive), an `update` when the object moves out of its
-stationary box, changes zone, gets a better snapshot, or at least once a minute, and an `end`
-when the object is gone; for a person standing still it says nothing for up to a minute. The
-asynchronous EKF (core.localization.tracking), the only tracker, confirms a track from a few
-detections within a second and lets a track coast and end within seconds without one. So,
-while Frigate keeps an object (from its `new` to its `end`, or `timeout_s` without news),
-the box it last reported is Frigate's standing claim of where the object is: this source
-re-feeds that box, as a detection of the same camera, at `hold_hz` (`burst_hz` in the first
-`burst_s` after the object's `new`, so that the tracker's confirmation sees Frigate's own
-confirmation). Each re-fed detection is stamped `lag` seconds in the past (the tracker's
-reorder latency): an update Frigate sends within that delay is still newer than every re-fed
-box, so the tracker always takes Frigate's news in time order. Re-fed boxes are stored like the
-others (they are what the tracker was given). A person Frigate reports therefore stays live,
-fused with what other cameras see, until Frigate ends the object; Frigate's object ids are kept
-here for display only and never become a target's label.
+confirmed it (no longer a false positive), an `update` on a better snapshot, a zone change, a
+change between active and stationary, or at least once a minute, and an `end` when the object
+is gone; for a person standing still it says nothing for up to a minute. The asynchronous EKF
+(core.localization.tracking), the only tracker, confirms a track from several detections
+within a second and lets a track coast and end within seconds without one. So, while Frigate
+keeps an object (from its `new` to its `end`, or `timeout_s` without news), the box it last
+reported is Frigate's standing claim: this source feeds, as one frame of the camera, every box
+Frigate holds for that camera (a frame without one of them would tell the tracker that the
+camera missed that person) at `hold_hz`, and at `burst_hz` for `burst_s` after any report, so
+that the tracker's confirmation sees what Frigate confirmed. How far a held box is from the
+person grows with its age for an object Frigate last called active, and stays small for one it
+called stationary (see V_WALK_M_S below): a stale box never holds a track where nobody is.
+
+Each frame is stamped `lag` seconds in the past at most (the tracker's reorder latency, less a
+fifth), never before what the camera already gave the tracker nor before what the tracker
+already took: an update Frigate sends within that delay is still newer than every re-fed box,
+and no frame is refused as late. Re-fed boxes are stored like the others (they are what the
+tracker was given). Frigate's object ids are kept here for display only and never become a
+target's label.
 
 Each box (x0, y0, x1, y1, Frigate's detect pixels) is scaled to the intspace camera's image
 size, and measured by core.localization.boxes.box_foot (the foot point and its covariance),
