@@ -369,7 +369,19 @@ def run_soak(broker: Broker, minutes: float, rate_hz: float = 5.0, seed: int = 0
             live.flush()
             live.apply_retention(clock.t)
             status = link.status()
-            heap = tracemalloc.get_traced_memory()[0] / 2**20
+            # The service's heap: this bench's own subscriber (it keeps every message it
+            # received) is left out; the tracker's record of its frames' delays (bounded at
+            # 20,000 frames) is shown on its own.
+            snap = tracemalloc.take_snapshot().filter_traces(
+                [tracemalloc.Filter(False, "*mqtt_broker.py"), tracemalloc.Filter(False, "*paho*")]
+            )
+            heap = sum(st.size for st in snap.statistics("filename")) / 2**20
+            delays = sum(
+                st.size
+                for st in snap.filter_traces(
+                    [tracemalloc.Filter(True, "*node/clock.py")]
+                ).statistics("filename")
+            )
             if len(rows) == 1:
                 print("  " + "  ".join(f"{k:>12}" for k in rows[0]), flush=True)
             if rows:
@@ -385,6 +397,7 @@ def run_soak(broker: Broker, minutes: float, rate_hz: float = 5.0, seed: int = 0
                     "live targets": len(live),
                     "tracks": len(tracking.tracks(space_id)),
                     "heap MiB": heap,
+                    "delays MiB": delays / 2**20,
                 }
             )
     wall = time.perf_counter() - wall0
@@ -408,9 +421,17 @@ def run_soak(broker: Broker, minutes: float, rate_hz: float = 5.0, seed: int = 0
                 f"{r[k]:>12.1f}" if isinstance(r[k], float) else f"{r[k]:>12}" for k in keys
             )
         )
-    first = rows[1 : 1 + len(rows) // 3]
-    last = rows[-len(rows) // 3 :]
-    for key in ("queued", "zone targets", "rate entries", "live targets", "tracks", "heap MiB"):
+    first = rows[1 : 1 + max(1, len(rows) // 3)] or rows
+    last = rows[-max(1, len(rows) // 3) :]
+    for key in (
+        "queued",
+        "zone targets",
+        "rate entries",
+        "live targets",
+        "tracks",
+        "heap MiB",
+        "delays MiB",
+    ):
         a = max(r[key] for r in first)
         b = max(r[key] for r in last)
         print(f"  {key:<14} first third max {a:8.1f}   last third max {b:8.1f}")
