@@ -84,6 +84,7 @@ def test_broker_killed_and_restarted(broker, caplog):  # noqa: F811
         try:
             assert rec.wait(lambda: rec.latest("s/occupancy") == b"2", timeout=5.0)
             took = time.monotonic() - back
+            print(f"retained state back {took:.2f} s after the broker's return")
             assert took < 5.0
             # The queued events follow, the newest 50, in order.
             assert rec.wait(lambda: len(rec.on(lambda t: t == "s/events")) == 50)
