@@ -295,7 +295,9 @@ class _Clock:
         return self.t
 
 
-def run_soak(broker: Broker, minutes: float, rate_hz: float = 5.0, seed: int = 0) -> None:
+def run_soak(
+    broker: Broker, minutes: float, rate_hz: float = 5.0, seed: int = 0, top: int = 0
+) -> None:
     """Feed `minutes` of simulated time through the service's parts as fast as they go."""
     from core.sim import default_scene
     from server.db.session import make_engine, make_session_factory
@@ -376,6 +378,10 @@ def run_soak(broker: Broker, minutes: float, rate_hz: float = 5.0, seed: int = 0
                 [tracemalloc.Filter(False, "*mqtt_broker.py"), tracemalloc.Filter(False, "*paho*")]
             )
             heap = sum(st.size for st in snap.statistics("filename")) / 2**20
+            if len(rows) == 2:
+                early = snap
+            if top and len(rows) >= 2:
+                last_snap = snap
             delays = sum(
                 st.size
                 for st in snap.filter_traces(
@@ -401,6 +407,10 @@ def run_soak(broker: Broker, minutes: float, rate_hz: float = 5.0, seed: int = 0
                 }
             )
     wall = time.perf_counter() - wall0
+    if top and len(rows) > 2:
+        print("  heap growth since minute 2, by line:")
+        for stat in last_snap.compare_to(early, "lineno")[:top]:
+            print(f"    {stat}")
     time.sleep(2.0)
     final = link.status()
     home.stop()
@@ -447,6 +457,7 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=120.0, help="real time of the twin run")
     parser.add_argument("--soak-minutes", type=float, default=30.0)
     parser.add_argument("--soak-rate", type=float, default=2.0, help="frames/s of each camera")
+    parser.add_argument("--heap-top", type=int, default=0, help="print the top heap growths")
     parser.add_argument("--skip-twin", action="store_true")
     parser.add_argument("--light-seconds", type=float, default=90.0)
     parser.add_argument("--skip-light", action="store_true")
@@ -461,7 +472,7 @@ def main() -> None:
         if not args.skip_twin:
             run_twin(broker, args.seconds)
         if not args.skip_soak:
-            run_soak(broker, args.soak_minutes, rate_hz=args.soak_rate)
+            run_soak(broker, args.soak_minutes, rate_hz=args.soak_rate, top=args.heap_top)
     finally:
         broker.kill()
         shutil.rmtree(folder, ignore_errors=True)
