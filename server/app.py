@@ -20,6 +20,7 @@ from server.api import (
     calibration_runs,
     cameras,
     export,
+    home,
     landmarks,
     maps,
     observations,
@@ -38,18 +39,25 @@ from server.api import (
     tasks,
     tokens,
     twin,
+    zones,
 )
 from server.api.errors import install_api_fallback, install_error_handlers
 from server.api.limits import RequestSizeLimit
 from server.db.session import make_engine, make_session_factory
+from server.schemas.registry import CameraHeartbeat
 from server.security import AuthFailureLimiter, SecurityHeaders, install_log_redaction
 from server.services.auth import TokenCache
 from server.services.camera_health import CameraHealthBook
 from server.services.frames import LatestFrames
+from server.services.frigate import FrigateSource
+from server.services.home import HomePublisher
+from server.services.mqtt import BrokerUrl, MqttLink
+from server.services.ownership import SpaceLocks
 from server.services.runs import LeasePolicy, RunExecutor
 from server.services.scene_sync import SceneSync
 from server.services.targets import LiveTargets
 from server.services.tracking import TrackingService
+from server.services.zones import ZoneService
 from server.settings import Settings
 from server.version import VERSION
 
@@ -84,7 +92,9 @@ def api_router() -> APIRouter:
         twin,
         streams,
         export,
+        home,
         scene_proxy,
+        zones,
     ):
         router.include_router(module.router)
     return router
@@ -107,6 +117,67 @@ def _start_twin(settings: Settings, factory, live: LiveTargets, app: FastAPI):
     )
     twin.bootstrap()
     return twin
+
+
+def _start_home(
+    settings: Settings,
+    factory,
+    tracking: TrackingService,
+    zone_service: ZoneService,
+    book: CameraHealthBook,
+) -> tuple[HomePublisher | None, FrigateSource | None, MqttLink | None]:
+    """Start what talks to the home (spec 09): the MQTT publisher when INTSPACE_MQTT_URL is
+    set, Frigate as a source when INTSPACE_FRIGATE_MQTT and its cameras are."""
+    publisher = None
+    if settings.mqtt_url is not None:
+        link = MqttLink(
+            BrokerUrl.parse(settings.mqtt_url.get_secret_value()), queue_limit=settings.mqtt_queue
+        )
+        shared = settings.database_backend == "postgresql"
+        publisher = HomePublisher(
+            link,
+            prefix=settings.mqtt_prefix,
+            discovery_prefix=settings.mqtt_discovery_prefix,
+            target_hz=settings.mqtt_target_hz,
+            factory=factory,
+            health_of=lambda camera_id: book.health(camera_id).model_dump(),
+            owns=tracking.owns,
+            available_lock=SpaceLocks(settings.resolved_database_url) if shared else None,
+        )
+        zone_service.sinks.append(publisher)
+        publisher.start()
+        print(
+            f"MQTT: publishing to {link.url.redacted()} under {settings.mqtt_prefix}/", flush=True
+        )
+    frigate = frigate_link = None
+    if settings.frigate_mqtt is not None and settings.frigate_cameras:
+
+        def heartbeat(camera_id: int, fps: float, last_frame_t: float | None) -> None:
+            book.beat(camera_id, CameraHeartbeat(fps=fps, last_frame_t=last_frame_t))
+
+        frigate = FrigateSource(
+            factory,
+            tracking,
+            settings.frigate_cameras,
+            labels=settings.frigate_labels,
+            timeout_s=settings.frigate_timeout_s,
+            topic_prefix=settings.frigate_topic_prefix,
+            heartbeat=heartbeat,
+        )
+        frigate_link = MqttLink(
+            BrokerUrl.parse(settings.frigate_mqtt.get_secret_value()),
+            subscriptions=frigate.subscriptions,
+            on_message=frigate.on_message,
+        )
+        frigate.start()
+        frigate_link.start()
+        frigate.link = frigate_link
+        print(
+            f"Frigate: reading {frigate_link.url.redacted()} ({len(settings.frigate_cameras)} "
+            "camera(s))",
+            flush=True,
+        )
+    return publisher, frigate, frigate_link
 
 
 def create_app(settings: Settings | None = None) -> FastAPI:
@@ -168,6 +239,24 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             shared_database_url=settings.resolved_database_url if shared else None,
         )
         app.state.tracking = tracking
+        zone_service = ZoneService(
+            factory,
+            owns=tracking.owns,
+            live_xy=lambda space_id: [
+                (v["kind"], v["xy"])
+                for v in live.snapshot()[1]
+                if v["space_id"] == space_id and v["state"] in ("confirmed", "coasting")
+            ],
+        )
+        tracking.target_listeners.append(zone_service.on_targets)
+        zone_service.attach_tracking(tracking)
+        app.state.zones = zone_service
+        book = app.state.camera_health
+        publisher, frigate, frigate_link = _start_home(
+            settings, factory, tracking, zone_service, book
+        )
+        app.state.home = publisher
+        app.state.frigate = frigate
         twin = None
         if settings.simulation:
             twin = await run_in_threadpool(_start_twin, settings, factory, live, app)
@@ -175,6 +264,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         with factory() as session:
             app.state.scene_sync.load(session)
         live.start()
+        zone_service.start()
         tracking.start()
         if twin is not None:
             twin.start()
@@ -195,7 +285,15 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                 await run_in_threadpool(twin.stop)
             if getattr(app.state, "task_runner", None) is not None:
                 await run_in_threadpool(app.state.task_runner.shutdown)
+            if frigate_link is not None:
+                await run_in_threadpool(frigate_link.stop)
+            if frigate is not None:
+                await run_in_threadpool(frigate.stop)
             await run_in_threadpool(tracking.stop)
+            await run_in_threadpool(zone_service.stop)
+            if publisher is not None:
+                # After the tracker: the last events go out, then `offline`.
+                await run_in_threadpool(publisher.stop)
             await run_in_threadpool(live.stop)
             if executor is not None:
                 interrupted = await run_in_threadpool(executor.shutdown)
@@ -223,6 +321,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.twin = None
     app.state.targets = LiveTargets(factory)
     app.state.tracking = None
+    app.state.zones = None
+    app.state.home = None
+    app.state.frigate = None
     app.state.token_cache = TokenCache()
     app.state.auth_limiter = AuthFailureLimiter(settings.auth_failure_limit)
     app.state.scene_sync = SceneSync(None)

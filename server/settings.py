@@ -6,15 +6,40 @@ from functools import cached_property
 from pathlib import Path
 from typing import Literal
 
-from pydantic import Field, SecretStr
+from pydantic import BaseModel, ConfigDict, Field, SecretStr, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
+
+# An MQTT topic prefix: levels of letters, digits, "_" and "-", no wildcard, no empty level.
+_TOPIC_PREFIX = r"^[A-Za-z0-9_-]+(/[A-Za-z0-9_-]+)*$"
+
+
+class FrigateCamera(BaseModel):
+    """A Frigate camera fed to the tracker: the intspace camera it is, and Frigate's detect
+    resolution (its boxes' pixels)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    camera: str = Field(min_length=1, max_length=200)
+    detect: tuple[int, int] = Field(description="Frigate's detect width and height, pixels.")
+
+    @field_validator("detect")
+    @classmethod
+    def _positive(cls, value: tuple[int, int]) -> tuple[int, int]:
+        if min(value) < 1 or max(value) > 100_000:
+            raise ValueError("detect must be [width, height] in pixels, 1 to 100000")
+        return value
 
 
 class Settings(BaseSettings):
     """Everything the service can be configured with; each field is INTSPACE_<NAME> in the env."""
 
     model_config = SettingsConfigDict(
-        env_prefix="INTSPACE_", env_file=".env", extra="ignore", frozen=True
+        env_prefix="INTSPACE_",
+        env_file=".env",
+        extra="ignore",
+        frozen=True,
+        # A refused value is not quoted: it may be a broker URL with its password.
+        hide_input_in_errors=True,
     )
 
     data_dir: Path = Field(Path("var"), description="Where the default SQLite file lives.")
@@ -86,6 +111,44 @@ class Settings(BaseSettings):
         "and network: 0.3-1 s for RTSP cameras); a frame later than that is refused as late.",
     )
 
+    # Home integration (spec 09): MQTT, Home Assistant discovery, Frigate as a source.
+    mqtt_url: SecretStr | None = Field(
+        None,
+        description="The MQTT broker the service publishes to (mqtt://user:password@host:1883, "
+        "mqtts:// for TLS); unset: no MQTT. A secret: shown with its password masked.",
+    )
+    mqtt_prefix: str = Field(
+        "intspace", pattern=_TOPIC_PREFIX, description="The first level of every topic."
+    )
+    mqtt_discovery_prefix: str = Field(
+        "homeassistant", pattern=_TOPIC_PREFIX, description="Home Assistant's discovery prefix."
+    )
+    mqtt_target_hz: float = Field(
+        2.0, ge=0, le=30, description="Messages per second per target at most (0: none)."
+    )
+    mqtt_queue: int = Field(
+        10_000, ge=10, le=1_000_000, description="Messages waiting for a slow or absent broker."
+    )
+    frigate_mqtt: SecretStr | None = Field(
+        None,
+        description="The broker Frigate publishes to (mqtt://user:password@host:1883); unset: "
+        "Frigate is not a source. A secret, like mqtt_url.",
+    )
+    frigate_cameras: dict[str, FrigateCamera] = Field(
+        default_factory=dict,
+        description='Frigate cameras fed to the tracker: JSON {"frigate name": {"camera": '
+        '"intspace camera name", "detect": [width, height]}}.',
+    )
+    frigate_labels: str = Field(
+        "person", min_length=1, description="Frigate labels taken, comma separated."
+    )
+    frigate_timeout_s: float = Field(
+        60.0, gt=0, le=3600, description="A Frigate object without news for this long has left."
+    )
+    frigate_topic_prefix: str = Field(
+        "frigate", pattern=_TOPIC_PREFIX, description="Frigate's MQTT topic prefix."
+    )
+
     run_workers: int = Field(2, ge=1, le=64, description="Threads executing calibration runs.")
     run_executor: Literal["local", "external"] = Field(
         "local",
@@ -115,6 +178,15 @@ class Settings(BaseSettings):
         3600.0, gt=0, description="The longest time range one GET /spaces/{id}/export.mcap spans."
     )
 
+    @field_validator("mqtt_url", "frigate_mqtt")
+    @classmethod
+    def _broker_url(cls, value: SecretStr | None) -> SecretStr | None:
+        if value is not None:
+            from server.services.mqtt import BrokerUrl
+
+            BrokerUrl.parse(value.get_secret_value())  # its errors never quote the password
+        return value
+
     @cached_property
     def resolved_database_url(self) -> str:
         """Return the database URL, the default SQLite file under data_dir when none is set."""
@@ -141,4 +213,10 @@ class Settings(BaseSettings):
             values[name] = value
         url = make_url(self.resolved_database_url)
         values["database_url"] = url.render_as_string(hide_password=True)
+        from server.services.mqtt import BrokerUrl
+
+        for name in ("mqtt_url", "frigate_mqtt"):
+            secret = getattr(self, name)
+            if secret is not None:
+                values[name] = BrokerUrl.parse(secret.get_secret_value()).redacted()
         return values

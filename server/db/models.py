@@ -479,3 +479,20 @@ class ProjectorCalibration(Timestamped, Base):
     tilt_offset: Mapped[float] = mapped_column(Float)
     rms_m: Mapped[float] = mapped_column(Float)
     spots: Mapped[int] = mapped_column(Integer)
+
+
+class Zone(Timestamped, Base):
+    """A zone of a space's floor plan (spec 09): a polygon in world metres, its name and the
+    name's slug (unique in the space, the zone's MQTT topic), the inertia (s) before a person
+    counts as in or out, and the loitering time (s; 0: none)."""
+
+    __tablename__ = "zones"
+    __table_args__ = (UniqueConstraint("space_id", "slug"),)
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    space_id: Mapped[int] = mapped_column(ForeignKey("spaces.id", ondelete="CASCADE"), index=True)
+    name: Mapped[str] = mapped_column(String(200))
+    slug: Mapped[str] = mapped_column(String(200))
+    polygon: Mapped[list[list[float]]] = mapped_column(JSON)
+    inertia_s: Mapped[float] = mapped_column(Float, default=1.0)
+    loiter_s: Mapped[float] = mapped_column(Float, default=0.0)

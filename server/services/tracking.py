@@ -44,7 +44,7 @@ import re
 import threading
 import time
 from collections import OrderedDict
-from collections.abc import Hashable, Sequence
+from collections.abc import Callable, Hashable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -507,6 +507,12 @@ class TrackingService:
         self._thread: threading.Thread | None = None
         self.frames_processed = 0
         self.errors = 0
+        # Called on the tracker thread with (space id, confirmed or coasting snapshots a frame
+        # updated, snapshots of the live targets that ended): the zones (server.services.
+        # zones). They must not block.
+        self.target_listeners: list[
+            Callable[[int | None, tuple[TrackSnapshot, ...], tuple[TrackSnapshot, ...]], None]
+        ] = []
         self.delays = FrameDelays()
         self._fanout: Fanout | None = None
         self._locks: SpaceLocks | None = None
@@ -660,6 +666,13 @@ class TrackingService:
                 for track_id in set(old.states) - kept:
                     self._live.end(space_id, track_id)
 
+    def released(self, space_id: int | None) -> float | None:
+        """Return the capture time up to which the tracker of a space took its frames (a frame
+        older than that is late), None when this process does not run it."""
+        with self._lock:
+            space = self._spaces.get(space_id)
+            return None if space is None else space.buffer.released
+
     def owns(self, space_id: int | None) -> bool:
         """Whether this process runs the tracker of `space_id`."""
         with self._lock:
@@ -705,9 +718,12 @@ class TrackingService:
             if not elsewhere:
                 old = self._spaces.pop(space_id, None)
                 if old is not None:
-                    for snap in old.tracker.tracks(states=LIVE_STATES):
+                    gone = old.tracker.tracks(states=LIVE_STATES)
+                    for snap in gone:
                         self._live.end(space_id, snap.id)
                     old.close()
+                    if gone:
+                        self._tell(space_id, (), gone)
                 self._spaces[space_id] = self._new_space(space_id)
         if elsewhere:
             self._forward(space_id, "reset")
@@ -881,9 +897,8 @@ class TrackingService:
             self._publish_frame(space, result)
 
     def _publish_frame(self, space: _SpaceTracker, result: FrameResult) -> None:
-        for snap in result.updated:
-            if snap.state is TrackState.TENTATIVE:
-                continue
+        live = tuple(s for s in result.updated if s.state is not TrackState.TENTATIVE)
+        for snap in live:
             self._live.update(
                 space.space_id,
                 snap.id,
@@ -899,12 +914,30 @@ class TrackingService:
                 hits=snap.hits,
             )
             space.states[snap.id] = snap.state
+        if live:
+            self._tell(space.space_id, live, ())
         self._publish_ended(space, result.ended)
 
     def _publish_ended(self, space: _SpaceTracker, ended: tuple[TrackSnapshot, ...]) -> None:
+        gone = []
         for snap in ended:
             if space.states.pop(snap.id, None) is not None:
                 self._live.end(space.space_id, snap.id)
+                gone.append(snap)
+        if gone:
+            self._tell(space.space_id, (), tuple(gone))
+
+    def _tell(
+        self,
+        space_id: int | None,
+        updated: tuple[TrackSnapshot, ...],
+        ended: tuple[TrackSnapshot, ...],
+    ) -> None:
+        for listener in self.target_listeners:
+            try:
+                listener(space_id, updated, ended)
+            except Exception:
+                log.exception("a target listener failed")
 
     def _sync_states(self, space: _SpaceTracker) -> None:
         for snap in space.tracker.tracks(states=LIVE_STATES):

@@ -4,6 +4,7 @@
 
 import { api, currentSpace, inSpace, list, spaceById } from "../api.js";
 import { drawRooms, eventToWorld, planTransform } from "../floorplan.js";
+import { drawZones } from "../zones.js";
 import { fmt, h, infoBox, mount, panel, s, toastError } from "../ui.js";
 
 const POLL_MS = 500; // GET /targets when the WebSocket stream is unavailable
@@ -188,15 +189,18 @@ export async function renderFloor(main) {
   });
   const gHeat = s("g", { class: "heat" });
   const gRooms = s("g");
+  const gZones = s("g", { class: "zones", testid: "floor-zones" });
   const gCams = s("g");
   const gHistory = s("g");
   const gTracks = s("g");
   const gTruth = s("g");
   const gEllipses = s("g");
   const gTargets = s("g");
-  svg.append(gHeat, gRooms, gCams, gHistory, gTracks, gTruth, gEllipses, gTargets);
+  svg.append(gHeat, gRooms, gZones, gCams, gHistory, gTracks, gTruth, gEllipses, gTargets);
 
   drawRooms(gRooms, rooms.items, tf);
+  const spaceIds = [...new Set(rooms.items.map((r) => r.space_id))];
+  const stopZones = drawZones(gZones, spaceIds, tf);
   for (const c of cams) {
     const T = c.T_world_camera;
     const [px, py] = [X(T[0][3]), Y(T[1][3])];
@@ -782,6 +786,7 @@ export async function renderFloor(main) {
   );
   return () => {
     stopped = true;
+    stopZones();
     clearTimeout(pollTimer);
     clearTimeout(twinTimer);
     if (socket) socket.close();

@@ -29,8 +29,9 @@ function settle(promises) {
 }
 
 export async function renderOverview(main) {
-  const [health, spaces, runs, ...counts] = await settle([
+  const [health, home, spaces, runs, ...counts] = await settle([
     api("/health"),
+    api("/home/status"),
     list("/spaces", { limit: 20 }),
     list("/calibration-runs", { limit: 20 }),
     ...DEVICES.map(([path, , , unassigned]) =>
@@ -190,9 +191,46 @@ export async function renderOverview(main) {
       "div",
       { class: "grid wide-left" },
       planPanel,
-      h("div", { class: "grid" }, healthPanel, spacePanel),
+      h("div", { class: "grid" }, healthPanel, homePanel(home), spacePanel),
     ),
     runsPanel,
+  );
+}
+
+/** The home integration's panel: the MQTT broker's connection and Frigate's (spec 09). */
+function homePanel(home) {
+  const broker = (b, id) =>
+    b
+      ? [
+          h("dd", { testid: `${id}-state` }, badge(b.connected ? "connected" : "disconnected", b.connected ? "ok" : "bad")),
+          h("dt", null, "Since"),
+          h("dd", { class: "small", testid: `${id}-since` }, b.since ? new Date(b.since * 1000).toLocaleString() : "–"),
+          h("dt", null, "Broker"),
+          h("dd", { class: "mono small", testid: `${id}-url` }, b.url),
+          h("dt", null, "Dropped"),
+          h("dd", { testid: `${id}-dropped` }, `${b.dropped} (queued ${b.queued})`),
+        ]
+      : [h("dd", { testid: `${id}-state` }, "off")];
+  const v = home.value || {};
+  return panel(
+    "Home",
+    "MQTT for Home Assistant, and Frigate as a source",
+    home.error
+      ? errorBox(home.error, "home-error")
+      : h(
+          "dl",
+          { class: "facts", testid: "home" },
+          h("dt", null, "MQTT"),
+          ...broker(v.mqtt, "mqtt"),
+          h("dt", null, "Frigate"),
+          ...(v.frigate
+            ? [
+                ...broker(v.frigate.broker, "frigate"),
+                h("dt", null, "Objects held"),
+                h("dd", { testid: "frigate-held" }, `${v.frigate.held} (${v.frigate.fed} reports fed)`),
+              ]
+            : [h("dd", { testid: "frigate-state" }, "off")]),
+        ),
   );
 }
 

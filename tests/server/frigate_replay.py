@@ -1,0 +1,182 @@
+"""A replay of Frigate's `frigate/events` for walkers seen by ceiling cameras, with Frigate's
+real message pattern (docs.frigate.video, "MQTT": frigate/events): `new` once Frigate's tracker
+has kept an object for a few detect frames, `update` on a better snapshot (a higher score, or
+as good a score with a larger box), a stationary/active change and at least once a minute,
+nothing while a person stands still, `end` when the object has been gone for a second (objects
+still seen when the replay stops are kept). Boxes are [x0, y0, x1, y1] in the detect resolution,
+the body's projected bounding box with a detector's jitter. The truth
+(positions) is for scoring only."""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from core.localization import NetworkCamera
+
+DETECT_FPS = 5.0
+CONFIRM_FRAMES = 3  # frames before Frigate publishes `new`
+GONE_FRAMES = 5  # frames unseen before `end`
+# Frames within its box before Frigate calls an object stationary: detect.stationary.threshold,
+# set to 10 (2 s at 5 fps) as docs/home-automation.md advises (Frigate's default is 50).
+STATIONARY_FRAMES = 10
+BODY_RADIUS, BODY_HEIGHT = 0.25, 1.7
+
+
+def body_box(cam: NetworkCamera, xy: np.ndarray, scale: float) -> np.ndarray | None:
+    """Return a person's box in detect pixels (camera pixels * scale), None when the feet are
+    out of the image."""
+    ang = np.linspace(0, 2 * np.pi, 12, endpoint=False)
+    ring = np.c_[xy[0] + BODY_RADIUS * np.cos(ang), xy[1] + BODY_RADIUS * np.sin(ang)]
+    pts = np.vstack([np.c_[ring, np.zeros(12)], np.c_[ring, np.full(12, BODY_HEIGHT)]])
+    foot = np.array([[xy[0], xy[1], 0.0]])
+    if not cam.in_view(foot)[0]:
+        return None
+    px = cam.project(pts)
+    w, h = cam.image_size
+    box = np.array([px[:, 0].min(), px[:, 1].min(), px[:, 0].max(), px[:, 1].max()])
+    box = np.clip(box, [0, 0, 0, 0], [w - 1, h - 1, w - 1, h - 1])
+    return box * scale
+
+
+def iou(a: np.ndarray, b: np.ndarray) -> float:
+    x0, y0 = max(a[0], b[0]), max(a[1], b[1])
+    x1, y1 = min(a[2], b[2]), min(a[3], b[3])
+    inter = max(0.0, x1 - x0) * max(0.0, y1 - y0)
+    area = (a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter
+    return inter / area if area > 0 else 0.0
+
+
+@dataclass
+class _Object:
+    id: str
+    start: float
+    seen: int = 0
+    unseen: int = 0
+    published: bool = False
+    best_score: float = 0.0
+    best_area: float = 0.0
+    reference: np.ndarray | None = None
+    still: int = 0
+    stationary: bool = False
+    last_sent: float = 0.0
+    last: dict = field(default_factory=dict)
+
+
+def frigate_messages(
+    cams: dict[str, NetworkCamera],
+    scale: float,
+    positions,  # callable t -> (W, 2), NaN rows for walkers not present
+    duration: float,
+    t0: float,
+    rng: np.random.Generator,
+    jitter_px: float = 1.0,
+) -> list[tuple[float, str]]:
+    """Return Frigate's messages (frame_time, JSON payload) in time order."""
+    out: list[tuple[float, str]] = []
+    for name, cam in cams.items():
+        objects: dict[int, _Object] = {}
+        phase = rng.uniform(0, 1 / DETECT_FPS)
+        for t in np.arange(phase, duration, 1 / DETECT_FPS):
+            frame_time = t0 + float(t)
+            xy = positions(float(t))
+            for w in range(xy.shape[0]):
+                box = None if np.any(np.isnan(xy[w])) else body_box(cam, xy[w], scale)
+                obj = objects.get(w)
+                if box is None:
+                    if obj is not None:
+                        obj.unseen += 1
+                        if obj.unseen >= GONE_FRAMES:
+                            if obj.published:
+                                after = {**obj.last, "end_time": frame_time}
+                                out.append((frame_time, _event("end", obj.last, after)))
+                            del objects[w]
+                    continue
+                box = box + rng.normal(0, jitter_px, 4)
+                if obj is None:
+                    fid = f"{frame_time:.6f}-{rng.integers(1e6):06d}"
+                    obj = objects[w] = _Object(fid, frame_time)
+                obj.unseen = 0
+                obj.seen += 1
+                score = float(np.clip(0.8 + rng.normal(0, 0.05), 0.5, 0.99))
+                area = float((box[2] - box[0]) * (box[3] - box[1]))
+                if obj.reference is None or iou(box, obj.reference) < 0.6:
+                    obj.reference, obj.still = box, 0
+                    moved_from_still = obj.stationary
+                    obj.stationary = False
+                else:
+                    obj.still += 1
+                    moved_from_still = False
+                became_still = not obj.stationary and obj.still >= STATIONARY_FRAMES
+                if became_still:
+                    obj.stationary = True
+                # Frigate's better thumbnail: a higher score, or as good with a larger box.
+                better = score > obj.best_score or (
+                    score >= obj.best_score - 0.02 and area > obj.best_area * 1.1
+                )
+                after = {
+                    "id": obj.id,
+                    "camera": name,
+                    "frame_time": frame_time,
+                    "label": "person",
+                    "sub_label": None,
+                    "top_score": max(score, obj.last.get("top_score", 0.0)),
+                    "false_positive": False,
+                    "start_time": obj.start,
+                    "end_time": None,
+                    "score": score,
+                    "box": [round(float(v)) for v in box],
+                    "area": int(area),
+                    "ratio": float((box[2] - box[0]) / max(box[3] - box[1], 1)),
+                    "region": [0, 0, 320, 320],
+                    "stationary": obj.stationary,
+                    "motionless_count": obj.still,
+                    "position_changes": 0,
+                    "current_zones": [],
+                    "entered_zones": [],
+                    "has_clip": False,
+                    "has_snapshot": True,
+                }
+                kind = None
+                if not obj.published and obj.seen >= CONFIRM_FRAMES:
+                    kind, obj.published = "new", True
+                elif obj.published and (
+                    better or became_still or moved_from_still or frame_time - obj.last_sent > 60
+                ):
+                    kind = "update"
+                if better:
+                    obj.best_score, obj.best_area = max(score, obj.best_score), area
+                if kind is not None:
+                    out.append((frame_time, _event(kind, obj.last or after, after)))
+                    obj.last_sent = frame_time
+                obj.last = after
+    out.sort(key=lambda m: m[0])
+    return out
+
+
+def _event(kind: str, before: dict, after: dict) -> str:
+    return json.dumps({"type": kind, "before": before, "after": after})
+
+
+class Publisher(threading.Thread):
+    """Publishes (frame_time, payload) on frigate/events when the wall clock reaches
+    frame_time + delay (Frigate's processing and MQTT delay)."""
+
+    def __init__(self, client, messages: list[tuple[float, str]], delay: float = 0.1) -> None:
+        super().__init__(daemon=True)
+        self.client = client
+        self.messages = messages
+        self.delay = delay
+        self.sent = 0
+
+    def run(self) -> None:
+        for frame_time, payload in self.messages:
+            wait = frame_time + self.delay - time.time()
+            if wait > 0:
+                time.sleep(wait)
+            self.client.publish("frigate/events", payload, qos=1)
+            self.sent += 1

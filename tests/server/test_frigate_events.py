@@ -1,0 +1,109 @@
+"""Frigate's messages turned into detections, without a broker: the box scaled from Frigate's
+detect resolution to the camera's and measured by core's box_foot (the stored detection is its
+foot point and covariance), labels and false positives filtered, unknown cameras counted, a
+camera registered later picked up, and `frigate/stats` giving the camera's health."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+from sqlalchemy import create_engine, select
+from sqlalchemy.orm import sessionmaker
+
+from core.localization import NetworkCamera
+from core.localization.boxes import box_foot
+from server.db.models import Camera, Detection, Space
+from server.services.frigate import FrigateSource
+from server.services.mqtt import Message
+from server.services.targets import LiveTargets
+from server.services.tracking import TrackingService
+from server.settings import FrigateCamera
+
+K = [[700.0, 0.0, 640.0], [0.0, 700.0, 360.0], [0.0, 0.0, 1.0]]
+
+
+class Clock:
+    def __init__(self, t: float) -> None:
+        self.t = t
+
+    def __call__(self) -> float:
+        return self.t
+
+
+def _event(kind, camera, box, t, **extra):
+    after = {
+        "id": "1700000000.1-abc",
+        "camera": camera,
+        "frame_time": t,
+        "label": "person",
+        "false_positive": False,
+        "box": box,
+        "stationary": False,
+        **extra,
+    }
+    return Message(
+        "frigate/events", json.dumps({"type": kind, "before": after, "after": after}).encode()
+    )
+
+
+def test_frigate_events_become_detections_of_the_mapped_camera(tmp_path, sqlite_template):
+    path = tmp_path / "db.sqlite3"
+    shutil.copyfile(sqlite_template, path)
+    factory = sessionmaker(create_engine(f"sqlite:///{path}"), expire_on_commit=False)
+    with factory() as session:
+        space = Space(name="Flat")
+        session.add(space)
+        session.commit()
+        sid = space.id
+    clock = Clock(1_800_000_000.0)
+    tracking = TrackingService(factory, LiveTargets(factory), latency=0.5, clock=clock)
+    beats: list[tuple[int, float, float | None]] = []
+    source = FrigateSource(
+        factory,
+        tracking,
+        {"front": FrigateCamera(camera="Hall", detect=(640, 360))},
+        labels="person, dog",
+        heartbeat=lambda *a: beats.append(a),
+        clock=clock,
+    )
+    t = clock.t - 0.1
+    # The camera is not registered yet: counted, nothing stored.
+    source.handle(_event("new", "front", [100, 50, 160, 250], t))
+    assert source.counts["unknown_camera"] == 1
+    cam = NetworkCamera.looking_at(K, None, [0, 0, 2.8], [3, 2, 0], (1280, 720))
+    with factory() as session:
+        session.add(
+            Camera(
+                space_id=sid,
+                name="Hall",
+                width=1280,
+                height=720,
+                K=K,
+                T_world_camera=cam.T_world_camera.tolist(),
+            )
+        )
+        session.commit()
+    source._refs.clear()  # as after the cache's few seconds
+    source.handle(_event("new", "front", [100, 50, 160, 250], t))
+    source.handle(_event("update", "back", [1, 2, 3, 4], t))  # a camera not mapped
+    source.handle(_event("update", "front", [1, 2, 30, 40], t, label="car"))
+    source.handle(_event("update", "front", [1, 2, 30, 40], t, false_positive=True))
+    with factory() as session:
+        rows = session.scalars(select(Detection)).all()
+    # The false positive ended the object; the first box is the one stored.
+    assert len(rows) == 1 and source.counts["fed"] == 1 and source.held() == []
+    want = box_foot(np.array([[200.0, 100.0, 320.0, 500.0]]))  # x2 from 640x360 to 1280x720
+    d = rows[0]
+    assert (d.u, d.v) == tuple(want.pixel[0]) and d.height == 0.0 and d.kind == "person"
+    assert np.allclose([[d.cxx, d.cxy], [d.cxy, d.cyy]], want.cov[0])
+    assert d.t >= t and d.label is None  # Frigate's id never names a target
+    # A box touching the detect frame's bottom edge is cut there: no floor position from it.
+    source.handle(_event("new", "front", [100, 50, 160, 360], t + 0.2))
+    with factory() as session:
+        assert len(session.scalars(select(Detection)).all()) == 1
+
+    stats = {"cameras": {"front": {"camera_fps": 5.1, "process_fps": 5.0}}, "service": {}}
+    source.handle(Message("frigate/stats", json.dumps(stats).encode()))
+    assert beats and beats[-1][1] == 5.1 and beats[-1][2] == clock.t
