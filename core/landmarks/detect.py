@@ -1140,10 +1140,12 @@ def _symbol_angle(ctx: _Context, R: Array, t: Array, qr_side: float, *, free: bo
         grey = cv2.cvtColor(_rectify(ctx, R, t, half, px), cv2.COLOR_BGR2GRAY)
         _, dark = cv2.threshold(grey, 0, 255, cv2.THRESH_BINARY_INV | cv2.THRESH_OTSU)
         dark[_ANGLE_OUTSIDE] = 0
-        pts = np.column_stack(np.nonzero(dark)[::-1]).astype(np.float32)
-        if len(pts) < 20:
+        if cv2.countNonZero(dark) < 20:
             return None
-        (_, _), (w, h), ang = cv2.minAreaRect(pts)
+        # The dark pixels' outer boundaries have the same convex hull as all of them, hence the
+        # same minimum-area rectangle, from a tenth of the points.
+        contours, _ = cv2.findContours(dark, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+        (_, _), (w, h), ang = cv2.minAreaRect(np.concatenate(contours))
         if min(w, h) <= 0 or max(w, h) / min(w, h) > 1.3:
             return None
         # Patch angles run clockwise (y down); the mark plane's counter-clockwise.
@@ -1160,8 +1162,10 @@ def _symbol_angle(ctx: _Context, R: Array, t: Array, qr_side: float, *, free: bo
         np.rot90(grey[-b:, -b:], 2),
         np.rot90(grey[-b:, :b], 3),
     ]
-    z = [(x - x.mean()) / (x.std() + 1e-9) for x in blocks]
-    C = np.array([[float(np.mean(a * c)) for c in z] for a in z])
+    z = np.array(blocks).reshape(4, -1)
+    z -= z.mean(1, keepdims=True)
+    z /= z.std(1, keepdims=True) + 1e-9
+    C = z @ z.T / z.shape[1]  # the blocks' correlation coefficients
     score = (C.sum(1) - 1) / 3
     k = int(np.argmin(score))
     others = np.delete(score, k)
