@@ -56,6 +56,7 @@ from core.landmarks.conics import (
     circle_normals,
     concentric_centre,
     fit_ellipse,
+    fit_ellipses,
 )
 from core.landmarks.payload import PayloadError, Record, decode_payload
 
@@ -184,11 +185,20 @@ def detect_landmarks(
         if isinstance(e, _FrameEdges) and p is not None
     ]
     out = _frames(ctx, [e for e, _ in frames], [p for _, p in frames], frame_size)
-    for edges, ideal in zip(found, ideals, strict=True):
-        if not isinstance(edges, _RingEdges) or ideal is None:
-            continue
+    rings = [
+        _ring_curves(e, p)
+        for e, p in zip(found, ideals, strict=True)
+        if isinstance(e, _RingEdges) and p is not None
+    ]
+    # The outer and innermost edges' ellipses of all signposts in one batch (the ones the pose
+    # needs, when they fit; _rings fits the others it falls back to).
+    wanted = [(i, k) for i, rc in enumerate(rings) for k in rc.first_choices()]
+    batch = fit_ellipses([rings[i].curves[k] for i, k in wanted])
+    for (i, k), fit in zip(wanted, batch, strict=True):
+        rings[i].fits[k] = fit if isinstance(fit, ConicFit) else None
+    for rc in rings:
         try:
-            det = _rings(ctx, edges, ideal, ring_size)
+            det = _rings(ctx, rc, ring_size)
         except skip:
             det = None
         if det is not None:
@@ -733,15 +743,39 @@ def _ring_edges(score: Image, outer: Image) -> _RingEdges | None:
     return _RingEdges(np.concatenate(iso), [len(c) for c in iso], sizes)
 
 
-def _rings(
-    ctx: _Context, edges: _RingEdges, ideal_points: Array, size: float
-) -> LandmarkDetection | None:
-    """Locate and read a signpost from its edge curves' ideal pixels."""
+@dataclass(frozen=True)
+class _RingCurves:
+    """A signpost's edge curves (ideal pixels), the ring edge each one matches ((curve, edge
+    index in RING_RADII), largest curve first), the outer curve's size, and the ellipses fitted
+    so far (None: not an ellipse)."""
+
+    curves: list[Array]
+    matched: list[tuple[int, int]]
+    ref: float
+    fits: dict[int, ConicFit | None] = field(default_factory=dict)
+
+    def first_choices(self) -> list[int]:
+        """Return the curves _rings tries first: the largest matched one and the smallest."""
+        if not self.matched:
+            return []
+        ks = [self.matched[0][0], self.matched[-1][0]]
+        return ks[:1] if ks[0] == ks[1] else ks
+
+    def fit(self, k: int) -> ConicFit | None:
+        if k not in self.fits:
+            try:
+                self.fits[k] = fit_ellipse(self.curves[k])
+            except DegenerateConfiguration:
+                self.fits[k] = None
+        return self.fits[k]
+
+
+def _ring_curves(edges: _RingEdges, ideal_points: Array) -> _RingCurves:
+    """Return a signpost's edge curves from their ideal pixels, matched to the ring edges."""
     ideal = np.split(ideal_points, np.cumsum(edges.lengths)[:-1])
     sizes = edges.sizes
     order = np.argsort(-sizes)
     ref = sizes[order[0]]
-    lay = pattern_layout("signpost", size)
     # Each ring edge's curve (the largest one whose size ratio to the outer edge matches it).
     matched: list[tuple[int, int]] = []
     for k in order:
@@ -749,14 +783,20 @@ def _rings(
         j = int(np.argmin([abs(ratio - r / RING_RADII[0]) for r in RING_RADII]))
         if abs(ratio - RING_RADII[j] / RING_RADII[0]) <= 0.045 and all(j != i for _, i in matched):
             matched.append((int(k), j))
+    return _RingCurves(ideal, matched, float(ref))
+
+
+def _rings(ctx: _Context, rc: _RingCurves, size: float) -> LandmarkDetection | None:
+    """Locate and read a signpost from its matched edge curves."""
+    lay = pattern_layout("signpost", size)
+    matched, ref = rc.matched, rc.ref
     # The pose needs only the outer edge (normal, distance, centre) and the innermost one that
     # fits (the centre from the pencil of the two).
     fits: list[ConicFit] = []
     radii: list[float] = []
     for n, (k, j) in enumerate(matched):
-        try:
-            fit = fit_ellipse(ideal[k])
-        except DegenerateConfiguration:
+        fit = rc.fit(k)
+        if fit is None:
             continue
         if j != 0:
             return None
@@ -768,9 +808,8 @@ def _rings(
         return None
     centre0 = fits[0].centre
     for k, j in matched[::-1]:
-        try:
-            fit = fit_ellipse(ideal[k])
-        except DegenerateConfiguration:
+        fit = rc.fit(k)
+        if fit is None:
             continue
         if np.linalg.norm(fit.centre - centre0) <= 0.2 * ref:
             fits.append(fit)
@@ -1162,7 +1201,7 @@ def _symbol_angle(ctx: _Context, R: Array, t: Array, qr_side: float, *, free: bo
         np.rot90(grey[-b:, -b:], 2),
         np.rot90(grey[-b:, :b], 3),
     ]
-    z = np.array(blocks).reshape(4, -1)
+    z = np.array(blocks, dtype=np.float64).reshape(4, -1)
     z -= z.mean(1, keepdims=True)
     z /= z.std(1, keepdims=True) + 1e-9
     C = z @ z.T / z.shape[1]  # the blocks' correlation coefficients
