@@ -163,14 +163,15 @@ def detect_landmarks(
     # A candidate whose geometry fails (degenerate fit, distortion not invertible there) is not
     # a landmark this detector can locate; it is left out, never returned half-made.
     skip = (DegenerateConfiguration, ConvergenceError, np.linalg.LinAlgError)
-    found: list[_FrameEdges | _RingEdges] = []
+    frame_curves: list[_FrameCurves] = []
     for outer, hole in _holed_components(blue):
         try:
-            edges: _FrameEdges | _RingEdges | None = _frame_edges(blue, outer, hole)
+            fc = _frame_edges(blue, outer, hole)
         except skip:
-            edges = None
-        if edges is not None:
-            found.append(edges)
+            fc = None
+        if fc is not None:
+            frame_curves.append(fc)
+    found: list[_FrameEdges | _RingEdges] = [e for e in _frame_sides(frame_curves) if e is not None]
     for outer, _hole in _holed_components(red):
         try:
             edges = _ring_edges(red, outer)
@@ -488,7 +489,7 @@ class _FrameEdges:
     count: int
 
 
-def _frame_edges(score: Image, outer: Image, hole: Image) -> _FrameEdges | None:
+def _frame_edges(score: Image, outer: Image, hole: Image) -> _FrameCurves | None:
     if _quad(outer) is None or _quad(hole) is None:
         return None
     roi = _roi(outer, score.shape)
@@ -529,25 +530,58 @@ def _frame_edges(score: Image, outer: Image, hole: Image) -> _FrameEdges | None:
             turns = q[(np.arange(4)[:, None] + np.arange(4)) % 4]  # (4 shifts, 4 corners, 2)
             q = turns[int(np.argmin(np.sum((turns - target) ** 2, (1, 2))))]
         quads.append(q)
-    # Each curve's points go to its own quadrilateral's nearest side, away from the corners.
-    points, labels = [], []
-    for i, (c, q) in enumerate(zip(curves, quads, strict=True)):
-        a, b = q, q[_NEXT]
-        L = np.linalg.norm(b - a, axis=1)
-        if np.any(L < 3):
-            return None
-        u = (b - a) / L[:, None]
-        d = c[:, None, :] - a[None]  # (N, 4, 2)
-        s = np.sum(d * u, -1)
-        dn = np.abs(d[..., 1] * u[:, 0] - d[..., 0] * u[:, 1])
-        margin = np.maximum(1.5, 0.12 * L)
-        ok = (s > margin) & (s < L - margin) & (dn < 3.0)
-        dn = np.where(ok, dn, np.inf)
-        best = np.argmin(dn, 1)
-        on = np.isfinite(dn[np.arange(len(c)), best])
-        points.append(c[on])
-        labels.append(best[on] + 4 * i)
-    return _FrameEdges(np.concatenate(points), np.concatenate(labels), 4 * len(curves))
+    return _FrameCurves(curves, quads)
+
+
+@dataclass(frozen=True)
+class _FrameCurves:
+    """A blue frame's edge curves (outline first, then the hole's when found), (N_i, 2)
+    distorted pixels, and the quadrilateral (4, 2) each one follows (same cyclic order)."""
+
+    curves: list[Array]
+    quads: list[Array]
+
+
+def _frame_sides(frames: list[_FrameCurves]) -> list[_FrameEdges | None]:
+    """Return each frame's edge points labelled with their sides: every curve's points go to
+    its own quadrilateral's nearest side, away from the corners (all frames' points at once;
+    None for a frame with a side under 3 px)."""
+    if not frames:
+        return []
+    curves = [c for f in frames for c in f.curves]
+    Q = np.array([q for f in frames for q in f.quads])  # (curves, 4, 2)
+    sizes = np.array([len(c) for c in curves])
+    which = np.repeat(np.arange(len(curves)), sizes)  # each point's curve
+    pts = np.concatenate(curves)
+    side = Q[:, _NEXT] - Q
+    L = np.sqrt(np.sum(side * side, -1))  # (curves, 4)
+    u = side / np.maximum(L, 1e-12)[..., None]
+    margin = np.maximum(1.5, 0.12 * L)
+    d = pts[:, None, :] - Q[which]  # (N, 4, 2)
+    uw = u[which]
+    s = np.sum(d * uw, -1)
+    dn = np.abs(d[..., 1] * uw[..., 0] - d[..., 0] * uw[..., 1])
+    mw = margin[which]
+    ok = (s > mw) & (s < L[which] - mw) & (dn < 3.0)
+    dn = np.where(ok, dn, np.inf)
+    best = np.argmin(dn, 1)
+    on = np.take_along_axis(dn, best[:, None], 1)[:, 0] < np.inf
+    # Labels within each frame: 0-3 the outline's sides, 4-7 the hole's.
+    first = np.cumsum([0] + [len(f.curves) for f in frames])
+    rank = np.concatenate([np.arange(len(f.curves)) for f in frames])
+    label = best + 4 * rank[which]
+    frame_of = np.repeat(np.arange(len(frames)), [len(f.curves) for f in frames])[which]
+    short = np.any(L < 3, 1)
+    out: list[_FrameEdges | None] = []
+    bounds = np.searchsorted(frame_of, np.arange(len(frames) + 1))
+    for i, f in enumerate(frames):
+        if short[first[i] : first[i + 1]].any():
+            out.append(None)
+            continue
+        sl = slice(bounds[i], bounds[i + 1])
+        keep = on[sl]
+        out.append(_FrameEdges(pts[sl][keep], label[sl][keep], 4 * len(f.curves)))
+    return out
 
 
 def _frames(
