@@ -157,9 +157,10 @@ def detect_landmarks(
             raise InvalidInput("up must be a non-zero direction")
         upv = upv / np.linalg.norm(upv)
     b, g, r = cv2.split(img)
-    ctx = _Context(img, cv2.max(cv2.max(b, g), r), Km, d, upv, decode)
+    bg = cv2.max(b, g)
+    ctx = _Context(img, cv2.max(bg, r), Km, d, upv, decode)
     blue = cv2.subtract(b, cv2.max(g, r))
-    red = cv2.subtract(r, cv2.max(g, b))
+    red = cv2.subtract(r, bg)
     # A candidate whose geometry fails (degenerate fit, distortion not invertible there) is not
     # a landmark this detector can locate; it is left out, never returned half-made.
     skip = (DegenerateConfiguration, ConvergenceError, np.linalg.LinAlgError)
@@ -353,17 +354,13 @@ def _iso_points(score: Image, roi: tuple[int, int, int, int], inside: Image) -> 
         keys.append(lab_b.astype(np.int64) * 2 + outer_edge)
     if not keys:
         return []
-    x = np.concatenate(xs) + x0
-    y = np.concatenate(ys) + y0
     key = np.concatenate(keys)
     order = np.argsort(key, kind="stable")
-    key, x, y = key[order], x[order], y[order]
-    cuts = np.flatnonzero(np.diff(key)) + 1
-    return [
-        np.column_stack([gx, gy]).astype(np.float64)
-        for gx, gy in zip(np.split(x, cuts), np.split(y, cuts), strict=True)
-        if len(gx) >= 8
-    ]
+    xy = np.stack([np.concatenate(xs), np.concatenate(ys)], 1)[order]
+    xy += (x0, y0)
+    key = key[order]
+    cuts = [0, *(np.flatnonzero(key[1:] != key[:-1]) + 1).tolist(), len(key)]
+    return [xy[a:b] for a, b in pairwise(cuts) if b - a >= 8]
 
 
 def _hull_area(p: Array) -> float:
@@ -956,14 +953,19 @@ def _conic6(c: Array) -> Array:
 def _rotation(n: Array, psi: float) -> Array:
     """Return R = [x y z] with z = n and x the camera's x axis projected on the plane, turned by
     psi about z."""
-    ex = np.array([1.0, 0.0, 0.0])
-    if abs(n @ ex) > 0.95:
-        ex = np.array([0.0, 1.0, 0.0])
-    x0 = ex - (ex @ n) * n
-    x0 /= np.linalg.norm(x0)
-    y0 = np.cross(n, x0)
-    x = np.cos(psi) * x0 + np.sin(psi) * y0
-    return np.column_stack([x, np.cross(n, x), n])
+    n0, n1, n2 = (float(v) for v in n)
+    if abs(n0) > 0.95:
+        ex = np.array([-n1 * n0, 1.0 - n1 * n1, -n1 * n2])  # the y axis, projected
+    else:
+        ex = np.array([1.0 - n0 * n0, -n0 * n1, -n0 * n2])
+    x0 = ex / math.sqrt(float(ex @ ex))
+    c, s = math.cos(psi), math.sin(psi)
+    # y0 = n x x0; x = cos psi x0 + sin psi y0; then n x x (cross products written out: numpy's
+    # is tens of microseconds on 3-vectors).
+    y0 = np.array([n1 * x0[2] - n2 * x0[1], n2 * x0[0] - n0 * x0[2], n0 * x0[1] - n1 * x0[0]])
+    x = c * x0 + s * y0
+    y = np.array([n1 * x[2] - n2 * x[1], n2 * x[0] - n0 * x[2], n0 * x[1] - n1 * x[0]])
+    return np.column_stack([x, y, n])
 
 
 def _finish_rings(
