@@ -220,7 +220,7 @@ class _Context:
     def undistort(self, px: Array) -> Array:
         if not np.any(self.dist):
             return px
-        return undistort_points(px, self.K, self.dist, to_pixels=True)
+        return undistort_points(px, self.K, self.dist, to_pixels=True, tol=1e-10)
 
     def distort(self, ideal: Array) -> Array:
         if not np.any(self.dist):
