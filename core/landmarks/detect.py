@@ -319,16 +319,19 @@ def _iso_points(score: Image, roi: tuple[int, int, int, int], inside: Image) -> 
     lo = int(np.floor(pos))
     v_lo, v_hi = np.searchsorted(cum, [lo + 1, min(lo + 2, cum[-1])])
     level = np.float32(0.5 * (v_lo + (pos - lo) * (v_hi - v_lo)))
-    patch = roi_score.astype(np.float32)
-    above = (patch > level).astype(np.uint8)
-    _, lb = cv2.connectedComponents(1 - above, connectivity=8)
-    gxi = cv2.Sobel(patch, cv2.CV_32F, 1, 0, ksize=3)
-    gyi = cv2.Sobel(patch, cv2.CV_32F, 0, 1, ksize=3)
+    # The scores are integers: score > level is score > floor(level), which is what OpenCV's
+    # threshold of an 8-bit image tests (one pass each, no floating-point copy of the ROI).
+    _, above = cv2.threshold(roi_score, float(level), 1, cv2.THRESH_BINARY)
+    _, below = cv2.threshold(roi_score, float(level), 1, cv2.THRESH_BINARY_INV)
+    _, lb = cv2.connectedComponents(below, connectivity=8)
+    # Exact integer gradients (|Sobel| <= 4 * 255), as the floating-point ones were.
+    gxi = cv2.Sobel(roi_score, cv2.CV_16S, 1, 0, ksize=3)
+    gyi = cv2.Sobel(roi_score, cv2.CV_16S, 0, 1, ksize=3)
     xs, ys, keys = [], [], []
-    width = patch.shape[1]
+    width = roi_score.shape[1]
     # Gathers by flat index into the raveled (contiguous) ROI arrays: numpy's two-dimensional
     # fancy indexing recomputes the flat index at every gather.
-    flat_patch, flat_above, flat_lb = patch.ravel(), above.ravel(), lb.ravel()
+    flat_patch, flat_above, flat_lb = roi_score.ravel(), above.ravel(), lb.ravel()
     flat_gx, flat_gy = gxi.ravel(), gyi.ravel()
     for axis in (1, 0):
         ia = above[:, :-1] if axis == 1 else above[:-1, :]
@@ -339,15 +342,16 @@ def _iso_points(score: Image, roi: tuple[int, int, int, int], inside: Image) -> 
             continue
         ka = yy * width + xx  # the crossing's first pixel, then its neighbour along the axis
         kb = ka + (1 if axis == 1 else width)
-        va, vb = flat_patch.take(ka), flat_patch.take(kb)
+        va = flat_patch.take(ka).astype(np.float32)
+        vb = flat_patch.take(kb).astype(np.float32)
         f = (level - va) / (vb - va)
         lab_b = np.where(flat_above.take(ka) == 1, flat_lb.take(kb), flat_lb.take(ka))
         px = xx + (f if axis == 1 else 0.0)
         py = yy + (f if axis == 0 else 0.0)
         # The score's gradient (toward the pattern) against the direction from the centre: an
         # outer edge has the pattern on its inner side.
-        gx = flat_gx.take(ka) + flat_gx.take(kb)
-        gy = flat_gy.take(ka) + flat_gy.take(kb)
+        gx = flat_gx.take(ka).astype(np.float32) + flat_gx.take(kb)
+        gy = flat_gy.take(ka).astype(np.float32) + flat_gy.take(kb)
         outer_edge = gx * (px - cx) + gy * (py - cy) < 0
         xs.append(px)
         ys.append(py)
