@@ -402,7 +402,7 @@ class _Lines:
     var_rho: Array  # (L,) of rho at the centroid
     sigma: Array  # (L,) residual RMS, pixels
 
-    def take(self, rows: slice) -> _Lines:
+    def take(self, rows: slice | NDArray[np.intp]) -> _Lines:
         return _Lines(*(getattr(self, f)[rows] for f in self.__dataclass_fields__))
 
 
@@ -621,24 +621,41 @@ def _frames(
             del poses[i]
         else:
             poses[i] = (*pose, 4)
-    out = []
-    for i in sorted(poses):
-        R, t, rms, n = poses[i]
-        if rms > MAX_CORNER_RMS_PX:  # not a square frame seen in perspective
+    kept = [i for i in sorted(poses) if poses[i][2] <= MAX_CORNER_RMS_PX]
+    # (else not a square frame seen in perspective)
+    covs: dict[int, Array] = {}
+    for n in (8, 4):
+        idx = [i for i in kept if poses[i][3] == n]
+        if not idx:
             continue
-        sl = slice(span[i].start, span[i].start + n)
-        frame_lines = lines.take(sl)
-        # The frame's corners on its lines: its quadrilaterals' blocks on the diagonal.
-        JL = np.zeros((2 * n, 2 * n))
-        for b in range(n // 4):
-            JL[8 * b : 8 * b + 8, 8 * b : 8 * b + 8] = blocks[sl.start // 4 + b]
+        # Each frame's corners on its lines: its quadrilaterals' blocks on the diagonal.
+        JL = np.zeros((len(idx), 2 * n, 2 * n))
+        rows: list[int] = []
+        for f, i in enumerate(idx):
+            first = span[i].start
+            rows.extend(range(first, first + n))
+            for b in range(n // 4):
+                JL[f, 8 * b : 8 * b + 8, 8 * b : 8 * b + 8] = blocks[first // 4 + b]
         # Of the left rotation perturbation, which a turn of the mark frame about its normal
         # leaves unchanged.
-        cov = _frame_covariance(frame_lines, JL, obj8[:n], R, t, ctx.K)
-        outline = ctx.distort(corners[span[i]][:4])
-        out.append(
-            _finish(ctx, "object", R, t, cov, outline, size, float(np.mean(frame_lines.sigma)))
+        cov = _frame_covariance(
+            lines.take(np.array(rows)),
+            JL,
+            obj8[:n],
+            np.array([poses[i][0] for i in idx]),
+            np.array([poses[i][1] for i in idx]),
+            ctx.K,
         )
+        covs.update(zip(idx, cov, strict=True))
+    if not kept:
+        return []
+    outlines = ctx.distort(np.concatenate([corners[span[i]][:4] for i in kept]))
+    out = []
+    for k, i in enumerate(kept):
+        R, t, _, n = poses[i]
+        sigma = float(np.mean(lines.sigma[span[i].start : span[i].start + n]))
+        outline = outlines[4 * k : 4 * k + 4]
+        out.append(_finish(ctx, "object", R, t, covs[i], outline, size, sigma))
     return out
 
 
@@ -727,17 +744,21 @@ def _plane_poses(
 
 
 def _frame_covariance(lines: _Lines, JL: Array, obj: Array, R: Array, t: Array, K: Array) -> Array:
-    """Return the (6, 6) covariance of (left rotation perturbation, t) of the least-squares pose
-    of the corners, from the lines' parameter variances: Sigma_c = J_L Sigma_L J_L^T for the
-    corners (JL (2 n, 2 n), from `_corners`: each corner depends on two lines), then the sandwich
-    (A^T A)^-1 A^T Sigma_c A (A^T A)^-1 with A the pose Jacobian of the corners' projections."""
-    var = np.stack([lines.var_phi, lines.var_rho], 1).ravel()
-    Sc = (JL * var) @ JL.T
-    _, _, Jp = _project_plane(obj, R[None], t[None], K, jacobian=True)
+    """Return the (F, 6, 6) covariances of (left rotation perturbation, t) of F frames' least-
+    squares poses (R (F, 3, 3), t (F, 3)) of their n corners obj (n, 2), from their lines'
+    parameter variances (lines: F n rows, frame by frame): Sigma_c = J_L Sigma_L J_L^T for the
+    corners (JL (F, 2 n, 2 n), from `_corners`: each corner depends on two lines), then the
+    sandwich (A^T A)^-1 A^T Sigma_c A (A^T A)^-1 with A the pose Jacobian of the corners'
+    projections."""
+    F = len(R)
+    var = np.stack([lines.var_phi, lines.var_rho], 1).reshape(F, 1, -1)
+    Sc = (JL * var) @ np.swapaxes(JL, 1, 2)
+    _, _, Jp = _project_plane(obj, R, t, K, jacobian=True)
     assert Jp is not None
-    A = Jp.reshape(-1, 6)
-    G = np.linalg.solve(A.T @ A, A.T)
-    return G @ Sc @ G.T
+    A = Jp.reshape(F, -1, 6)
+    At = np.swapaxes(A, 1, 2)
+    G = np.linalg.solve(At @ A, At)
+    return np.asarray(G @ Sc @ np.swapaxes(G, 1, 2), dtype=np.float64)
 
 
 # --------------------------------------------------------------------------------------------
