@@ -1181,13 +1181,15 @@ def _square_fit(P: Array) -> tuple[float, float] | None:
 
 
 _CV_QR = cv2.QRCodeDetector()
+_QR_ONLY = zxingcpp.BarcodeFormats(zxingcpp.BarcodeFormat.QRCode)
 
 
 def _decode(grey: Image, fallback: bool = True) -> tuple[str | None, Array | None]:
     """Return (text, corners (4, 2) TL, TR, BR, BL pixels) of a QR symbol in a grey patch."""
-    for r in zxingcpp.read_barcodes(
-        grey, formats=zxingcpp.BarcodeFormats(zxingcpp.BarcodeFormat.QRCode)
-    ):
+    # The first symbol found is the one used: zxing-cpp stops there (read_barcode), and the
+    # rectified patch is neither inverted (light on dark) nor large enough to be downscaled.
+    r = zxingcpp.read_barcode(grey, formats=_QR_ONLY, try_invert=False, try_downscale=False)
+    if r is not None:
         p = r.position
         pts = np.array(
             [
