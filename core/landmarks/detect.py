@@ -1169,15 +1169,23 @@ def _square_fit(P: Array) -> tuple[float, float] | None:
     psi the direction of its rows, squareness the RMS residual of the best similarity of a
     square to them, in units of its half side (scale free: the decoder's corners may sit on the
     finder patterns rather than the symbol's edge). None when the corners are not in order."""
-    dx = (P[1] - P[0]) + (P[2] - P[3])
-    psi = float(np.arctan2(dx[1], dx[0]))
-    model = np.array([[-1, 1], [1, 1], [1, -1], [-1, -1]], float) @ _rz(psi)[:2, :2].T
-    c = P - P.mean(0)
-    scale = float(np.sum(c * model) / np.sum(model * model))
+    # On four points, plain floats: numpy's per-call cost is most of the time otherwise.
+    (x0, y0), (x1, y1), (x2, y2), (x3, y3) = P.tolist()
+    psi = math.atan2((y1 - y0) + (y2 - y3), (x1 - x0) + (x2 - x3))
+    cs, sn = math.cos(psi), math.sin(psi)
+    # The square's corners (-1, 1), (1, 1), (1, -1), (-1, -1) turned by psi, and the points
+    # about their centroid.
+    model = [(-cs - sn, -sn + cs), (cs - sn, sn + cs), (cs + sn, sn - cs), (-cs + sn, -sn - cs)]
+    mx, my = (x0 + x1 + x2 + x3) / 4, (y0 + y1 + y2 + y3) / 4
+    c = [(x - mx, y - my) for x, y in ((x0, y0), (x1, y1), (x2, y2), (x3, y3))]
+    mm = sum(a * a + b * b for a, b in model)
+    scale = sum(a * u + b * v for (a, b), (u, v) in zip(c, model, strict=True)) / mm
     if scale <= 0:
         return None
-    res = c - scale * model
-    return psi, float(np.sqrt(np.mean(np.sum(res * res, 1)))) / scale
+    ss = sum(
+        (a - scale * u) ** 2 + (b - scale * v) ** 2 for (a, b), (u, v) in zip(c, model, strict=True)
+    )
+    return psi, math.sqrt(ss / 4) / scale
 
 
 _CV_QR = cv2.QRCodeDetector()
