@@ -195,8 +195,11 @@ def detect_landmarks(
     # The outer and innermost edges' ellipses of all signposts in one batch (the ones the pose
     # needs, when they fit; _rings fits the others it falls back to).
     wanted = [(i, k) for i, rc in enumerate(rings) for k in rc.first_choices()]
-    batch = fit_ellipses([rings[i].curves[k] for i, k in wanted])
-    for (i, k), fit in zip(wanted, batch, strict=True):
+    try:
+        batch = fit_ellipses([rings[i].curves[k] for i, k in wanted])
+    except skip:
+        batch = []  # (LAPACK failed on one of them: each ring fits its own below)
+    for (i, k), fit in zip(wanted, batch, strict=False):
         rings[i].fits[k] = fit if isinstance(fit, ConicFit) else None
     for rc in rings:
         try:
