@@ -14,7 +14,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from core._validate import as_points
-from core.errors import DegenerateConfiguration
+from core.errors import DegenerateConfiguration, InvalidInput
 
 Array = NDArray[np.float64]
 
@@ -72,105 +72,189 @@ def fit_ellipse(points: ArrayLike, *, iterations: int = 10) -> ConicFit:
     residual variance. Raises DegenerateConfiguration when the points are not on an ellipse.
     """
     p = as_points(points, 2, "points", min_count=6)
-    mu = p.mean(0)
-    s = float(np.sqrt(np.mean(np.sum((p - mu) ** 2, 1))))
-    if s <= 0:
-        raise DegenerateConfiguration("the edge points coincide; no ellipse")
-    q = (p - mu) / s
-    x, y = q[:, 0], q[:, 1]
-    D1 = np.stack([x * x, x * y, y * y], 1)
-    D2 = np.stack([x, y, np.ones_like(x)], 1)
-    S1, S2, S3 = D1.T @ D1, D1.T @ D2, D2.T @ D2
+    fit = fit_ellipses([p], iterations=iterations)[0]
+    if isinstance(fit, str):
+        raise DegenerateConfiguration(fit)
+    return fit
+
+
+def fit_ellipses(points: list[Array], *, iterations: int = 10) -> list[ConicFit | str]:
+    """Return the ellipse (as fit_ellipse) through each set of edge points (N_i >= 6, 2), or
+    the reason (str) why a set is not on an ellipse: all sets solved together, the shorter ones
+    padded with zero-weight points (numpy's per-call cost, not arithmetic, is what a fit of a
+    few hundred points costs)."""
+    F = len(points)
+    if F == 0:
+        return []
+    counts = np.array([len(q) for q in points])
+    if np.any(counts < 6):
+        raise InvalidInput("each point set needs at least 6 points for an ellipse")
+    width = int(counts.max())
+    w = (np.arange(width) < counts[:, None]).astype(np.float64)  # (F, N) 1 real, 0 padding
+    P = np.zeros((F, width, 2))
+    for f, q in enumerate(points):
+        P[f, : len(q)] = q
+    reason: list[str | None] = [None] * F
+    n_f = counts.astype(np.float64)
+    mu = np.sum(P, 1) / n_f[:, None]
+    d = (P - mu[:, None, :]) * w[..., None]
+    s = np.sqrt(np.sum(d * d, (1, 2)) / n_f)
+    for f in np.flatnonzero(~(s > 0)).tolist():
+        reason[f] = "the edge points coincide; no ellipse"
+    s = np.where(s > 0, s, 1.0)
+    q = d / s[:, None, None]  # zero at the padding
+    x, y = q[..., 0], q[..., 1]
+    D1 = np.stack([x * x, x * y, y * y], 1)  # (F, 3, N)
+    D2 = np.stack([x, y, w], 1)
+    S1 = D1 @ np.swapaxes(D1, 1, 2)
+    S2 = D1 @ np.swapaxes(D2, 1, 2)
+    S3 = D2 @ np.swapaxes(D2, 1, 2)
+    singular = ~(np.abs(np.linalg.det(S3)) > 1e-300)
+    for f in np.flatnonzero(singular).tolist():
+        reason[f] = reason[f] or "the edge points are collinear; no ellipse"
+    S3[singular] = np.eye(3)
     try:
-        T = -np.linalg.solve(S3, S2.T)
+        T = -np.linalg.solve(S3, np.swapaxes(S2, 1, 2))
     except np.linalg.LinAlgError:
-        raise DegenerateConfiguration("the edge points are collinear; no ellipse") from None
+        # A set so close to collinear that LAPACK finds S3 singular: each alone.
+        T = np.empty((F, 3, 3))
+        for f in range(F):
+            try:
+                T[f] = -np.linalg.solve(S3[f], S2[f].T)
+            except np.linalg.LinAlgError:
+                reason[f] = reason[f] or "the edge points are collinear; no ellipse"
+                T[f] = 0.0
     M = S1 + S2 @ T
-    M = np.array([M[2] / 2, -M[1], M[0] / 2])
+    M = np.stack([M[:, 2] / 2, -M[:, 1], M[:, 0] / 2], 1)
     _, v = np.linalg.eig(M)
     v = np.real(v)
-    cond = 4 * v[0] * v[2] - v[1] ** 2
-    ok = np.flatnonzero(cond > 0)
-    if ok.size == 0:
-        raise DegenerateConfiguration("the edge points do not lie on an ellipse")
-    a1 = v[:, ok[0]]
-    c = np.concatenate([a1, T @ a1])
-    c /= np.linalg.norm(c)
-    # The monomials and the Jacobian are stored one row per coefficient (6, N): every update
+    cond = 4 * v[:, 0] * v[:, 2] - v[:, 1] ** 2  # (F, 3), one per eigenvector
+    ok = cond > 0
+    for f in np.flatnonzero(~ok.any(1)).tolist():
+        reason[f] = reason[f] or "the edge points do not lie on an ellipse"
+    a1 = np.take_along_axis(v, np.argmax(ok, 1)[:, None, None], 2)[..., 0]  # (F, 3)
+    c = np.concatenate([a1, np.einsum("fij,fj->fi", T, a1)], 1)
+    c /= np.linalg.norm(c, axis=1, keepdims=True)
+    # The monomials and the Jacobian are stored one row per coefficient (F, 6, N): every update
     # below is then an operation on contiguous rows.
-    n = len(x)
-    M2 = np.empty((6, n))
-    np.multiply(x, x, out=M2[0])
-    np.multiply(x, y, out=M2[1])
-    np.multiply(y, y, out=M2[2])
-    M2[3], M2[4], M2[5] = x, y, 1.0
+    M2 = np.empty((F, 6, width))
+    np.multiply(x, x, out=M2[:, 0])
+    np.multiply(x, y, out=M2[:, 1])
+    np.multiply(y, y, out=M2[:, 2])
+    M2[:, 3], M2[:, 4], M2[:, 5] = x, y, w
     two_x, two_y = 2.0 * x, 2.0 * y
+    pad = 1.0 - w
+    failed = np.array([m is not None for m in reason])
+    c[failed] = np.array([1.0, 0.0, 1.0, 0.0, 0.0, -1.0]) / np.sqrt(3.0)  # a circle, unused
+    pad[failed] = 1.0
 
     def residuals(c: Array) -> tuple[Array, Array, Array, Array]:
-        # f = x^T C x, its gradient (d/dx, d/dy) and the Sampson distance r = f / |gradient|.
-        f = c @ M2
-        gx = c[0] * two_x
-        gx += c[1] * y
-        gx += c[3]
-        gy = c[1] * x
-        gy += c[2] * two_y
-        gy += c[4]
+        # f = x^T C x, its gradient (d/dx, d/dy) and the Sampson distance r = f / |gradient|
+        # (zero at the padding).
+        cc = c[:, :, None]
+        fv = np.einsum("fk,fkn->fn", c, M2)
+        gx = cc[:, 0] * two_x
+        gx += cc[:, 1] * y
+        gx += cc[:, 3]
+        gy = cc[:, 1] * x
+        gy += cc[:, 2] * two_y
+        gy += cc[:, 4]
         inv_g = gx * gx
         inv_g += gy * gy
+        inv_g += pad  # never 0 / 0 at the padding (1 there, 0 at the points)
         np.sqrt(inv_g, out=inv_g)
-        np.divide(1.0, inv_g, out=inv_g)
-        return f * inv_g, gx, gy, inv_g
+        np.divide(w, inv_g, out=inv_g)
+        return fv * inv_g, gx, gy, inv_g
 
-    J = np.empty((6, n))
-    r = np.zeros(n)
+    J = np.empty((F, 6, width))
+    r = np.zeros((F, width))
+    active = ~failed
+    eye_c = np.empty((F, 6, 6))
     for _ in range(iterations):
         r, gx, gy, inv_g = residuals(c)
         # d r / d c = M2 / g - f / g^3 (gx d gx / d c + gy d gy / d c), with f / g^3 = r / g^2.
-        np.multiply(M2, inv_g, out=J)
-        w = r * inv_g
-        w *= inv_g
-        wx, wy = w * gx, w * gy
-        J[0] -= wx * two_x
-        J[1] -= wx * y + wy * x
-        J[2] -= wy * two_y
-        J[3] -= wx
-        J[4] -= wy
+        np.multiply(M2, inv_g[:, None, :], out=J)
+        wr = r * inv_g
+        wr *= inv_g
+        wx, wy = wr * gx, wr * gy
+        J[:, 0] -= wx * two_x
+        J[:, 1] -= wx * y + wy * x
+        J[:, 2] -= wy * two_y
+        J[:, 3] -= wx
+        J[:, 4] -= wy
         # Normal equations in the tangent space of the unit sphere (c c^T fills the null
         # direction of the scale, so the 6x6 system is regular and the step is tangent).
-        A = J @ J.T
-        step = np.linalg.solve(A + np.trace(A) * np.outer(c, c), -(J @ r))
+        A = J @ np.swapaxes(J, 1, 2)
+        np.multiply(c[:, :, None], c[:, None, :], out=eye_c)
+        eye_c *= np.trace(A, axis1=1, axis2=2)[:, None, None]
+        rhs = -np.einsum("fkn,fn->fk", J, r)
+        try:
+            step = np.linalg.solve(A + eye_c, rhs[..., None])[..., 0]
+        except np.linalg.LinAlgError:
+            step = np.zeros_like(c)
+            for f in np.flatnonzero(active).tolist():
+                try:
+                    step[f] = np.linalg.solve(A[f] + eye_c[f], rhs[f])
+                except np.linalg.LinAlgError:
+                    reason[f] = reason[f] or "the edge points do not lie on an ellipse"
+                    active[f] = False
+        # Each set stops on its own: after a step under 1e-7, what remains is of its square
+        # (Gauss-Newton converges quadratically here), far below the fit's own noise.
+        step[~active] = 0.0
         c = c + step
-        c /= np.linalg.norm(c)
-        # Gauss-Newton converges quadratically here: after a step under 1e-7, what remains is of
-        # its square, far below the fit's own noise.
-        if np.linalg.norm(step) < 1e-7:
+        c /= np.linalg.norm(c, axis=1, keepdims=True)
+        active &= np.linalg.norm(step, axis=1) >= 1e-7
+        if not active.any():
             break
     r, _, _, _ = residuals(c)
-    J = J.T
-    sigma2 = float(r @ r) / max(n - 5, 1)
+    sigma2 = np.sum(r * r, 1) / np.maximum(n_f - 5, 1)
     # The pseudo-inverse of P A P (P = I - c c^T, the tangent space): P A P and c c^T act on
     # orthogonal subspaces, so (P A P + c c^T)^-1 = (P A P)^+ + c c^T.
-    cc = np.outer(c, c)
-    P = np.eye(6) - cc
-    cov_n = sigma2 * (np.linalg.inv(P @ (J.T @ J) @ P + cc) - cc)
+    cc = c[:, :, None] * c[:, None, :]
+    Pt = np.eye(6) - cc
+    JJ = J @ np.swapaxes(J, 1, 2)
+    N = Pt @ JJ @ Pt + cc
+    bad = ~(np.abs(np.linalg.det(N)) > 1e-300)
+    N[bad] = np.eye(6)
+    cov_n = sigma2[:, None, None] * (np.linalg.inv(N) - cc)
     # Back to pixels: C_pix = A^T C_n A with A = [[1/s, 0, -mu/s], [0, 1/s, ...], [0, 0, 1]].
-    A = np.array([[1 / s, 0, -mu[0] / s], [0, 1 / s, -mu[1] / s], [0, 0, 1]])
-    Cn = (c @ _BASIS.reshape(6, 9)).reshape(3, 3)
-    Cp = A.T @ Cn @ A
+    A = np.zeros((F, 3, 3))
+    A[:, 0, 0] = A[:, 1, 1] = 1 / s
+    A[:, :2, 2] = -mu / s[:, None]
+    A[:, 2, 2] = 1.0
+    At = np.swapaxes(A, 1, 2)
+    Cn = (c @ _BASIS.reshape(6, 9)).reshape(F, 3, 3)
+    Cp = At @ Cn @ A
     # The linear map of coefficients c_n -> c_pix, for the covariance (before normalisation).
-    E = A.T @ _BASIS @ A  # the six basis conics, mapped
+    E = At[:, None] @ _BASIS @ A[:, None]  # (F, 6, 3, 3) the six basis conics, mapped
     L = np.stack(
-        [E[:, 0, 0], 2 * E[:, 0, 1], E[:, 1, 1], 2 * E[:, 0, 2], 2 * E[:, 1, 2], E[:, 2, 2]], 0
+        [
+            E[:, :, 0, 0],
+            2 * E[:, :, 0, 1],
+            E[:, :, 1, 1],
+            2 * E[:, :, 0, 2],
+            2 * E[:, :, 1, 2],
+            E[:, :, 2, 2],
+        ],
+        1,
     )
-    norm = float(np.linalg.norm(Cp))
-    Cp = Cp / norm
-    L = L / norm
-    centre_val = _conic_at_centre(Cp)
-    if centre_val > 0:
-        Cp, L = -Cp, -L
-    if np.linalg.det(Cp[:2, :2]) <= 0:
-        raise DegenerateConfiguration("the fitted conic is not an ellipse")
-    return ConicFit(C=Cp, rms=float(np.sqrt(np.mean(r * r))) * s, n=n, cov=L @ cov_n @ L.T)
+    norm = np.linalg.norm(Cp, axis=(1, 2))
+    Cp = Cp / norm[:, None, None]
+    L = L / norm[:, None, None]
+    rms = np.sqrt(np.sum(r * r, 1) / n_f) * s
+    out: list[ConicFit | str] = []
+    for f in range(F):
+        if reason[f] is not None or bad[f]:
+            out.append(reason[f] or "the fitted conic is not an ellipse")
+            continue
+        Cf, Lf = Cp[f], L[f]
+        if np.linalg.det(Cf[:2, :2]) <= 0:
+            out.append("the fitted conic is not an ellipse")
+            continue
+        if _conic_at_centre(Cf) > 0:
+            Cf, Lf = -Cf, -Lf
+        out.append(ConicFit(C=Cf, rms=float(rms[f]), n=int(counts[f]), cov=Lf @ cov_n[f] @ Lf.T))
+    return out
 
 
 def _conic_at_centre(C: Array) -> float:

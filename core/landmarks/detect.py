@@ -56,6 +56,7 @@ from core.landmarks.conics import (
     circle_normals,
     concentric_centre,
     fit_ellipse,
+    fit_ellipses,
 )
 from core.landmarks.payload import PayloadError, Record, decode_payload
 
@@ -156,20 +157,22 @@ def detect_landmarks(
             raise InvalidInput("up must be a non-zero direction")
         upv = upv / np.linalg.norm(upv)
     b, g, r = cv2.split(img)
-    ctx = _Context(img, cv2.max(cv2.max(b, g), r), Km, d, upv, decode)
+    bg = cv2.max(b, g)
+    ctx = _Context(img, cv2.max(bg, r), Km, d, upv, decode)
     blue = cv2.subtract(b, cv2.max(g, r))
-    red = cv2.subtract(r, cv2.max(g, b))
+    red = cv2.subtract(r, bg)
     # A candidate whose geometry fails (degenerate fit, distortion not invertible there) is not
     # a landmark this detector can locate; it is left out, never returned half-made.
     skip = (DegenerateConfiguration, ConvergenceError, np.linalg.LinAlgError)
-    found: list[_FrameEdges | _RingEdges] = []
+    frame_curves: list[_FrameCurves] = []
     for outer, hole in _holed_components(blue):
         try:
-            edges: _FrameEdges | _RingEdges | None = _frame_edges(blue, outer, hole)
+            fc = _frame_edges(blue, outer, hole)
         except skip:
-            edges = None
-        if edges is not None:
-            found.append(edges)
+            fc = None
+        if fc is not None:
+            frame_curves.append(fc)
+    found: list[_FrameEdges | _RingEdges] = [e for e in _frame_sides(frame_curves) if e is not None]
     for outer, _hole in _holed_components(red):
         try:
             edges = _ring_edges(red, outer)
@@ -184,11 +187,23 @@ def detect_landmarks(
         if isinstance(e, _FrameEdges) and p is not None
     ]
     out = _frames(ctx, [e for e, _ in frames], [p for _, p in frames], frame_size)
-    for edges, ideal in zip(found, ideals, strict=True):
-        if not isinstance(edges, _RingEdges) or ideal is None:
-            continue
+    rings = [
+        _ring_curves(e, p)
+        for e, p in zip(found, ideals, strict=True)
+        if isinstance(e, _RingEdges) and p is not None
+    ]
+    # The outer and innermost edges' ellipses of all signposts in one batch (the ones the pose
+    # needs, when they fit; _rings fits the others it falls back to).
+    wanted = [(i, k) for i, rc in enumerate(rings) for k in rc.first_choices()]
+    try:
+        batch = fit_ellipses([rings[i].curves[k] for i, k in wanted])
+    except skip:
+        batch = []  # (LAPACK failed on one of them: each ring fits its own below)
+    for (i, k), fit in zip(wanted, batch, strict=False):
+        rings[i].fits[k] = fit if isinstance(fit, ConicFit) else None
+    for rc in rings:
         try:
-            det = _rings(ctx, edges, ideal, ring_size)
+            det = _rings(ctx, rc, ring_size)
         except skip:
             det = None
         if det is not None:
@@ -208,7 +223,7 @@ class _Context:
     def undistort(self, px: Array) -> Array:
         if not np.any(self.dist):
             return px
-        return undistort_points(px, self.K, self.dist, to_pixels=True)
+        return undistort_points(px, self.K, self.dist, to_pixels=True, tol=1e-10)
 
     def distort(self, ideal: Array) -> Array:
         if not np.any(self.dist):
@@ -307,16 +322,19 @@ def _iso_points(score: Image, roi: tuple[int, int, int, int], inside: Image) -> 
     lo = int(np.floor(pos))
     v_lo, v_hi = np.searchsorted(cum, [lo + 1, min(lo + 2, cum[-1])])
     level = np.float32(0.5 * (v_lo + (pos - lo) * (v_hi - v_lo)))
-    patch = roi_score.astype(np.float32)
-    above = (patch > level).astype(np.uint8)
-    _, lb = cv2.connectedComponents(1 - above, connectivity=8)
-    gxi = cv2.Sobel(patch, cv2.CV_32F, 1, 0, ksize=3)
-    gyi = cv2.Sobel(patch, cv2.CV_32F, 0, 1, ksize=3)
+    # The scores are integers: score > level is score > floor(level), which is what OpenCV's
+    # threshold of an 8-bit image tests (one pass each, no floating-point copy of the ROI).
+    _, above = cv2.threshold(roi_score, float(level), 1, cv2.THRESH_BINARY)
+    _, below = cv2.threshold(roi_score, float(level), 1, cv2.THRESH_BINARY_INV)
+    _, lb = cv2.connectedComponents(below, connectivity=8)
+    # Exact integer gradients (|Sobel| <= 4 * 255), as the floating-point ones were.
+    gxi = cv2.Sobel(roi_score, cv2.CV_16S, 1, 0, ksize=3)
+    gyi = cv2.Sobel(roi_score, cv2.CV_16S, 0, 1, ksize=3)
     xs, ys, keys = [], [], []
-    width = patch.shape[1]
+    width = roi_score.shape[1]
     # Gathers by flat index into the raveled (contiguous) ROI arrays: numpy's two-dimensional
     # fancy indexing recomputes the flat index at every gather.
-    flat_patch, flat_above, flat_lb = patch.ravel(), above.ravel(), lb.ravel()
+    flat_patch, flat_above, flat_lb = roi_score.ravel(), above.ravel(), lb.ravel()
     flat_gx, flat_gy = gxi.ravel(), gyi.ravel()
     for axis in (1, 0):
         ia = above[:, :-1] if axis == 1 else above[:-1, :]
@@ -327,32 +345,29 @@ def _iso_points(score: Image, roi: tuple[int, int, int, int], inside: Image) -> 
             continue
         ka = yy * width + xx  # the crossing's first pixel, then its neighbour along the axis
         kb = ka + (1 if axis == 1 else width)
-        va, vb = flat_patch.take(ka), flat_patch.take(kb)
+        va = flat_patch.take(ka).astype(np.float32)
+        vb = flat_patch.take(kb).astype(np.float32)
         f = (level - va) / (vb - va)
         lab_b = np.where(flat_above.take(ka) == 1, flat_lb.take(kb), flat_lb.take(ka))
         px = xx + (f if axis == 1 else 0.0)
         py = yy + (f if axis == 0 else 0.0)
         # The score's gradient (toward the pattern) against the direction from the centre: an
         # outer edge has the pattern on its inner side.
-        gx = flat_gx.take(ka) + flat_gx.take(kb)
-        gy = flat_gy.take(ka) + flat_gy.take(kb)
+        gx = flat_gx.take(ka).astype(np.float32) + flat_gx.take(kb)
+        gy = flat_gy.take(ka).astype(np.float32) + flat_gy.take(kb)
         outer_edge = gx * (px - cx) + gy * (py - cy) < 0
         xs.append(px)
         ys.append(py)
         keys.append(lab_b.astype(np.int64) * 2 + outer_edge)
     if not keys:
         return []
-    x = np.concatenate(xs) + x0
-    y = np.concatenate(ys) + y0
     key = np.concatenate(keys)
     order = np.argsort(key, kind="stable")
-    key, x, y = key[order], x[order], y[order]
-    cuts = np.flatnonzero(np.diff(key)) + 1
-    return [
-        np.column_stack([gx, gy]).astype(np.float64)
-        for gx, gy in zip(np.split(x, cuts), np.split(y, cuts), strict=True)
-        if len(gx) >= 8
-    ]
+    xy = np.stack([np.concatenate(xs), np.concatenate(ys)], 1)[order]
+    xy += (x0, y0)
+    key = key[order]
+    cuts = [0, *(np.flatnonzero(key[1:] != key[:-1]) + 1).tolist(), len(key)]
+    return [xy[a:b] for a, b in pairwise(cuts) if b - a >= 8]
 
 
 def _hull_area(p: Array) -> float:
@@ -390,7 +405,7 @@ class _Lines:
     var_rho: Array  # (L,) of rho at the centroid
     sigma: Array  # (L,) residual RMS, pixels
 
-    def take(self, rows: slice) -> _Lines:
+    def take(self, rows: slice | NDArray[np.intp]) -> _Lines:
         return _Lines(*(getattr(self, f)[rows] for f in self.__dataclass_fields__))
 
 
@@ -478,7 +493,7 @@ class _FrameEdges:
     count: int
 
 
-def _frame_edges(score: Image, outer: Image, hole: Image) -> _FrameEdges | None:
+def _frame_edges(score: Image, outer: Image, hole: Image) -> _FrameCurves | None:
     if _quad(outer) is None or _quad(hole) is None:
         return None
     roi = _roi(outer, score.shape)
@@ -519,25 +534,58 @@ def _frame_edges(score: Image, outer: Image, hole: Image) -> _FrameEdges | None:
             turns = q[(np.arange(4)[:, None] + np.arange(4)) % 4]  # (4 shifts, 4 corners, 2)
             q = turns[int(np.argmin(np.sum((turns - target) ** 2, (1, 2))))]
         quads.append(q)
-    # Each curve's points go to its own quadrilateral's nearest side, away from the corners.
-    points, labels = [], []
-    for i, (c, q) in enumerate(zip(curves, quads, strict=True)):
-        a, b = q, q[_NEXT]
-        L = np.linalg.norm(b - a, axis=1)
-        if np.any(L < 3):
-            return None
-        u = (b - a) / L[:, None]
-        d = c[:, None, :] - a[None]  # (N, 4, 2)
-        s = np.sum(d * u, -1)
-        dn = np.abs(d[..., 1] * u[:, 0] - d[..., 0] * u[:, 1])
-        margin = np.maximum(1.5, 0.12 * L)
-        ok = (s > margin) & (s < L - margin) & (dn < 3.0)
-        dn = np.where(ok, dn, np.inf)
-        best = np.argmin(dn, 1)
-        on = np.isfinite(dn[np.arange(len(c)), best])
-        points.append(c[on])
-        labels.append(best[on] + 4 * i)
-    return _FrameEdges(np.concatenate(points), np.concatenate(labels), 4 * len(curves))
+    return _FrameCurves(curves, quads)
+
+
+@dataclass(frozen=True)
+class _FrameCurves:
+    """A blue frame's edge curves (outline first, then the hole's when found), (N_i, 2)
+    distorted pixels, and the quadrilateral (4, 2) each one follows (same cyclic order)."""
+
+    curves: list[Array]
+    quads: list[Array]
+
+
+def _frame_sides(frames: list[_FrameCurves]) -> list[_FrameEdges | None]:
+    """Return each frame's edge points labelled with their sides: every curve's points go to
+    its own quadrilateral's nearest side, away from the corners (all frames' points at once;
+    None for a frame with a side under 3 px)."""
+    if not frames:
+        return []
+    curves = [c for f in frames for c in f.curves]
+    Q = np.array([q for f in frames for q in f.quads])  # (curves, 4, 2)
+    sizes = np.array([len(c) for c in curves])
+    which = np.repeat(np.arange(len(curves)), sizes)  # each point's curve
+    pts = np.concatenate(curves)
+    side = Q[:, _NEXT] - Q
+    L = np.sqrt(np.sum(side * side, -1))  # (curves, 4)
+    u = side / np.maximum(L, 1e-12)[..., None]
+    margin = np.maximum(1.5, 0.12 * L)
+    d = pts[:, None, :] - Q[which]  # (N, 4, 2)
+    uw = u[which]
+    s = np.sum(d * uw, -1)
+    dn = np.abs(d[..., 1] * uw[..., 0] - d[..., 0] * uw[..., 1])
+    mw = margin[which]
+    ok = (s > mw) & (s < L[which] - mw) & (dn < 3.0)
+    dn = np.where(ok, dn, np.inf)
+    best = np.argmin(dn, 1)
+    on = np.take_along_axis(dn, best[:, None], 1)[:, 0] < np.inf
+    # Labels within each frame: 0-3 the outline's sides, 4-7 the hole's.
+    first = np.cumsum([0] + [len(f.curves) for f in frames])
+    rank = np.concatenate([np.arange(len(f.curves)) for f in frames])
+    label = best + 4 * rank[which]
+    frame_of = np.repeat(np.arange(len(frames)), [len(f.curves) for f in frames])[which]
+    short = np.any(L < 3, 1)
+    out: list[_FrameEdges | None] = []
+    bounds = np.searchsorted(frame_of, np.arange(len(frames) + 1))
+    for i, f in enumerate(frames):
+        if short[first[i] : first[i + 1]].any():
+            out.append(None)
+            continue
+        sl = slice(bounds[i], bounds[i + 1])
+        keep = on[sl]
+        out.append(_FrameEdges(pts[sl][keep], label[sl][keep], 4 * len(f.curves)))
+    return out
 
 
 def _frames(
@@ -576,24 +624,41 @@ def _frames(
             del poses[i]
         else:
             poses[i] = (*pose, 4)
-    out = []
-    for i in sorted(poses):
-        R, t, rms, n = poses[i]
-        if rms > MAX_CORNER_RMS_PX:  # not a square frame seen in perspective
+    kept = [i for i in sorted(poses) if poses[i][2] <= MAX_CORNER_RMS_PX]
+    # (else not a square frame seen in perspective)
+    covs: dict[int, Array] = {}
+    for n in (8, 4):
+        idx = [i for i in kept if poses[i][3] == n]
+        if not idx:
             continue
-        sl = slice(span[i].start, span[i].start + n)
-        frame_lines = lines.take(sl)
-        # The frame's corners on its lines: its quadrilaterals' blocks on the diagonal.
-        JL = np.zeros((2 * n, 2 * n))
-        for b in range(n // 4):
-            JL[8 * b : 8 * b + 8, 8 * b : 8 * b + 8] = blocks[sl.start // 4 + b]
+        # Each frame's corners on its lines: its quadrilaterals' blocks on the diagonal.
+        JL = np.zeros((len(idx), 2 * n, 2 * n))
+        rows: list[int] = []
+        for f, i in enumerate(idx):
+            first = span[i].start
+            rows.extend(range(first, first + n))
+            for b in range(n // 4):
+                JL[f, 8 * b : 8 * b + 8, 8 * b : 8 * b + 8] = blocks[first // 4 + b]
         # Of the left rotation perturbation, which a turn of the mark frame about its normal
         # leaves unchanged.
-        cov = _frame_covariance(frame_lines, JL, obj8[:n], R, t, ctx.K)
-        outline = ctx.distort(corners[span[i]][:4])
-        out.append(
-            _finish(ctx, "object", R, t, cov, outline, size, float(np.mean(frame_lines.sigma)))
+        cov = _frame_covariance(
+            lines.take(np.array(rows)),
+            JL,
+            obj8[:n],
+            np.array([poses[i][0] for i in idx]),
+            np.array([poses[i][1] for i in idx]),
+            ctx.K,
         )
+        covs.update(zip(idx, cov, strict=True))
+    if not kept:
+        return []
+    outlines = ctx.distort(np.concatenate([corners[span[i]][:4] for i in kept]))
+    out = []
+    for k, i in enumerate(kept):
+        R, t, _, n = poses[i]
+        sigma = float(np.mean(lines.sigma[span[i].start : span[i].start + n]))
+        outline = outlines[4 * k : 4 * k + 4]
+        out.append(_finish(ctx, "object", R, t, covs[i], outline, size, sigma))
     return out
 
 
@@ -682,17 +747,21 @@ def _plane_poses(
 
 
 def _frame_covariance(lines: _Lines, JL: Array, obj: Array, R: Array, t: Array, K: Array) -> Array:
-    """Return the (6, 6) covariance of (left rotation perturbation, t) of the least-squares pose
-    of the corners, from the lines' parameter variances: Sigma_c = J_L Sigma_L J_L^T for the
-    corners (JL (2 n, 2 n), from `_corners`: each corner depends on two lines), then the sandwich
-    (A^T A)^-1 A^T Sigma_c A (A^T A)^-1 with A the pose Jacobian of the corners' projections."""
-    var = np.stack([lines.var_phi, lines.var_rho], 1).ravel()
-    Sc = (JL * var) @ JL.T
-    _, _, Jp = _project_plane(obj, R[None], t[None], K, jacobian=True)
+    """Return the (F, 6, 6) covariances of (left rotation perturbation, t) of F frames' least-
+    squares poses (R (F, 3, 3), t (F, 3)) of their n corners obj (n, 2), from their lines'
+    parameter variances (lines: F n rows, frame by frame): Sigma_c = J_L Sigma_L J_L^T for the
+    corners (JL (F, 2 n, 2 n), from `_corners`: each corner depends on two lines), then the
+    sandwich (A^T A)^-1 A^T Sigma_c A (A^T A)^-1 with A the pose Jacobian of the corners'
+    projections."""
+    F = len(R)
+    var = np.stack([lines.var_phi, lines.var_rho], 1).reshape(F, 1, -1)
+    Sc = (JL * var) @ np.swapaxes(JL, 1, 2)
+    _, _, Jp = _project_plane(obj, R, t, K, jacobian=True)
     assert Jp is not None
-    A = Jp.reshape(-1, 6)
-    G = np.linalg.solve(A.T @ A, A.T)
-    return G @ Sc @ G.T
+    A = Jp.reshape(F, -1, 6)
+    At = np.swapaxes(A, 1, 2)
+    G = np.linalg.solve(At @ A, At)
+    return np.asarray(G @ Sc @ np.swapaxes(G, 1, 2), dtype=np.float64)
 
 
 # --------------------------------------------------------------------------------------------
@@ -733,15 +802,39 @@ def _ring_edges(score: Image, outer: Image) -> _RingEdges | None:
     return _RingEdges(np.concatenate(iso), [len(c) for c in iso], sizes)
 
 
-def _rings(
-    ctx: _Context, edges: _RingEdges, ideal_points: Array, size: float
-) -> LandmarkDetection | None:
-    """Locate and read a signpost from its edge curves' ideal pixels."""
+@dataclass(frozen=True)
+class _RingCurves:
+    """A signpost's edge curves (ideal pixels), the ring edge each one matches ((curve, edge
+    index in RING_RADII), largest curve first), the outer curve's size, and the ellipses fitted
+    so far (None: not an ellipse)."""
+
+    curves: list[Array]
+    matched: list[tuple[int, int]]
+    ref: float
+    fits: dict[int, ConicFit | None] = field(default_factory=dict)
+
+    def first_choices(self) -> list[int]:
+        """Return the curves _rings tries first: the largest matched one and the smallest."""
+        if not self.matched:
+            return []
+        ks = [self.matched[0][0], self.matched[-1][0]]
+        return ks[:1] if ks[0] == ks[1] else ks
+
+    def fit(self, k: int) -> ConicFit | None:
+        if k not in self.fits:
+            try:
+                self.fits[k] = fit_ellipse(self.curves[k])
+            except DegenerateConfiguration:
+                self.fits[k] = None
+        return self.fits[k]
+
+
+def _ring_curves(edges: _RingEdges, ideal_points: Array) -> _RingCurves:
+    """Return a signpost's edge curves from their ideal pixels, matched to the ring edges."""
     ideal = np.split(ideal_points, np.cumsum(edges.lengths)[:-1])
     sizes = edges.sizes
     order = np.argsort(-sizes)
     ref = sizes[order[0]]
-    lay = pattern_layout("signpost", size)
     # Each ring edge's curve (the largest one whose size ratio to the outer edge matches it).
     matched: list[tuple[int, int]] = []
     for k in order:
@@ -749,14 +842,20 @@ def _rings(
         j = int(np.argmin([abs(ratio - r / RING_RADII[0]) for r in RING_RADII]))
         if abs(ratio - RING_RADII[j] / RING_RADII[0]) <= 0.045 and all(j != i for _, i in matched):
             matched.append((int(k), j))
+    return _RingCurves(ideal, matched, float(ref))
+
+
+def _rings(ctx: _Context, rc: _RingCurves, size: float) -> LandmarkDetection | None:
+    """Locate and read a signpost from its matched edge curves."""
+    lay = pattern_layout("signpost", size)
+    matched, ref = rc.matched, rc.ref
     # The pose needs only the outer edge (normal, distance, centre) and the innermost one that
     # fits (the centre from the pencil of the two).
     fits: list[ConicFit] = []
     radii: list[float] = []
     for n, (k, j) in enumerate(matched):
-        try:
-            fit = fit_ellipse(ideal[k])
-        except DegenerateConfiguration:
+        fit = rc.fit(k)
+        if fit is None:
             continue
         if j != 0:
             return None
@@ -768,9 +867,8 @@ def _rings(
         return None
     centre0 = fits[0].centre
     for k, j in matched[::-1]:
-        try:
-            fit = fit_ellipse(ideal[k])
-        except DegenerateConfiguration:
+        fit = rc.fit(k)
+        if fit is None:
             continue
         if np.linalg.norm(fit.centre - centre0) <= 0.2 * ref:
             fits.append(fit)
@@ -883,14 +981,19 @@ def _conic6(c: Array) -> Array:
 def _rotation(n: Array, psi: float) -> Array:
     """Return R = [x y z] with z = n and x the camera's x axis projected on the plane, turned by
     psi about z."""
-    ex = np.array([1.0, 0.0, 0.0])
-    if abs(n @ ex) > 0.95:
-        ex = np.array([0.0, 1.0, 0.0])
-    x0 = ex - (ex @ n) * n
-    x0 /= np.linalg.norm(x0)
-    y0 = np.cross(n, x0)
-    x = np.cos(psi) * x0 + np.sin(psi) * y0
-    return np.column_stack([x, np.cross(n, x), n])
+    n0, n1, n2 = (float(v) for v in n)
+    if abs(n0) > 0.95:
+        ex = np.array([-n1 * n0, 1.0 - n1 * n1, -n1 * n2])  # the y axis, projected
+    else:
+        ex = np.array([1.0 - n0 * n0, -n0 * n1, -n0 * n2])
+    x0 = ex / math.sqrt(float(ex @ ex))
+    c, s = math.cos(psi), math.sin(psi)
+    # y0 = n x x0; x = cos psi x0 + sin psi y0; then n x x (cross products written out: numpy's
+    # is tens of microseconds on 3-vectors).
+    y0 = np.array([n1 * x0[2] - n2 * x0[1], n2 * x0[0] - n0 * x0[2], n0 * x0[1] - n1 * x0[0]])
+    x = c * x0 + s * y0
+    y = np.array([n1 * x[2] - n2 * x[1], n2 * x[0] - n0 * x[2], n0 * x[1] - n1 * x[0]])
+    return np.column_stack([x, y, n])
 
 
 def _finish_rings(
@@ -1069,25 +1172,35 @@ def _square_fit(P: Array) -> tuple[float, float] | None:
     psi the direction of its rows, squareness the RMS residual of the best similarity of a
     square to them, in units of its half side (scale free: the decoder's corners may sit on the
     finder patterns rather than the symbol's edge). None when the corners are not in order."""
-    dx = (P[1] - P[0]) + (P[2] - P[3])
-    psi = float(np.arctan2(dx[1], dx[0]))
-    model = np.array([[-1, 1], [1, 1], [1, -1], [-1, -1]], float) @ _rz(psi)[:2, :2].T
-    c = P - P.mean(0)
-    scale = float(np.sum(c * model) / np.sum(model * model))
+    # On four points, plain floats: numpy's per-call cost is most of the time otherwise.
+    (x0, y0), (x1, y1), (x2, y2), (x3, y3) = P.tolist()
+    psi = math.atan2((y1 - y0) + (y2 - y3), (x1 - x0) + (x2 - x3))
+    cs, sn = math.cos(psi), math.sin(psi)
+    # The square's corners (-1, 1), (1, 1), (1, -1), (-1, -1) turned by psi, and the points
+    # about their centroid.
+    model = [(-cs - sn, -sn + cs), (cs - sn, sn + cs), (cs + sn, sn - cs), (-cs + sn, -sn - cs)]
+    mx, my = (x0 + x1 + x2 + x3) / 4, (y0 + y1 + y2 + y3) / 4
+    c = [(x - mx, y - my) for x, y in ((x0, y0), (x1, y1), (x2, y2), (x3, y3))]
+    mm = sum(a * a + b * b for a, b in model)
+    scale = sum(a * u + b * v for (a, b), (u, v) in zip(c, model, strict=True)) / mm
     if scale <= 0:
         return None
-    res = c - scale * model
-    return psi, float(np.sqrt(np.mean(np.sum(res * res, 1)))) / scale
+    ss = sum(
+        (a - scale * u) ** 2 + (b - scale * v) ** 2 for (a, b), (u, v) in zip(c, model, strict=True)
+    )
+    return psi, math.sqrt(ss / 4) / scale
 
 
 _CV_QR = cv2.QRCodeDetector()
+_QR_ONLY = zxingcpp.BarcodeFormats(zxingcpp.BarcodeFormat.QRCode)
 
 
 def _decode(grey: Image, fallback: bool = True) -> tuple[str | None, Array | None]:
     """Return (text, corners (4, 2) TL, TR, BR, BL pixels) of a QR symbol in a grey patch."""
-    for r in zxingcpp.read_barcodes(
-        grey, formats=zxingcpp.BarcodeFormats(zxingcpp.BarcodeFormat.QRCode)
-    ):
+    # The first symbol found is the one used: zxing-cpp stops there (read_barcode), and the
+    # rectified patch is neither inverted (light on dark) nor large enough to be downscaled.
+    r = zxingcpp.read_barcode(grey, formats=_QR_ONLY, try_invert=False, try_downscale=False)
+    if r is not None:
         p = r.position
         pts = np.array(
             [
@@ -1140,10 +1253,12 @@ def _symbol_angle(ctx: _Context, R: Array, t: Array, qr_side: float, *, free: bo
         grey = cv2.cvtColor(_rectify(ctx, R, t, half, px), cv2.COLOR_BGR2GRAY)
         _, dark = cv2.threshold(grey, 0, 255, cv2.THRESH_BINARY_INV | cv2.THRESH_OTSU)
         dark[_ANGLE_OUTSIDE] = 0
-        pts = np.column_stack(np.nonzero(dark)[::-1]).astype(np.float32)
-        if len(pts) < 20:
+        if cv2.countNonZero(dark) < 20:
             return None
-        (_, _), (w, h), ang = cv2.minAreaRect(pts)
+        # The dark pixels' outer boundaries have the same convex hull as all of them, hence the
+        # same minimum-area rectangle, from a tenth of the points.
+        contours, _ = cv2.findContours(dark, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+        (_, _), (w, h), ang = cv2.minAreaRect(np.concatenate(contours))
         if min(w, h) <= 0 or max(w, h) / min(w, h) > 1.3:
             return None
         # Patch angles run clockwise (y down); the mark plane's counter-clockwise.
@@ -1160,8 +1275,10 @@ def _symbol_angle(ctx: _Context, R: Array, t: Array, qr_side: float, *, free: bo
         np.rot90(grey[-b:, -b:], 2),
         np.rot90(grey[-b:, :b], 3),
     ]
-    z = [(x - x.mean()) / (x.std() + 1e-9) for x in blocks]
-    C = np.array([[float(np.mean(a * c)) for c in z] for a in z])
+    z = np.array(blocks, dtype=np.float64).reshape(4, -1)
+    z -= z.mean(1, keepdims=True)
+    z /= z.std(1, keepdims=True) + 1e-9
+    C = z @ z.T / z.shape[1]  # the blocks' correlation coefficients
     score = (C.sum(1) - 1) / 3
     k = int(np.argmin(score))
     others = np.delete(score, k)
