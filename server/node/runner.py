@@ -1,5 +1,7 @@
 """One camera node's threads: per camera a reader (sources) and a detector; one uploader; one
-heartbeat. The detector calls core.localization.detections.detect_frame, as the twin does."""
+heartbeat. The detector calls core.localization.detections.detect_frame, as the twin does, with
+the camera's people detector (`people_detector`: the neural one for real cameras, background
+subtraction for the twin's)."""
 
 from __future__ import annotations
 
@@ -7,7 +9,7 @@ import logging
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Literal
 from urllib.parse import urlsplit
 
 import cv2
@@ -17,7 +19,8 @@ from numpy.typing import NDArray
 from core.errors import IntspaceError
 from core.localization import NetworkCamera
 from core.localization.detect import MarkerDetectorConfig, PersonDetector
-from core.localization.detections import FrameDetection, detect_frame
+from core.localization.detections import FrameDetection, PeopleDetector, detect_frame
+from core.localization.ssd_people import SsdConfig, SsdPeopleDetector
 from server.node.client import NodeError, ServiceClient, Uploader
 from server.node.clock import StageDelays
 from server.node.config import CameraConfig, NodeConfig
@@ -50,7 +53,36 @@ def make_source(camera: CameraConfig, api: str, token: str) -> Source:
         if ours or camera.reader == "mjpeg":
             headers = {"Authorization": f"Bearer {token}"} if ours else {}
             return MjpegHttpSource(camera.name, src, headers)
-    return OpenCvSource(camera.name, src, realtime=camera.realtime)
+    return OpenCvSource(camera.name, src, realtime=camera.realtime, source_fps=camera.source_fps)
+
+
+def _is_service_stream(camera: CameraConfig, api: str) -> bool:
+    src = camera.source
+    return (
+        isinstance(src, str)
+        and src.lower().startswith(("http://", "https://"))
+        and (_origin(src) == _origin(api))
+    )
+
+
+def detector_kind(camera: CameraConfig, api: str) -> Literal["dnn", "background"]:
+    """Return the people detector `camera` runs: the configured one, or for "auto" the
+    background model for the service's own streams (the twin's cameras: their people are
+    coloured cylinders a detector trained on photographs does not know) and the neural
+    detector for every other source (a real camera)."""
+    if camera.detector != "auto":
+        return camera.detector
+    return "background" if _is_service_stream(camera, api) else "dnn"
+
+
+def people_detector(
+    camera: CameraConfig, kind: Literal["dnn", "background"], mask: NDArray[np.bool_] | None
+) -> PersonDetector | PeopleDetector:
+    """Return a new people detector of `kind` for `camera` (its settings and its mask)."""
+    if kind == "background":
+        return PersonDetector()
+    config = SsdConfig(score_threshold=camera.score_threshold, min_person_px=camera.min_person_px)
+    return SsdPeopleDetector(config=config, mask=mask)
 
 
 def observation(camera_id: int, t: float, d: FrameDetection) -> dict[str, Any] | None:
@@ -82,7 +114,7 @@ class CameraRun:
     network: NetworkCamera
     source: Source
     mask: NDArray[np.bool_] | None
-    people: PersonDetector = field(default_factory=PersonDetector)
+    people: PersonDetector | PeopleDetector = field(default_factory=PersonDetector)
     detected: int = 0
     learned: int = 0
     problem: str | None = None
@@ -123,10 +155,13 @@ class Node:
                     row["K"], row.get("dist"), row["T_world_camera"], size, cam.name
                 )
                 mask = polygon_mask(size, cam.masks)
+                kind = detector_kind(cam, self.api)
+                people = people_detector(cam, kind, mask)
             except IntspaceError as exc:
                 raise NodeError(f"camera {cam.name!r}: {exc}") from exc
             source = make_source(cam, self.api, self._token)
-            self.cameras.append(CameraRun(cam, int(row["id"]), size, network, source, mask))
+            log.info("camera %s: people by the %s detector", cam.name, kind)
+            self.cameras.append(CameraRun(cam, int(row["id"]), size, network, source, mask, people))
 
     def run(self) -> int:
         """Run until `stop_event` is set or every source ended; return the exit code."""
@@ -215,11 +250,27 @@ class Node:
                 )
                 continue
             image = apply_mask(image, run.mask)
-            t = frame.t if frame.t is not None else frame.received + self.client.offset
-            learning = run.learned < self.config.background_frames
-            if learning:
+            t = frame.t
+            if t is None:
+                local = frame.captured if frame.captured is not None else frame.received
+                t = local + self.client.offset
+                if frame.captured is not None and run.detected == 0:
+                    # A file's frames are timed from its start: say when that was, so what the
+                    # service tracked can be laid beside the file (frame seq - 1 at t).
+                    log.info(
+                        "camera %s: frame %d of the file captured at %.6f (service clock)",
+                        run.config.name,
+                        frame.seq - 1,
+                        t,
+                    )
+            # Only a background model learns; a neural detector detects from the first frame.
+            learning = False
+            if isinstance(run.people, PersonDetector) and (
+                run.learned < self.config.background_frames
+            ):
                 run.people.learn(image)
                 run.learned += 1
+                learning = True
             found = detect_frame(
                 image,
                 marker=self._marker,

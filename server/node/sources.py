@@ -89,11 +89,18 @@ class Source:
         """Wait for the reader thread."""
         self._thread.join(timeout)
 
-    def _publish(self, t: float | None, *, image=None, jpeg: bytes | None = None) -> None:
+    def _publish(
+        self,
+        t: float | None,
+        *,
+        image=None,
+        jpeg: bytes | None = None,
+        captured: float | None = None,
+    ) -> None:
         self._seq += 1
         received = time.time()
         self.stats.frame(received, t)
-        self.frames.put(Frame(self._seq, received, t, image=image, jpeg=jpeg))
+        self.frames.put(Frame(self._seq, received, t, image=image, jpeg=jpeg, captured=captured))
 
     def _problem(self, message: str) -> None:
         # Said once per distinct problem, not once per retry.
@@ -164,13 +171,25 @@ class MjpegHttpSource(Source):
 
 class OpenCvSource(Source):
     """A USB index, video file or RTSP/HTTP URL read with OpenCV. A file plays at its own
-    frame rate (`realtime`) or as fast as it decodes, once."""
+    frame rate (`realtime`) or as fast as it decodes, once. With `source_fps` a file's frame k
+    was captured at t0 + k / source_fps (t0: when it was opened, the node's clock) and plays at
+    that rate: a container's frame rate can be wrong (PETS 2009's says 10 for 7)."""
 
-    def __init__(self, name: str, source: int | str, *, realtime: bool = True) -> None:
+    def __init__(
+        self,
+        name: str,
+        source: int | str,
+        *,
+        realtime: bool = True,
+        source_fps: float | None = None,
+    ) -> None:
         super().__init__(name)
         self.source = source
         self.is_file = isinstance(source, str) and "://" not in source
         self.realtime = realtime
+        if source_fps is not None and not source_fps > 0:
+            raise InvalidInput(f"source_fps must be > 0, got {source_fps}")
+        self.source_fps = source_fps if self.is_file else None
 
     def _open(self) -> cv2.VideoCapture:
         params = [
@@ -192,9 +211,11 @@ class OpenCvSource(Source):
             self.stats.error = None
             period = 0.0
             if self.is_file and self.realtime:
-                fps = cap.get(cv2.CAP_PROP_FPS)
+                fps = self.source_fps or cap.get(cv2.CAP_PROP_FPS)
                 period = 1.0 / fps if fps and fps > 0 else 0.0
             next_time = time.monotonic()
+            start = time.time()
+            index = 0
             while not self._stop.is_set():
                 ok, image = cap.read()
                 if not ok or image is None:
@@ -204,7 +225,11 @@ class OpenCvSource(Source):
                     self._problem(f"{self.source!r}: no frame for {TIMEOUT_S:g} s (stalled)")
                     self.stats.stalls += 1
                     return "retry"
-                self._publish(None, image=image)
+                captured = None
+                if self.source_fps is not None:
+                    captured = start + index / self.source_fps
+                index += 1
+                self._publish(None, image=image, captured=captured)
                 if period:
                     next_time = max(next_time + period, time.monotonic() - period)
                     self._stop.wait(max(0.0, next_time - time.monotonic()))
