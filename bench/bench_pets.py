@@ -470,7 +470,9 @@ class TrackScore:
     frames: int
 
 
-def score_tracking(run: TrackingRun, truth: Truth, frames: int) -> TrackScore:
+def score_tracking(
+    run: TrackingRun, truth: Truth, frames: int, hold_s: float = 1.0 / SOURCE_FPS
+) -> TrackScore:
     """Return the MOT metrics of the run on ground-truth frames 1..frames: at frame f (captured
     at t0 + (f - 1) / 7) each target answers with its latest track point at most one frame period
     old; hypotheses within 1 m of a conf 0 person are first matched to them
@@ -478,7 +480,6 @@ def score_tracking(run: TrackingRun, truth: Truth, frames: int) -> TrackScore:
     import motmetrics as mm
 
     acc = mm.MOTAccumulator(auto_id=True)
-    period = 1.0 / SOURCE_FPS
     series = {tid: pts for tid, pts in run.points.items()}
     for f in range(1, frames + 1):
         tau = run.t0 + (f - 1) / SOURCE_FPS
@@ -488,7 +489,7 @@ def score_tracking(run: TrackingRun, truth: Truth, frames: int) -> TrackScore:
             # old: what GET /targets shows then (a frame whose detection missed the target
             # leaves its previous position; one older is coasting and does not count).
             j = int(np.searchsorted(pts[:, 0], tau + EPS_S, side="right")) - 1
-            if j >= 0 and tau - pts[j, 0] <= period + EPS_S:
+            if j >= 0 and tau - pts[j, 0] <= hold_s + EPS_S:
                 hyp_ids.append(tid)
                 hyp_xy.append(pts[j, 1:3])
         hyp = np.asarray(hyp_xy, dtype=np.float64).reshape(-1, 2)
