@@ -16,7 +16,8 @@ Two parts (spec 08, "Real footage"):
    time with an ingest token. The service's targets and stored tracks (GET /targets,
    GET /targets/{id}/track) are scored with motmetrics on the floor (Euclidean, 1 m) against
    the ground truth's world_x, world_y: at each ground-truth frame each target answers with
-   its latest track point at most one frame period old (what GET /targets shows then).
+   its latest track point unless that is older than the tracker's coast_after (0.5 s): what
+   GET /targets shows a user then.
 
 The video is Debian's opencv-doc `examples/data/vtest.avi` (INTSPACE_PETS_VIDEO, default
 /var/cache/intspace/vtest.avi; .ci/run installs it); the ground truth is
@@ -471,25 +472,30 @@ class TrackScore:
 
 
 def score_tracking(
-    run: TrackingRun, truth: Truth, frames: int, hold_s: float = 1.0 / SOURCE_FPS
+    run: TrackingRun, truth: Truth, frames: int, hold_s: float | None = None
 ) -> TrackScore:
     """Return the MOT metrics of the run on ground-truth frames 1..frames: at frame f (captured
-    at t0 + (f - 1) / 7) each target answers with its latest track point at most one frame period
-    old; hypotheses within 1 m of a conf 0 person are first matched to them
-    (Hungarian) and dropped, neither a miss nor a false positive."""
+    at t0 + (f - 1) / 7) each target answers with its latest track point at most `hold_s` old
+    (default: the tracker's coast_after, 0.5 s: until then GET /targets shows the target as
+    confirmed at that point, which is what a user sees); hypotheses within 1 m of a conf 0
+    person are first matched to them (Hungarian) and dropped, neither a miss nor a false
+    positive."""
     import motmetrics as mm
 
+    from core.localization import TrackerConfig
+
+    hold = TrackerConfig().coast_after if hold_s is None else hold_s
     acc = mm.MOTAccumulator(auto_id=True)
     series = {tid: pts for tid, pts in run.points.items()}
     for f in range(1, frames + 1):
         tau = run.t0 + (f - 1) / SOURCE_FPS
         hyp_ids, hyp_xy = [], []
         for tid, pts in series.items():
-            # The target's latest position at the frame's time, if it is at most one frame
-            # old: what GET /targets shows then (a frame whose detection missed the target
-            # leaves its previous position; one older is coasting and does not count).
+            # The target's latest position at the frame's time, unless it is coasting: what
+            # GET /targets shows then (a frame that missed the target, or that the node skipped,
+            # leaves its previous position).
             j = int(np.searchsorted(pts[:, 0], tau + EPS_S, side="right")) - 1
-            if j >= 0 and tau - pts[j, 0] <= hold_s + EPS_S:
+            if j >= 0 and tau - pts[j, 0] <= hold + EPS_S:
                 hyp_ids.append(tid)
                 hyp_xy.append(pts[j, 1:3])
         hyp = np.asarray(hyp_xy, dtype=np.float64).reshape(-1, 2)
