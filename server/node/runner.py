@@ -9,6 +9,7 @@ import logging
 import threading
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Literal
 from urllib.parse import urlsplit
 
@@ -72,6 +73,16 @@ def detector_kind(camera: CameraConfig, api: str) -> Literal["dnn", "background"
     detector for every other source (a real camera)."""
     if camera.detector != "auto":
         return camera.detector
+    from server.node.record import is_recording, recording_cameras
+
+    if is_recording(camera.source):
+        # A replay runs the detector the recording was made with, so it posts what the live
+        # node did; recordings that do not say were made with the background model.
+        entry = next(
+            (c for c in recording_cameras(Path(str(camera.source))) if c["name"] == camera.name),
+            {},
+        )
+        return "dnn" if entry.get("detector") == "dnn" else "background"
     return "background" if _is_service_stream(camera, api) else "dnn"
 
 
@@ -115,6 +126,7 @@ class CameraRun:
     source: Source
     mask: NDArray[np.bool_] | None
     people: PersonDetector | PeopleDetector = field(default_factory=PersonDetector)
+    detector: Literal["dnn", "background"] = "background"
     detected: int = 0
     learned: int = 0
     problem: str | None = None
