@@ -260,6 +260,7 @@ class SsdPeopleDetector:
             # A part of someone is dropped when a box not cut by a seam holds most of it.
             held = (inside[:, ~part] >= CONTAINED).any(axis=1)
             boxes, score, seam = boxes[~(part & held)], score[~(part & held)], seam[~(part & held)]
+            boxes, score, seam = _join_parts(boxes, score, seam)
         cut = box_cuts(boxes, (width, height), self.mask) | seam
         return PersonBoxes(boxes=boxes, scores=score, cut=cut)
 
@@ -288,6 +289,48 @@ class SsdPeopleDetector:
                 )
             )
         return out
+
+
+def _join_parts(
+    boxes: Array, scores: Array, seam: NDArray[np.bool_]
+) -> tuple[Array, Array, NDArray[np.bool_]]:
+    """Return the boxes with the two parts of a person cut by a seam joined into one.
+
+    A box whose bottom (right side) stops at a tile's inner edge and a box whose top (left
+    side) starts at the next tile's inner edge, overlapping across the seam and, along it, by
+    at least half of their extents (one-dimensional IoU >= 0.5), are one person seen by two
+    tiles: their union, with the better score, cut where either is cut elsewhere."""
+    b, s, c = boxes.copy(), scores.copy(), seam.copy()
+    alive = np.ones(len(b), dtype=bool)
+    bottom, top, left, right = (BOX_SIDES.index(n) for n in ("bottom", "top", "left", "right"))
+    for first_side, second_side, axis in ((bottom, top, 1), (right, left, 0)):
+        along = 1 - axis  # the coordinate along the seam
+        for i in np.flatnonzero(alive & c[:, first_side]):
+            j_all = np.flatnonzero(alive & c[:, second_side])
+            j_all = j_all[
+                (b[j_all, axis] > b[i, axis]) & (b[j_all, axis] < b[i, axis + 2])
+            ]  # starts inside the first part: the tiles overlap there
+            if not j_all.size:
+                continue
+            lo = np.maximum(b[i, along], b[j_all, along])
+            hi = np.minimum(b[i, along + 2], b[j_all, along + 2])
+            span = np.maximum(b[i, along + 2], b[j_all, along + 2]) - np.minimum(
+                b[i, along], b[j_all, along]
+            )
+            iou = np.maximum(hi - lo, 0.0) / np.maximum(span, 1e-9)
+            k = int(np.argmax(iou))
+            if iou[k] < 0.5:
+                continue
+            j = int(j_all[k])
+            b[i] = [min(b[i, 0], b[j, 0]), min(b[i, 1], b[j, 1]), max(b[i, 2], b[j, 2]),
+                    max(b[i, 3], b[j, 3])]  # fmt: skip
+            s[i] = max(s[i], s[j])
+            joined = c[i] | c[j]
+            joined[first_side] = c[j, first_side]
+            joined[second_side] = c[i, second_side]
+            c[i] = joined
+            alive[j] = False
+    return b[alive], s[alive], c[alive]
 
 
 def _area(b: Array) -> Array:

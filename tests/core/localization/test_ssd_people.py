@@ -21,6 +21,7 @@ from core.localization.detections import (
 from core.localization.ssd_people import (
     SsdConfig,
     SsdPeopleDetector,
+    _join_parts,
     box_cuts,
     default_model_path,
     tile_origins,
@@ -82,6 +83,33 @@ def test_sides_are_cut_by_the_image_edge_and_by_a_mask():
     assert not cut[4].any()
     with pytest.raises(InvalidInput, match="mask"):
         box_cuts(boxes, size, np.zeros((10, 10), dtype=bool))
+
+
+def test_the_parts_of_a_person_on_a_seam_are_joined():
+    boxes = np.array(
+        [
+            [100.0, 50.0, 130.0, 120.0],  # upper tile: stops at its bottom edge (y 120)
+            [102.0, 110.0, 131.0, 170.0],  # lower tile (from y 110): the same person's legs
+            [300.0, 60.0, 330.0, 120.0],  # stops at the seam too, but nobody continues it
+            [400.0, 110.0, 420.0, 160.0],  # starts at the seam, far from any upper part
+            [200.0, 40.0, 240.0, 90.0],  # stops at a vertical seam (x 240) ...
+            [232.0, 42.0, 260.0, 92.0],  # ... and goes on in the next tile (from x 232)
+        ]
+    )
+    seam = np.zeros((6, 4), dtype=bool)
+    seam[[0, 2], BOTTOM] = True
+    seam[[1, 3], TOP] = True
+    seam[4, RIGHT] = True
+    seam[5, LEFT] = True
+    seam[1, LEFT] = True  # the legs also touch a vertical seam: kept on the joined box
+    scores = np.array([0.6, 0.8, 0.7, 0.5, 0.9, 0.55])
+    b, s, c = _join_parts(boxes, scores, seam)
+    assert len(b) == 4
+    assert b[0].tolist() == [100.0, 50.0, 131.0, 170.0] and s[0] == 0.8
+    assert c[0].tolist() == [False, False, True, False]  # its bottom is the person's feet
+    assert b[1].tolist() == boxes[2].tolist() and c[1, BOTTOM]  # no feet: not measured
+    assert b[2].tolist() == boxes[3].tolist()
+    assert b[3].tolist() == [200.0, 40.0, 260.0, 92.0] and not c[3].any()
 
 
 def test_settings_and_model_are_checked():
