@@ -410,8 +410,9 @@ def track_through_service(video: Path, placement: Placement, workdir: Path) -> T
         if found is None:
             raise RuntimeError(f"the node did not say when its file's frames were captured:{text}")
         t0 = float(found.group(2)) - int(found.group(1)) / SOURCE_FPS
-        # The tracker follows the posted frames within its reorder window and writes tracks
-        # twice a second: wait until the stored tracks stop growing.
+        # The tracker releases the posted frames after its reorder window (1 s) and writes
+        # tracks twice a second: wait that long, then until the stored tracks stop growing.
+        time.sleep(2.0)
         points = _stored_tracks(http)
         for _ in range(20):
             time.sleep(0.5)

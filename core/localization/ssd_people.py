@@ -9,12 +9,14 @@ the model's input size (`tile_px`), overlapping by `tile_overlap_px`, and each t
 at full resolution: 9 tiles for 768 x 576, 6 for 640 x 480 (the bench measures the cost:
 bench/bench_pets.py).
 
-A person on the seam between two tiles is seen whole by one of them as long as they are
-smaller than the overlap; the other tile gives a part of them, cut by its edge. Boxes from all
-tiles are merged by non-maximum suppression (`nms_iou`), then a box cut by an inner tile edge
-is dropped when another box holds most of it (`CONTAINED`). A box that remains and is cut by a
-tile's edge keeps that side marked cut, like a box cut by the image's edge or a mask: a cut
-bottom gives no floor position (core.localization.boxes.box_foot).
+A person on the seam between two tiles is seen whole by one of them when they are smaller
+than the overlap; the other tile gives a part of them, cut by its edge. Boxes from all tiles
+are merged by non-maximum suppression (`nms_iou`), a box cut by an inner tile edge is dropped
+when another box holds most of it (`CONTAINED`), and two parts of one person that no tile saw
+whole (one stops at a seam, the other starts there, over the same columns or rows) are joined
+into one box (`_join_parts`). A box that remains cut by a tile's edge keeps that side marked
+cut, like a box cut by the image's edge or a mask: a cut bottom gives no floor position
+(core.localization.boxes.box_foot).
 
 Only the COCO "person" class is kept, with a score of at least `score_threshold` and a box at
 least `min_person_px` tall.
