@@ -140,11 +140,15 @@ def test_a_file_with_a_source_fps_is_timed_from_its_start(tmp_path):
         OpenCvSource("clip", str(path), source_fps=0.0)
 
 
-# Frames 1-150 of the clip, 21 s at 7 fps: a third of the development half. Over frames
-# 1-400 the same pipeline is measured by `python -m bench.bench_pets` (spec 08's goals there:
-# MOTA >= 0.75, IDF1 >= 0.70). The first seconds hold every person's start (a track is
-# confirmed after three detections), so a shorter run scores lower: the bounds below are those
-# of this shortened run, not the goal (see docs/real-cameras.md for the figures).
+# Frames 1-150 of the clip, 21 s at 7 fps: a third of the development half, same conditions.
+# Over frames 1-400 the pipeline is measured by `python -m bench.bench_pets` (spec 08's goals
+# there: MOTA >= 0.75, IDF1 >= 0.70). The detector's foot points of frames 1-150 posted to the
+# service one frame each 1/7 s score MOTA 0.64 and IDF1 0.68 (frames 1-400: 0.76 and 0.65):
+# the first seconds hold every person's start (a track is confirmed after three detections),
+# so the shortened run scores lower on MOTA. The bounds leave room for frames the node skips
+# when its core is shared (CI runs two test workers on two cores): a live node drops frames
+# rather than fall behind. They are this shortened run's floor, not spec 08's goal, which is
+# not reached yet (docs/real-cameras.md).
 PETS_FRAMES = 150
 PETS_MIN_MOTA = 0.50
 PETS_MIN_IDF1 = 0.55
