@@ -6,8 +6,10 @@ for B targets and return a `FloorEstimate` with covariances; `cramer_rao_bound` 
 covariance any unbiased estimator can reach; `coverage_map` maps camera count and that bound
 over a floor grid, counting only cameras with a clear line of sight past walls and furniture
 (`Occluders`); `detect_frame` turns one camera image into the robot's and the people's
-detections; `Tracker` follows bodies over time with one asynchronous EKF fed by each camera's
-detections as they arrive.
+detections, the people found by a `PeopleDetector` (`BackgroundPeople` for the twin's cameras,
+core.localization.ssd_people.SsdPeopleDetector, a neural detector, for real ones); `Tracker`
+follows bodies over time with one asynchronous EKF fed by each camera's detections as they
+arrive.
 """
 
 from core.localization.bounds import CramerRaoBound, cramer_rao_bound
@@ -23,7 +25,12 @@ from core.localization.boxes import (
 from core.localization.cameras import NetworkCamera
 from core.localization.coverage import CoverageMap, coverage_map
 from core.localization.detect import BodyDetection, BodyModel, locate_body_axis
-from core.localization.detections import FrameDetection, detect_frame
+from core.localization.detections import (
+    BackgroundPeople,
+    FrameDetection,
+    PeopleDetector,
+    detect_frame,
+)
 from core.localization.ground import (
     FloorEstimate,
     PointStatus,
@@ -47,6 +54,7 @@ from core.localization.tracking import (
 __all__ = [
     "BOX_SIDES",
     "DEFAULT_BOX_NOISE",
+    "BackgroundPeople",
     "BodyDetection",
     "BodyModel",
     "Box",
@@ -60,6 +68,7 @@ __all__ = [
     "FrameResult",
     "NetworkCamera",
     "Occluders",
+    "PeopleDetector",
     "PointStatus",
     "ReorderBuffer",
     "TrackSnapshot",

@@ -2,6 +2,8 @@
 detections to the service (spec 08).
 
     intspace node --source SRC --camera NAME [--space ID] [--api URL] [--fps N]
+        [--detector dnn|background] [--score-threshold S] [--min-person-px PX]
+        [--mask "X,Y X,Y X,Y" ...] [--source-fps N]
     intspace node --config cameras.yaml [--api URL]
     intspace node ... --record DIR          (keep frames, detections, capture times)
     intspace node --source DIR --camera NAME [--fast]   (replay a recording)
@@ -25,6 +27,8 @@ import logging
 import os
 import sys
 from pathlib import Path
+
+from pydantic import ValidationError
 
 from core.errors import InvalidInput
 
@@ -62,6 +66,38 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="log what the node did every S seconds (default 60; 0: only at the end)",
     )
     p.add_argument(
+        "--source-fps",
+        type=float,
+        metavar="N",
+        help="a video file's true frame rate: frame k is captured at the start + k / N s and "
+        "played at N frames per second (its container's rate can be wrong)",
+    )
+    p.add_argument(
+        "--detector",
+        choices=["auto", "dnn", "background"],
+        help="the people detector: dnn (neural, for real cameras), background (background "
+        "subtraction, for the twin's cameras); auto (default): background for the service's "
+        "own streams, dnn otherwise",
+    )
+    p.add_argument(
+        "--score-threshold",
+        type=float,
+        metavar="S",
+        help="dnn: the least score of a person's box (default 0.5)",
+    )
+    p.add_argument(
+        "--min-person-px",
+        type=float,
+        metavar="PX",
+        help="dnn: the least height of a person's box in pixels (default 20)",
+    )
+    p.add_argument(
+        "--mask",
+        action="append",
+        metavar='"X,Y X,Y X,Y"',
+        help="a polygon of pixels to ignore (repeatable)",
+    )
+    p.add_argument(
         "--background-frames",
         type=int,
         metavar="N",
@@ -92,12 +128,26 @@ def _api_url(url: str) -> str:
     return url if url.endswith("/api/v1") else url + "/api/v1"
 
 
+def _polygon(text: str) -> list[list[float]]:
+    """Return the vertices of a --mask polygon "X,Y X,Y X,Y"."""
+    try:
+        vertices = [[float(v) for v in point.split(",")] for point in text.split()]
+    except ValueError:
+        vertices = []
+    if len(vertices) < 3 or any(len(v) != 2 for v in vertices):
+        raise InvalidInput(f'--mask {text!r}: give at least 3 pixel vertices "X,Y X,Y X,Y"')
+    return vertices
+
+
 def _config(args: argparse.Namespace):
     from server.node.config import CameraConfig, NodeConfig, load_config, parse_source
 
     if args.config is not None:
-        if args.source or args.camera:
-            raise InvalidInput("give --config, or --source and --camera, not both")
+        per_camera = ("detector", "score_threshold", "min_person_px", "source_fps", "mask")
+        if args.source or args.camera or any(getattr(args, n) is not None for n in per_camera):
+            raise InvalidInput(
+                "give --config, or --source and --camera (with their camera's flags), not both"
+            )
         try:
             text = args.config.read_text(encoding="utf-8")
         except (OSError, UnicodeDecodeError) as exc:
@@ -109,12 +159,22 @@ def _config(args: argparse.Namespace):
     else:
         if not args.source or not args.camera:
             raise InvalidInput("give --source and --camera (or --config FILE)")
-        camera = CameraConfig(
-            name=args.camera,
-            source=parse_source(args.source),
-            fps=args.fps,
-            realtime=not args.fast,
-        )
+        fields: dict = {
+            "name": args.camera,
+            "source": parse_source(args.source),
+            "fps": args.fps,
+            "realtime": not args.fast,
+            "masks": [_polygon(text) for text in args.mask or []],
+        }
+        for name in ("detector", "score_threshold", "min_person_px", "source_fps"):
+            if getattr(args, name) is not None:
+                fields[name] = getattr(args, name)
+        try:
+            camera = CameraConfig(**fields)
+        except ValidationError as exc:
+            first = exc.errors()[0]
+            flag = "--" + str(first["loc"][0]).replace("_", "-")
+            raise InvalidInput(f"{flag}: {first['msg']}") from exc
         config = NodeConfig(cameras=[camera])
     changes: dict = {}
     if args.space is not None:

@@ -10,7 +10,19 @@ cameras:
     source: rtsp://192.168.1.20/stream1   # or 0 (USB), a file, an http(s) MJPEG URL
     fps: 10                           # detections per second at most (default: every frame)
     masks: [[[0, 0], [120, 0], [120, 80], [0, 80]]]   # pixel polygons to ignore
+    detector: dnn                     # people: dnn (neural, photographs) or background
+    score_threshold: 0.5              # dnn: the least score of a person's box
+    min_person_px: 20                 # dnn: the least height of a person's box (px)
+  - name: cam_recorded
+    source: /data/entrance.avi
+    source_fps: 7                     # a file's true frame rate (its container may say another)
 ```
+
+The people detector: `dnn` (core.localization.ssd_people, a neural detector trained on
+photographs of people) for real cameras; `background` (background subtraction) for the twin's
+cameras, whose people are uniformly coloured cylinders. `auto` (the default) is `background` for
+the service's own camera streams (it streams the twin's cameras only) and `dnn` for every other
+source.
 
 The token is never in the file: INTSPACE_TOKEN only.
 """
@@ -23,12 +35,16 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from core.errors import InvalidInput
+from core.localization.ssd_people import SsdConfig
 
 # The intspace robot's top marker (a red disc 0.36 m above the floor): what the product's robot
 # carries; a robot with another marker is configured in the file or by flags.
 DEFAULT_MARKER_COLOUR = (220, 20, 30)
 DEFAULT_MARKER_HEIGHT = 0.36
 DEFAULT_MARKER_RADIUS = 0.05
+
+DEFAULT_SCORE_THRESHOLD = SsdConfig.score_threshold
+DEFAULT_MIN_PERSON_PX = SsdConfig.min_person_px
 
 Vertex = Annotated[list[float], Field(min_length=2, max_length=2)]
 
@@ -47,8 +63,9 @@ class MarkerConfig(_Model):
 
 
 class CameraConfig(_Model):
-    """One camera: its registry name, its source, the detection rate cap, masks, and how its
-    stream is read (auto: httpx for the service's own MJPEG streams, OpenCV otherwise)."""
+    """One camera: its registry name, its source, the detection rate cap, masks, how its
+    stream is read (auto: httpx for the service's own MJPEG streams, OpenCV otherwise), its
+    people detector and that detector's settings, and a video file's true frame rate."""
 
     name: Annotated[str, Field(min_length=1, max_length=200)]
     source: int | str
@@ -56,6 +73,14 @@ class CameraConfig(_Model):
     masks: list[Annotated[list[Vertex], Field(min_length=3)]] = Field(default_factory=list)
     reader: Literal["auto", "mjpeg", "opencv"] = "auto"
     realtime: bool = Field(True, description="A video file plays at its own rate, else fast.")
+    detector: Literal["auto", "dnn", "background"] = "auto"
+    score_threshold: Annotated[float, Field(ge=0, le=1)] = DEFAULT_SCORE_THRESHOLD
+    min_person_px: Annotated[float, Field(ge=0, le=10_000)] = DEFAULT_MIN_PERSON_PX
+    source_fps: Annotated[float, Field(gt=0, le=240)] | None = Field(
+        default=None,
+        description="A video file's frame rate: frame k is captured at t0 + k / source_fps "
+        "and, in real time, played at that rate (a container's own rate can be wrong).",
+    )
 
 
 class NodeConfig(_Model):

@@ -18,13 +18,16 @@ from numpy.typing import NDArray
 class Frame:
     """One frame: the decoded BGR image or its JPEG bytes (decoded by whoever uses it), its
     capture time from the stream (Unix seconds, the service's clock; None when the stream has
-    no per-frame stamp), when the node received it (its own clock) and its sequence number."""
+    no per-frame stamp), when the node received it (its own clock), its sequence number, and
+    its capture time on the node's clock where the source knows it without a stamp (a video
+    file of known frame rate: its start plus the frame's place in it)."""
 
     seq: int
     received: float
     t: float | None = None
     image: NDArray[np.uint8] | None = None
     jpeg: bytes | None = None
+    captured: float | None = None
 
 
 class NewestFrame:

@@ -5,7 +5,7 @@
 ```
 DIR/recording.json                 {"format": "intspace-recording", "version": 1,
                                     "created": ..., "cameras": [{"name", "folder",
-                                    "camera_id", "width", "height"}]}
+                                    "camera_id", "width", "height", "detector"}]}
 DIR/<folder>/index.jsonl           a line per frame: {"seq", "t" (capture time, Unix s on the
                                     service's clock), "received" (the node's clock), "file",
                                     "detections": [{"t", "pixel", "cov", "kind", "height"}]}
@@ -131,6 +131,7 @@ class Recorder:
                 "camera_id": run.camera_id,
                 "width": run.size[0],
                 "height": run.size[1],
+                "detector": run.detector,
             }
             for run in node.cameras
         ]

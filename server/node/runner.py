@@ -1,6 +1,7 @@
 """One camera node's threads: per camera a reader (sources) and a detector; one uploader; one
 heartbeat, which also logs a summary every `summary_s` seconds. The detector calls
-core.localization.detections.detect_frame, as the twin does."""
+core.localization.detections.detect_frame, as the twin does, with the camera's people detector
+(`people_detector`: the neural one for real cameras, background subtraction for the twin's)."""
 
 from __future__ import annotations
 
@@ -10,7 +11,8 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from pathlib import Path
+from typing import Any, Literal
 from urllib.parse import urlsplit
 
 import cv2
@@ -21,7 +23,8 @@ from numpy.typing import NDArray
 from core.errors import IntspaceError, InvalidInput
 from core.localization import NetworkCamera
 from core.localization.detect import MarkerDetectorConfig, PersonDetector
-from core.localization.detections import FrameDetection, detect_frame
+from core.localization.detections import FrameDetection, PeopleDetector, detect_frame
+from core.localization.ssd_people import SsdConfig, SsdPeopleDetector
 from server.node.client import NodeError, ServiceClient, Uploader
 from server.node.clock import StageDelays
 from server.node.config import CameraConfig, NodeConfig
@@ -76,7 +79,48 @@ def make_source(
         if ours or camera.reader == "mjpeg":
             headers = {"Authorization": f"Bearer {token}"} if ours else {}
             return MjpegHttpSource(camera.name, src, headers)
-    return OpenCvSource(camera.name, src, realtime=camera.realtime, clock=clock)
+    return OpenCvSource(
+        camera.name, src, realtime=camera.realtime, clock=clock, source_fps=camera.source_fps
+    )
+
+
+def _is_service_stream(camera: CameraConfig, api: str) -> bool:
+    src = camera.source
+    return (
+        isinstance(src, str)
+        and src.lower().startswith(("http://", "https://"))
+        and (_origin(src) == _origin(api))
+    )
+
+
+def detector_kind(camera: CameraConfig, api: str) -> Literal["dnn", "background"]:
+    """Return the people detector `camera` runs: the configured one, or for "auto" the
+    background model for the service's own streams (the twin's cameras: their people are
+    coloured cylinders a detector trained on photographs does not know) and the neural
+    detector for every other source (a real camera)."""
+    if camera.detector != "auto":
+        return camera.detector
+    from server.node.record import is_recording, recording_cameras
+
+    if is_recording(camera.source):
+        # A replay runs the detector the recording was made with, so it posts what the live
+        # node did; recordings that do not say were made with the background model.
+        entry = next(
+            (c for c in recording_cameras(Path(str(camera.source))) if c["name"] == camera.name),
+            {},
+        )
+        return "dnn" if entry.get("detector") == "dnn" else "background"
+    return "background" if _is_service_stream(camera, api) else "dnn"
+
+
+def people_detector(
+    camera: CameraConfig, kind: Literal["dnn", "background"], mask: NDArray[np.bool_] | None
+) -> PersonDetector | PeopleDetector:
+    """Return a new people detector of `kind` for `camera` (its settings and its mask)."""
+    if kind == "background":
+        return PersonDetector()
+    config = SsdConfig(score_threshold=camera.score_threshold, min_person_px=camera.min_person_px)
+    return SsdPeopleDetector(config=config, mask=mask)
 
 
 def observation(camera_id: int, t: float, d: FrameDetection) -> dict[str, Any] | None:
@@ -108,7 +152,8 @@ class CameraRun:
     network: NetworkCamera | None  # None: not placed yet, frames are uploaded, nothing detected
     source: Source
     mask: NDArray[np.bool_] | None
-    people: PersonDetector = field(default_factory=PersonDetector)
+    people: PersonDetector | PeopleDetector = field(default_factory=PersonDetector)
+    detector: Literal["dnn", "background"] = "background"
     detected: int = 0
     detections: int = 0
     learned: int = 0
@@ -176,6 +221,8 @@ class Node:
                     row["K"], row.get("dist"), row["T_world_camera"], size, cam.name
                 )
             mask = polygon_mask(size, cam.masks)
+            kind = detector_kind(cam, self.api)
+            people = people_detector(cam, kind, mask)
         except IntspaceError as exc:
             raise NodeError(f"camera {cam.name!r}: {exc}") from exc
         if network is None:
@@ -188,7 +235,8 @@ class Node:
                 row["id"],
                 row["id"],
             )
-        return CameraRun(cam, int(row["id"]), size, network, source, mask)
+        log.info("camera %s: people by the %s detector", cam.name, kind)
+        return CameraRun(cam, int(row["id"]), size, network, source, mask, people, kind)
 
     def run(self) -> int:
         """Run until `stop_event` is set or every source ended; return the exit code (0, or 1
@@ -291,11 +339,27 @@ class Node:
             if run.network is None:
                 continue
             image = apply_mask(image, run.mask)
-            t = frame.t if frame.t is not None else frame.received + self.client.offset
-            learning = run.learned < self.config.background_frames
-            if learning:
+            t = frame.t
+            if t is None:
+                local = frame.captured if frame.captured is not None else frame.received
+                t = local + self.client.offset
+                if frame.captured is not None and run.detected == 0:
+                    # A file's frames are timed from its start: say when that was, so what the
+                    # service tracked can be laid beside the file (frame seq - 1 at t).
+                    log.info(
+                        "camera %s: frame %d of the file captured at %.6f (service clock)",
+                        run.config.name,
+                        frame.seq - 1,
+                        t,
+                    )
+            # Only a background model learns; a neural detector detects from the first frame.
+            learning = False
+            if isinstance(run.people, PersonDetector) and (
+                run.learned < self.config.background_frames
+            ):
                 run.people.learn(image)
                 run.learned += 1
+                learning = True
             found = detect_frame(
                 image,
                 marker=self._marker,

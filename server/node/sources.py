@@ -223,7 +223,14 @@ class Source:
         """Wait for the reader thread."""
         self._thread.join(timeout)
 
-    def _publish(self, t: float | None, *, image=None, jpeg: bytes | None = None) -> None:
+    def _publish(
+        self,
+        t: float | None,
+        *,
+        image=None,
+        jpeg: bytes | None = None,
+        captured: float | None = None,
+    ) -> None:
         if self.stats.frames == 0:
             log.info("camera %s: connected to %s", self.name, self.label)
         elif self._down_since is not None:
@@ -239,7 +246,7 @@ class Source:
         self._seq += 1
         received = time.time()
         self.stats.frame(received, t)
-        self.frames.put(Frame(self._seq, received, t, image=image, jpeg=jpeg))
+        self.frames.put(Frame(self._seq, received, t, image=image, jpeg=jpeg, captured=captured))
 
     def _problem(self, message: str) -> None:
         # Said once per distinct problem, not once per retry.
@@ -365,7 +372,9 @@ class OpenCvSource(Source):
     """A USB index, video file or RTSP/HTTP URL read with OpenCV. A file plays once: at its own
     frame rate (`realtime`), or as fast as the detector takes its frames, every one, frame k
     stamped t0 + k / (the file's frame rate), t0 the `clock` (the service's) at the first plus
-    FAST_LEAD_S."""
+    FAST_LEAD_S. With `source_fps` that is the file's frame rate whatever its container says
+    (PETS 2009's says 10 for 7): at its own pace, frame k was captured at t0 + k / source_fps
+    (t0: when it was opened, the node's clock) and plays at that rate."""
 
     def __init__(
         self,
@@ -374,11 +383,15 @@ class OpenCvSource(Source):
         *,
         realtime: bool = True,
         clock: Callable[[], float] = time.time,
+        source_fps: float | None = None,
     ) -> None:
         super().__init__(name)
         self.source = source
         self.is_file = isinstance(source, str) and "://" not in source
         self.realtime = realtime
+        if source_fps is not None and not source_fps > 0:
+            raise InvalidInput(f"source_fps must be > 0, got {source_fps}")
+        self.source_fps = source_fps if self.is_file else None
         self._clock = clock
         self._cap: cv2.VideoCapture | None = None  # opened by check, read by the thread
         self.fps = 0.0  # the frame rate a file says it has (0: unknown, or not a file)
@@ -410,7 +423,7 @@ class OpenCvSource(Source):
         if not cap.isOpened():
             cap.release()
             raise SourceUnavailable(f"cannot open {self.label}: {_why_not_opened(self.source)}")
-        if self._handover is not None and not _frame_rate(cap):
+        if self._handover is not None and not (self.source_fps or _frame_rate(cap)):
             cap.release()
             raise SourceUnavailable(
                 f"{self.label} does not say its frame rate, which --fast needs to give its "
@@ -427,9 +440,10 @@ class OpenCvSource(Source):
                     return "ended"
                 self._lost(f"cannot open {self.label}: {_why_not_opened(self.source)}")
                 return "retry"
-            fps = self.fps = _frame_rate(cap)
+            fps = self.fps = self.source_fps or _frame_rate(cap)
             period = 1.0 / fps if self.is_file and self.realtime and fps else 0.0
             next_time = time.monotonic()
+            start = time.time()
             t0: float | None = None
             k = 0
             while not self._stop.is_set():
@@ -447,7 +461,10 @@ class OpenCvSource(Source):
                     self._publish(t0 + k / fps, image=image)
                     self._handover.wait_taken(self._seq, self._stop)
                 else:
-                    self._publish(None, image=image)
+                    captured = None
+                    if self.source_fps is not None:
+                        captured = start + k / self.source_fps
+                    self._publish(None, image=image, captured=captured)
                 k += 1
                 if period:
                     next_time = max(next_time + period, time.monotonic() - period)

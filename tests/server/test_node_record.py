@@ -182,10 +182,13 @@ def test_a_recorded_stream_replayed_posts_the_same_detections(repo_root, tmp_pat
         assert created.status_code == 201, created.text
         common = ["--camera", CAMERA, "--api", api, "--background-frames", "5"]
         # Read with the node's MJPEG reader (the stream's own JPEG bytes are recorded); a
-        # stream read by OpenCV is recorded re-encoded, and replays only approximately.
+        # stream read by OpenCV is recorded re-encoded, and replays only approximately. The
+        # frames are the twin's renders, so the twin's people detector (the replay runs the
+        # one the recording names).
         config = tmp_path / "node.yaml"
         config.write_text(
-            f"cameras:\n  - {{name: {CAMERA}, source: '{stream.url}', reader: mjpeg}}\n",
+            f"cameras:\n  - {{name: {CAMERA}, source: '{stream.url}', reader: mjpeg, "
+            "detector: background}\n",
             encoding="utf-8",
         )
         recorder = _node(

@@ -1,0 +1,1 @@
+"""Model files installed with the project (package data): see README.md beside this file."""
