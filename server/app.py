@@ -43,6 +43,7 @@ from server.api import (
 )
 from server.api.errors import install_api_fallback, install_error_handlers
 from server.api.limits import RequestSizeLimit
+from server.api.server_time import ServerTime
 from server.db.session import make_engine, make_session_factory
 from server.schemas.registry import CameraHeartbeat
 from server.security import AuthFailureLimiter, SecurityHeaders, install_log_redaction
@@ -344,6 +345,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         )
     app.add_middleware(RequestSizeLimit, max_bytes=settings.max_request_bytes)
     app.add_middleware(SecurityHeaders)
+    app.add_middleware(ServerTime)
     app.add_api_route("/docs", system.docs_redirect, include_in_schema=False)
     # Mounted last so that /api/v1 wins over the static files.
     if WEB_DIR.is_dir():

@@ -37,6 +37,7 @@ from core.localization import (
 )
 from server.api.deps import SessionDep, require_write
 from server.api.errors import PROBLEM_RESPONSES, FieldProblem
+from server.api.server_time import SERVER_TIME_HEADER
 from server.db.models import Camera, Robot
 from server.schemas.localization import EmptyFrame, Observation, ObservationBatch, PositionBatch
 from server.services.auth import Principal
@@ -52,8 +53,6 @@ router = APIRouter(tags=["localization"], responses=PROBLEM_RESPONSES)
 MAX_LIVE_LABELS = 256
 # How long a silent labelled target stays live (core TrackerConfig.labelled_end_after), s.
 LABEL_RETIRES_AFTER_S = 60
-# The answer's header giving the service's time (Unix seconds) when it answered.
-SERVER_TIME_HEADER = "X-Server-Time"
 
 _STATUS = {
     PointStatus.OK: "ok",

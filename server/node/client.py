@@ -57,13 +57,13 @@ class ServiceClient:
 
     def request(self, method: str, path: str, **kwargs: Any) -> httpx.Response:
         """Send a request to `api + path`; measure the clock offset from its X-Server-Time
-        header (POST /observations), else from its Date header."""
+        header (every answer of the service), else from its Date header (another server)."""
         sent = time.time()
         response = self._http.request(method, self.api + path, **kwargs)
         received = time.time()
         precise = _seconds(response.headers.get("x-server-time"))
         if precise is not None:
-            # POST /observations says the service's time to the microsecond.
+            # The service says its time to the microsecond.
             with self._clock_lock:
                 self._precise = True
                 self.clock.add(sent, received, precise, precise)
