@@ -102,6 +102,10 @@ def test_path_following_runs_every_law_on_the_same_path() -> None:
     # that much short).
     assert d["source"] == "rendered"
     assert d["floor_normal_error_deg"] < 0.05 and d["floor_distance_error_m"] < 1e-3
+    # The floor camera's own intrinsics (Zhang on rendered chessboard views), not its true
+    # lens: its focal length within 0.2 % (measured 0.06 %).
+    assert d["floor_camera_intrinsics_from"].startswith("Zhang calibration")
+    assert 0.0 < d["floor_camera_focal_error_pct"] < 0.2
     assert set(d["laws"]) == {"state_feedback", "adaptive", "proportional"}
     for law in d["laws"].values():
         assert {"rms_m", "max_m", "steady_m"} <= law.keys()
