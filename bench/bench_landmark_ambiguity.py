@@ -51,7 +51,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from core.errors import InvalidInput
-from core.geometry.camera import undistort_points
+from core.geometry.camera import left_jacobian_so3, undistort_points
+from core.geometry.rotations import matrix_to_rotvec
 from core.landmarks.artwork import make_artwork
 from core.landmarks.detect import LandmarkDetection, detect_landmarks
 from core.landmarks.payload import Signpost
@@ -106,10 +107,17 @@ def _pole_separation(det: LandmarkDetection, K: Array, dist: Array) -> float:
     return float(np.linalg.norm(poles[0] - poles[1]) * (K[0, 0] + K[1, 1]) / 2)
 
 
-def _claimed_normal_std(cov: Array, n: Array) -> float:
-    """Root of the rotation covariance's two variances across the normal n (deg)."""
-    P = np.eye(3) - np.outer(n, n)
-    return math.degrees(math.sqrt(max(float(np.trace(P @ cov[:3, :3] @ P)), 0.0) / 2))
+def _claimed_normal_std(det: LandmarkDetection) -> float:
+    """Return the claimed standard deviation (deg) of the normal: the rotation-vector covariance
+    turned into one of a left perturbation (d theta = J_l(rvec) d rvec), then the normal's,
+    d n = d theta x n, as the root of half its trace (per direction across the normal)."""
+    rvec = matrix_to_rotvec(det.T_cam_mark[:3, :3])
+    J = left_jacobian_so3(rvec)
+    cov_theta = J @ det.cov[:3, :3] @ J.T
+    n = det.normal
+    nx = np.array([[0.0, -n[2], n[1]], [n[2], 0.0, -n[0]], [-n[1], n[0], 0.0]])
+    cov_n = nx @ cov_theta @ nx.T
+    return math.degrees(math.sqrt(max(float(np.trace(cov_n)), 0.0) / 2))
 
 
 def _tag(image: NDArray[np.uint8], T: Array, K: Array, dist: Array) -> tuple[float, float] | None:
@@ -187,7 +195,7 @@ def main() -> None:
                     err = _angle(det.normal, T[:3, 2])
                     sep = _pole_separation(det, K, dist)
                     split = _angle(det.normal, det.alternative[:3, 2])
-                    claimed = _claimed_normal_std(det.cov, det.normal)
+                    claimed = _claimed_normal_std(det)
                     errs.append(err)
                     seps.append(sep)
                     flips.append(err > FLIP_DEG)
