@@ -1181,6 +1181,10 @@ class LandmarkReadingResult:
 START_DISTANCE = {"object": (0.8, 2.5), "signpost": (0.8, 4.0)}  # m, horizontal, from the mark
 START_BEARING_DEG = 60.0  # start within this of the mark's normal
 START_CLEARANCE = 0.1  # m between the base and any wall or furniture at the start
+# The trial's landmark as the robot's map holds it: off its true pose by these (per floor axis,
+# and in yaw), as a survey's semantic map locates it (landmark-survey: a few centimetres).
+READ_PRIOR_M = 0.1
+READ_PRIOR_RAD = 0.1
 
 
 def _calibrated(scene: Scene, rng: np.random.Generator, views: int) -> tuple[Array, Array, float]:
@@ -1246,14 +1250,15 @@ def landmark_reading(
 
     Each trial picks one of the scene's landmarks at random and a free start 0.8-2.5 m
     (object marks) or 0.8-4 m (signposts) from it (another landmark when 200 draws find
-    none), within 60 deg of its normal, with
-    the mark in the head's line of sight (furniture may stand between the base and the
-    reading pose: the approach is planned on the floor plan) and the robot turned up to 90
-    deg away from it (the head searches first). Every landmark of the home is drawn in every
-    frame, as it hangs: the robot reads with HeadRobot.read (calibrated head camera, odometry
-    from the known start, the floor plan as its map), which tracks the nearest landmark it
-    locates; a trial succeeds when the decoded record is the trial's landmark's own (reading
-    another is a failure, counted in `wrong_landmark_reads`), within `timeout` simulated
+    none), within 60 deg of its normal, with the mark in the head's line of sight (furniture
+    may stand between the base and the reading pose: the approach is planned on the floor
+    plan) and the robot turned up to 90 deg away from it. Every landmark of the home is drawn
+    in every frame, as it hangs. The robot is told which landmark to read as its map holds it
+    (its pose READ_PRIOR_M and READ_PRIOR_RAD off the truth, a landmark located before) and
+    reads it with HeadRobot.read (calibrated head camera, odometry from the known start, the
+    floor plan as its map), which tracks the detection of its kind nearest that pose (within
+    MATCH_RADIUS); a trial succeeds when the decoded record is the trial's landmark's own
+    (reading another is a failure, counted in `wrong_landmark_reads`), within `timeout` simulated
     seconds, and the base never touched a wall or furniture (scored on the true pose).
     """
     if trials < 1 or calibration_views < 3 or not timeout > 0:
@@ -1280,7 +1285,12 @@ def landmark_reading(
             raise InvalidInput(f"no free start in front of any landmark of scene {sc.name!r}")
         start, r, b = drawn
         robot = HeadRobot(sc, K, dist, start=start, rng=rng)
-        res = robot.read(None, timeout)
+        # The trial's landmark as the robot's map holds it (located before, READ_PRIOR_* off):
+        # the robot reads the landmark it locates nearest that, never the truth itself.
+        T_prior = robot.landmarks[k].T_world_mark.copy()
+        T_prior[:2, 3] += rng.normal(0.0, READ_PRIOR_M, 2)
+        T_prior[:3, :3] = _rz(float(rng.normal(0.0, READ_PRIOR_RAD))) @ T_prior[:3, :3]
+        res = robot.read(_Track(T_prior, robot.landmarks[k].kind, robot.time), timeout)
         collided = robot.collided
         lm = robot.landmarks[k]
         text = res.detection.text if res.read and res.detection is not None else None
