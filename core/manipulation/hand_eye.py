@@ -17,11 +17,21 @@ Methods (`method=`):
   M = sum beta alpha^T, R_X = (M^T M)^-1/2 M^T; then the translation.
 * "daniilidis": Daniilidis, IJRR 18(3), 1999: rotation and translation at once from the
   null space of the stacked dual-quaternion constraints (the SVD's two smallest vectors).
-* "two-group": the linear two-step method (rotation, then translation) from arbitrary motions
-  that form at least two groups with non-parallel rotation axes: R_X from the homogeneous linear
+* "andreff": Andreff, Horaud & Espiau, 3DIM 1999, sec. 3: R_X from the homogeneous linear
   system (I (x) R_A - R_B^T (x) I) vec(R_X) = 0 stacked over every motion (no parametrisation
-  of the rotation; Andreff, Horaud & Espiau, 3DIM 1999, sec. 3), its null vector projected
-  onto SO(3); then t_X from the stacked linear translation equations.
+  of the rotation), its null vector projected onto SO(3); then t_X from the stacked linear
+  translation equations.
+* "two-group": the thesis's two-group method (after Ma, IEEE T-RA 12(1), 1996): the arm makes
+  two groups of motions. The first are pure translations of the end effector (R_A = I, so
+  R_B = I and A X = X B reduces to t_A = R_X t_B, t_B the target's displacement in the camera
+  frame, t_Cj - t_Ci): R_X follows from two or more non-parallel translations alone, in closed
+  form as the rotation that best maps the camera's translations onto the end effector's
+  (orthogonal Procrustes, Arun, Huang & Blostein, IEEE T-PAMI 9(5), 1987). The second are
+  motions that rotate about at least two different axes: with R_X known, (R_A - I) t_X =
+  R_X t_B - t_A is linear in t_X. The motions are told apart by the end effector's rotation
+  (under 0.5 degrees: the first group); the rotation uses the first group only, so the method
+  needs views with pure translations among them (core.sim.manipulation_scenarios.
+  hand_eye_views makes them).
 
 With the target's points and their pixels, X is refined by minimising the reprojection error of
 every point in every view over X and the target's pose W in the arm's base frame (12
@@ -46,8 +56,8 @@ from core.manipulation.errors import DegenerateMotions, TooFewMotions
 from core.optim import solve_sparse_lm
 
 Array = NDArray[np.float64]
-Method = Literal["tsai", "park", "daniilidis", "two-group"]
-METHODS: tuple[str, ...] = ("tsai", "park", "daniilidis", "two-group")
+Method = Literal["tsai", "park", "daniilidis", "andreff", "two-group"]
+METHODS: tuple[str, ...] = ("tsai", "park", "daniilidis", "andreff", "two-group")
 
 # Rotations smaller than this (rad) carry no axis; two axes closer than this angle are parallel.
 _MIN_ROTATION = math.radians(0.5)
@@ -252,7 +262,7 @@ def _daniilidis(A: Array, B: Array) -> Array:
     return X
 
 
-def _two_group(A: Array, B: Array) -> Array:
+def _andreff(A: Array, B: Array) -> Array:
     RA, RB = A[:, :3, :3], B[:, :3, :3]
     eye = np.eye(3)
     # Column-major vec: vec(R_A R) = (I (x) R_A) vec R and vec(R R_B) = (R_B^T (x) I) vec R.
@@ -269,6 +279,42 @@ def _two_group(A: Array, B: Array) -> Array:
     if np.linalg.det(Rm) < 0:
         Rm = -Rm
     return nearest_rotation(Rm)
+
+
+def _two_group(A: Array, B: Array, shift: Array) -> Array:
+    """Return X (4, 4): R_X from the pure translations, then t_X (module docstring).
+
+    shift (K, 3): per motion (pair i < j), t_Cj - t_Ci, the target origin's displacement in the
+    camera frame. For a pure translation R_B = I is known, and t_B = t_Cj - R_B t_Ci is that
+    displacement: taking it, rather than t_B from the views' estimated rotations, keeps their
+    rotation noise (levered by the target's distance) out of the first group."""
+    angle = np.linalg.norm(matrix_to_rotvec(A[:, :3, :3]), axis=1)
+    pure = angle < _MIN_ROTATION
+    ta, tb = A[pure, :3, 3], shift[pure]
+    moved = np.linalg.norm(ta, axis=1) > 1e-9
+    ta, tb = ta[moved], tb[moved]
+    if len(ta) < 2:
+        raise DegenerateMotions(
+            f"the two-group method needs at least 2 pure translations of the end effector "
+            f"(rotating under 0.5 degrees); these views give {len(ta)}: add views that only "
+            "translate the camera, along two or more directions"
+        )
+    directions = ta / np.linalg.norm(ta, axis=1, keepdims=True)
+    s = np.linalg.svd(directions, compute_uv=False)
+    if s[1] < math.sin(_MIN_AXIS_ANGLE) * s[0]:
+        raise DegenerateMotions(
+            "the pure translations are all along one direction (within 2 degrees): the "
+            "hand-eye rotation about it is unobservable; translate along a second direction"
+        )
+    # max_R sum t_A . R t_B: R = U diag(1, 1, det(U V^T)) V^T of the SVD of sum t_A t_B^T.
+    U, _, Vt = np.linalg.svd(ta.T @ tb)
+    D = np.diag([1.0, 1.0, float(np.sign(np.linalg.det(U @ Vt)) or 1.0)])
+    R = U @ D @ Vt
+    X = np.eye(4)
+    X[:3, :3] = R
+    # The second group: only rotating motions constrain t_X (a pure translation's rows vanish).
+    X[:3, 3] = _translation(A[~pure], B[~pure], R)
+    return X
 
 
 # --------------------------------------------------------------------------------------------
@@ -430,15 +476,17 @@ def calibrate_hand_eye(
 
     T_base_ee: n poses (n, 4, 4) of the end effector in the arm's base frame (metres);
     T_cam_target: n poses (n, 4, 4) of the target in the camera frame (from each view's pose
-    estimate, e.g. core.calibration.estimate_plane_pose). method: "tsai", "park", "daniilidis"
-    or "two-group" (module docstring). With object_points (M, 3) (target frame), image_points
+    estimate, e.g. core.calibration.estimate_plane_pose). method: "tsai", "park", "daniilidis",
+    "andreff" or "two-group" (module docstring; "two-group" needs pure translations among the
+    views' motions). With object_points (M, 3) (target frame), image_points
     (n, M, 2) pixels and K (3, 3) (dist: OpenCV coefficients, default none), the linear
     estimate is refined by minimising sum_i sum_p ||u_ip - pi(K, dist; X^-1 E_i^-1 W P_p)||^2
     over X and the target's base-frame pose W (sparse LM); rms_px and the covariance come from
     that refinement.
 
     Raises TooFewMotions (fewer than 3 views), DegenerateMotions (every rotation between views
-    about one axis, or too small), InvalidInput (shapes, non-rigid poses, unknown method).
+    about one axis, or too small; for "two-group", fewer than two non-parallel pure
+    translations), InvalidInput (shapes, non-rigid poses, unknown method).
     """
     if method not in METHODS:
         raise InvalidInput(f"unknown hand-eye method {method!r}; use one of {', '.join(METHODS)}")
@@ -458,8 +506,11 @@ def calibrate_hand_eye(
     check_motions(A)
     if method == "daniilidis":
         X = _daniilidis(A, B)
+    elif method == "two-group":
+        i, j = np.triu_indices(E.shape[0], 1)
+        X = _two_group(A, B, C[j, :3, 3] - C[i, :3, 3])
     else:
-        R = {"tsai": _tsai, "park": _park, "two-group": _two_group}[method](A, B)
+        R = {"tsai": _tsai, "park": _park, "andreff": _andreff}[method](A, B)
         X = np.eye(4)
         X[:3, :3] = R
         X[:3, 3] = _translation(A, B, R)

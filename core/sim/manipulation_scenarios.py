@@ -6,12 +6,16 @@
   sensor noise, and core.calibration.find_chessboard detects it) or the true projections plus
   Gaussian noise of `sigma_px`. The calibration inputs are only the arm's forward kinematics
   at its joint readings and each view's pose estimated from its pixels
-  (core.calibration.estimate_plane_pose); the true hand-eye transform and board pose are kept
-  apart for scoring.
+  (core.calibration.estimate_plane_pose) on the camera's calibrated intrinsics; the true
+  hand-eye transform, board pose and lens are kept apart for scoring.
+* `eye_camera_intrinsics(rng)`: the eye-in-hand camera's own calibration (Zhang on rendered
+  chessboard views, core.sim.intrinsics); every scenario here calibrates it first and no
+  estimate reads its true lens (EYE_K, EYE_DIST: image formation and scoring only).
 * `hand_eye`: the scenario: every method of core.manipulation.calibrate_hand_eye and the
   reprojection refinement on the same views, errors against the twin's truth.
 * `grasp`: randomised fetch episodes on the dining table with the switching controller of
-  core.manipulation.grasp: a box with a printed chessboard mark on its top; every image the
+  core.manipulation.grasp: a box with a printed chessboard on its top (not spec 04's object
+  mark with its blue frame: `GRASP_TARGET`, stated in the record); every image the
   controller uses (the gaze while driving, each look, the taught image) is rendered by the twin
   and the mark's corners detected in it, plus 0.5 px noise; the parallel gripper opens, and
   closes on the box where the controller put it (`close_gripper`).
@@ -41,12 +45,17 @@ from core.manipulation import (
     pose_error,
 )
 from core.manipulation.grasp import ModeSwitch, first_look, gaze_step, next_look
+from core.sim.intrinsics import NOISE as INTRINSICS_NOISE
+from core.sim.intrinsics import RenderedCalibration, calibrate_from_board_views, focal_error_pct
 from core.sim.render import Renderer, SensorNoise, camera_at
+from core.sim.render.landmarks import LandmarkCamera
 from core.sim.scene import Board, CeilingCamera, Scene, default_scene
 
 Array = NDArray[np.float64]
 
-# The eye-in-hand camera: 640x480, a mildly wide lens with barrel distortion.
+# The eye-in-hand camera's true lens: 640x480, mildly wide, barrel distortion. It only forms
+# the images and scores: every estimate uses the camera's own calibration
+# (eye_camera_intrinsics).
 EYE_K = np.array([[520.0, 0.0, 319.5], [0.0, 520.0, 239.5], [0.0, 0.0, 1.0]])
 EYE_DIST = np.array([-0.08, 0.02, 0.0, 0.0, 0.0])
 EYE_SIZE = (640, 480)
@@ -58,6 +67,11 @@ PARK = np.array([6.3, 1.02, math.pi / 2])
 TABLE_TOP = 0.75
 # The phases of a fetch (grasp_episode's on_phase), in order.
 GRASP_PHASES = ("approach", "switch", "look then move", "grasp", "lift and carry")
+# The two-group hand-eye method's first group: of the views, this many (after the first) are
+# pure translations of the first view's camera, along its x, y, z axes in turn, by
+# TRANSLATION_M metres; with the first view they give 6 motions without rotation.
+TRANSLATIONS = 3
+TRANSLATION_M = (0.04, 0.07)
 
 
 @dataclass(frozen=True)
@@ -67,8 +81,10 @@ class HandEyeViews:
     q (n, 6): joint readings; T_base_ee (n, 4, 4): the arm's fk at q (arm base frame);
     T_cam_target (n, 4, 4): each view's board pose estimated from its pixels; object_points
     (M, 3) board frame; image_points (n, M, 2) pixels; K, dist: the eye-in-hand camera's
-    (known) intrinsics; source: "rendered" (detected corners) or "projected" (true projections
-    plus noise). true_X (4, 4) T_ee_cam and true_T_base_target (4, 4): scoring only.
+    calibrated intrinsics (`intrinsics_from` says how); source: "rendered" (detected corners) or
+    "projected" (true projections plus noise); translations: how many views after the first are
+    pure translations of it (the two-group method's first group). true_X (4, 4)
+    T_ee_cam and true_T_base_target (4, 4): scoring only.
     """
 
     q: Array
@@ -79,6 +95,8 @@ class HandEyeViews:
     K: Array
     dist: Array
     source: str
+    intrinsics_from: str
+    translations: int
     true_X: Array = field(repr=False)
     true_T_base_target: Array = field(repr=False)
 
@@ -128,6 +146,8 @@ def hand_eye_views(
     manipulator: MobileManipulator | None = None,
     renderer: Renderer | None = None,
     noise: SensorNoise | None = None,
+    intrinsics: RenderedCalibration | None = None,
+    translations: int | None = None,
 ) -> HandEyeViews:
     """Return `views` views of the table's chessboard from reachable arm poses.
 
@@ -136,9 +156,22 @@ def hand_eye_views(
     image with a 20 px margin. Pixels: the true projections, or the corners detected in the
     rendered image (`rendered`, with `noise`, default SensorNoise()), plus N(0, sigma_px^2) per
     axis in both cases (the detector alone is far more precise than the 0.5 px spec 05 names).
+    Each view's board pose is estimated on the camera's calibrated intrinsics (`intrinsics`,
+    default: calibrated first from `rng`, eye_camera_intrinsics), never on its true lens.
+
+    Views 1 to `translations` (default TRANSLATIONS, fewer when that would leave under 3 general
+    views) are the two-group method's first group: the arm translates the first view's camera
+    without turning it (along its x, y, z axes in turn, by TRANSLATION_M, each
+    kept when the IK reaches it and the board stays in view); the others are the general
+    motions drawn by `_look_pose`.
     """
     if views < 3:
         raise InvalidInput(f"views must be >= 3, got {views}")
+    if translations is None:
+        translations = min(TRANSLATIONS, views - 3)
+    if not 0 <= translations <= views - 3:
+        raise InvalidInput(f"translations must be 0..views - 3 ({views - 3}), got {translations}")
+    cal = intrinsics if intrinsics is not None else eye_camera_intrinsics(rng)
     mm = manipulator if manipulator is not None else default_manipulator()
     X = mm.T_ee_camera
     T_world_board, W = board_on_table(mm)
@@ -151,15 +184,13 @@ def hand_eye_views(
     qs: list[Array] = []
     uvs: list[Array] = []
     Cs: list[Array] = []
-    attempts = 0
-    while len(qs) < views:
-        attempts += 1
-        if attempts > 200 * views:
-            raise InvalidInput("could not find reachable views of the board; check the scene")
-        T_arm_cam = _look_pose(rng, centre, normal)
+
+    def take(T_arm_cam: Array) -> bool:
+        """Add the view from camera pose T_arm_cam when the arm reaches it and the board is
+        seen whole; return whether it was added."""
         sols = mm.arm.ik_analytic(T_arm_cam @ invert_pose(X), include_singular=False)
         if not sols:
-            continue
+            return False
         q = min(sols, key=lambda s: float(np.sum((s - mm.arm.home) ** 2)))
         # The camera as the joints put it (fk), identical to T_arm_cam up to rounding.
         T_arm_cam = mm.arm.fk(q) @ X
@@ -168,9 +199,9 @@ def hand_eye_views(
             P, matrix_to_rotvec(C_true[:3, :3]), C_true[:3, 3], EYE_K, EYE_DIST
         ).points
         if np.any(truth < 20) or np.any(truth[:, 0] > EYE_SIZE[0] - 21):
-            continue
+            return False
         if np.any(truth[:, 1] > EYE_SIZE[1] - 21):
-            continue
+            return False
         if rendered:
             assert renderer is not None
             cam = _eye_camera(T_world_arm @ T_arm_cam)
@@ -180,17 +211,39 @@ def hand_eye_views(
             try:
                 uv = find_chessboard(frame.image, BOARD.inner_corners).corners
             except PatternNotFound:
-                continue
+                return False
             if sigma_px > 0:
                 uv = uv + rng.normal(0.0, sigma_px, uv.shape)
         else:
             uv = truth + rng.normal(0.0, sigma_px, truth.shape)
-        est = estimate_plane_pose(P, uv, EYE_K, EYE_DIST)
+        est = estimate_plane_pose(P, uv, cal.K, cal.dist)
         C = np.eye(4)
         C[:3, :3], C[:3, 3] = est.R, est.t
         qs.append(q)
         uvs.append(uv)
         Cs.append(C)
+        return True
+
+    attempts = 0
+    while len(qs) < views:
+        attempts += 1
+        if attempts > 200 * views:
+            raise InvalidInput("could not find reachable views of the board; check the scene")
+        if not take(_look_pose(rng, centre, normal)) or len(qs) > 1 or translations == 0:
+            continue
+        # The first group: the first view's camera translated along its x, y, z axes in turn,
+        # its orientation kept; a first view the arm cannot translate so is drawn again.
+        first = mm.arm.fk(qs[0]) @ X
+        for k in range(translations):
+            for _ in range(30):
+                T = first.copy()
+                step = rng.choice((-1.0, 1.0)) * rng.uniform(*TRANSLATION_M)
+                T[:3, 3] += step * first[:3, k % 3]
+                if take(T):
+                    break
+            else:
+                del qs[:], uvs[:], Cs[:]
+                break
     q_arr = np.array(qs)
     return HandEyeViews(
         q=q_arr,
@@ -198,11 +251,22 @@ def hand_eye_views(
         T_cam_target=np.array(Cs),
         object_points=P,
         image_points=np.array(uvs),
-        K=EYE_K.copy(),
-        dist=EYE_DIST.copy(),
+        K=cal.K.copy(),
+        dist=cal.dist.copy(),
         source="rendered" if rendered else "projected",
+        intrinsics_from=cal.source,
+        translations=translations,
         true_X=X.copy(),
         true_T_base_target=W,
+    )
+
+
+def eye_camera_intrinsics(rng: np.random.Generator) -> RenderedCalibration:
+    """Return the eye-in-hand camera's intrinsics as its owner gets them: Zhang from rendered
+    chessboard views through its lens (core.sim.intrinsics)."""
+    w, h = EYE_SIZE
+    return calibrate_from_board_views(
+        LandmarkCamera(EYE_K, EYE_DIST, w, h), rng, noise=INTRINSICS_NOISE
     )
 
 
@@ -225,16 +289,22 @@ class HandEyeMethodError:
 
 @dataclass(frozen=True)
 class HandEyeResult:
-    """Metrics of `hand-eye`: the views (`source`: corners detected in rendered images, or true
-    projections), the Gaussian pixel noise `sigma_px` added to them, the measured pixel noise
-    of the final pixels against the true corners (RMS per axis), every linear method's errors
-    and the reprojection refinement's (started from Park-Martin), with the refinement's RMS
-    reprojection error in pixels."""
+    """Metrics of `hand-eye`: the views (`translations` of them pure translations of the first,
+    the two-group method's first group; `source`: corners detected in rendered images, or true
+    projections), where the camera's intrinsics came from (`intrinsics_from`: its own Zhang
+    calibration) and their focal error against the true lens (%, scoring only), the Gaussian
+    pixel noise `sigma_px` added to them, the measured pixel noise of the final pixels against
+    the true corners (RMS per axis), every linear method's errors and the reprojection
+    refinement's (started from Park-Martin), with the refinement's RMS reprojection error in
+    pixels."""
 
     scenario: str
     seed: int
     views: int
+    translations: int
     source: str
+    intrinsics_from: str
+    focal_error_pct: float
     sigma_px: float
     measured_sigma_px: float
     methods: tuple[HandEyeMethodError, ...]
@@ -277,7 +347,7 @@ def hand_eye(
     truth = np.stack(
         [
             project_points(
-                v.object_points, matrix_to_rotvec(c[:3, :3]), c[:3, 3], v.K, v.dist
+                v.object_points, matrix_to_rotvec(c[:3, :3]), c[:3, 3], EYE_K, EYE_DIST
             ).points
             for c in C_true
         ]
@@ -300,7 +370,10 @@ def hand_eye(
         scenario="hand-eye",
         seed=seed,
         views=views,
+        translations=v.translations,
         source=v.source,
+        intrinsics_from=v.intrinsics_from,
+        focal_error_pct=focal_error_pct(v.K, EYE_K),
         sigma_px=sigma_px,
         measured_sigma_px=measured,
         methods=tuple(rows),
@@ -314,6 +387,7 @@ __all__ = [
     "BOX_SIZE",
     "EYE_DIST",
     "EYE_K",
+    "GRASP_TARGET",
     "GRIPPER_OPEN",
     "JOINT_RATE",
     "MARK_BOARD",
@@ -324,6 +398,7 @@ __all__ = [
     "HandEyeViews",
     "board_on_table",
     "close_gripper",
+    "eye_camera_intrinsics",
     "fetch_problem",
     "grasp",
     "grasp_episode",
@@ -371,6 +446,14 @@ T_MARK_GRASP = np.array(
     [[1.0, 0.0, 0.0, 0.0], [0.0, -1.0, 0.0, 0.0], [0.0, 0.0, -1.0, -0.05], [0.0, 0.0, 0.0, 1.0]]
 )
 PRE_GRASP = 0.20
+# What the fetch grasps, as its record says it (spec 05 grasps the object its object mark, spec
+# 04's blue frame, identifies; this controller servoes on a chessboard printed on the box).
+GRASP_TARGET = (
+    "a box (160 x 115 x 100 mm) whose top carries a printed 6 x 5 chessboard, not spec 04's "
+    "object mark: the controller servoes on the chessboard's 30 corners (find_chessboard); the "
+    "box stands where the semantic map's object is (or at random on the dining table), off by "
+    "the map's error"
+)
 # The corridor between the kitchen counter and the dining table where the base may stand.
 _CORRIDOR_Y = (0.95, 1.2)
 
@@ -416,9 +499,12 @@ class GraspResult:
     """Metrics of `grasp`: episodes, success rate, medians over successes of the final
     end-effector position error (m) and rotation error (deg), median time (s), failure
     reasons with counts, the hand-eye transform's own error (it was calibrated first, refined,
-    from 15 views), the images' source ("rendered": the twin's images, corners detected;
-    "projected": true projections), the eye-in-hand images taken in all, the median gripper
-    opening at closing over successes (mm; the box is 115 mm wide), and every episode."""
+    from 15 views), where the eye-in-hand camera's intrinsics came from (`intrinsics_from`: its
+    own Zhang calibration, done first) and their focal error (%, scoring only), what the fetch
+    grasps (`target`, GRASP_TARGET), the images' source ("rendered": the twin's images,
+    corners detected; "projected": true projections), the eye-in-hand images taken in all, the
+    median gripper opening at closing over successes (mm; the box is 115 mm wide), and every
+    episode."""
 
     scenario: str
     seed: int
@@ -430,6 +516,9 @@ class GraspResult:
     failures: dict[str, int]
     hand_eye_rotation_error_deg: float
     hand_eye_translation_error_mm: float
+    intrinsics_from: str
+    focal_error_pct: float
+    target: str
     sigma_px: float
     source: str
     frames: int
@@ -607,6 +696,7 @@ def grasp_episode(
     mm: MobileManipulator,
     X_est: Array,
     *,
+    intrinsics: RenderedCalibration,
     sigma_px: float = 0.5,
     prior_sigma_m: float = 0.05,
     prior_sigma_rad: float = 0.15,
@@ -637,8 +727,9 @@ def grasp_episode(
 
     `renderer`, when given, renders every eye-in-hand image the controller uses (the mark's
     corners are detected in them); without it the controller sees the corners' true
-    projections. Both add N(0, sigma_px^2). `taught`: the mark's taught ideal pixels (M, 2)
-    (`taught_image`), made from the true hand-eye transform when not given.
+    projections. Both add N(0, sigma_px^2). Every estimate from those pixels uses the camera's
+    calibrated `intrinsics` (eye_camera_intrinsics). `taught`: the mark's taught ideal pixels
+    (M, 2) (`taught_image`), made from the true hand-eye transform when not given.
 
     `on_phase(name)`, when given, is called as the episode enters each of GRASP_PHASES, in
     order: "approach" (base placement, driving with the gaze constraint, the first look over
@@ -657,6 +748,7 @@ def grasp_episode(
         if on_phase is not None:
             on_phase(name)
 
+    K, dist = intrinsics.K, intrinsics.dist
     enter("approach")
     if T_world_prior is None:
         xy = np.array([rng.uniform(5.95, 6.65), rng.uniform(1.60, 1.72)])
@@ -725,8 +817,8 @@ def grasp_episode(
                 ray = np.array([0.0, 0.0, 1.0])
         else:
             seen += 1
-            ray = np.append((px.mean(axis=0) - EYE_K[:2, 2]) / np.diag(EYE_K)[:2], 1.0)
-            pose = estimate_plane_pose(MARK_POINTS, px, EYE_K, EYE_DIST)
+            ray = np.append((px.mean(axis=0) - K[:2, 2]) / np.diag(K)[:2], 1.0)
+            pose = estimate_plane_pose(MARK_POINTS, px, K, dist)
             mark_est = F_est[:3, :3] @ pose.t + F_est[:3, 3]
             size = float(np.linalg.norm(px[0] - px[-1]))
             switch.update(float(np.linalg.norm(pose.t)), size)
@@ -811,7 +903,7 @@ def grasp_episode(
                 break
             continue
         # Seen from a search pose: re-locate the mark and look again from over it.
-        est = estimate_plane_pose(MARK_POINTS, px1, EYE_K, EYE_DIST)
+        est = estimate_plane_pose(MARK_POINTS, px1, K, dist)
         T_arm_mark_prior[:3, 3] = F1[:3, :3] @ est.t + F1[:3, 3]
         qk, Fk, pk = look_from(T_arm_mark_prior, 0.0, 0.0, q1)
         if qk is not None:
@@ -824,7 +916,7 @@ def grasp_episode(
     if px1 is None:
         return fail("mark not in view at the first look", vis, switch.switches, 1)
     enter("switch")
-    pose1 = estimate_plane_pose(MARK_POINTS, px1, EYE_K, EYE_DIST)
+    pose1 = estimate_plane_pose(MARK_POINTS, px1, K, dist)
     if switch.update(float(np.linalg.norm(pose1.t)), float(np.linalg.norm(px1[0] - px1[-1]))) != (
         "look"
     ):
@@ -846,9 +938,11 @@ def grasp_episode(
         return fail("mark not in view after the probe motion", vis, switch.switches, 1)
     # The taught image: the mark's ideal pixels from the pre-grasp pose, recorded once.
     if taught is None:
-        taught = taught_image(mm.T_ee_camera, renderer=renderer, rng=rng, sigma_px=sigma_px)
+        taught = taught_image(
+            mm.T_ee_camera, intrinsics, renderer=renderer, rng=rng, sigma_px=sigma_px
+        )
     try:
-        plane = first_look(F1, px1, F2, px2, taught, EYE_K, EYE_DIST)
+        plane = first_look(F1, px1, F2, px2, taught, K, dist)
     except (InvalidInput, ValueError) as exc:
         return fail(f"first look failed: {exc}", vis, switch.switches, 2)
     target_cam = plane.taught_camera
@@ -869,7 +963,7 @@ def grasp_episode(
         if px is None:
             return fail("mark lost during look-then-move", vis, switch.switches, looks)
         looks += 1
-        estimates.append(next_look(F, px, taught, plane, EYE_K, EYE_DIST))
+        estimates.append(next_look(F, px, taught, plane, K, dist))
         E = np.array(estimates)
         mean = np.eye(4)
         mean[:3, :3] = nearest_rotation(E[:, :3, :3].mean(axis=0))
@@ -937,6 +1031,7 @@ def grasp_episode(
 
 def taught_image(
     X_true: Array,
+    intrinsics: RenderedCalibration,
     *,
     renderer: Renderer | None = None,
     rng: np.random.Generator | None = None,
@@ -948,15 +1043,18 @@ def taught_image(
     the camera is where the arm truly holds it (X_true, T_ee_cam). With a `renderer`, `frames`
     images are taken while it holds still (two seconds of video), each rendered with its own
     sensor noise, the corners detected in each plus N(0, sigma_px^2), and their mean
-    undistorted with the camera's known intrinsics. Every episode servoes to this one image,
-    so its error is common to them all: one frame's 0.5 px gave a 1.3 deg median grasp error
-    over 100 episodes (seed 8), where 30 frames' mean gives 0.37 deg. Without a renderer, the
-    corners' ideal projections."""
+    undistorted with the camera's calibrated `intrinsics` (to their K's pixels). Every episode
+    servoes to this one image, so its error is common to them all: one frame's 0.5 px gave a
+    1.3 deg median grasp error over 100 episodes (seed 8), where 30 frames' mean gives 0.37
+    deg. Without a renderer, the corners' true projections, undistorted likewise."""
     T_mark = _mark_pose(np.array([6.3, 1.9]), 0.0)
     T_cam = T_mark @ _pre_grasp() @ np.asarray(X_true, dtype=np.float64)
     if renderer is None:
         C = invert_pose(T_cam) @ T_mark  # T_cam_mark
-        return project_points(MARK_POINTS, matrix_to_rotvec(C[:3, :3]), C[:3, 3], EYE_K).points
+        px = project_points(
+            MARK_POINTS, matrix_to_rotvec(C[:3, :3]), C[:3, 3], EYE_K, EYE_DIST
+        ).points
+        return undistort_points(px, intrinsics.K, intrinsics.dist, to_pixels=True)
     if frames < 1:
         raise InvalidInput(f"frames must be >= 1, got {frames}")
     eye = _Eye(T_mark, sigma_px, rng if rng is not None else np.random.default_rng(0), renderer)
@@ -964,7 +1062,7 @@ def taught_image(
     if any(px is None for px in shots):
         raise PatternNotFound("the taught image does not show the whole mark")
     mean = np.mean(np.stack([px for px in shots if px is not None]), axis=0)
-    return undistort_points(mean, EYE_K, EYE_DIST, to_pixels=True)
+    return undistort_points(mean, intrinsics.K, intrinsics.dist, to_pixels=True)
 
 
 def grasp(
@@ -989,7 +1087,15 @@ def grasp(
         if rendered
         else None
     )
-    v = hand_eye_views(rng, views=15, sigma_px=sigma_px, rendered=rendered, renderer=renderer)
+    cal = eye_camera_intrinsics(rng)
+    v = hand_eye_views(
+        rng,
+        views=15,
+        sigma_px=sigma_px,
+        rendered=rendered,
+        renderer=renderer,
+        intrinsics=cal,
+    )
     he = calibrate_hand_eye(
         v.T_base_ee,
         v.T_cam_target,
@@ -999,9 +1105,11 @@ def grasp(
         dist=v.dist,
     )
     he_dp, he_dr = pose_error(he.X, mm.T_ee_camera)
-    taught = taught_image(mm.T_ee_camera, renderer=renderer, rng=rng, sigma_px=sigma_px)
+    taught = taught_image(mm.T_ee_camera, cal, renderer=renderer, rng=rng, sigma_px=sigma_px)
     eps = tuple(
-        grasp_episode(rng, mm, he.X, sigma_px=sigma_px, renderer=renderer, taught=taught)
+        grasp_episode(
+            rng, mm, he.X, intrinsics=cal, sigma_px=sigma_px, renderer=renderer, taught=taught
+        )
         for _ in range(episodes)
     )
     good = [e for e in eps if e.success]
@@ -1024,6 +1132,9 @@ def grasp(
         failures=failures,
         hand_eye_rotation_error_deg=math.degrees(float(he_dr)),
         hand_eye_translation_error_mm=1e3 * float(he_dp),
+        intrinsics_from=cal.source,
+        focal_error_pct=focal_error_pct(cal.K, EYE_K),
+        target=GRASP_TARGET,
         sigma_px=sigma_px,
         source="rendered" if rendered else "projected",
         frames=sum(e.frames for e in eps),

@@ -23,8 +23,11 @@ What is measured: the floor camera's frames are rendered from the robot's true p
 and the spot's red light where the camera sees it: core.sim.render), 15 a second, and the spot
 is found in each by core.navigation.detect_laser_spot (no laser-off frame: the camera moves),
 then given SPOT_PIXEL_SIGMA of extra pixel noise and dropped at random (DETECTION_PROBABILITY,
-glints and motion blur the renderer does not draw). The floor camera's plane comes from one
-rendered view of a floor chessboard (`calibrate_floor_camera`). Without a renderer (unit tests)
+glints and motion blur the renderer does not draw). The floor camera's intrinsics come from its
+own Zhang calibration on rendered chessboard views (`floor_camera_intrinsics`,
+core.sim.intrinsics), its plane from one rendered view of a floor chessboard on those
+intrinsics (`calibrate_floor_camera`): no estimator reads the true lens (FLOOR_CAMERA_K,
+FLOOR_CAMERA_DIST), which only forms the images. Without a renderer (unit tests)
 the spot's true projection stands in for the detection. In
 `projector-calibration` each ceiling camera's frame of the home is rendered (core.sim.render)
 with the laser's light added where the spot's image falls, when the camera sees it (in view,
@@ -68,8 +71,11 @@ from core.navigation._control import (
     control_point,
 )
 from core.projector import JointTrajectory, PanTiltProjector, project_path
+from core.sim.intrinsics import NOISE as INTRINSICS_NOISE
+from core.sim.intrinsics import RenderedCalibration, calibrate_from_board_views, focal_error_pct
 from core.sim.motion import Pose2D, UnicycleBase, WorldState
 from core.sim.render import Renderer, camera_at, renderer_for
+from core.sim.render.landmarks import LandmarkCamera
 from core.sim.scene import Board, CeilingCamera, Scene, default_scene
 
 Array = NDArray[np.float64]
@@ -231,28 +237,42 @@ def _floor_pattern_points() -> tuple[Array, Array]:
     return T, P
 
 
+def floor_camera_intrinsics(rng: np.random.Generator) -> RenderedCalibration:
+    """Return the floor camera's intrinsics as the robot's owner gets them: Zhang from
+    rendered chessboard views through the floor camera's lens (core.sim.intrinsics)."""
+    w, h = FLOOR_CAMERA_SIZE
+    return calibrate_from_board_views(
+        LandmarkCamera(FLOOR_CAMERA_K, FLOOR_CAMERA_DIST, w, h), rng, noise=INTRINSICS_NOISE
+    )
+
+
 def calibrate_floor_camera(
-    rng: np.random.Generator, renderer: Renderer | None = None
+    rng: np.random.Generator,
+    renderer: Renderer | None = None,
+    intrinsics: RenderedCalibration | None = None,
 ) -> FloorPlane:
     """Return the floor camera's floor plane from one view of the floor pattern
-    (FLOOR_PATTERN) laid ahead of the robot. With a `renderer`, the view is rendered (the robot
-    at FLOOR_PATTERN_POSE in the home) and the corners detected (core.calibration.
-    find_chessboard); without one, the corners' true pixels plus 0.1 px of noise (what
-    cv2.cornerSubPix achieves on chessboard corners). Raises PatternNotFound when the rendered
-    pattern is not found."""
+    (FLOOR_PATTERN) laid ahead of the robot, on the camera's calibrated intrinsics
+    (`intrinsics`, default: calibrated first from rendered chessboard views,
+    floor_camera_intrinsics; never the twin's true lens). With a `renderer`, the view is
+    rendered (the robot at FLOOR_PATTERN_POSE in the home) and the corners detected
+    (core.calibration.find_chessboard); without one, the corners' true pixels plus 0.1 px of
+    noise (what cv2.cornerSubPix achieves on chessboard corners). Raises PatternNotFound when
+    the rendered pattern is not found."""
+    cal = intrinsics if intrinsics is not None else floor_camera_intrinsics(rng)
     T_robot_board, pattern = _floor_pattern_points()
     if renderer is None:
         uv, ok = _project_robot_points(floor_camera_mount(), pattern)
         if not np.all(ok):
             raise InvalidInput("the floor pattern must lie inside the floor camera's view")
         uv = uv + rng.normal(0.0, 0.1, uv.shape)
-        return calibrate_floor_plane(pattern, uv, FLOOR_CAMERA_K, FLOOR_CAMERA_DIST, sigma=0.1)
+        return calibrate_floor_plane(pattern, uv, cal.K, cal.dist, sigma=0.1)
     T_world_robot = robot_transform(FLOOR_PATTERN_POSE)
     frame = renderer.render_board(
         floor_camera_at(FLOOR_PATTERN_POSE), FLOOR_PATTERN, T_world_robot @ T_robot_board, rng=rng
     )
     uv = find_chessboard(frame.image, FLOOR_PATTERN.inner_corners).corners
-    return calibrate_floor_plane(pattern, uv, FLOOR_CAMERA_K, FLOOR_CAMERA_DIST)
+    return calibrate_floor_plane(pattern, uv, cal.K, cal.dist)
 
 
 def plan_tour(scene: Scene, waypoints: tuple[tuple[float, float], ...] = TOUR) -> Array:
@@ -463,6 +483,9 @@ class PathFollowingResult:
     drawing_error_max_m: float
     floor_normal_error_deg: float
     floor_distance_error_m: float
+    floor_camera_intrinsics_from: str
+    floor_camera_focal_error_pct: float
+    floor_camera_rms_px: float
     source: str
     laws: dict[str, LawMetrics]
     series: dict[str, dict[str, list[float]]] = field(repr=False)
@@ -513,7 +536,8 @@ def path_following(
     drawn = truth.spot(traj.q)
     drawing_error = float(np.max(np.linalg.norm(drawn - traj.spot, axis=1)))
     renderer = Renderer(scene, supersample=1) if rendered else None
-    plane = calibrate_floor_camera(np.random.default_rng([seed, 7]), renderer)
+    intrinsics = floor_camera_intrinsics(np.random.default_rng([seed, 8]))
+    plane = calibrate_floor_camera(np.random.default_rng([seed, 7]), renderer, intrinsics)
     true_plane = np.linalg.inv(floor_camera_mount())
     n_true = true_plane[:3, 2]
     d_true = float(n_true @ true_plane[:3, 3])
@@ -549,6 +573,9 @@ def path_following(
         drawing_error_max_m=drawing_error,
         floor_normal_error_deg=normal_err,
         floor_distance_error_m=abs(plane.distance - d_true),
+        floor_camera_intrinsics_from=intrinsics.source,
+        floor_camera_focal_error_pct=focal_error_pct(intrinsics.K, FLOOR_CAMERA_K),
+        floor_camera_rms_px=intrinsics.rms,
         source="rendered" if rendered else "projected",
         laws=laws,
         series=series,

@@ -122,7 +122,10 @@ class NetworkCalibrationResult:
 class LocalizationResult:
     """Metrics of `localization` / `localization-images`: samples located, pixel noise sigma
     (given, or measured from the detections), RMSE metres per estimator (mono, linear,
-    constrained, ml) and the Cramer-Rao root mean trace for the cameras ML used."""
+    constrained, ml) and the Cramer-Rao root mean trace for the cameras ML used.
+    `cameras_from` says which cameras the estimators were given: "truth" (the twin's true
+    cameras: these scenarios measure the estimators alone against the bound, without any
+    calibration's error; the bound is computed on the same cameras)."""
 
     scenario: str
     seed: int
@@ -131,6 +134,7 @@ class LocalizationResult:
     rmse_m: dict[str, float]
     crb_rmse_m: float
     measured_sigma_px: float | None = None
+    cameras_from: str = "truth"
 
     def to_dict(self) -> dict[str, Any]:
         """Return the record as JSON-ready values."""

@@ -29,7 +29,7 @@ from server.schemas.common import (
 )
 
 # core.manipulation.METHODS, spelled out for the OpenAPI schema.
-HandEyeMethod = Literal["tsai", "park", "daniilidis", "two-group"]
+HandEyeMethod = Literal["tsai", "park", "daniilidis", "andreff", "two-group"]
 
 # An arm longer than this (a link offset in metres) is a unit slip, not a robot arm.
 MAX_LINK_M = 10.0

@@ -36,6 +36,7 @@ from core.manipulation.hand_eye import check_motions, relative_motions
 from core.sim.manipulation_scenarios import (
     GRASP_PHASES,
     GraspEpisode,
+    eye_camera_intrinsics,
     fetch_problem,
     grasp_episode,
     hand_eye_views,
@@ -411,13 +412,21 @@ def run_fetch(
     renderer = Renderer(default_scene(), supersample=1)
     target = inputs.get("object")
     applied = inputs["arm"].get("T_ee_camera")
+    # The eye-in-hand camera's intrinsics from its own calibration, never the twin's lens.
+    intrinsics = eye_camera_intrinsics(rng)
     if applied is not None:
         X = np.asarray(applied, dtype=float)
         source = "arm"
     else:
         report("calibrating the eye-in-hand camera", 0.0, None)
         v = hand_eye_views(
-            rng, views=15, sigma_px=sigma, manipulator=mm, rendered=True, renderer=renderer
+            rng,
+            views=15,
+            sigma_px=sigma,
+            manipulator=mm,
+            rendered=True,
+            renderer=renderer,
+            intrinsics=intrinsics,
         )
         X = calibrate_hand_eye(
             v.T_base_ee,
@@ -435,7 +444,7 @@ def run_fetch(
         "translation_error_mm": 1e3 * float(dp),
     }
     report("teaching the mark", 0.0, None)
-    taught = taught_image(mm.T_ee_camera, renderer=renderer, rng=rng, sigma_px=sigma)
+    taught = taught_image(mm.T_ee_camera, intrinsics, renderer=renderer, rng=rng, sigma_px=sigma)
     records: list[dict[str, Any]] = []
     for k in range(planned):
 
@@ -451,6 +460,7 @@ def run_fetch(
             rng,
             mm,
             X,
+            intrinsics=intrinsics,
             sigma_px=sigma,
             on_phase=entered,
             T_world_prior=None if target is None else np.asarray(target["T_world_mark"]),

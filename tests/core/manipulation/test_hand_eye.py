@@ -30,19 +30,29 @@ def _target() -> np.ndarray:
     return np.stack([gx.ravel() * 0.03 - 0.09, gy.ravel() * 0.03 - 0.06, np.zeros(gx.size)], 1)
 
 
-def _views(rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]:
+def _views(
+    rng: np.random.Generator, n: int, translations: int = 3
+) -> tuple[np.ndarray, np.ndarray]:
     """n views of a target fixed in the arm's base frame, camera 0.3-0.5 m away, tilted up to
-    ~30 degrees: the end effector's poses E_i = W C_i^-1 X^-1."""
+    ~30 degrees: the end effector's poses E_i = W C_i^-1 X^-1. The last `translations` (when
+    n leaves 3 others) translate the first view's end effector 8 cm along its x, y, z axes in
+    turn without turning it: the two-group method's first group."""
     W = np.eye(4)
     W[:3, :3] = rotvec_to_matrix([np.pi, 0.0, 0.0])
     W[:3, 3] = [0.6, 0.1, -0.3]
     E, C = [], []
-    for _ in range(n):
+    k = min(translations, max(n - 3, 0))
+    for _ in range(n - k):
         Ct = np.eye(4)
         Ct[:3, :3] = rotvec_to_matrix(rng.normal(0, 0.3, 3))
         Ct[:3, 3] = [rng.normal(0, 0.03), rng.normal(0, 0.03), 0.4 + rng.normal(0, 0.05)]
         E.append(W @ invert_pose(Ct) @ invert_pose(X_TRUE))
         C.append(Ct)
+    for j in range(k):
+        Ej = E[0].copy()
+        Ej[:3, 3] += 0.08 * E[0][:3, j % 3]
+        E.append(Ej)
+        C.append(invert_pose(X_TRUE) @ invert_pose(Ej) @ W)
     return np.array(E), np.array(C)
 
 
@@ -104,6 +114,35 @@ def test_noisy_linear_methods_and_refinement() -> None:
     for k in range(2):
         ratio = np.sqrt(np.mean(e[:, k] ** 2)) / np.sqrt(np.mean(s[:, k] ** 2))
         assert 0.4 < ratio < 2.5
+
+
+def test_two_group_takes_its_rotation_from_the_pure_translations() -> None:
+    rng = np.random.default_rng(5)
+    E, C = _views(rng, 10)
+    exact = calibrate_hand_eye(E, C, method="two-group")
+    assert pose_error(exact.X, X_TRUE)[1] < 1e-9
+    # The rotation comes from the first group alone: corrupting every rotating view's camera
+    # rotation (0.05 rad) leaves it exact, where every other method's rotation moves.
+    Cb = C.copy()
+    for i in range(1, 7):
+        Cb[i, :3, :3] = rotvec_to_matrix(rng.normal(0, 0.05, 3)) @ C[i, :3, :3]
+    two = calibrate_hand_eye(E, Cb, method="two-group")
+    assert pose_error(two.X, X_TRUE)[1] < 1e-9
+    for m in ("tsai", "park", "daniilidis", "andreff"):
+        assert pose_error(calibrate_hand_eye(E, Cb, method=m).X, X_TRUE)[1] > 1e-4
+    # Without pure translations it has no first group: refused, with what to add.
+    E3, C3 = _views(rng, 8, translations=0)
+    with pytest.raises(DegenerateMotions, match="pure translations"):
+        calibrate_hand_eye(E3, C3, method="two-group")
+    # Translations along one direction only: the rotation about it is unobservable.
+    Et, Ct = E3.copy(), C3.copy()
+    W = E3[0] @ X_TRUE @ C3[0]
+    for j, step in ((6, 0.04), (7, 0.08)):
+        Et[j] = E3[0].copy()
+        Et[j, :3, 3] += step * E3[0][:3, 0]
+        Ct[j] = invert_pose(X_TRUE) @ invert_pose(Et[j]) @ W
+    with pytest.raises(DegenerateMotions, match="one direction"):
+        calibrate_hand_eye(Et, Ct, method="two-group")
 
 
 def test_refinement_exact_without_noise() -> None:

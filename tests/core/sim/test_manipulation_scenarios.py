@@ -3,6 +3,8 @@ projected, calibrated by every method against the twin's truth."""
 
 from __future__ import annotations
 
+from functools import cache
+
 import numpy as np
 import pytest
 
@@ -10,6 +12,7 @@ from core.errors import InvalidInput
 from core.geometry.camera import project_points
 from core.geometry.rotations import matrix_to_rotvec
 from core.manipulation import (
+    METHODS,
     calibrate_hand_eye,
     default_arm,
     default_manipulator,
@@ -17,6 +20,7 @@ from core.manipulation import (
     pose_error,
 )
 from core.sim import Renderer, default_scene
+from core.sim.intrinsics import RenderedCalibration
 from core.sim.manipulation_scenarios import (
     BOX_SIZE,
     EYE_DIST,
@@ -29,6 +33,7 @@ from core.sim.manipulation_scenarios import (
     _Eye,
     _pre_grasp,
     close_gripper,
+    eye_camera_intrinsics,
     fetch_problem,
     grasp,
     grasp_episode,
@@ -37,8 +42,26 @@ from core.sim.manipulation_scenarios import (
 )
 
 
+@cache
+def _intrinsics() -> RenderedCalibration:
+    """The eye-in-hand camera's own calibration (rendered chessboard views), made once."""
+    return eye_camera_intrinsics(np.random.default_rng(0))
+
+
+def test_eye_camera_is_calibrated_from_its_own_views() -> None:
+    cal = _intrinsics()
+    # Zhang on 12 rendered views at ~0.05 px corner noise: the focal length within 0.2 % and
+    # the principal point within 1 px of the true lens (scoring only); measured 0.03 % / 0.3 px.
+    assert cal.views == 12 and cal.rms < 0.1
+    assert abs(cal.K[0, 0] / EYE_K[0, 0] - 1.0) < 2e-3
+    assert np.linalg.norm(cal.K[:2, 2] - EYE_K[:2, 2]) < 1.0
+    assert not np.allclose(cal.K, EYE_K, rtol=0, atol=1e-6)  # estimated, not copied
+
+
 def test_views_are_reachable_and_consistent() -> None:
-    v = hand_eye_views(np.random.default_rng(0), views=5, sigma_px=0.0)
+    # The true lens given as the calibration, so the board poses' only error is PnP precision.
+    exact = RenderedCalibration(EYE_K, EYE_DIST, 0.0, 0)
+    v = hand_eye_views(np.random.default_rng(0), views=5, sigma_px=0.0, intrinsics=exact)
     assert np.all(default_arm().within_limits(v.q))
     # Noise-free pixels: each view's estimated board pose is the true one (to PnP precision),
     # so E_i X C_i is the board's true pose for every view.
@@ -46,6 +69,13 @@ def test_views_are_reachable_and_consistent() -> None:
     for Wi in W:
         dp, dr = pose_error(Wi, v.true_T_base_target)
         assert dp < 1e-9 and dr < 1e-9
+    # The views after the first (as many as leave 3 general ones, at most 3) are pure
+    # translations of it: no rotation between them, 4-7 cm apart.
+    assert v.translations == 2
+    E = v.T_base_ee
+    for Ei in E[1 : 1 + v.translations]:
+        np.testing.assert_allclose(Ei[:3, :3], E[0][:3, :3], atol=1e-9)
+        assert 0.04 <= np.linalg.norm(Ei[:3, 3] - E[0][:3, 3]) <= 0.07
     with pytest.raises(InvalidInput):
         hand_eye_views(np.random.default_rng(0), views=2)
 
@@ -54,7 +84,8 @@ def test_projected_scenario_meets_spec_with_refinement() -> None:
     r = hand_eye(seed=1, rendered=False)
     d = r.to_dict()
     assert d["scenario"] == "hand-eye" and d["source"] == "projected" and d["views"] == 15
-    assert {m["method"] for m in d["methods"]} == {"tsai", "park", "daniilidis", "two-group"}
+    assert {m["method"] for m in d["methods"]} == set(METHODS)
+    assert d["intrinsics_from"].startswith("Zhang calibration") and d["focal_error_pct"] < 0.2
     # 0.5 px per axis measured against the truth (525 noise samples: +-7 % at 2 sigma).
     assert d["measured_sigma_px"] == pytest.approx(0.5, rel=0.1)
     # Spec 05: <= 0.1 deg and <= 1 mm (bench/bench_hand_eye.py: median 0.04 deg, 0.16 mm over
@@ -68,14 +99,22 @@ def test_rendered_views_detect_the_board() -> None:
     # supersample=1 keeps the test quick; the scenario renders with the default 2.
     renderer = Renderer(default_scene(), supersample=1)
     v = hand_eye_views(
-        np.random.default_rng(2), views=3, sigma_px=0.0, rendered=True, renderer=renderer
+        np.random.default_rng(2),
+        views=3,
+        sigma_px=0.0,
+        rendered=True,
+        renderer=renderer,
+        intrinsics=_intrinsics(),
+        translations=0,
     )
     assert v.source == "rendered"
     # Corners detected in the rendered images (sensor noise, blur, lens distortion) against
     # the true projections: measured ~0.03 px per axis; 0.2 px bounds a detector gone wrong.
     C_true = invert_pose(v.T_base_ee @ v.true_X) @ v.true_T_base_target
     for uv, c in zip(v.image_points, C_true, strict=True):
-        truth = project_points(v.object_points, matrix_to_rotvec(c[:3, :3]), c[:3, 3], v.K, v.dist)
+        truth = project_points(
+            v.object_points, matrix_to_rotvec(c[:3, :3]), c[:3, 3], EYE_K, EYE_DIST
+        )
         assert np.sqrt(np.mean((uv - truth.points) ** 2)) < 0.2
     r = calibrate_hand_eye(
         v.T_base_ee,
@@ -99,6 +138,10 @@ def test_grasp_scenario_keys_and_accuracy() -> None:
         assert key in d
     assert d["episodes"] == 4 and len(d["per_episode"]) == 4
     assert d["source"] == "rendered" and d["frames"] == sum(e.frames for e in r.per_episode)
+    # Its inputs said as they are: the eye-in-hand camera's own calibration, and the marked box
+    # it grasps (a printed chessboard, not spec 04's object mark).
+    assert d["intrinsics_from"].startswith("Zhang calibration") and d["focal_error_pct"] < 0.2
+    assert "chessboard" in d["target"] and "not spec 04's object mark" in d["target"]
     # Spec 05: >= 95 % over 100 episodes (`intspace sim run grasp` measures it); on 4 episodes
     # at least 3 must succeed, each within 5 mm and 2 degrees by definition of success.
     assert r.success_rate >= 0.75
@@ -179,21 +222,31 @@ def test_grasp_episode_reports_its_phases_as_it_enters_them() -> None:
     X = mm.T_ee_camera  # the hand-eye estimate given to the controller (exact here)
     # A fetch that succeeds goes through every phase, in order.
     seen: list[str] = []
-    e = grasp_episode(np.random.default_rng(5), mm, X, on_phase=seen.append)
+    e = grasp_episode(
+        np.random.default_rng(5), mm, X, intrinsics=_intrinsics(), on_phase=seen.append
+    )
     assert e.success and seen == list(GRASP_PHASES) and e.phase == "lift and carry"
     # A hand-eye estimate 3 cm off (same episode): the robot goes through every phase, and the
     # scoring finds the grasp about 3 cm off, over the 5 mm tolerance: failed in the grasp.
     shifted = X.copy()
     shifted[:3, 3] += [0.03, 0.0, 0.0]
     seen = []
-    e = grasp_episode(np.random.default_rng(5), mm, shifted, on_phase=seen.append)
+    e = grasp_episode(
+        np.random.default_rng(5), mm, shifted, intrinsics=_intrinsics(), on_phase=seen.append
+    )
     assert not e.success and e.position_error_mm > 20.0
     assert seen == list(GRASP_PHASES) and e.phase == "grasp"
     assert e.reason.startswith("final pose error")
     # A camera believed turned 60 degrees: the first look cannot be reached or never sees the
     # mark, so the fetch fails in the approach and enters no later phase.
     seen = []
-    e = grasp_episode(np.random.default_rng(5), mm, _turned(X, 60.0), on_phase=seen.append)
+    e = grasp_episode(
+        np.random.default_rng(5),
+        mm,
+        _turned(X, 60.0),
+        intrinsics=_intrinsics(),
+        on_phase=seen.append,
+    )
     assert not e.success and seen == ["approach"] and e.phase == "approach"
 
 
@@ -214,6 +267,7 @@ def test_grasp_episode_fetches_the_box_where_the_prior_says() -> None:
             np.random.default_rng(seed),
             mm,
             X,
+            intrinsics=_intrinsics(),
             T_world_prior=prior,
             on_joints=_recorder(events, "joints"),
             on_gripper=_recorder(events, "gripper"),

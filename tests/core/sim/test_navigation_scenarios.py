@@ -99,9 +99,15 @@ def test_path_following_runs_every_law_on_the_same_path() -> None:
     json.dumps(d)
     # Every floor-camera frame was rendered and the spot detected in it; the camera's floor
     # plane came from a rendered view of the floor chessboard (0.5 mm thick: its distance is
-    # that much short).
+    # that much short) on the camera's calibrated intrinsics, whose principal point (~0.3 px
+    # off at f = 500 px) tilts the plane by a few hundredths of a degree (0.052 deg on seed
+    # 101): 0.15 deg is three times that.
     assert d["source"] == "rendered"
-    assert d["floor_normal_error_deg"] < 0.05 and d["floor_distance_error_m"] < 1e-3
+    assert d["floor_normal_error_deg"] < 0.15 and d["floor_distance_error_m"] < 1e-3
+    # The floor camera's own intrinsics (Zhang on rendered chessboard views), not its true
+    # lens: its focal length within 0.2 % (measured 0.06 %).
+    assert d["floor_camera_intrinsics_from"].startswith("Zhang calibration")
+    assert 0.0 < d["floor_camera_focal_error_pct"] < 0.2
     assert set(d["laws"]) == {"state_feedback", "adaptive", "proportional"}
     for law in d["laws"].values():
         assert {"rms_m", "max_m", "steady_m"} <= law.keys()

@@ -176,6 +176,8 @@ def test_second_pass_revisits_the_cameras_that_saw_little() -> None:
 
 def test_localization_ml_reaches_the_bound() -> None:
     r = localization(seed=0)
+    # The estimators alone, on the twin's true cameras, and the record says so.
+    assert r.to_dict()["cameras_from"] == "truth"
     assert r.samples >= 1000
     assert r.sigma_px == 0.5
     # ML is efficient: its Monte Carlo RMSE within 5 % of the bound over >= 1000 points
@@ -285,7 +287,7 @@ def test_board_detection_against_the_rendered_corners() -> None:
 
 def test_localization_images_reports_the_detector_noise_and_reaches_the_bound() -> None:
     r = localization_images(seed=1)
-    assert r.scenario == "localization-images"
+    assert r.scenario == "localization-images" and r.cameras_from == "truth"
     assert r.samples >= 100
     assert set(r.rmse_m) == {"mono", "linear", "constrained", "ml"}
     assert r.measured_sigma_px is not None

@@ -35,7 +35,8 @@ def test_tracking_async_meets_spec_08(seed):
     assert r.idf1 >= 0.95 and r.mota >= 0.95, r
     # At most one switch per walker per ten minutes.
     assert r.id_switches <= max(1, int(r.targets * minutes / 10.0)), r
-    assert r.max_live_targets <= r.targets + 1, r
+    # Spec 08: never more live targets than bodies (measured: 3 live at most for 3 walkers).
+    assert r.max_live_targets <= r.targets, r
     # The tracker knows the cameras only as their network calibration placed them. In that
     # calibrated frame the walkers are within spec 08's 5 cm; against the twin the frame's own
     # rigid error (the calibration's gauge: its heading is tied to the robot's first straight
