@@ -254,7 +254,7 @@ function handEyePanel(arms, stops, onApplied) {
   const method = h(
     "select",
     { id: "hand-eye-method", testid: "hand-eye-method" },
-    ["park", "tsai", "daniilidis", "two-group"].map((m) => h("option", { value: m }, m)),
+    ["park", "tsai", "daniilidis", "andreff", "two-group"].map((m) => h("option", { value: m }, m)),
   );
   const views = h("input", {
     id: "hand-eye-views",
