@@ -26,15 +26,6 @@ from server.settings import Settings
 REPO = Path(__file__).resolve().parents[1]
 DOCS = REPO / "docs"
 PAGES = [REPO / "README.md", *sorted(DOCS.glob("*.md"))]
-# Pages the README links that other parts of the product write (real cameras, placement from
-# floor points, home automation, the background detector); absent from a checkout without them.
-WRITTEN_ELSEWHERE = {
-    "docs/real-cameras.md",
-    "docs/placement-and-boxes.md",
-    "docs/home-automation.md",
-    "docs/background-detector.md",
-}
-
 _LINK = re.compile(r"!?\[[^\]]*\]\(([^)\s]+)\)")
 _FENCE = re.compile(r"^```(\w*)\n(.*?)^```", re.M | re.S)
 _HEADING = re.compile(r"^(#{1,6}) +(.+?) *$", re.M)
@@ -180,8 +171,6 @@ def test_every_relative_link_reaches_a_file_and_its_heading():
             path, _, anchor = target.partition("#")
             where = (page.parent / path).resolve() if path else page
             relative = where.relative_to(REPO).as_posix() if where.is_relative_to(REPO) else None
-            if relative in WRITTEN_ELSEWHERE and not where.exists():
-                continue
             assert where.exists(), f"{page.name} links {target}, which does not exist"
             if anchor:
                 anchors = {_slug(m[2]) for m in _HEADING.finditer(_prose(where.read_text()))}
@@ -191,7 +180,7 @@ def test_every_relative_link_reaches_a_file_and_its_heading():
 def test_the_readme_links_every_page_of_the_docs():
     readme = (REPO / "README.md").read_text(encoding="utf-8")
     linked = {t.partition("#")[0] for t in _LINK.findall(readme)}
-    pages = {f"docs/{p.name}" for p in DOCS.glob("*.md")} | WRITTEN_ELSEWHERE
+    pages = {f"docs/{p.name}" for p in DOCS.glob("*.md")}
     assert not pages - linked, f"pages the README does not link: {sorted(pages - linked)}"
 
 
