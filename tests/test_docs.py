@@ -170,7 +170,6 @@ def test_every_relative_link_reaches_a_file_and_its_heading():
                 continue  # http(s), mailto: not ours to check offline
             path, _, anchor = target.partition("#")
             where = (page.parent / path).resolve() if path else page
-            relative = where.relative_to(REPO).as_posix() if where.is_relative_to(REPO) else None
             assert where.exists(), f"{page.name} links {target}, which does not exist"
             if anchor:
                 anchors = {_slug(m[2]) for m in _HEADING.finditer(_prose(where.read_text()))}
