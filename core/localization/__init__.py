@@ -15,7 +15,9 @@ arrive.
 from core.localization.bounds import CramerRaoBound, cramer_rao_bound
 from core.localization.boxes import (
     BOX_SIDES,
+    DEFAULT_BOX_FIT,
     DEFAULT_BOX_NOISE,
+    BoxFit,
     BoxNoise,
     FootMeasurement,
     box_foot,
@@ -53,11 +55,13 @@ from core.localization.tracking import (
 
 __all__ = [
     "BOX_SIDES",
+    "DEFAULT_BOX_FIT",
     "DEFAULT_BOX_NOISE",
     "BackgroundPeople",
     "BodyDetection",
     "BodyModel",
     "Box",
+    "BoxFit",
     "BoxNoise",
     "CoverageMap",
     "CramerRaoBound",

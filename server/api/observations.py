@@ -106,7 +106,7 @@ def post_observations(
         left = {(o.camera_id, o.t) for o in obs}
         emptied = {(o.camera_id, o.t) for o in ignored} - left
         empty = [*empty, *(EmptyFrame(camera_id=c, t=t) for c, t in sorted(emptied))]
-    m = _measure(obs, rows, cameras)
+    m = _measure(obs, rows, cameras, space_of, tracking)
     if live is not None:
         _check_labels(obs, space_of, live)
     labelled = [i for i, o in enumerate(obs) if o.target is not None and m.keep[i] and m.tracked[i]]
@@ -261,12 +261,16 @@ class _Measured:
 
 
 def _measure(
-    obs: list[Observation], rows: dict[int, _CameraRow], cameras: dict[int, NetworkCamera]
+    obs: list[Observation],
+    rows: dict[int, _CameraRow],
+    cameras: dict[int, NetworkCamera],
+    space_of: dict[int, int | None],
+    tracking: TrackingService | None,
 ) -> _Measured:
     """Return the measured pixels of the observations: their pixels, or their boxes' feet
-    (core.localization.box_foot) moved to the body's axis by the camera's geometry
-    (core.localization.foot_on_axis). Raises FieldProblem 422 naming a box outside its
-    camera's image (by more than _BOX_MARGIN of the image's size)."""
+    (core.localization.box_foot) moved to the body's axis by the camera's geometry and the
+    camera's space's floor plan (core.localization.foot_on_axis). Raises FieldProblem 422
+    naming a box outside its camera's image (by more than _BOX_MARGIN of the image's size)."""
     n = len(obs)
     pixel = np.zeros((n, 2))
     cov = np.zeros((n, 2, 2))
@@ -292,14 +296,18 @@ def _measure(
             f"box {boxes[k].tolist()} is outside camera {obs[boxed[k]].camera_id}'s "
             f"{w}x{h} image; a box is in the camera's distorted pixels",
         )
-    foot = box_foot(boxes, cut_mask(obs[i].cut or () for i in boxed))
+    cut = cut_mask(obs[i].cut or () for i in boxed)
+    foot = box_foot(boxes, cut)
     on = np.array([obs[i].camera_id for i in boxed])
     for cid in np.unique(on).tolist():
         mine = np.flatnonzero(on == cid)
+        plan = None if tracking is None else tracking.floor_plan(space_of.get(cid))
         axis = foot_on_axis(
             boxes[mine],
             FootMeasurement(foot.pixel[mine], foot.cov[mine], foot.measured[mine]),
             cameras[cid],
+            cut=cut[mine],
+            occluders=plan,
         )
         at = [boxed[k] for k in mine]
         pixel[at], cov[at], tracked[at] = axis.pixel, axis.cov, axis.measured

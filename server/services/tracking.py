@@ -687,6 +687,11 @@ class TrackingService:
             if space is not None:
                 space.tracker.occluders = occluders
 
+    def floor_plan(self, space_id: int | None) -> Occluders | None:
+        """Return a space's walls and furniture as given by `set_floor_plan`, None before."""
+        with self._lock:
+            return self._occluders.get(space_id)
+
     def hold(self, space_id: int | None) -> None:
         """Hold a space's tracks still: its world is paused (the twin), so no frame comes and
         its tracks must neither coast nor end until `release`."""

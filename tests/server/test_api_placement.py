@@ -158,7 +158,9 @@ def _placed_camera(client, admin, **extra) -> int:
 def test_boxes_are_stored_with_score_and_cut_and_refused_when_bad(client, admin, database_url):
     cid = _placed_camera(client, admin, score_threshold=0.4)
     now = time.time()
-    box = {"camera_id": cid, "t": now, "box": [300.0, 150.0, 340.0, 260.0], "score": 0.9}
+    # A standing person about 2.6 m from the camera, as a detector boxes them: 0.4 m wide, feet
+    # at (320, 260), the head above the image (this camera looks down), so the box stops at 0.
+    box = {"camera_id": cid, "t": now, "box": [275.0, 0.0, 365.0, 260.0], "score": 0.9}
     batch = [
         box,
         {**box, "score": 0.3},  # under the camera's 0.4: dropped
@@ -179,11 +181,11 @@ def test_boxes_are_stored_with_score_and_cut_and_refused_when_bad(client, admin,
     u, v, cxx, cyy, kind, stored_box, score, _ = rows[0]
     assert (kind, score) == ("person", 0.9)
     # The foot the service measured: the one core function's (box_foot, then moved to the
-    # body's axis with the camera's geometry), stored as the detection's pixel.
+    # body's axis with the camera's geometry, the cut sides' edges unused), stored as the
+    # detection's pixel.
+    cut = cut_mask([[], ["left", "top"]])
     expected = foot_on_axis(
-        [box["box"]] * 2,
-        box_foot([box["box"]] * 2, cut_mask([[], ["left", "top"]])),
-        _true_camera(),
+        [box["box"]] * 2, box_foot([box["box"]] * 2, cut), _true_camera(), cut=cut
     )
     np.testing.assert_allclose([u, v, cxx, cyy], [*expected.pixel[0], *np.diag(expected.cov[0])])
     # The box's bottom centre (320, 260) moved up the image: the axis is behind the near edge.

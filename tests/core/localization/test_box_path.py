@@ -12,6 +12,7 @@ from core.calibration import place_camera
 from core.localization import DEFAULT_BOX_NOISE, box_foot, foot_on_axis
 from core.localization.detections import FrameDetection
 from core.sim import tracking_scenarios as ts
+from core.sim.occluders import scene_occluders
 
 SEED = 17  # test_tracking_async_api.py's: the network calibration is cached per process
 MINUTES = 0.15
@@ -23,7 +24,10 @@ def test_boxes_of_the_twins_walkers_track_like_the_pixel_path():
     frames, drive = ts.rendered_frames(scene, SEED, calibrated, minutes=MINUTES)
     pixel_path = ts.track_rendered(scene, SEED, frames, drive, calibrated, minutes=MINUTES)
     # The same people as a box detector would give them: each person blob's box only (4
-    # numbers, no silhouette), through the one box function and the camera's geometry.
+    # numbers, no silhouette), through the one box function and the camera's geometry, with
+    # the home's floor plan (its furniture and walls, which the service knows; the tracker
+    # is given the same).
+    plan = scene_occluders(scene)
     boxed = []
     for f in frames:
         found = []
@@ -33,7 +37,7 @@ def test_boxes_of_the_twins_walkers_track_like_the_pixel_path():
                 continue
             x, y, w, h = d.bbox
             box = [x, y, x + w, y + h]
-            foot = foot_on_axis(box, box_foot(box), calibrated.cameras[f.camera])
+            foot = foot_on_axis(box, box_foot(box), calibrated.cameras[f.camera], occluders=plan)
             if foot.measured[0]:
                 found.append(FrameDetection("person", foot.pixel[0], foot.cov[0], 0.0, d.bbox))
         boxed.append(dataclasses.replace(f, found=tuple(found)))
@@ -45,13 +49,13 @@ def test_boxes_of_the_twins_walkers_track_like_the_pixel_path():
     # The same identities (issue 27's bar).
     assert box_path.idf1 >= pixel_path.idf1 - 0.02
     assert box_path.mota >= pixel_path.mota - 0.03
-    # Positions: a box keeps 4 numbers of the silhouette the pixel path fits whole, and a
-    # walker's feet hidden by furniture move the box's bottom (its sender cannot know): the
-    # box path is 3-4x the pixel path's RMSE (seed 17, these 9 s: 0.101 m against 0.026 m;
-    # seed 5: 0.097 against 0.032), not within the 1.2x sought. The bound is ~20 % above the
-    # worst measured, so a regression of the box geometry (0.27 m without the axis
-    # correction) fails.
-    assert box_path.person_rmse_m <= max(4.5 * pixel_path.person_rmse_m, 0.12)
+    # Positions within 1.2x of the pixel path (issue 27's bar). A cylinder fitted to the box's
+    # four edges, with ends hidden by the floor plan's furniture or inconsistent with one body
+    # dropped (core.localization.foot_on_axis), measured 0.031 m against 0.028 m here (1.09x;
+    # the bottom centre gave 0.102 m, 3.6x), 1.16x on seed 5 (seen while the consistency
+    # test's level was chosen) and 0.94x on seed 23 (run once, on the final code). The bound
+    # leaves ~10 % over this seed's ratio, above every seed measured.
+    assert box_path.person_rmse_m <= 1.2 * pixel_path.person_rmse_m
 
 
 def _pets(shared_data_dir):
