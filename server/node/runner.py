@@ -235,13 +235,14 @@ class Node:
                 row["id"],
                 row["id"],
             )
-        log.info("camera %s: people by the %s detector", cam.name, kind)
         return CameraRun(cam, int(row["id"]), size, network, source, mask, people, kind)
 
     def run(self) -> int:
         """Run until `stop_event` is set or every source ended; return the exit code (0, or 1
         when a fast replay fell behind its clip)."""
         self._announce_replays()
+        for run in self.cameras:
+            log.info("camera %s: people by the %s detector", run.config.name, run.detector)
         self.uploader.start()
         for run in self.cameras:
             run.source.start()

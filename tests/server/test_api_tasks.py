@@ -17,6 +17,7 @@ from core.sim import Renderer
 from core.sim.manipulation_scenarios import (
     GRIPPER_OPEN,
     GraspEpisode,
+    eye_camera_intrinsics,
     grasp,
     grasp_episode,
     hand_eye_views,
@@ -369,8 +370,15 @@ def test_fetch_an_object_of_the_semantic_map(twin_client, admin):
     rng = np.random.default_rng(3)
     mm = default_manipulator()
     renderer = Renderer(default_scene(), supersample=1)
+    intrinsics = eye_camera_intrinsics(rng)  # the camera's own calibration, as the task's
     v = hand_eye_views(
-        rng, views=15, sigma_px=0.5, manipulator=mm, rendered=True, renderer=renderer
+        rng,
+        views=15,
+        sigma_px=0.5,
+        manipulator=mm,
+        rendered=True,
+        renderer=renderer,
+        intrinsics=intrinsics,
     )
     X = calibrate_hand_eye(
         v.T_base_ee,
@@ -381,13 +389,14 @@ def test_fetch_an_object_of_the_semantic_map(twin_client, admin):
         dist=v.dist,
     ).X
     prior = np.asarray(held[41]["T_world_mark"])
-    taught = taught_image(mm.T_ee_camera, renderer=renderer, rng=rng, sigma_px=0.5)
+    taught = taught_image(mm.T_ee_camera, intrinsics, renderer=renderer, rng=rng, sigma_px=0.5)
     reported: list[tuple[str, np.ndarray]] = []  # the episode's joints and box, in order
     for mine in task["result"]["per_episode"]:
         theirs = grasp_episode(
             rng,
             mm,
             X,
+            intrinsics=intrinsics,
             sigma_px=0.5,
             T_world_prior=prior,
             renderer=renderer,

@@ -146,7 +146,8 @@ def _node(repo_root: Path, *args: str) -> subprocess.Popen:
     env = node_env()
     env["INTSPACE_TOKEN"] = TOKEN
     return subprocess.Popen(
-        [sys.executable, "-m", "server.cli", "node", *args],
+        # The twin's people are coloured cylinders: the background model, not the neural one.
+        [sys.executable, "-m", "server.cli", "node", *args, "--detector", "background"],
         cwd=repo_root,
         env=env,
         stdout=subprocess.DEVNULL,
@@ -180,6 +181,10 @@ def test_a_recorded_stream_replayed_posts_the_same_detections(repo_root, tmp_pat
     try:
         created = httpx.post(f"{api}/cameras", json=row, headers=HEADERS, timeout=10)
         assert created.status_code == 201, created.text
+        # The robot the frames show is registered (like the camera, in no space): without one,
+        # its space makes no robot target.
+        robot = httpx.post(f"{api}/robots", json={"name": "robot"}, headers=HEADERS, timeout=10)
+        assert robot.status_code == 201, robot.text
         common = ["--camera", CAMERA, "--api", api, "--background-frames", "5"]
         # Read with the node's MJPEG reader (the stream's own JPEG bytes are recorded); a
         # stream read by OpenCV is recorded re-encoded, and replays only approximately. The

@@ -133,6 +133,8 @@ def test_node_reads_an_rtsp_camera_tracks_its_robot_and_reconnects(rtsp_ready, r
     http = httpx.Client(base_url=api, headers=HEADERS, timeout=10)
     try:
         space = http.post("/spaces", json={"name": "flat"}).json()["id"]
+        # The robot the camera sees is registered: a space without one makes no robot target.
+        http.post("/robots", json={"name": "robot", "space_id": space}).raise_for_status()
         # The camera as its installation calibrated it (not the twin's true camera).
         cal = {c.name: c for c in installed_calibration(default_scene()).cameras}[CAMERA]
         created = http.post(
@@ -156,6 +158,8 @@ def test_node_reads_an_rtsp_camera_tracks_its_robot_and_reconnects(rtsp_ready, r
                 *(sys.executable, "-m", "server.cli", "node", "--source", camera.url),
                 *("--camera", CAMERA, "--space", str(space), "--api", api),
                 *("--summary", "2"),
+                # The twin's people are coloured cylinders, no people to the neural detector.
+                *("--detector", "background"),
             ],
             cwd=repo_root,
             env=env,
