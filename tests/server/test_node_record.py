@@ -146,8 +146,7 @@ def _node(repo_root: Path, *args: str) -> subprocess.Popen:
     env = node_env()
     env["INTSPACE_TOKEN"] = TOKEN
     return subprocess.Popen(
-        # The twin's people are coloured cylinders: the background model, not the neural one.
-        [sys.executable, "-m", "server.cli", "node", *args, "--detector", "background"],
+        [sys.executable, "-m", "server.cli", "node", *args],
         cwd=repo_root,
         env=env,
         stdout=subprocess.DEVNULL,

@@ -178,7 +178,7 @@ def test_node_reads_an_rtsp_camera_tracks_its_robot_and_reconnects(rtsp_ready, r
             target = _wait(robot, 40, "a robot target from the RTSP camera's frames")
         except AssertionError as exc:
             raise AssertionError(f"{exc}\nnode:\n{node_log.read_text()}") from None
-        _wait(lambda: health()["fps"] > 0, 5, "a heartbeat counting the camera's frames")
+        _wait(lambda: (health()["fps"] or 0) > 0, 5, "a heartbeat counting the camera's frames")
         error = float(np.hypot(target["xy"][0] - ROBOT.x, target["xy"][1] - ROBOT.y))
         print(f"robot at {target['xy']}, {100 * error:.2f} cm from where it stands")
         # 5 cm: spec 08's RMSE for points at a known height (the marker's). One camera with its
