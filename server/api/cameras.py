@@ -57,7 +57,8 @@ def list_cameras(
     space_id: Annotated[int | None, Query(ge=1, le=MAX_ID)] = None,
     unassigned: Unassigned = False,
     status: Annotated[Literal["uncalibrated", "nominal", "calibrated"] | None, Query()] = None,
-    name: Annotated[str | None, Query(min_length=1, max_length=200)] = None,
+    # PostgreSQL text cannot hold NUL: such a name is refused (422), never a server error.
+    name: Annotated[str | None, Query(min_length=1, max_length=200, pattern="^[^\x00]*$")] = None,
 ):
     """Return a page of cameras with their health, optionally of one space (and those of no
     space), one status or one name."""

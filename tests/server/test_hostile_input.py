@@ -687,3 +687,10 @@ def test_an_upload_declaring_too_many_pixels_is_refused_by_the_service(case, hom
     assert "20000x20000" in json.dumps(problem) and "pixels" in json.dumps(problem)
     assert growth < RSS_BOUND_MB
     case.next_request_answered()
+
+
+@pytest.mark.parametrize("database_url", ["sqlite", "postgresql"], indirect=True)
+def test_a_camera_name_with_nul_is_refused_not_a_server_error(client, admin):
+    # PostgreSQL text cannot hold NUL: the filter refuses it on every backend alike.
+    got = client.get("/api/v1/cameras", params={"name": "a\x00b"}, headers=admin)
+    assert got.status_code == 422, got.text
