@@ -145,8 +145,10 @@ def test_people_in_real_footage_are_found_against_the_ground_truth(detector):
     print(f"precision {score.precision:.3f} recall {score.recall:.3f} ({score})")
     assert score.precision >= 0.80
     assert score.recall >= 0.68
-    # The background model learnt on the node's 30 first frames finds far fewer (3 % recall
-    # through the tracker before this detector): the neural one is what real cameras need.
+    # The background model learnt on the node's 30 first frames (and learning on, shadows
+    # dropped) finds fewer and many wrong: over frames 31-400 it scores precision 0.62 and
+    # recall 0.64, against this detector's 0.91 and 0.81; here it gave 0.56 and 0.58. The
+    # neural one is what real cameras need.
     model = PersonDetector()
     for image in bench_pets.read_frames(bench_pets.video_path(), 30):
         model.learn(image)
@@ -155,7 +157,8 @@ def test_people_in_real_footage_are_found_against_the_ground_truth(detector):
         for f, n in zip(frames, numbers, strict=True)
     }
     background = bench_pets.score_boxes(truth, blobs)
-    assert background.recall < score.recall - 0.3, background
+    assert background.recall < score.recall - 0.1, background
+    assert background.precision < score.precision - 0.2, background
 
 
 def test_a_box_whose_feet_are_masked_gives_no_floor_position(detector):
