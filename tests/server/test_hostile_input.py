@@ -577,6 +577,7 @@ def test_a_new_twin_rate_takes_effect_at_once():
     twin._stop, twin._wake, twin._paused = threading.Event(), threading.Event(), threading.Event()
     twin._thread, twin._last_step = None, time.monotonic()
     twin.rate_hz = 0.5
+    twin.dropped, twin._health = 0, None  # no health book: nothing reported
     frames: list[float] = []
     twin.step = frames.append  # type: ignore[method-assign]
     twin.start()
