@@ -127,19 +127,8 @@ def test_manipulation_page_calibrates_and_fetches(start_service, browser_page: P
         # projector.
         scene = default_scene()
         space = next(x for x in service.api("GET", "/spaces")["items"] if x["name"] == scene.name)
-        pose = scene.projector.pose
-        projector = service.api(
-            "POST",
-            "/projectors",
-            {
-                "name": "ceiling_projector",
-                "space_id": space["id"],
-                "width": 1,
-                "height": 1,
-                "position": list(pose.position),
-                "quaternion_xyzw": list(pose.quaternion_xyzw),
-            },
-        )
+        # The twin registered its projector with its home, uncalibrated.
+        (projector,) = service.api("GET", f"/projectors?space_id={space['id']}")["items"]
         body = {"kind": "projector", "projector_id": projector["id"], "seed": 2, "images": False}
         run = service.api("POST", "/calibration-runs", body)
         page.goto(f"{service.base_url}/#/calibration/runs/{run['id']}")
