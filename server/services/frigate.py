@@ -3,18 +3,27 @@ the detections of intspace cameras, fed to the space's tracker through the same 
 `POST /observations` (TrackingService.ingest).
 
 Frigate reports changes, not frames. It publishes an object's `new` once its own tracker has
-confirmed it (no longer a false positive), an `update` on a better snapshot, a zone change, a
-change between active and stationary, or at least once a minute, and an `end` when the object
-is gone; for a person standing still it says nothing for up to a minute. The asynchronous EKF
+confirmed it (no longer a false positive), an `update` when its path grows (0.16 and later), on
+a zone change, a change between active and stationary, a better snapshot (at most every 5 s),
+or at least once a minute, and an `end` when the object is gone; for a person standing still it
+says nothing for up to a minute. The asynchronous EKF
 (core.localization.tracking), the only tracker, confirms a track from several detections
 within a second and lets a track coast and end within seconds without one. So, while Frigate
 keeps an object (from its `new` to its `end`, or `timeout_s` without news), the box it last
 reported is Frigate's standing claim: this source feeds, as one frame of the camera, every box
 Frigate holds for that camera (a frame without one of them would tell the tracker that the
 camera missed that person) at `hold_hz`, and at `burst_hz` for `burst_s` after any report, so
-that the tracker's confirmation sees what Frigate confirmed. How far a held box is from the
-person grows with its age for an object Frigate last called active, and stays small for one it
-called stationary (see V_WALK_M_S below): a stale box never holds a track where nobody is.
+that the tracker's confirmation sees what Frigate confirmed. What a held box says grows vaguer
+with its age, by what Frigate's silence means:
+
+* Frigate 0.16 and later publish an object's path (`path_data`) and an update whenever its
+  bottom centre moves PATH_STEP of the frame's diagonal from the path's last point: silence
+  says the foot is still within that ellipse (in pixels, whatever the age);
+* otherwise, the person may have walked V_WALK_M_S since the report (after HOLD_GRACE_S), and
+  an object Frigate called stationary at most HOLD_STILL_CAP_M; an active one past STALE_M is
+  no longer fed.
+
+The smaller bound is used. A stale box never holds a track where nobody is.
 
 Each frame is stamped `lag` seconds in the past at most (the tracker's reorder latency, less a
 fifth), never before what the camera already gave the tracker nor before what the tracker
@@ -24,9 +33,12 @@ tracker was given). Frigate's object ids are kept here for display only and neve
 target's label.
 
 Each box (x0, y0, x1, y1, Frigate's detect pixels) is scaled to the intspace camera's image
-size, and measured by core.localization.boxes.box_foot (the foot point and its covariance),
-with the sides touching the detect frame's edge marked as cut. Camera names are looked up
-when events arrive (a camera registered later is picked up within `_CAMERAS_TTL_S`).
+size and measured as the observations API measures a box: core.localization.boxes.box_foot,
+then foot_on_axis with the space's floor plan (the foot of the body's axis, from all four
+edges, with its covariance), with the sides touching the detect frame's edge marked as cut; a
+box that gives no floor position (a cut bottom, no standing body's) is not fed. Camera names
+are looked up when events arrive (a camera registered later is picked up within
+`_CAMERAS_TTL_S`).
 
 Health: `frigate/stats` gives each camera's frame rate; the camera's health book gets a
 heartbeat from it every second while the last stats are fresher than three of their periods.
@@ -49,7 +61,7 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from core.errors import IntspaceError
 from core.localization import NetworkCamera
-from core.localization.boxes import BOX_SIDES, box_foot
+from core.localization.boxes import BOX_SIDES, FootMeasurement, box_foot, foot_on_axis
 from core.localization.floor_spread import floor_spread_cov
 from server.db.models import Camera
 from server.services.mqtt import Message
@@ -64,39 +76,46 @@ _TICK_S = 0.05
 _INBOX = 10_000
 # Frigate's stats period when only one stats message was seen (its default, s).
 _STATS_PERIOD_S = 60.0
-# A re-fed box's foot is uncertain by the distance the person may have walked since Frigate's
-# last report, at V_WALK_M_S after the first HOLD_GRACE_S; the spread is isotropic on the floor
-# (core.localization.floor_spread). Frigate reports a stationary object as soon as it moves
-# out of its box, so the box of an object last reported stationary stands for as long as
-# Frigate keeps it: its spread stops at HOLD_STILL_CAP_M. The box of an object last reported
-# active (moving) says less and less: its spread grows without bound, so after a second or so
-# the tracker leaves it out (located_std, 0.5 m) and the track coasts until Frigate's next
-# report (past STALE_M it is not fed at all). A stale box never holds a second track where the
-# person was; a person who stops is held by the tracker's coasting until Frigate calls them
-# stationary, after Frigate's `detect.stationary.threshold` frames (docs/home-automation.md
-# advises about 2 s).
+# Without a published path, a re-fed box's foot is uncertain by the distance the person may
+# have walked since Frigate's last report, at V_WALK_M_S after the first HOLD_GRACE_S; the
+# spread is isotropic on the floor (core.localization.floor_spread). Frigate reports a
+# stationary object as soon as it moves out of its box, so the box of an object last reported
+# stationary stands for as long as Frigate keeps it: its spread stops at HOLD_STILL_CAP_M. The
+# box of an object last reported active (moving) says less and less: its spread grows without
+# bound, so after a second or so the tracker leaves it out (located_std, 0.5 m) and the track
+# coasts until Frigate's next report (past STALE_M it is not fed at all). A stale box never
+# holds a second track where the person was; a person who stops is held by the tracker's
+# coasting until Frigate calls them stationary, after Frigate's `detect.stationary.threshold`
+# frames (docs/home-automation.md advises about 2 s).
 V_WALK_M_S = 1.0
 HOLD_GRACE_S = 0.5
 HOLD_STILL_CAP_M = 0.15
 STALE_M = 1.0
+# Frigate (0.16 and later) adds a point to an object's path, and publishes an update, when its
+# bottom centre moves this fraction of the detect frame's diagonal (frigate/track/
+# tracked_object.py: 0.05 * sqrt(w^2 + h^2) / max(w, h) in coordinates normalised by w and h).
+PATH_STEP = 0.05
 # The cut mask this source builds, column by column (core's order).
 assert BOX_SIDES == ("bottom", "top", "left", "right")
 
 
 @dataclass
 class _Held:
-    """An object Frigate keeps: its intspace camera, the box in that camera's pixels, whether
-    its sides are cut, when Frigate last said anything of it (service clock), the time of its
-    last fed detection and of its `new`."""
+    """An object Frigate keeps: its intspace camera, its last box measured (the foot on the
+    body's axis, in that camera's pixels, with its covariance; None when the box gives no
+    floor position), when Frigate last said anything of it (service clock), the capture time
+    of its last report, whether Frigate called it stationary, and, when Frigate publishes its
+    path, the half-axes (px) of the ellipse around the path's last point that its foot has not
+    left while Frigate stays silent."""
 
     frigate_id: str
     ref: _CameraRef
-    box: np.ndarray
-    cut: np.ndarray
+    pixel: np.ndarray | None
+    cov: np.ndarray | None
     news: float
-    first_t: float
     report_t: float
     stationary: bool = False
+    path_bound: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -106,6 +125,29 @@ class _CameraRef:
     width: int
     height: int
     camera: NetworkCamera | None  # None until calibrated (the tracker ignores it then too)
+
+
+def _path_bound(
+    path: object, box: np.ndarray, size: np.ndarray, detect: tuple[int, int]
+) -> np.ndarray | None:
+    """Return the half-axes (2,) px of the ellipse around a box's foot that the person's foot
+    stays in while Frigate says nothing, from the `path_data` Frigate publishes (its list of
+    ((x, y) normalised by the detect size, time) points): Frigate adds a point and publishes an
+    update whenever the bottom centre moves PATH_STEP * diagonal / longer side (normalised)
+    from the last point, so the foot is within that of the last point, itself this box's
+    offset from the foot. None when the payload has no path (a Frigate before 0.16)."""
+    if not isinstance(path, list) or not path:
+        return None
+    try:
+        last = np.asarray(path[-1][0], dtype=np.float64).reshape(2)
+    except (TypeError, ValueError, IndexError):
+        return None
+    if not np.all(np.isfinite(last)):
+        return None
+    dw, dh = detect
+    step = PATH_STEP * float(np.hypot(dw, dh)) / max(dw, dh)
+    foot = np.array([0.5 * (box[0] + box[2]), box[3]])
+    return np.asarray((step + np.abs(foot / size - last)) * size, dtype=np.float64)
 
 
 class FrigateSource:
@@ -297,22 +339,51 @@ class FrigateSource:
         cut = np.array(
             [box[3] >= dh - edge, box[1] <= edge, box[0] <= edge, box[2] >= dw - edge], dtype=bool
         )
-        scaled = box * np.array([ref.width / dw, ref.height / dh, ref.width / dw, ref.height / dh])
+        size = np.array([ref.width, ref.height], dtype=np.float64)
+        scaled = box * np.tile(size / np.array([dw, dh], dtype=np.float64), 2)
+        try:
+            pixel, cov = self._measure(ref, scaled, cut)
+        except IntspaceError as exc:
+            self.counts["ignored"] += 1
+            log.debug("Frigate: box refused: %s", exc)
+            return
+        bound = _path_bound(after.get("path_data"), scaled, size, (dw, dh))
         now = self._clock()
         with self._lock:
             held = self._held.get(fid)
             if held is None:
-                held = _Held(fid, ref, scaled, cut, now, frame_time, frame_time)
+                held = _Held(fid, ref, pixel, cov, now, frame_time)
                 self._held[fid] = held
             else:
-                held.ref = ref
-                held.box, held.cut, held.news = scaled, cut, now
+                held.ref, held.pixel, held.cov, held.news = ref, pixel, cov, now
                 held.report_t = max(held.report_t, frame_time)
             held.stationary = bool(after.get("stationary", False))
-        with self._lock:
+            held.path_bound = bound
             view = [h for h in self._held.values() if h.ref.id == ref.id]
         self._feed_view(ref, self._stamp(ref, frame_time), view)
         self.counts["fed"] += 1
+
+    def _measure(
+        self, ref: _CameraRef, box: np.ndarray, cut: np.ndarray
+    ) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """Return the foot on the body's axis of one box (camera pixels) and its covariance, as
+        the observations API measures a box (core.localization.boxes: box_foot, then
+        foot_on_axis with the space's floor plan); (None, None) when it gives no floor
+        position (a cut bottom, a box no standing body makes, a camera not calibrated).
+        Raises InvalidInput for a box that is not one."""
+        foot = box_foot(box[None], cut[None])
+        if ref.camera is None:
+            return None, None
+        axis = foot_on_axis(
+            box[None],
+            FootMeasurement(foot.pixel, foot.cov, foot.measured),
+            ref.camera,
+            cut=cut[None],
+            occluders=self._tracking.floor_plan(ref.space_id),
+        )
+        if not (axis.measured[0] and np.all(np.isfinite(axis.cov[0]))):
+            return None, None
+        return axis.pixel[0], axis.cov[0]
 
     def hold(self) -> None:
         """Re-feed the boxes of the objects Frigate keeps (module docstring); forget those
@@ -337,23 +408,46 @@ class FrigateSource:
             burst = any(stamp - h.report_t < self._burst_s for h in held)
             dt = self._burst_dt if burst else self._hold_dt
             if stamp - self._newest.get(ref.id, -np.inf) >= dt:
-                self._feed_view(ref, stamp, held)
-                self.counts["refed"] += len(held)
+                self.counts["refed"] += self._feed_view(ref, stamp, held)
 
-    def _feed_view(self, ref: _CameraRef, t: float, held: list[_Held]) -> None:
-        """Feed a camera frame at t of every box Frigate holds for that camera: what Frigate
-        sees there (a frame without one of them would tell the tracker the camera missed it),
-        each uncertain by the distance walked since its report."""
-        boxes = []
+    def _feed_view(self, ref: _CameraRef, t: float, held: list[_Held]) -> int:
+        """Feed a camera frame at t of every box Frigate holds for that camera (a frame without
+        one of them would tell the tracker the camera missed it), each uncertain by how far
+        the person may be from it since its report (module docstring); return how many."""
+        pixels, covs = [], []
         for h in held:
-            walked = V_WALK_M_S * max(0.0, t - h.report_t - HOLD_GRACE_S)
-            if h.stationary:
-                walked = min(walked, HOLD_STILL_CAP_M)
-            elif walked > STALE_M:
+            if h.pixel is None or h.cov is None:
+                continue
+            spread = self._spread(ref, h, t)
+            if spread is None:
                 continue  # far vaguer than the tracker takes a detection: not fed
-            boxes.append((h.box, h.cut, walked))
-        if boxes:
-            self._feed(ref, t, boxes)
+            pixels.append(h.pixel)
+            covs.append(h.cov + spread)
+        if pixels:
+            self._feed(ref, t, np.stack(pixels), np.stack(covs))
+        return len(pixels)
+
+    def _spread(self, ref: _CameraRef, h: _Held, t: float) -> np.ndarray | None:
+        """Return the pixel covariance (2, 2) to add to a held box's foot at t: the smaller of
+        the floor distance walked since its report (V_WALK_M_S after HOLD_GRACE_S, at most
+        HOLD_STILL_CAP_M for an object Frigate called stationary) and, when Frigate publishes
+        its path, the ellipse its foot has not left (a uniform ellipse of half-axes a has
+        the standard deviations a / 2); None when only the walk bounds it and it exceeds
+        STALE_M."""
+        walked = V_WALK_M_S * max(0.0, t - h.report_t - HOLD_GRACE_S)
+        if h.stationary:
+            walked = min(walked, HOLD_STILL_CAP_M)
+        path = None if h.path_bound is None else np.diag((0.5 * h.path_bound) ** 2)
+        if walked <= 0.0:
+            return np.zeros((2, 2))
+        if ref.camera is None or h.pixel is None:
+            return None
+        walk = floor_spread_cov(ref.camera, h.pixel[None], np.array([walked]))[0]
+        if path is not None and (not np.all(np.isfinite(walk)) or np.trace(path) < np.trace(walk)):
+            return path
+        if walked > STALE_M or not np.all(np.isfinite(walk)):
+            return None
+        return walk
 
     def _stamp(self, ref: _CameraRef, t: float) -> float:
         """Return the capture time at which a box of Frigate's, reported at (or held until) t,
@@ -366,21 +460,8 @@ class FrigateSource:
             floor = max(floor, released)
         return max(t, floor + 1e-3)
 
-    def _feed(
-        self, ref: _CameraRef, t: float, boxes: list[tuple[np.ndarray, np.ndarray, float]]
-    ) -> None:
-        """Ingest a camera frame of boxes (box, cut sides, floor spread m since the report)."""
-        try:
-            foot = box_foot(np.stack([b for b, _, _ in boxes]), np.stack([c for _, c, _ in boxes]))
-        except IntspaceError as exc:
-            self.counts["ignored"] += 1
-            log.debug("Frigate: box refused: %s", exc)
-            return
-        spread = np.array([e for _, _, e in boxes])
-        cov = foot.cov
-        if ref.camera is not None and np.any(spread > 0):
-            cov = foot.cov + floor_spread_cov(ref.camera, foot.pixel, spread)
-        keep = foot.measured & np.all(np.isfinite(cov), axis=(1, 2))
+    def _feed(self, ref: _CameraRef, t: float, pixels: np.ndarray, covs: np.ndarray) -> None:
+        """Ingest a camera frame of measured feet: pixels (N, 2), covariances (N, 2, 2) px^2."""
         detections = [
             DetectionIn(
                 camera_id=ref.id,
@@ -390,11 +471,8 @@ class FrigateSource:
                 kind="person",
                 height=0.0,  # the foot point is on the floor
             )
-            for p, c, ok in zip(foot.pixel, cov, keep, strict=True)
-            if ok
+            for p, c in zip(pixels, covs, strict=True)
         ]
-        if not detections:
-            return
         with self._lock:
             self._newest[ref.id] = max(self._newest.get(ref.id, -np.inf), t)
         with self._factory() as session:

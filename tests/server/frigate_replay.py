@@ -1,11 +1,20 @@
 """A replay of Frigate's `frigate/events` for walkers seen by ceiling cameras, with Frigate's
-real message pattern (docs.frigate.video, "MQTT": frigate/events): `new` once Frigate's tracker
-has kept an object for a few detect frames, `update` on a better snapshot (a higher score, or
-as good a score with a larger box), a stationary/active change and at least once a minute,
+real message pattern (docs.frigate.video, "MQTT": frigate/events; the rules are those of
+Frigate 0.16's frigate/camera/state.py and frigate/track/tracked_object.py): `new` once
+Frigate's tracker has kept an object for a few detect frames; then an `update` when
+
+* the object's path grows: its bottom centre (normalised by the detect size) has moved
+  0.05 * diagonal / longer side from the path's last point (and once on the frame after `new`),
+* its state changes between active and stationary (more than `detect.stationary.threshold`
+  frames within its box), or its position changes (it moves off the box it stood in),
+* a better snapshot was taken (a higher score, or as good a score with a larger box) and the
+  last update is more than 5 s old,
+* or a minute has passed;
+
 nothing while a person stands still, `end` when the object has been gone for a second (objects
-still seen when the replay stops are kept). Boxes are [x0, y0, x1, y1] in the detect resolution,
-the body's projected bounding box with a detector's jitter. The truth
-(positions) is for scoring only."""
+still seen when the replay stops are kept). Boxes are [x0, y0, x1, y1] in the detect
+resolution, the body's projected bounding box with a detector's jitter. The truth (positions)
+is for scoring only."""
 
 from __future__ import annotations
 
@@ -24,6 +33,10 @@ GONE_FRAMES = 5  # frames unseen before `end`
 # Frames within its box before Frigate calls an object stationary: detect.stationary.threshold,
 # set to 10 (2 s at 5 fps) as docs/home-automation.md advises (Frigate's default is 50).
 STATIONARY_FRAMES = 10
+# Frigate's path step: the fraction of the detect frame's diagonal over its longer side.
+PATH_STEP = 0.05
+# A better snapshot is published at most this often (s) unless something else changed.
+SNAPSHOT_PERIOD_S = 5.0
 BODY_RADIUS, BODY_HEIGHT = 0.25, 1.7
 
 
@@ -63,7 +76,10 @@ class _Object:
     reference: np.ndarray | None = None
     still: int = 0
     stationary: bool = False
+    position_changes: int = 0
     last_sent: float = 0.0
+    last_thumb: float = 0.0
+    path: list = field(default_factory=list)
     last: dict = field(default_factory=dict)
 
 
@@ -104,20 +120,39 @@ def frigate_messages(
                 obj.seen += 1
                 score = float(np.clip(0.8 + rng.normal(0, 0.05), 0.5, 0.99))
                 area = float((box[2] - box[0]) * (box[3] - box[1]))
+                was_stationary = obj.stationary
                 if obj.reference is None or iou(box, obj.reference) < 0.6:
+                    # Off the box it stood in: Frigate counts the first move, then each move
+                    # of an object that was stationary.
+                    if obj.reference is not None and (obj.position_changes == 0 or was_stationary):
+                        obj.position_changes += 1
+                        changed_position = True
+                    else:
+                        changed_position = False
                     obj.reference, obj.still = box, 0
-                    moved_from_still = obj.stationary
-                    obj.stationary = False
                 else:
                     obj.still += 1
-                    moved_from_still = False
-                became_still = not obj.stationary and obj.still >= STATIONARY_FRAMES
-                if became_still:
-                    obj.stationary = True
+                    changed_position = False
+                obj.stationary = obj.still > STATIONARY_FRAMES
                 # Frigate's better thumbnail: a higher score, or as good with a larger box.
                 better = score > obj.best_score or (
                     score >= obj.best_score - 0.02 and area > obj.best_area * 1.1
                 )
+                if better:
+                    obj.best_score, obj.best_area = max(score, obj.best_score), area
+                    obj.last_thumb = frame_time
+                path_update = False
+                if obj.seen >= CONFIRM_FRAMES:  # no longer a false positive: the path grows
+                    w, h = scale * np.asarray(cam.image_size, dtype=np.float64)
+                    foot = (round(0.5 * (box[0] + box[2]) / w, 4), round(box[3] / h, 4))
+                    step = PATH_STEP * np.hypot(w, h) / max(w, h)
+                    if (
+                        not obj.path
+                        or len(obj.path) == 1
+                        or np.hypot(*np.subtract(foot, obj.path[-1][0])) >= step
+                    ):
+                        obj.path.append((foot, frame_time))
+                        path_update = True
                 after = {
                     "id": obj.id,
                     "camera": name,
@@ -133,23 +168,30 @@ def frigate_messages(
                     "area": int(area),
                     "ratio": float((box[2] - box[0]) / max(box[3] - box[1], 1)),
                     "region": [0, 0, 320, 320],
+                    "active": not obj.stationary,
                     "stationary": obj.stationary,
                     "motionless_count": obj.still,
-                    "position_changes": 0,
+                    "position_changes": obj.position_changes,
                     "current_zones": [],
                     "entered_zones": [],
                     "has_clip": False,
                     "has_snapshot": True,
+                    "path_data": [[list(p), pt] for p, pt in obj.path],
                 }
                 kind = None
                 if not obj.published and obj.seen >= CONFIRM_FRAMES:
                     kind, obj.published = "new", True
                 elif obj.published and (
-                    better or became_still or moved_from_still or frame_time - obj.last_sent > 60
+                    path_update
+                    or changed_position
+                    or obj.stationary != was_stationary
+                    or frame_time - obj.last_sent > 60
+                    or (
+                        frame_time - obj.last_sent > SNAPSHOT_PERIOD_S
+                        and obj.last_thumb > obj.last_sent
+                    )
                 ):
                     kind = "update"
-                if better:
-                    obj.best_score, obj.best_area = max(score, obj.best_score), area
                 if kind is not None:
                     out.append((frame_time, _event(kind, obj.last or after, after)))
                     obj.last_sent = frame_time
