@@ -12,15 +12,15 @@ within a second and lets a track coast and end within seconds without one. So, w
 keeps an object (from its `new` to its `end`, or `timeout_s` without news), the box it last
 reported is Frigate's standing claim: this source feeds, as one frame of the camera, every box
 Frigate holds for that camera (a frame without one of them would tell the tracker that the
-camera missed that person) at `hold_hz`, and at `burst_hz` for `burst_s` after any report, so
-that the tracker's confirmation sees what Frigate confirmed. What a held box says grows vaguer
-with its age, by what Frigate's silence means:
+camera missed that person) at `hold_hz`, and at `burst_hz` for `burst_s` after an object's
+`new`, so that the tracker's confirmation sees what Frigate confirmed. What a held box says
+grows vaguer with its age, by what Frigate's silence means:
 
 * Frigate 0.16 and later publish an object's path (`path_data`) and an update whenever its
   bottom centre moves PATH_STEP of the frame's diagonal from the path's last point: silence
   says the foot is still within that ellipse (in pixels, whatever the age);
-* otherwise, the person may have walked V_WALK_M_S since the report (after HOLD_GRACE_S), and
-  an object Frigate called stationary at most HOLD_STILL_CAP_M; an active one past STALE_M is
+* otherwise, the person may have walked V_WALK_M_S since the report, and an object Frigate
+  called stationary at most HOLD_STILL_CAP_M; an active one past STALE_M is
   no longer fed.
 
 The smaller bound is used. A stale box never holds a track where nobody is.
@@ -77,7 +77,8 @@ _INBOX = 10_000
 # Frigate's stats period when only one stats message was seen (its default, s).
 _STATS_PERIOD_S = 60.0
 # Without a published path, a re-fed box's foot is uncertain by the distance the person may
-# have walked since Frigate's last report, at V_WALK_M_S after the first HOLD_GRACE_S; the
+# have walked since Frigate's last report, at V_WALK_M_S from the report on (a box is never
+# taken as exact after its frame: that would pin a walker's track where they were); the
 # spread is isotropic on the floor (core.localization.floor_spread). Frigate reports a
 # stationary object as soon as it moves out of its box, so the box of an object last reported
 # stationary stands for as long as Frigate keeps it: its spread stops at HOLD_STILL_CAP_M. The
@@ -88,7 +89,6 @@ _STATS_PERIOD_S = 60.0
 # coasting until Frigate calls them stationary, after Frigate's `detect.stationary.threshold`
 # frames (docs/home-automation.md advises about 2 s).
 V_WALK_M_S = 1.0
-HOLD_GRACE_S = 0.5
 HOLD_STILL_CAP_M = 0.15
 STALE_M = 1.0
 # Frigate (0.16 and later) adds a point to an object's path, and publishes an update, when its
@@ -103,10 +103,10 @@ assert BOX_SIDES == ("bottom", "top", "left", "right")
 class _Held:
     """An object Frigate keeps: its intspace camera, its last box measured (the foot on the
     body's axis, in that camera's pixels, with its covariance; None when the box gives no
-    floor position), when Frigate last said anything of it (service clock), the capture time
-    of its last report, whether Frigate called it stationary, and, when Frigate publishes its
-    path, the half-axes (px) of the ellipse around the path's last point that its foot has not
-    left while Frigate stays silent."""
+    floor position), when Frigate last said anything of it (service clock), the capture times
+    of its last report and of its `new`, whether Frigate called it stationary, and, when
+    Frigate publishes its path, the half-axes (px) of the ellipse around the path's last point
+    that its foot has not left while Frigate stays silent."""
 
     frigate_id: str
     ref: _CameraRef
@@ -114,6 +114,7 @@ class _Held:
     cov: np.ndarray | None
     news: float
     report_t: float
+    new_t: float
     stationary: bool = False
     path_bound: np.ndarray | None = None
 
@@ -352,7 +353,7 @@ class FrigateSource:
         with self._lock:
             held = self._held.get(fid)
             if held is None:
-                held = _Held(fid, ref, pixel, cov, now, frame_time)
+                held = _Held(fid, ref, pixel, cov, now, frame_time, frame_time)
                 self._held[fid] = held
             else:
                 held.ref, held.pixel, held.cov, held.news = ref, pixel, cov, now
@@ -405,7 +406,7 @@ class FrigateSource:
             # A fifth of the lag spare: the tracker's window moves on while this frame is
             # stored (a SQLite commit), and a frame behind it would be refused as late.
             stamp = self._stamp(ref, now - 0.8 * self.lag)
-            burst = any(stamp - h.report_t < self._burst_s for h in held)
+            burst = any(stamp - h.new_t < self._burst_s for h in held)
             dt = self._burst_dt if burst else self._hold_dt
             if stamp - self._newest.get(ref.id, -np.inf) >= dt:
                 self.counts["refed"] += self._feed_view(ref, stamp, held)
@@ -429,12 +430,12 @@ class FrigateSource:
 
     def _spread(self, ref: _CameraRef, h: _Held, t: float) -> np.ndarray | None:
         """Return the pixel covariance (2, 2) to add to a held box's foot at t: the smaller of
-        the floor distance walked since its report (V_WALK_M_S after HOLD_GRACE_S, at most
+        the floor distance walked since its report (at V_WALK_M_S, at most
         HOLD_STILL_CAP_M for an object Frigate called stationary) and, when Frigate publishes
         its path, the ellipse its foot has not left (a uniform ellipse of half-axes a has
         the standard deviations a / 2); None when only the walk bounds it and it exceeds
         STALE_M."""
-        walked = V_WALK_M_S * max(0.0, t - h.report_t - HOLD_GRACE_S)
+        walked = V_WALK_M_S * max(0.0, t - h.report_t)
         if h.stationary:
             walked = min(walked, HOLD_STILL_CAP_M)
         path = None if h.path_bound is None else np.diag((0.5 * h.path_bound) ** 2)

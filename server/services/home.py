@@ -17,28 +17,42 @@ a connectivity `binary_sensor`, under `<discovery prefix>/<component>/intspace_<
 device per space. Renaming a space, zone or camera moves its topics and clears the old ones;
 deleting a zone or camera clears its topics and removes its entities.
 
-With several service processes, each publishes the spaces whose tracker it runs (the zones
-service only calls it for those); `<prefix>/available` and its last will belong to one process
-at a time (`available_owner`), in practice the one holding the home's advisory lock.
+With several service processes (PostgreSQL), each publishes the spaces whose tracker it runs
+(the zones service only calls it for those); `<prefix>/available` and its last will belong to
+one process at a time (`available_owner`): the one holding the availability's advisory lock
+(server.services.ownership, key AVAILABLE_KEY), which every process tries for each second, as
+for a space's tracker. So the home hears `offline` only when no process serves:
+
+* a clean stop of the owner hands the topic over: it gives up the lock and, when another
+  intspace process is connected to the database, waits up to HANDOVER_S for one to take it,
+  then leaves without a word (the retained `online` stands, and the new owner says it again
+  under its own last will); only the last process says `offline`;
+* a crashed owner's last will says `offline`, and the process that takes the lock over says
+  `online` within a second or two; a last will that reaches the broker after that (a peer
+  whose connection the broker notices late) is answered by the owner, which subscribes to the
+  topic, with `online` again.
 """
 
 from __future__ import annotations
 
 import json
 import logging
+import os
 import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from sqlalchemy import select
+from sqlalchemy import select, text
+from sqlalchemy.exc import SQLAlchemyError
 from sqlalchemy.orm import Session, sessionmaker
 
 from core.localization.tracking import TrackSnapshot
 from core.localization.zones import ZoneEvent
 from server.db.models import Camera
-from server.services.mqtt import MqttLink
+from server.services.mqtt import Message, MqttLink
+from server.services.ownership import APPLICATION_NAME, NAMESPACE
 from server.services.zones import ZoneDef, slugify
 from server.version import VERSION
 
@@ -55,6 +69,9 @@ ONLINE, OFFLINE = "online", "offline"
 # The advisory lock key (server.services.ownership's namespace) of the availability topic:
 # space ids are positive, so no space's tracker lock is this one.
 AVAILABLE_KEY = -1
+# How long a stopping owner waits for another process to take the availability over (s): the
+# others try for its lock every _HEALTH_POLL_S.
+HANDOVER_S = 3.0 * _HEALTH_POLL_S
 
 
 def space_slug(space_id: int, name: str) -> str:
@@ -370,11 +387,18 @@ class HomePublisher:
             self.link.set_will((self.available_topic, OFFLINE))
             self.link.retain(self.available_topic, ONLINE)
         else:
+            self.link.subscribe(self.available_topic, self._on_available)
             self.claim_available()
         self.link.start()
         self._stop.clear()
         self._thread = threading.Thread(target=self._loop, name="home-cameras", daemon=True)
         self._thread.start()
+
+    def _on_available(self, message: Message) -> None:
+        """Another process's last will said `offline` while this one serves: say `online`."""
+        if self.available_owner and not self._stop.is_set() and message.payload == b"offline":
+            log.info("MQTT: %s said offline by a last will; this process serves", message.topic)
+            self.link.resend(self.available_topic)
 
     def _loop(self) -> None:
         while not self._stop.wait(_HEALTH_POLL_S):
@@ -385,11 +409,49 @@ class HomePublisher:
                 log.exception("publishing the cameras' health failed")
 
     def stop(self) -> None:
-        """Stop: publish `offline` on the availability topic first when this process owns it."""
+        """Stop: the availability topic's owner hands it over to another process, or, the last
+        one, publishes `offline` (module docstring)."""
         self._stop.set()
         if self._thread is not None:
             self._thread.join(5)
             self._thread = None
-        self.link.stop(final=[(self.available_topic, OFFLINE)] if self.available_owner else ())
+        final = [(self.available_topic, OFFLINE)] if self.available_owner else []
         if self._available_lock is not None:
+            if self.available_owner:
+                self.available_owner = False
+                self._available_lock.release(AVAILABLE_KEY)
+                if self._taken_over():
+                    log.info("MQTT: %s handed over to another process", self.available_topic)
+                    final = []
             self._available_lock.close()
+        self.link.stop(final=final)
+
+    def _taken_over(self) -> bool:
+        """Return whether another process took the availability's lock within HANDOVER_S
+        (at once False when no other intspace process is connected to the database)."""
+        if self._factory is None:
+            return False
+        own = f"{APPLICATION_NAME}:{os.getpid()}"
+        others = text(
+            "SELECT count(*) FROM pg_stat_activity WHERE datname = current_database() "
+            "AND application_name LIKE :pattern AND application_name <> :own"
+        )
+        held = text(
+            "SELECT count(*) FROM pg_locks WHERE locktype = 'advisory' AND classid = :ns "
+            "AND objid = :key AND objsubid = 2 AND granted AND database = "
+            "(SELECT oid FROM pg_database WHERE datname = current_database())"
+        )
+        deadline = time.monotonic() + HANDOVER_S
+        try:
+            with self._factory() as session:
+                if not session.scalar(others, {"pattern": f"{APPLICATION_NAME}:%", "own": own}):
+                    return False
+                key = AVAILABLE_KEY & 0xFFFFFFFF  # pg_locks shows the int4 key as an oid
+                while time.monotonic() < deadline:
+                    if session.scalar(held, {"ns": NAMESPACE, "key": key}):
+                        return True
+                    session.rollback()  # a fresh snapshot for the next look
+                    time.sleep(0.1)
+        except SQLAlchemyError as exc:
+            log.warning("MQTT: could not tell whether another process serves: %s", exc)
+        return False

@@ -132,6 +132,7 @@ class MqttLink:
         self._will = will
         self._subscriptions = tuple(subscriptions)
         self._on_message = on_message
+        self._handlers: list[tuple[str, Callable[[Message], None]]] = []
         self._on_connect = on_connect
         self.queue_limit = int(queue_limit)
         self._max_backoff = float(max_backoff_s)
@@ -178,6 +179,24 @@ class MqttLink:
         """Return the retained topics kept (with a non-empty payload) starting with `prefix`."""
         with self._lock:
             return [t for t, p in self._retained.items() if p and t.startswith(prefix)]
+
+    def resend(self, topic: str) -> None:
+        """Send the retained state kept for `topic` again (someone else changed it on the
+        broker: another process's last will)."""
+        with self._lock:
+            if not self._retained.get(topic):
+                return
+            self._dirty[topic] = None
+            self._dirty.move_to_end(topic)
+        self._poke()
+
+    def subscribe(self, topic_filter: str, handler: Callable[[Message], None]) -> None:
+        """Subscribe to `topic_filter` on every connection from the next one on (call before
+        `start`); its messages go to `handler` (on the connection's thread; it must not
+        block) instead of `on_message`."""
+        with self._lock:
+            self._subscriptions = (*self._subscriptions, topic_filter)
+            self._handlers.append((topic_filter, handler))
 
     def publish(self, topic: str, payload: bytes | str, qos: int = 0) -> bool:
         """Queue a non-retained message; return False when the queue was full (the oldest
@@ -334,12 +353,15 @@ class MqttLink:
     async def _read(self, client: aiomqtt.Client) -> None:
         async for message in client.messages:
             self.received += 1
-            if self._on_message is None:
+            handler = next(
+                (h for f, h in self._handlers if message.topic.matches(f)), self._on_message
+            )
+            if handler is None:
                 continue
             payload = message.payload
             data = payload if isinstance(payload, bytes) else str(payload or "").encode()
             try:
-                self._on_message(Message(str(message.topic), data))
+                handler(Message(str(message.topic), data))
             except Exception:
                 log.exception("MQTT: handling a message on %s failed", message.topic)
 

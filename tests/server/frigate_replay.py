@@ -91,8 +91,11 @@ def frigate_messages(
     t0: float,
     rng: np.random.Generator,
     jitter_px: float = 1.0,
+    frames: list[tuple[float, str, list[np.ndarray]]] | None = None,
 ) -> list[tuple[float, str]]:
-    """Return Frigate's messages (frame_time, JSON payload) in time order."""
+    """Return Frigate's messages (frame_time, JSON payload) in time order; `frames`, when
+    given, receives every detect frame as (frame_time, camera, the boxes detected), the boxes
+    a steady stream of detections would carry."""
     out: list[tuple[float, str]] = []
     for name, cam in cams.items():
         objects: dict[int, _Object] = {}
@@ -100,6 +103,9 @@ def frigate_messages(
         for t in np.arange(phase, duration, 1 / DETECT_FPS):
             frame_time = t0 + float(t)
             xy = positions(float(t))
+            seen: list[np.ndarray] = []
+            if frames is not None:
+                frames.append((frame_time, name, seen))
             for w in range(xy.shape[0]):
                 box = None if np.any(np.isnan(xy[w])) else body_box(cam, xy[w], scale)
                 obj = objects.get(w)
@@ -113,6 +119,7 @@ def frigate_messages(
                             del objects[w]
                     continue
                 box = box + rng.normal(0, jitter_px, 4)
+                seen.append(box)
                 if obj is None:
                     fid = f"{frame_time:.6f}-{rng.integers(1e6):06d}"
                     obj = objects[w] = _Object(fid, frame_time)
