@@ -11,6 +11,7 @@ import logging
 import time
 
 import numpy as np
+import pytest
 from fastapi.testclient import TestClient
 
 from core.localization import NetworkCamera
@@ -70,6 +71,9 @@ def _walk(client, admin, ids, cams, path, rate=10.0):
     return times
 
 
+# The MQTT side does not depend on the database: run on PostgreSQL, the database of several
+# processes; the SQLite service publishes over MQTT in test_frigate_source.
+@pytest.mark.parametrize("database_url", ["postgresql"], indirect=True)
 def test_home_assistant_sees_zones_occupancy_events_and_survives_the_broker(
     broker,  # noqa: F811
     make_settings,

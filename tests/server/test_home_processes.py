@@ -60,10 +60,12 @@ def test_availability_follows_the_processes(database_url, broker, tmp_path, monk
         return [t for t, tp, p, _ in rec.on(lambda tp: tp == TOPIC) if p == payload and t >= since]
 
     # Started together (start-up takes seconds); the third is the survivor at the end.
+    start = time.monotonic()
     procs = [Serve(database_url, tmp_path, tmp_path / f"serve{i}.log") for i in range(3)]
     try:
         for p in procs:
             p.wait_ready()
+        print(f"three processes ready in {time.monotonic() - start:.1f} s")
         pids = {p.proc.pid: p for p in procs}
         first = pids[_wait(lambda: _available_owner(database_url), 5, "an owner")]
         assert rec.wait(lambda: rec.latest(TOPIC) == b"online", 5)
@@ -71,6 +73,7 @@ def test_availability_follows_the_processes(database_url, broker, tmp_path, monk
         # A clean stop of the owner: another process takes the topic over, nobody says offline.
         stopped = time.time()
         first.stop()
+        print(f"the owner stopped in {time.time() - stopped:.1f} s")
         second = pids[
             _wait(
                 lambda: (o := _available_owner(database_url)) not in (None, first.proc.pid) and o,
@@ -96,6 +99,7 @@ def test_availability_follows_the_processes(database_url, broker, tmp_path, monk
         # The last process stopped: offline.
         last = time.time()
         third.stop()
+        print(f"the last process stopped in {time.time() - last:.1f} s")
         assert rec.wait(lambda: bool(said(b"offline", last)), 5)
         assert rec.latest(TOPIC) == b"offline"
     finally:
