@@ -13,7 +13,8 @@ keeps an object (from its `new` to its `end`, or `timeout_s` without news), the 
 reported is Frigate's standing claim: this source feeds, as one frame of the camera, every box
 Frigate holds for that camera (a frame without one of them would tell the tracker that the
 camera missed that person) at `hold_hz`, and at `burst_hz` for `burst_s` after an object's
-`new`, so that the tracker's confirmation sees what Frigate confirmed. What a held box says
+`new` (after each report of an object Frigate publishes no path for, see below), so that the
+tracker's confirmation sees what Frigate confirmed. What a held box says
 grows vaguer with its age, by what Frigate's silence means:
 
 * Frigate 0.16 and later publish an object's path (`path_data`) and an update whenever its
@@ -406,7 +407,12 @@ class FrigateSource:
             # A fifth of the lag spare: the tracker's window moves on while this frame is
             # stored (a SQLite commit), and a frame behind it would be refused as late.
             stamp = self._stamp(ref, now - 0.8 * self.lag)
-            burst = any(stamp - h.new_t < self._burst_s for h in held)
+            # After a `new`, and after any report of an object Frigate gives no path for (its
+            # reports are seconds apart: its track may have ended since the last one).
+            burst = any(
+                stamp - (h.new_t if h.path_bound is not None else h.report_t) < self._burst_s
+                for h in held
+            )
             dt = self._burst_dt if burst else self._hold_dt
             if stamp - self._newest.get(ref.id, -np.inf) >= dt:
                 self.counts["refed"] += self._feed_view(ref, stamp, held)

@@ -92,10 +92,12 @@ def frigate_messages(
     rng: np.random.Generator,
     jitter_px: float = 1.0,
     frames: list[tuple[float, str, list[np.ndarray]]] | None = None,
+    paths: bool = True,
 ) -> list[tuple[float, str]]:
     """Return Frigate's messages (frame_time, JSON payload) in time order; `frames`, when
     given, receives every detect frame as (frame_time, camera, the boxes detected), the boxes
-    a steady stream of detections would carry."""
+    a steady stream of detections would carry. paths: False for a Frigate before 0.16 (no
+    `path_data`, no update when the path grows)."""
     out: list[tuple[float, str]] = []
     for name, cam in cams.items():
         objects: dict[int, _Object] = {}
@@ -149,7 +151,7 @@ def frigate_messages(
                     obj.best_score, obj.best_area = max(score, obj.best_score), area
                     obj.last_thumb = frame_time
                 path_update = False
-                if obj.seen >= CONFIRM_FRAMES:  # no longer a false positive: the path grows
+                if paths and obj.seen >= CONFIRM_FRAMES:  # no longer a false positive
                     w, h = scale * np.asarray(cam.image_size, dtype=np.float64)
                     foot = (round(0.5 * (box[0] + box[2]) / w, 4), round(box[3] / h, 4))
                     step = PATH_STEP * np.hypot(w, h) / max(w, h)
@@ -183,8 +185,9 @@ def frigate_messages(
                     "entered_zones": [],
                     "has_clip": False,
                     "has_snapshot": True,
-                    "path_data": [[list(p), pt] for p, pt in obj.path],
                 }
+                if paths:
+                    after["path_data"] = [[list(p), pt] for p, pt in obj.path]
                 kind = None
                 if not obj.published and obj.seen >= CONFIRM_FRAMES:
                     kind, obj.published = "new", True

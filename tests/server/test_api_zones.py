@@ -68,7 +68,7 @@ def test_zone_crud_validation_and_rooms(client, admin):
         assert client.get(f"/api/v1/zones/{bad_id}", headers=admin).status_code == 422
 
 
-# Real time (12 s): on SQLite only; the zones' storage runs on both backends above.
+# Real time (10 s): on SQLite only; the zones' storage runs on both backends above.
 @pytest.mark.parametrize("database_url", ["sqlite"], indirect=True)
 def test_occupancy_follows_a_person_walking_in(client, admin):
     sid = _space(client, admin)
@@ -92,12 +92,12 @@ def test_occupancy_follows_a_person_walking_in(client, admin):
     url = f"/api/v1/spaces/{sid}/zones"
     zone = client.post(url, json={"name": "sofa", "polygon": SOFA, "inertia_s": 0.5}, headers=admin)
     assert zone.status_code == 201
-    # A person walks from x = 3.5 (outside) to x = 1.0 (inside) over 2.5 s, then stands, seen
-    # by the three cameras at 10 Hz with 0.5 px noise; its axis point at 1 m.
+    # A person walks from x = 3.5 (outside) to x = 1.0 (inside) over 2.5 s, then stands for
+    # 1.5 s, seen by the three cameras at 10 Hz with 0.5 px noise; its axis point at 1 m.
     rng = np.random.default_rng(0)
     t0 = time.time() - 0.1
     occupancy = []
-    for k in range(60):
+    for k in range(40):
         x = max(1.0, 3.5 - k * 0.1)
         X = np.array([[x, 1.5, 1.0]])
         obs = [
