@@ -1,17 +1,21 @@
-"""`<prefix>/available` with two `intspace serve` processes on one PostgreSQL database and a real
-broker (spec 09): one process at a time publishes it, chosen by an advisory lock as a space's
-tracker is. The owner stopped cleanly hands it over without a word (the home never hears
-`offline` while another process serves); the new owner answers a late last will (`offline` from
-a peer the broker noticed late) with `online`, and, killed, leaves its own last will: `offline`,
-nobody serving any more."""
+"""`<prefix>/available` with two service processes on one PostgreSQL database and a real broker
+(spec 09), the test's own (the app run by a TestClient, as the other server tests run it) and an
+`intspace serve` started as a user starts it. One process at a time publishes the topic, chosen
+by an advisory lock as a space's tracker is. The owner stopped cleanly hands it over without a
+word (the home never hears `offline` while another process serves); the new owner answers a
+late last will (`offline` from a peer the broker noticed late) with `online`, and, killed,
+leaves its own last will: `offline`, nobody serving any more."""
 
 from __future__ import annotations
 
+import os
 import time
 
 import pytest
+from fastapi.testclient import TestClient
 from sqlalchemy import create_engine, text
 
+from server.app import create_app
 from server.services.home import AVAILABLE_KEY
 from server.services.ownership import APPLICATION_NAME, NAMESPACE
 from tests.server.mqtt_broker import broker, subscribe  # noqa: F401
@@ -53,30 +57,35 @@ def _wait(predicate, timeout: float, what: str):
 
 
 @pytest.mark.parametrize("database_url", ["postgresql"], indirect=True)
-def test_availability_follows_the_processes(database_url, broker, tmp_path, monkeypatch):  # noqa: F811
+def test_availability_follows_the_processes(
+    database_url,
+    broker,  # noqa: F811
+    make_settings,
+    tmp_path,
+    monkeypatch,
+):
     monkeypatch.setenv("INTSPACE_MQTT_URL", broker.url)
     sub, rec = subscribe(broker, TOPIC)
 
     def said(payload: bytes, since: float) -> list[float]:
         return [t for t, tp, p, _ in rec.on(lambda tp: tp == TOPIC) if p == payload and t >= since]
 
-    # Started together (start-up takes seconds).
-    start = time.monotonic()
-    procs = [Serve(database_url, tmp_path, tmp_path / f"serve{i}.log") for i in range(2)]
+    # This process's service starts first and takes the topic; the other starts meanwhile.
+    serve: Serve | None = None
     try:
-        for p in procs:
-            p.wait_ready()
-        print(f"two processes ready in {time.monotonic() - start:.1f} s")
-        pids = {p.proc.pid: p for p in procs}
-        first = pids[_wait(lambda: _available_owner(database_url), 5, "an owner")]
-        second = next(p for p in procs if p is not first)
-        assert rec.wait(lambda: rec.latest(TOPIC) == b"online", 5)
-
+        with TestClient(create_app(make_settings(mqtt_url=broker.url))):
+            _wait(lambda: _available_owner(database_url) == os.getpid(), 5, "this process")
+            assert rec.wait(lambda: rec.latest(TOPIC) == b"online", 5)
+            start = time.monotonic()
+            serve = Serve(database_url, tmp_path, tmp_path / "serve.log")
+            serve.wait_ready()
+            print(f"the other process ready in {time.monotonic() - start:.1f} s")
+            assert _available_owner(database_url) == os.getpid()
+            stopped = time.time()
         # A clean stop of the owner: the other takes the topic over, nobody says offline.
-        stopped = time.time()
-        first.stop()
         print(f"the owner stopped in {time.time() - stopped:.1f} s")
-        _wait(lambda: _available_owner(database_url) == second.proc.pid, 5, "the second owner")
+        other = serve.proc.pid
+        _wait(lambda: _available_owner(database_url) == other, 5, "the other process")
         time.sleep(1.0)  # the new owner's reconnection with its last will has landed
         assert said(b"offline", stopped) == [], rec.on(lambda tp: tp == TOPIC)
         assert rec.latest(TOPIC) == b"online"
@@ -90,11 +99,11 @@ def test_availability_follows_the_processes(database_url, broker, tmp_path, monk
 
         # The owner killed, nobody left: its own last will (set when it took over) says offline.
         killed = time.time()
-        second.kill()
+        serve.kill()
         assert rec.wait(lambda: bool(said(b"offline", killed)), 5), "no last will"
         assert rec.latest(TOPIC) == b"offline"
     finally:
-        for p in procs:
-            p.stop()
+        if serve is not None:
+            serve.stop()
         sub.loop_stop()
         sub.disconnect()
