@@ -3,7 +3,7 @@ the detections of intspace cameras, fed to the space's tracker through the same 
 `POST /observations` (TrackingService.ingest).
 
 Frigate reports changes, not frames. It publishes an object's `new` once its own tracker has
-confirmed it (no longer a false positive), an `update` when its path grows (0.16 and later), on
+confirmed it (no longer a false positive), an `update` when its path grows (current code), on
 a zone change, a change between active and stationary, a better snapshot (at most every 5 s),
 or at least once a minute, and an `end` when the object is gone; for a person standing still it
 says nothing for up to a minute. The asynchronous EKF
@@ -17,9 +17,11 @@ camera missed that person) at `hold_hz`, and at `burst_hz` for `burst_s` after a
 tracker's confirmation sees what Frigate confirmed. What a held box says
 grows vaguer with its age, by what Frigate's silence means:
 
-* Frigate 0.16 and later publish an object's path (`path_data`) and an update whenever its
-  bottom centre moves PATH_STEP of the frame's diagonal from the path's last point: silence
-  says the foot is still within that ellipse (in pixels, whatever the age);
+* Frigate (its current code; the events carry `path_data`) publishes an update whenever an
+  object's bottom centre moves PATH_STEP of the frame's diagonal from its path's last point:
+  silence says the foot is still within that ellipse (in pixels, whatever the age). A Frigate
+  whose paths grow by more than a point between two updates does not publish its steps: its
+  paths bound nothing (`paths_published` turns False);
 * otherwise, the person may have walked V_WALK_M_S since the report, and an object Frigate
   called stationary at most HOLD_STILL_CAP_M; an active one past STALE_M is
   no longer fed.
@@ -92,7 +94,7 @@ _STATS_PERIOD_S = 60.0
 V_WALK_M_S = 1.0
 HOLD_STILL_CAP_M = 0.15
 STALE_M = 1.0
-# Frigate (0.16 and later) adds a point to an object's path, and publishes an update, when its
+# Frigate (its current code) adds a point to an object's path, and publishes an update, when its
 # bottom centre moves this fraction of the detect frame's diagonal (frigate/track/
 # tracked_object.py: 0.05 * sqrt(w^2 + h^2) / max(w, h) in coordinates normalised by w and h).
 PATH_STEP = 0.05
@@ -118,6 +120,7 @@ class _Held:
     new_t: float
     stationary: bool = False
     path_bound: np.ndarray | None = None
+    path_len: int = 0
 
 
 @dataclass(frozen=True)
@@ -137,7 +140,7 @@ def _path_bound(
     ((x, y) normalised by the detect size, time) points): Frigate adds a point and publishes an
     update whenever the bottom centre moves PATH_STEP * diagonal / longer side (normalised)
     from the last point, so the foot is within that of the last point, itself this box's
-    offset from the foot. None when the payload has no path (a Frigate before 0.16)."""
+    offset from the foot. None when the payload has no path (an older Frigate)."""
     if not isinstance(path, list) or not path:
         return None
     try:
@@ -197,6 +200,9 @@ class FrigateSource:
         self._last_stats: float | None = None
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        # Whether this Frigate publishes an update at each step of an object's path (until an
+        # update shows a path grown by more than one point since the last).
+        self.paths_published = True
         # The connection it reads (for its status), set by whoever connects it.
         self.link: Any = None
         self.counts = {
@@ -255,12 +261,14 @@ class FrigateSource:
             ]
 
     def status(self) -> dict[str, Any]:
-        """Return the connection's state (redacted), the counters and the objects held."""
+        """Return the connection's state (redacted), the counters, the objects held and whether
+        Frigate's paths bound its silence (`paths_published`)."""
         with self._lock:
             out: dict[str, Any] = {
                 **self.counts,
                 "held": len(self._held),
                 "inbox": self._inbox.qsize(),
+                "paths_published": self.paths_published,
             }
         if self.link is not None:
             out["broker"] = self.link.status()
@@ -349,10 +357,17 @@ class FrigateSource:
             self.counts["ignored"] += 1
             log.debug("Frigate: box refused: %s", exc)
             return
-        bound = _path_bound(after.get("path_data"), scaled, size, (dw, dh))
+        path = after.get("path_data")
+        path_len = len(path) if isinstance(path, list) else 0
         now = self._clock()
         with self._lock:
             held = self._held.get(fid)
+            if held is not None and path_len - held.path_len >= 2 and self.paths_published:
+                # Points added between two updates: this Frigate does not publish its path's
+                # steps (its path is only a record), so its silence bounds nothing.
+                self.paths_published = False
+                log.info("Frigate: paths grow between updates; held boxes age by walking")
+            bound = _path_bound(path, scaled, size, (dw, dh)) if self.paths_published else None
             if held is None:
                 held = _Held(fid, ref, pixel, cov, now, frame_time, frame_time)
                 self._held[fid] = held
@@ -361,6 +376,7 @@ class FrigateSource:
                 held.report_t = max(held.report_t, frame_time)
             held.stationary = bool(after.get("stationary", False))
             held.path_bound = bound
+            held.path_len = path_len
             view = [h for h in self._held.values() if h.ref.id == ref.id]
         self._feed_view(ref, self._stamp(ref, frame_time), view)
         self.counts["fed"] += 1

@@ -1,6 +1,6 @@
 """A replay of Frigate's `frigate/events` for walkers seen by ceiling cameras, with Frigate's
 real message pattern (docs.frigate.video, "MQTT": frigate/events; the rules are those of
-Frigate 0.16's frigate/camera/state.py and frigate/track/tracked_object.py): `new` once
+Frigate's current frigate/camera/state.py and frigate/track/tracked_object.py): `new` once
 Frigate's tracker has kept an object for a few detect frames; then an `update` when
 
 * the object's path grows: its bottom centre (normalised by the detect size) has moved
@@ -96,7 +96,7 @@ def frigate_messages(
 ) -> list[tuple[float, str]]:
     """Return Frigate's messages (frame_time, JSON payload) in time order; `frames`, when
     given, receives every detect frame as (frame_time, camera, the boxes detected), the boxes
-    a steady stream of detections would carry. paths: False for a Frigate before 0.16 (no
+    a steady stream of detections would carry. paths: False for an older Frigate (no
     `path_data`, no update when the path grows)."""
     out: list[tuple[float, str]] = []
     for name, cam in cams.items():

@@ -122,3 +122,14 @@ def test_frigate_events_become_detections_of_the_mapped_camera(tmp_path, sqlite_
     stats = {"cameras": {"front": {"camera_fps": 5.1, "process_fps": 5.0}}, "service": {}}
     source.handle(Message("frigate/stats", json.dumps(stats).encode()))
     assert beats and beats[-1][1] == 5.1 and beats[-1][2] == clock.t
+
+    # Paths: a point per update is a Frigate that publishes each step of an object's path (its
+    # silence bounds where the person is); points added between two updates are not.
+    def pts(n):
+        return [[[0.3 + 0.06 * k, 0.6], t + k] for k in range(n)]
+
+    source.handle(_event("new", "front", box, t + 0.3, id="p", path_data=pts(1)))
+    source.handle(_event("update", "front", box, t + 0.4, id="p", path_data=pts(2)))
+    assert source.paths_published
+    source.handle(_event("update", "front", box, t + 0.5, id="p", path_data=pts(4)))
+    assert not source.paths_published
