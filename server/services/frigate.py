@@ -19,12 +19,15 @@ grows vaguer with its age, by what Frigate's silence means:
 
 * Frigate (its current code; the events carry `path_data`) publishes an update whenever an
   object's bottom centre moves PATH_STEP of the frame's diagonal from its path's last point:
-  silence says the foot is still within that ellipse (in pixels, whatever the age). A Frigate
+  silence says the foot is still within that ellipse (in pixels, whatever the age). An active
+  object's box is fed again only after PATH_QUIET_S without news: before, the walker is on
+  the way to the next step, ahead of the box, and the tracker follows its own prediction. A Frigate
   whose paths grow by more than a point between two updates does not publish its steps: its
   paths bound nothing (`paths_published` turns False);
-* otherwise, the person may have walked V_WALK_M_S since the report, and an object Frigate
-  called stationary at most HOLD_STILL_CAP_M; an active one past STALE_M is
-  no longer fed.
+* an object Frigate called stationary may have shifted its box by STILL_SHIFT of its sides
+  (more, and Frigate would have reported it moving);
+* otherwise, the person may have walked V_WALK_M_S since the report; an active one past
+  STALE_M is no longer fed.
 
 The smaller bound is used. A stale box never holds a track where nobody is.
 
@@ -84,20 +87,31 @@ _STATS_PERIOD_S = 60.0
 # taken as exact after its frame: that would pin a walker's track where they were); the
 # spread is isotropic on the floor (core.localization.floor_spread). Frigate reports a
 # stationary object as soon as it moves out of its box, so the box of an object last reported
-# stationary stands for as long as Frigate keeps it: its spread stops at HOLD_STILL_CAP_M. The
-# box of an object last reported active (moving) says less and less: its spread grows without
+# stationary stands for as long as Frigate keeps it, within STILL_SHIFT below. The box of an
+# object last reported active (moving) says less and less: its spread grows without
 # bound, so after a second or so the tracker leaves it out (located_std, 0.5 m) and the track
 # coasts until Frigate's next report (past STALE_M it is not fed at all). A stale box never
 # holds a second track where the person was; a person who stops is held by the tracker's
 # coasting until Frigate calls them stationary, after Frigate's `detect.stationary.threshold`
 # frames (docs/home-automation.md advises about 2 s).
 V_WALK_M_S = 1.0
-HOLD_STILL_CAP_M = 0.15
+# Frigate calls an object stationary while its box overlaps the box it stood in by an IoU of
+# at least STILL_IOU (its tracker's position reset, 0.6): two boxes of one size shifted by a
+# fraction f of a side have the IoU (1 - f) / (1 + f), so the foot of a stationary object may be
+# up to STILL_SHIFT of the box's width and height from where its box was.
+STILL_IOU = 0.6
+STILL_SHIFT = (1.0 - STILL_IOU) / (1.0 + STILL_IOU)
 STALE_M = 1.0
 # Frigate (its current code) adds a point to an object's path, and publishes an update, when its
 # bottom centre moves this fraction of the detect frame's diagonal (frigate/track/
 # tracked_object.py: 0.05 * sqrt(w^2 + h^2) / max(w, h) in coordinates normalised by w and h).
 PATH_STEP = 0.05
+# A walker reports a path step within this long (s): a step is 0.3-0.5 m at a ceiling camera's
+# range, under a second at a walking pace. Until then an active object's last box is not fed
+# again: it lies behind the walker, where another person may stand (a stale box on a standing
+# person's spot pins the walker's track there, and the two tracks swap); after it, silence says
+# the person slowed or stopped within the path step's ellipse, and the box is fed so.
+PATH_QUIET_S = 1.0
 # The cut mask this source builds, column by column (core's order).
 assert BOX_SIDES == ("bottom", "top", "left", "right")
 
@@ -121,6 +135,7 @@ class _Held:
     stationary: bool = False
     path_bound: np.ndarray | None = None
     path_len: int = 0
+    size: np.ndarray | None = None  # the box's width and height (px)
 
 
 @dataclass(frozen=True)
@@ -375,10 +390,11 @@ class FrigateSource:
                 held.ref, held.pixel, held.cov, held.news = ref, pixel, cov, now
                 held.report_t = max(held.report_t, frame_time)
             held.stationary = bool(after.get("stationary", False))
+            held.size = scaled[2:] - scaled[:2]
             held.path_bound = bound
             held.path_len = path_len
             view = [h for h in self._held.values() if h.ref.id == ref.id]
-        self._feed_view(ref, self._stamp(ref, frame_time), view)
+        self._feed_view(ref, self._stamp(ref, frame_time), view, fresh=held)
         self.counts["fed"] += 1
 
     def _measure(
@@ -433,7 +449,9 @@ class FrigateSource:
             if stamp - self._newest.get(ref.id, -np.inf) >= dt:
                 self.counts["refed"] += self._feed_view(ref, stamp, held)
 
-    def _feed_view(self, ref: _CameraRef, t: float, held: list[_Held]) -> int:
+    def _feed_view(
+        self, ref: _CameraRef, t: float, held: list[_Held], fresh: _Held | None = None
+    ) -> int:
         """Feed a camera frame at t of every box Frigate holds for that camera (a frame without
         one of them would tell the tracker the camera missed it), each uncertain by how far
         the person may be from it since its report (module docstring); return how many."""
@@ -442,6 +460,8 @@ class FrigateSource:
             if h.pixel is None or h.cov is None:
                 continue
             spread = self._spread(ref, h, t)
+            if h is not fresh and not h.stationary and self._walking(h, t):
+                continue  # on its way to its next path step: no box says where it is now
             if spread is None:
                 continue  # far vaguer than the tracker takes a detection: not fed
             pixels.append(h.pixel)
@@ -450,27 +470,37 @@ class FrigateSource:
             self._feed(ref, t, np.stack(pixels), np.stack(covs))
         return len(pixels)
 
+    def _walking(self, h: _Held, t: float) -> bool:
+        """Whether an active object whose path Frigate publishes is, at t, taken to be walking
+        to its next path step: within PATH_QUIET_S of its last report, and past the
+        confirmation burst after its `new`."""
+        return (
+            h.path_bound is not None
+            and t - h.report_t < PATH_QUIET_S
+            and t - h.new_t >= self._burst_s
+        )
+
     def _spread(self, ref: _CameraRef, h: _Held, t: float) -> np.ndarray | None:
-        """Return the pixel covariance (2, 2) to add to a held box's foot at t: the smaller of
-        the floor distance walked since its report (at V_WALK_M_S, at most
-        HOLD_STILL_CAP_M for an object Frigate called stationary) and, when Frigate publishes
-        its path, the ellipse its foot has not left (a uniform ellipse of half-axes a has
-        the standard deviations a / 2); None when only the walk bounds it and it exceeds
-        STALE_M."""
+        """Return the pixel covariance (2, 2) to add to a held box's foot at t: the smallest of
+        the floor distance walked since its report (at V_WALK_M_S), for an object Frigate
+        called stationary the shift its box may make and stay stationary (STILL_SHIFT of its
+        width and height), and, when Frigate publishes its path, the ellipse its foot has not
+        left (a uniform ellipse of half-axes a has the standard deviations a / 2); None when
+        only the walk bounds it and it exceeds STALE_M."""
         walked = V_WALK_M_S * max(0.0, t - h.report_t)
-        if h.stationary:
-            walked = min(walked, HOLD_STILL_CAP_M)
-        path = None if h.path_bound is None else np.diag((0.5 * h.path_bound) ** 2)
         if walked <= 0.0:
             return np.zeros((2, 2))
         if ref.camera is None or h.pixel is None:
             return None
+        bounds = []
+        if h.path_bound is not None:
+            bounds.append(np.diag((0.5 * h.path_bound) ** 2))
+        if h.stationary and h.size is not None:
+            bounds.append(np.diag((0.5 * STILL_SHIFT * h.size) ** 2))
         walk = floor_spread_cov(ref.camera, h.pixel[None], np.array([walked]))[0]
-        if path is not None and (not np.all(np.isfinite(walk)) or np.trace(path) < np.trace(walk)):
-            return path
-        if walked > STALE_M or not np.all(np.isfinite(walk)):
-            return None
-        return walk
+        if np.all(np.isfinite(walk)) and walked <= STALE_M:
+            bounds.append(walk)
+        return min(bounds, key=lambda c: float(np.trace(c)), default=None)
 
     def _stamp(self, ref: _CameraRef, t: float) -> float:
         """Return the capture time at which a box of Frigate's, reported at (or held until) t,

@@ -2,10 +2,11 @@
 pattern: new, sparse updates, nothing while a person stands still, end) for two cameras that see
 the same three walkers. The occupancy the service publishes never counts a person twice, the
 live people never outnumber the walkers present, a person standing still for 12 s (longer than
-the tracker's 5 s end) stays counted, and the tracking is scored (CLEAR MOT and IDF1 against
-the walkers' paths, the replay's truth, for scoring only) beside the tracker's own figures on
-the same walkers: every box the two cameras' detector saw, posted at its steady frame rate to
-the observations API of a second space in the same service at the same time."""
+the tracker's 5 s end and Frigate's 5 s between snapshots) stays counted, and the tracking is
+scored (CLEAR MOT and IDF1 against the walkers' paths, the replay's truth, for scoring only)
+beside the tracker's own figures on the same walkers: every box the two cameras' detector saw,
+posted at its steady frame rate to the observations API of a second space in the same service
+at the same time."""
 
 from __future__ import annotations
 
@@ -28,8 +29,9 @@ from tests.server.mqtt_broker import PASSWORD, USER, broker, subscribe  # noqa: 
 
 K = [[700.0, 0.0, 640.0], [0.0, 700.0, 360.0], [0.0, 0.0, 1.0]]
 ROOM = [[0.0, 0.0], [6.0, 0.0], [6.0, 4.0], [0.0, 4.0]]
-DURATION = 24.0
-STILL = (4.0, 16.0)  # walker A stands at (3, 2)
+# The replay ends as B, the last walker, stops (at 22 s).
+DURATION = 22.6
+STILL = (4.0, 16.0)  # walker A stands at (3, 2) for 12 s
 
 
 def _lerp(t, t0, t1, a, b):
@@ -40,9 +42,9 @@ def _lerp(t, t0, t1, a, b):
 def positions(t: float) -> np.ndarray:
     """The walkers' true floor positions (3, 2) at replay time t; NaN where absent."""
     nan = [np.nan, np.nan]
-    if t < STILL[0]:
+    if t < 4:
         a = _lerp(t, 0, 4, (0.8, 1.0), (3.0, 2.0))
-    elif t < STILL[1]:
+    elif t < 16:
         a = np.array([3.0, 2.0])
     else:
         a = _lerp(t, 16, 20, (3.0, 2.0), (5.0, 3.0))
@@ -97,9 +99,10 @@ def _register(client, admin, space: str, names: dict[str, str]) -> tuple[int, di
 
 
 class SteadyPoster(threading.Thread):
-    """Posts every detect frame of the replay (its boxes, or an empty frame) to
-    /observations when the wall clock reaches its capture time plus `delay`, as a camera node
-    detecting at DETECT_FPS would."""
+    """Posts every detect frame of the replay (its boxes, or an empty frame) to /observations
+    once the wall clock reaches its capture time plus `delay`, as a camera node detecting at
+    DETECT_FPS would; frames that fell due while a post was on its way go in the next one, as
+    a node's buffer sends them."""
 
     def __init__(self, client, admin, frames, cameras: dict[str, int], delay: float) -> None:
         super().__init__(daemon=True)
@@ -107,42 +110,54 @@ class SteadyPoster(threading.Thread):
         self.frames = sorted(frames, key=lambda f: f[0])
         self.cameras, self.delay = cameras, delay
         self.failed: list[int] = []
+        self.lag: list[float] = []  # how long after it fell due each frame was answered (s)
 
     def run(self) -> None:
-        w, h = DETECT
-        for frame_time, name, boxes in self.frames:
-            wait = frame_time + self.delay - time.time()
+        k = 0
+        while k < len(self.frames):
+            wait = self.frames[k][0] + self.delay - time.time()
             if wait > 0:
                 time.sleep(wait)
-            cid = self.cameras[name]
-            observations = []
-            for box in boxes:
-                b = np.round(box)  # Frigate's boxes are whole detect pixels
-                cut = [
-                    side
-                    for side, edge in (
-                        ("bottom", b[3] >= h - 1),
-                        ("top", b[1] <= 1),
-                        ("left", b[0] <= 1),
-                        ("right", b[2] >= w - 1),
-                    )
-                    if edge
-                ]
-                observations.append(
-                    {
-                        "camera_id": cid,
-                        "t": frame_time,
-                        "box": (b / SCALE).tolist(),
-                        "kind": "person",
-                        **({"cut": cut} if cut else {}),
-                    }
-                )
-            body: dict[str, Any] = {"observations": observations}
-            if not observations:
-                body = {"empty_frames": [{"camera_id": cid, "t": frame_time}]}
+            now = time.time()
+            due = []
+            while k < len(self.frames) and self.frames[k][0] + self.delay <= now:
+                due.append(self.frames[k])
+                k += 1
+            body: dict[str, Any] = {"observations": [], "empty_frames": []}
+            for frame_time, name, boxes in due:
+                self._add(body, frame_time, self.cameras[name], boxes)
             answer = self.client.post("/api/v1/observations", json=body, headers=self.admin)
             if answer.status_code != 200:
                 self.failed.append(answer.status_code)
+            done = time.time()
+            self.lag.extend(done - (frame_time + self.delay) for frame_time, _, _ in due)
+
+    @staticmethod
+    def _add(body: dict[str, Any], frame_time: float, cid: int, boxes) -> None:
+        w, h = DETECT
+        if not boxes:
+            body["empty_frames"].append({"camera_id": cid, "t": frame_time})
+        for box in boxes:
+            b = np.round(box)  # Frigate's boxes are whole detect pixels
+            cut = [
+                side
+                for side, edge in (
+                    ("bottom", b[3] >= h - 1),
+                    ("top", b[1] <= 1),
+                    ("left", b[0] <= 1),
+                    ("right", b[2] >= w - 1),
+                )
+                if edge
+            ]
+            body["observations"].append(
+                {
+                    "camera_id": cid,
+                    "t": frame_time,
+                    "box": (b / SCALE).tolist(),
+                    "kind": "person",
+                    **({"cut": cut} if cut else {}),
+                }
+            )
 
 
 def _score(samples, space_id: int, t0: float) -> tuple[dict[str, float], list[str]]:
@@ -179,7 +194,7 @@ def _score(samples, space_id: int, t0: float) -> tuple[dict[str, float], list[st
     return {k: float(summary[k].iloc[0]) for k in summary.columns}, still_events
 
 
-# Real time (30 s): run on SQLite only; the ingest it shares with the API runs on both.
+# Real time (28 s): run on SQLite only; the ingest it shares with the API runs on both.
 @pytest.mark.parametrize("database_url", ["sqlite"], indirect=True)
 def test_frigate_replay_two_cameras_three_walkers(broker, make_settings, admin):  # noqa: F811
     cams = _cameras()
@@ -256,8 +271,7 @@ def test_frigate_replay_two_cameras_three_walkers(broker, make_settings, admin):
     frigate = status["frigate"]
     assert frigate["unknown_camera"] == 0 and frigate["errors"] == 0 and frigate["dropped"] == 0
     assert frigate["fed"] == counts["new"] + counts["update"] - 2  # the car and the clutter
-    assert not steady.failed, steady.failed
-    assert len(frames) == 2 * DURATION * DETECT_FPS
+    assert len(frames) == round(2 * DURATION * DETECT_FPS)
     topic = "intspace/flat/zones/living/occupancy"
     occupancy = [(t, int(p)) for t, tp, p, _ in rec.messages if tp == topic and p]
     ref_topic = "intspace/lab/zones/living/occupancy"
@@ -287,8 +301,13 @@ def test_frigate_replay_two_cameras_three_walkers(broker, make_settings, admin):
     print(
         f"Frigate replay: {counts} messages, fed {frigate['fed']}, re-fed {frigate['refed']}, "
         f"late {frigate['late']}; Frigate {figures}, occupancy double counts {len(doubles)}; "
-        f"steady {reference}, occupancy double counts {len(ref_doubles)}"
+        f"steady {reference}, occupancy double counts {len(ref_doubles)}, "
+        f"posted {np.percentile(steady.lag, 95):.2f} s after due (p95)"
     )
+    assert not steady.failed, steady.failed
+    # The reference is the tracker given every frame in time: a machine too busy to post them
+    # within the tracker's latency (0.5 s) has no reference to compare with.
+    assert np.percentile(steady.lag, 95) < 0.5, np.percentile(steady.lag, 95)
     assert not doubles, doubles
     # A and B stand in the room at the end (Frigate keeps them, stationary); C left.
     assert occupancy[-1][1] == 2
