@@ -305,9 +305,11 @@ def test_frigate_replay_two_cameras_three_walkers(broker, make_settings, admin):
         f"posted {np.percentile(steady.lag, 95):.2f} s after due (p95)"
     )
     assert not steady.failed, steady.failed
-    # The reference is the tracker given every frame in time: a machine too busy to post them
-    # within the tracker's latency (0.5 s) has no reference to compare with.
-    assert np.percentile(steady.lag, 95) < 0.5, np.percentile(steady.lag, 95)
+    # The reference is the tracker given every frame: when it does not follow the walkers (a
+    # machine too busy to post the frames within the tracker's latency) there is nothing to
+    # compare with. Spec 08 asks MOTA >= 0.95 of it on clean pixels; boxes cost some (0.91-0.94
+    # in these runs).
+    assert reference["mota"] >= 0.85, reference
     assert not doubles, doubles
     # A and B stand in the room at the end (Frigate keeps them, stationary); C left.
     assert occupancy[-1][1] == 2
