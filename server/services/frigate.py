@@ -96,9 +96,10 @@ _STATS_PERIOD_S = 60.0
 # frames (docs/home-automation.md advises about 2 s).
 V_WALK_M_S = 1.0
 # Frigate calls an object stationary while its box overlaps the box it stood in by an IoU of
-# at least STILL_IOU (its tracker's position reset, 0.6): two boxes of one size shifted by a
-# fraction f of a side have the IoU (1 - f) / (1 + f), so the foot of a stationary object may be
-# up to STILL_SHIFT of the box's width and height from where its box was.
+# at least STILL_IOU (frigate/track/norfair_tracker.py resets the position below 0.6): two
+# boxes of one size shifted by a fraction f of a side have the IoU (1 - f) / (1 + f), so the
+# foot of a stationary object may be up to STILL_SHIFT of the box's width and height from
+# where its box was.
 STILL_IOU = 0.6
 STILL_SHIFT = (1.0 - STILL_IOU) / (1.0 + STILL_IOU)
 STALE_M = 1.0
