@@ -75,7 +75,7 @@ def test_navigation_page_plans_between_two_clicks_and_follows(service, browser_p
     expect(page.get_by_test_id("nav-floor-plan")).to_contain_text("twin scene")
     # The projector with a pose is chosen; the walls and furniture of the twin's home are drawn.
     expect(page.get_by_test_id("nav-projector")).to_have_value("1")
-    assert page.locator(".nav-furniture").count() == len(scene.furniture)
+    assert page.locator(".plan-furniture").count() == len(scene.furniture)
 
     _click_world(page, *START)
     expect(page.get_by_test_id("nav-start")).to_be_visible()

@@ -1,6 +1,6 @@
 // Calibration runs: start one (chessboard photos or a correspondences file), watch it, apply it.
 
-import { api, inSpace, list } from "../api.js";
+import { api, inSpace, list, poll } from "../api.js";
 import { barChart } from "../plot.js";
 import {
   duration,
@@ -921,8 +921,6 @@ const applicable = (run) =>
 
 export async function renderRun(main, [id], _query, setTitle) {
   setTitle(`Calibration run #${id}`);
-  let timer = null;
-  let stopped = false;
   let applied = false;
   const header = h("div");
   const body = h("div", { class: "grid" });
@@ -1153,28 +1151,34 @@ export async function renderRun(main, [id], _query, setTitle) {
   };
 
   let cameraName = null;
-  const poll = async () => {
-    try {
-      const run = await api(`/calibration-runs/${id}`);
-      if (stopped) return;
-      if (cameraName === null && run.camera_id) {
-        cameraName = await api(`/cameras/${run.camera_id}`).then(
-          (c) => c.name,
-          () => `#${run.camera_id}`, // a deleted camera: the run keeps its id
-        );
-      }
+  const nameCamera = async (run) => {
+    if (cameraName !== null || !run.camera_id) return;
+    cameraName = await api(`/cameras/${run.camera_id}`).then(
+      (c) => c.name,
+      () => `#${run.camera_id}`, // a deleted camera: the run keeps its id
+    );
+  };
+  // GET the run until it ends; keep trying while the service is unreachable or restarting,
+  // stop on a refusal (4xx), which will not change. The page is ready once the first answer
+  // is drawn.
+  let firstDrawn;
+  const drawn = new Promise((resolve) => {
+    firstDrawn = resolve;
+  });
+  const reads = poll(() => api(`/calibration-runs/${id}`), {
+    interval: POLL_MS,
+    stopOn4xx: true,
+    onValue: async (run) => {
+      await nameCamera(run);
       draw(run);
-      if (!TERMINAL.has(run.status)) timer = setTimeout(poll, POLL_MS);
-    } catch (err) {
-      if (stopped) return;
+      firstDrawn();
+      return !TERMINAL.has(run.status);
+    },
+    onError: (err) => {
       mount(notice, errorBox(err, "run-poll-error"));
-      // Keep trying while the service is unreachable or restarting; a 4xx will not change.
-      if (!(err.status >= 400 && err.status < 500)) timer = setTimeout(poll, POLL_MS * 4);
-    }
-  };
-  await poll();
-  return () => {
-    stopped = true;
-    clearTimeout(timer);
-  };
+      firstDrawn();
+    },
+  });
+  await drawn;
+  return () => reads.stop();
 }

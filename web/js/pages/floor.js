@@ -2,13 +2,26 @@
 // positions of its robot and people (2-sigma covariance ellipses, tracks) and, in the twin's
 // home, the digital twin's controls.
 
-import { api, currentSpace, inSpace, list, spaceById } from "../api.js";
-import { drawRooms, eventToWorld, planTransform } from "../floorplan.js";
-import { drawZones } from "../zones.js";
+import { api, currentSpace, inSpace, list, poll, spaceById } from "../api.js";
+import {
+  drawCameras,
+  drawRooms,
+  drawScaleBar,
+  drawTargets as drawTargetMarks,
+  drawTracks,
+  drawTruth,
+  drawZones,
+  ellipse2Sigma,
+  eventToWorld,
+  planSvg,
+  planTransform,
+  targetKind,
+} from "../plan.js";
 import { fmt, h, infoBox, mount, panel, s, toastError } from "../ui.js";
 
 const POLL_MS = 500; // GET /targets when the WebSocket stream is unavailable
 const TWIN_MS = 1000;
+const ZONES_MS = 1000; // GET /spaces/{id}/zones: live occupancy
 const TRACK_POINTS = 400; // newest points kept per target in the page
 const W = 900; // SVG user units across; the height follows the plan's aspect, at least 360
 const MIN_ELLIPSE_PX = 16; // ellipses smaller than this are scaled up (and the scale noted)
@@ -35,27 +48,6 @@ function viridis(t) {
   const i = Math.min(Math.floor(x), VIRIDIS.length - 2);
   const f = x - i;
   return VIRIDIS[i].map((c, k) => Math.round(c + f * (VIRIDIS[i + 1][k] - c)));
-}
-
-/**
- * Return the 2-sigma ellipse of a 2x2 covariance (m^2): semi-axes a >= b (m) and the angle of
- * a from world +X (rad). Eigen-decomposition of a symmetric 2x2 matrix in closed form.
- */
-export function ellipse2Sigma(cov) {
-  const [[sxx, sxy], [, syy]] = cov;
-  const mean = (sxx + syy) / 2;
-  const r = Math.hypot((sxx - syy) / 2, sxy);
-  const l1 = Math.max(mean + r, 0);
-  const l2 = Math.max(mean - r, 0);
-  return { a: 2 * Math.sqrt(l1), b: 2 * Math.sqrt(l2), angle: 0.5 * Math.atan2(2 * sxy, sxx - syy) };
-}
-
-/** Return the track points [[x, y], ...] of whatever shape the track endpoint answers. */
-function trackPoints(body) {
-  const rows = Array.isArray(body) ? body : body?.items || body?.points || [];
-  return rows
-    .map((p) => (Array.isArray(p) ? p : p.xy || (p.x !== undefined ? [p.x, p.y] : null)))
-    .filter((p) => Array.isArray(p) && Number.isFinite(p[0]) && Number.isFinite(p[1]));
 }
 
 function targetsOf(body) {
@@ -145,6 +137,15 @@ function countLegend() {
   );
 }
 
+/** Draw the zones of these spaces into `g`, read again every second; return the poll. */
+function followZones(g, spaceIds, tf) {
+  return poll(() => Promise.all(spaceIds.map((id) => api(`/spaces/${id}/zones`))), {
+    interval: ZONES_MS,
+    // On a failure the plan stays as it was; the next read tries again.
+    onValue: (all) => drawZones(g, all.flat(), tf),
+  });
+}
+
 async function settle(promise) {
   try {
     return { value: await promise };
@@ -179,13 +180,10 @@ export async function renderFloor(main) {
   const { X, Y } = tf;
 
   // -- the drawing ---------------------------------------------------------------------------
-  const svg = s("svg", {
-    class: "plot floormap",
-    viewBox: `0 0 ${tf.W} ${tf.H}`,
-    role: "img",
-    "aria-label": "Floor plan with live positions",
+  const svg = planSvg(tf, {
+    className: "plot floormap",
+    label: "Floor plan with live positions",
     testid: "floor-map",
-    "data-transform": JSON.stringify(tf.json),
   });
   const gHeat = s("g", { class: "heat" });
   const gRooms = s("g");
@@ -200,40 +198,9 @@ export async function renderFloor(main) {
 
   drawRooms(gRooms, rooms.items, tf);
   const spaceIds = [...new Set(rooms.items.map((r) => r.space_id))];
-  const stopZones = drawZones(gZones, spaceIds, tf);
-  for (const c of cams) {
-    const T = c.T_world_camera;
-    const [px, py] = [X(T[0][3]), Y(T[1][3])];
-    const len = Math.hypot(T[0][2], T[1][2]);
-    if (len > 1e-3) {
-      const [ux, uy] = [T[0][2] / len, -T[1][2] / len];
-      gCams.append(
-        s("line", { class: "cam-axis", x1: px, y1: py, x2: px + 26 * ux, y2: py + 26 * uy }),
-      );
-    }
-    gCams.append(
-      s("circle", { class: "cam", cx: px, cy: py, r: 5 }, s("title", null, c.name)),
-      s(
-        "text",
-        {
-          class: "cam-label",
-          x: px > tf.W * 0.75 ? px - 8 : px + 8,
-          y: py - 7,
-          "text-anchor": px > tf.W * 0.75 ? "end" : "start",
-        },
-        c.name,
-      ),
-    );
-  }
-  // A scale bar of a round length, bottom left.
-  const metres = [0.5, 1, 2, 5].find((v) => v * tf.scale >= 60) || 10;
-  svg.append(
-    s("path", {
-      class: "scale-bar",
-      d: `M12 ${tf.H - 14} v4 h${metres * tf.scale} v-4`,
-    }),
-    s("text", { x: 12 + (metres * tf.scale) / 2, y: tf.H - 18, "text-anchor": "middle" }, `${metres} m`),
-  );
+  const zonePoll = followZones(gZones, spaceIds, tf);
+  drawCameras(gCams, cams, tf);
+  drawScaleBar(svg, tf);
 
   // -- coverage ------------------------------------------------------------------------------
   const heatNote = h("div", { class: "small muted" });
@@ -357,7 +324,7 @@ export async function renderFloor(main) {
     // round factor that makes the kind's largest ellipse visible.
     const notes = [];
     for (const kind of ["robot", "person", "unknown"]) {
-      const ofKind = items.filter((t) => t.cov && (t.kind === kind || (kind === "unknown" && !["robot", "person"].includes(t.kind))));
+      const ofKind = items.filter((t) => t.cov && targetKind(t) === kind);
       if (!ofKind.length) continue;
       const largest = Math.max(...ofKind.map((t) => ellipse2Sigma(t.cov).a));
       const needed = largest > 0 ? MIN_ELLIPSE_PX / (largest * tf.scale) : 1;
@@ -369,64 +336,17 @@ export async function renderFloor(main) {
       ? `2σ ellipses: ${notes.join(", ")}` +
         ([...ellipseScale.values()].some((k) => k > 1) ? " (enlarged where tiny at this scale)" : "")
       : "";
-    gTracks.replaceChildren(
-      ...[...tracks.entries()]
-        .filter(([, pts]) => pts.length > 1)
-        .map(([label, pts]) =>
-          s("polyline", {
-            class: `track ${latest.get(label)?.kind || "unknown"}`,
-            points: pts.map((p) => `${X(p[0]).toFixed(1)},${Y(p[1]).toFixed(1)}`).join(" "),
-            testid: `track-${label}`,
-            "data-points": pts.length,
-          }),
-        ),
+    drawTracks(
+      gTracks,
+      [...tracks.entries()].map(([label, points]) => ({
+        label,
+        points,
+        kind: latest.get(label)?.kind || "unknown",
+        testid: `track-${label}`,
+      })),
+      tf,
     );
-    gEllipses.replaceChildren();
-    gTargets.replaceChildren();
-    for (const t of items) {
-      const [x, y] = t.xy;
-      const kind = ["robot", "person"].includes(t.kind) ? t.kind : "unknown";
-      if (t.cov) {
-        const e = ellipse2Sigma(t.cov);
-        gEllipses.append(
-          s("ellipse", {
-            class: `cov ${kind}`,
-            cx: X(x),
-            cy: Y(y),
-            rx: Math.max(e.a * tf.scale * (ellipseScale.get(kind) || 1), 0.5),
-            ry: Math.max(e.b * tf.scale * (ellipseScale.get(kind) || 1), 0.5),
-            // SVG angles turn clockwise (y down): the world angle with its sign flipped.
-            transform: `rotate(${((-e.angle * 180) / Math.PI).toFixed(3)} ${X(x)} ${Y(y)})`,
-            testid: `cov-${t.label}`,
-            "data-a": e.a,
-            "data-b": e.b,
-            "data-scale": ellipseScale.get(kind) || 1,
-          }),
-        );
-      }
-      const shape =
-        kind === "robot"
-          ? s("rect", { x: -7, y: -7, width: 14, height: 14, rx: 3 })
-          : kind === "person"
-            ? s("circle", { r: 6 })
-            : s("path", { d: "M0 -8 L7 5 L-7 5 Z" });
-      gTargets.append(
-        s(
-          "g",
-          {
-            class: `target ${kind}`,
-            transform: `translate(${X(x)} ${Y(y)})`,
-            testid: `target-${t.label}`,
-            "data-x": x,
-            "data-y": y,
-            "data-kind": kind,
-          },
-          shape,
-          s("text", { x: 10, y: -8 }, t.label),
-          s("title", null, `${t.label}: (${fmt(x, 3)}, ${fmt(y, 3)}) m`),
-        ),
-      );
-    }
+    drawTargetMarks(gEllipses, gTargets, items, tf, (kind) => ellipseScale.get(kind) || 1);
     tableBody.replaceChildren(
       ...items.map((t) => {
         const e = t.cov ? ellipse2Sigma(t.cov) : null;
@@ -504,38 +424,36 @@ export async function renderFloor(main) {
     const body = await api(inSpace(`/targets/tracks?state=all&since=${since}&targets=200`));
     const ended = (body.tracks || []).filter((tr) => tr.state === "ended");
     historyNote.textContent = `${ended.length} ended in the last 10 min`;
-    for (const tr of ended) {
-      if (tr.points.length < 2) continue;
-      gHistory.append(
-        s("polyline", {
-          class: `track ended ${tr.kind}`,
-          points: tr.points.map((p) => `${X(p[1]).toFixed(1)},${Y(p[2]).toFixed(1)}`).join(" "),
-          testid: `history-${tr.label}`,
-        }),
-      );
-    }
+    drawTracks(
+      gHistory,
+      ended.map((tr) => ({
+        label: tr.label,
+        kind: tr.kind,
+        ended: true,
+        points: tr.points.map((p) => [p[1], p[2]]),
+        testid: `history-${tr.label}`,
+      })),
+      tf,
+    );
   };
   historyToggle.addEventListener("change", () => drawHistory().catch(toastError));
 
   let stopped = false;
-  let pollTimer = null;
+  let targetPoll = null;
   let socket = null;
-  const poll = async () => {
-    if (stopped) return;
-    try {
-      accept(targetsOf(await api(inSpace("/targets"))));
-    } catch (err) {
-      sourceBadge.textContent = `positions unavailable (${err.status || "offline"})`;
-      sourceBadge.className = "badge bad";
-    }
-    if (!stopped) pollTimer = setTimeout(poll, POLL_MS);
-  };
   const startPolling = () => {
-    if (stopped || pollTimer !== null) return;
+    if (stopped || targetPoll !== null) return;
     sourceBadge.textContent = `polling every ${POLL_MS / 1000} s`;
     sourceBadge.className = "badge warn";
     sourceBadge.dataset.source = "polling";
-    poll();
+    targetPoll = poll(() => api(inSpace("/targets")), {
+      interval: POLL_MS,
+      onValue: (body) => accept(targetsOf(body)),
+      onError: (err) => {
+        sourceBadge.textContent = `positions unavailable (${err.status || "offline"})`;
+        sourceBadge.className = "badge bad";
+      },
+    });
   };
   try {
     const proto = location.protocol === "https:" ? "wss" : "ws";
@@ -574,31 +492,6 @@ export async function renderFloor(main) {
   // -- the twin --------------------------------------------------------------------------------
   const twinBox = h("div", { testid: "twin" });
   const twinNotice = h("div");
-  let twinTimer = null;
-  const drawTruth = (tw) => {
-    gTruth.replaceChildren();
-    if (tw?.robot) {
-      const { x, y, theta } = tw.robot;
-      const r = Math.max(0.18 * tf.scale, 6);
-      gTruth.append(
-        s(
-          "g",
-          {
-            class: "truth robot",
-            transform: `translate(${X(x)} ${Y(y)}) rotate(${((-theta * 180) / Math.PI).toFixed(2)})`,
-            testid: "robot-truth",
-            "data-x": x,
-            "data-y": y,
-          },
-          s("circle", { r }),
-          s("line", { x1: 0, y1: 0, x2: r, y2: 0 }),
-        ),
-      );
-    }
-    for (const p of tw?.people || []) {
-      gTruth.append(s("circle", { class: "truth person", cx: X(p.x), cy: Y(p.y), r: 9 }));
-    }
-  };
   const control = (action, label) =>
     h(
       "button",
@@ -615,7 +508,7 @@ export async function renderFloor(main) {
               tracks.clear();
               drawTargets();
             }
-            await refreshTwin(false);
+            twinPoll?.now();
           } catch (err) {
             toastError(err);
           } finally {
@@ -660,10 +553,10 @@ export async function renderFloor(main) {
         control("reset", "Reset"),
       ),
     );
-    drawTruth(tw);
+    drawTruth(gTruth, tw, tf);
   };
   const twinOff = (err) => {
-    drawTruth(null);
+    drawTruth(gTruth, null, tf);
     mount(
       twinBox,
       infoBox(
@@ -675,17 +568,11 @@ export async function renderFloor(main) {
       ),
     );
   };
-  const refreshTwin = async (again = true) => {
-    try {
-      const tw = await api("/twin");
-      if (stopped) return;
-      if (tw && tw.enabled === false) twinOff(null);
-      else drawTwin(tw);
-    } catch (err) {
-      if (!stopped) twinOff(err);
-    }
-    if (again && !stopped) twinTimer = setTimeout(refreshTwin, TWIN_MS);
+  const showTwin = (tw) => {
+    if (tw && tw.enabled === false) twinOff(null);
+    else drawTwin(tw);
   };
+  let twinPoll = null;
   if (twinElsewhere) {
     const home = spaceById(twin0.value.space_id)?.name || `space ${twin0.value.space_id}`;
     mount(
@@ -699,7 +586,7 @@ export async function renderFloor(main) {
   } else {
     if (twin0.error || twin0.value?.enabled === false) twinOff(twin0.error);
     else drawTwin(twin0.value);
-    twinTimer = setTimeout(refreshTwin, TWIN_MS);
+    twinPoll = poll(() => api("/twin"), { interval: TWIN_MS, delay: true, onValue: showTwin, onError: twinOff });
   }
 
   // -- layout ----------------------------------------------------------------------------------
@@ -786,9 +673,9 @@ export async function renderFloor(main) {
   );
   return () => {
     stopped = true;
-    stopZones();
-    clearTimeout(pollTimer);
-    clearTimeout(twinTimer);
+    zonePoll.stop();
+    targetPoll?.stop();
+    twinPoll?.stop();
     if (socket) socket.close();
   };
 }

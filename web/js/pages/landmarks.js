@@ -2,7 +2,7 @@
 // photo (outlines and labels drawn over it), and the semantic and navigation maps read so far.
 
 import { api, currentSpace, inSpace, list } from "../api.js";
-import { drawRooms, planTransform } from "../floorplan.js";
+import { drawRooms, planSvg, planTransform } from "../plan.js";
 import { errorBox, fmt, h, mount, panel, s, sig, toastError } from "../ui.js";
 
 const BASE = "/api/v1";
@@ -267,13 +267,11 @@ function mapPlan(rooms, semantic, navigation) {
   const { X, Y } = tf;
   const gRooms = s("g");
   drawRooms(gRooms, rooms, tf);
-  const svg = s(
-    "svg",
+  const svg = planSvg(
+    tf,
     {
-      class: "plot floormap maps-plan",
-      viewBox: `0 0 ${tf.W} ${tf.H}`,
-      role: "img",
-      "aria-label": "Semantic and navigation maps on the floor plan",
+      className: "plot floormap maps-plan",
+      label: "Semantic and navigation maps on the floor plan",
       testid: "maps-plan",
     },
     gRooms,

@@ -2,7 +2,7 @@
 // on the twin, its result against the twin's truth, applied to the arm), and fetch tasks on
 // the twin with their phases and episode metrics as they run.
 
-import { api, inSpace, list } from "../api.js";
+import { api, inSpace, list, poll } from "../api.js";
 import {
   errorBox,
   fmt,
@@ -134,26 +134,18 @@ function armSelect(id, arms) {
 
 /** Poll `path` until its status is terminal, drawing each state; returns a stop function. */
 function follow(path, draw, onDone) {
-  let stopped = false;
-  let timer = null;
-  const poll = async () => {
-    try {
-      const item = await api(path);
-      if (stopped) return;
+  const reads = poll(() => api(path), {
+    interval: POLL_MS,
+    stopOn4xx: true, // a refusal will not change; keep trying while the service is unreachable
+    onError: toastError,
+    onValue: (item) => {
       draw(item);
-      if (TERMINAL.has(item.status)) onDone?.(item);
-      else timer = setTimeout(poll, POLL_MS);
-    } catch (err) {
-      if (stopped) return;
-      toastError(err);
-      if (!(err.status >= 400 && err.status < 500)) timer = setTimeout(poll, POLL_MS * 4);
-    }
-  };
-  poll();
-  return () => {
-    stopped = true;
-    clearTimeout(timer);
-  };
+      if (!TERMINAL.has(item.status)) return true;
+      onDone?.(item);
+      return false;
+    },
+  });
+  return () => reads.stop();
 }
 
 function progressLine(label, fraction, testid) {

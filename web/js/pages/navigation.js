@@ -3,8 +3,17 @@
 // (POST /paths/{id}/follow) and watch, live, its status, the robot and the spot moving on the
 // plan and the tracking error over time (uPlot), from the series GET /paths/{id} returns.
 
-import { api, currentSpace, list } from "../api.js";
-import { drawRooms, eventToWorld, planTransform, pointsAttr } from "../floorplan.js";
+import { api, currentSpace, list, poll } from "../api.js";
+import {
+  drawFurniture,
+  drawRooms,
+  drawWalls,
+  eventToWorld,
+  planSvg,
+  planTransform,
+  pointsAttr,
+  robotPose,
+} from "../plan.js";
 import { fmt, h, infoBox, mount, panel, s, statusBadge, toast, toastError } from "../ui.js";
 
 const W = 900; // SVG user units across; the height follows the plan's aspect, at least 320
@@ -108,7 +117,7 @@ export async function renderNavigation(main) {
   let start = null;
   let goal = null;
   let path = null;
-  let timer = null;
+  let followPoll = null;
   let chart = null;
   let chartKey = null;
   let alive = true;
@@ -124,7 +133,7 @@ export async function renderNavigation(main) {
   const calBox = h("div", { testid: "calib-box", "aria-live": "polite" });
   // Why the calibration cannot start, when it cannot.
   const calWhy = h("p", { class: "small muted", testid: "calib-why", hidden: true });
-  let calTimer = null;
+  let calPoll = null;
   const lawSelect = h(
     "select",
     { testid: "nav-law", "aria-label": "Control law" },
@@ -172,52 +181,27 @@ export async function renderNavigation(main) {
     const trail = series.x.map((x, i) => [x, series.y[i]]);
     gRun.append(
       s("polyline", {
-        points: pointsAttr(trail, X, Y),
-        fill: "none",
-        stroke: "#16a34a",
-        "stroke-width": 1.5,
-        "stroke-dasharray": "4 3",
+        class: "plan-trail",
+        points: pointsAttr(trail, tf),
         testid: "nav-trail",
         "data-points": trail.length,
       }),
     );
-    const [x, y, th] = [series.x[k], series.y[k], series.theta[k]];
-    const r = Math.max(4, (path && path.robot_radius_m ? path.robot_radius_m : 0.2) * tf.scale);
+    const [x, y, theta] = [series.x[k], series.y[k], series.theta[k]];
+    const radius = path && path.robot_radius_m ? path.robot_radius_m : 0.2;
     gRun.append(
-      s(
-        "g",
-        {
-          testid: "nav-robot",
-          "data-x": x,
-          "data-y": y,
-          "data-theta": th,
-          "data-t": series.t[k],
-        },
-        s("circle", {
-          cx: X(x),
-          cy: Y(y),
-          r,
-          fill: "rgba(22, 163, 74, 0.25)",
-          stroke: "#16a34a",
-          "stroke-width": 2,
-        }),
-        s("line", {
-          x1: X(x),
-          y1: Y(y),
-          x2: X(x) + r * Math.cos(th),
-          y2: Y(y) - r * Math.sin(th),
-          stroke: "#16a34a",
-          "stroke-width": 2,
-        }),
+      robotPose(
+        { x, y, theta },
+        radius,
+        tf,
+        { testid: "nav-robot", "data-x": x, "data-y": y, "data-theta": theta, "data-t": series.t[k] },
         s("title", null, `robot at ${series.t[k].toFixed(1)} s`),
       ),
       s("circle", {
+        class: "plan-spot",
         cx: X(series.spot_x[k]),
         cy: Y(series.spot_y[k]),
         r: 5,
-        fill: "#dc2626",
-        stroke: "#fff",
-        "stroke-width": 1.5,
         testid: "nav-spot",
         "data-x": series.spot_x[k],
         "data-y": series.spot_y[k],
@@ -234,14 +218,14 @@ export async function renderNavigation(main) {
       gPath.append(
         s("polyline", {
           class: "nav-spot-path",
-          points: pointsAttr(path.trajectory.spot, tf.X, tf.Y),
+          points: pointsAttr(path.trajectory.spot, tf),
         }),
       );
     }
     gPath.append(
       s("polyline", {
         class: "nav-path",
-        points: pointsAttr(path.points, tf.X, tf.Y),
+        points: pointsAttr(path.points, tf),
         testid: "nav-path",
         "data-points": path.points.length,
       }),
@@ -251,14 +235,10 @@ export async function renderNavigation(main) {
   const drawPlan = () => {
     const extent = plan.rooms.flatMap((r) => r.polygon);
     tf = planTransform(extent.length ? extent : [[0, 0], [5, 4]], { width: W, minHeight: 320 });
-    const { X, Y } = tf;
-    const svg = s("svg", {
-      class: "plot floormap nav-plan",
-      viewBox: `0 0 ${tf.W} ${tf.H}`,
-      role: "img",
-      "aria-label": "Floor plan: click a start, then a goal",
+    const svg = planSvg(tf, {
+      className: "plot floormap nav-plan",
+      label: "Floor plan: click a start, then a goal",
       testid: "nav-map",
-      "data-transform": JSON.stringify(tf.json),
     });
     const gRooms = s("g");
     const gObstacles = s("g");
@@ -267,23 +247,8 @@ export async function renderNavigation(main) {
     gMarks = s("g");
     svg.append(gRooms, gObstacles, gPath, gRun, gMarks);
     drawRooms(gRooms, plan.rooms, tf);
-    for (const w of plan.walls) {
-      gObstacles.append(
-        s("line", {
-          class: "nav-wall",
-          x1: X(w.start[0]),
-          y1: Y(w.start[1]),
-          x2: X(w.end[0]),
-          y2: Y(w.end[1]),
-          "stroke-width": Math.max(2, w.thickness * tf.scale),
-        }),
-      );
-    }
-    for (const f of plan.furniture) {
-      gObstacles.append(
-        s("polygon", { class: "nav-furniture", points: pointsAttr(f.footprint, X, Y) }, s("title", null, f.name)),
-      );
-    }
+    drawWalls(gObstacles, plan.walls, tf);
+    drawFurniture(gObstacles, plan.furniture, tf);
     svg.addEventListener("click", (ev) => {
       const w = eventToWorld(svg, tf, ev);
       if (!w) return;
@@ -310,8 +275,8 @@ export async function renderNavigation(main) {
   };
 
   const stopPolling = () => {
-    if (timer) clearTimeout(timer);
-    timer = null;
+    followPoll?.stop();
+    followPoll = null;
   };
 
   const showFollow = async (follow) => {
@@ -368,18 +333,23 @@ export async function renderNavigation(main) {
     }
   };
 
-  const poll = async () => {
-    if (!path || !alive) return;
-    try {
-      const fresh = await api(`/paths/${path.id}`);
-      if (!alive || !path || fresh.id !== path.id) return;
-      path = fresh;
-      await showFollow(fresh.follow);
-      followButton.disabled = fresh.follow.status === "running" || !fresh.trajectory;
-      if (fresh.follow.status === "running") timer = setTimeout(poll, POLL_MS);
-    } catch (err) {
-      toastError(err);
-    }
+  // GET /paths/{id} while its follow task runs.
+  const followPath = () => {
+    stopPolling();
+    const id = path.id;
+    followPoll = poll(() => api(`/paths/${id}`), {
+      interval: POLL_MS,
+      delay: true,
+      onError: toastError,
+      stopOn4xx: true,
+      onValue: async (fresh) => {
+        if (!path || fresh.id !== path.id) return false;
+        path = fresh;
+        await showFollow(fresh.follow);
+        followButton.disabled = fresh.follow.status === "running" || !fresh.trajectory;
+        return fresh.follow.status === "running";
+      },
+    });
   };
 
   const planPath = async () => {
@@ -428,8 +398,7 @@ export async function renderNavigation(main) {
     try {
       path = await api(`/paths/${path.id}/follow`, { method: "POST", json: { law: lawSelect.value } });
       await showFollow(path.follow);
-      stopPolling();
-      timer = setTimeout(poll, POLL_MS);
+      followPath();
     } catch (err) {
       followButton.disabled = false;
       toastError(err);
@@ -543,33 +512,37 @@ export async function renderNavigation(main) {
     );
   };
 
-  const pollRun = async (id) => {
-    try {
-      const run = await api(`/calibration-runs/${id}`);
-      if (!alive) return;
-      showRun(run);
-      if (!TERMINAL.has(run.status)) calTimer = setTimeout(() => pollRun(id), POLL_MS);
-      else calButton.disabled = false;
-    } catch (err) {
-      if (!alive) return;
-      toastError(err);
-      // Keep trying while the service is unreachable; a 4xx will not change.
-      if (!(err.status >= 400 && err.status < 500)) calTimer = setTimeout(() => pollRun(id), POLL_MS * 4);
-      else calButton.disabled = false;
-    }
+  // GET /calibration-runs/{id} until the run ends.
+  const followRun = (id) => {
+    calPoll?.stop();
+    calPoll = poll(() => api(`/calibration-runs/${id}`), {
+      interval: POLL_MS,
+      delay: true,
+      stopOn4xx: true, // a refusal will not change; keep trying while the service is unreachable
+      onValue: (run) => {
+        showRun(run);
+        if (!TERMINAL.has(run.status)) return true;
+        calButton.disabled = false;
+        return false;
+      },
+      onError: (err) => {
+        toastError(err);
+        if (err.status >= 400 && err.status < 500) calButton.disabled = false;
+      },
+    });
   };
 
   calButton.addEventListener("click", async () => {
     if (!calProjector.value) return;
     calButton.disabled = true;
-    if (calTimer) clearTimeout(calTimer);
+    calPoll?.stop();
     try {
       const run = await api("/calibration-runs", {
         method: "POST",
         json: { kind: "projector", projector_id: Number(calProjector.value), images: calImages.checked },
       });
       showRun(run);
-      calTimer = setTimeout(() => pollRun(run.id), POLL_MS);
+      followRun(run.id);
     } catch (err) {
       calButton.disabled = false;
       mount(calBox, h("p", { class: "small badge bad", testid: "calib-error" }, err.detail || err.message));
@@ -621,7 +594,7 @@ export async function renderNavigation(main) {
   return () => {
     alive = false;
     stopPolling();
-    if (calTimer) clearTimeout(calTimer);
+    calPoll?.stop();
     if (chart) chart.destroy();
   };
 }
