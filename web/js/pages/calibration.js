@@ -1,6 +1,7 @@
 // Calibration runs: start one (chessboard photos or a correspondences file), watch it, apply it.
 
 import { api, inSpace, list, poll } from "../api.js";
+import { lineChart } from "../chart.js";
 import { barChart } from "../plot.js";
 import {
   duration,
@@ -11,7 +12,6 @@ import {
   matrixTable,
   mount,
   panel,
-  s,
   statusBadge,
   toast,
   when,
@@ -469,84 +469,43 @@ function errorCell(value, target, digits, testid) {
   );
 }
 
-// Series colours of the accuracy plot, one per pixel noise level.
-const SERIES = ["#2563eb", "#d97706", "#dc2626", "#059669", "#7c3aed"];
-
 /**
- * A line plot of the worst camera's error against the drive's length (simulated seconds), one
- * series per pixel noise: solid the measured error, dashed its Cramer-Rao bound.
- * `pick(cameraEntry)` returns [error, bound] in the plotted unit.
+ * A line plot (uPlot) of the worst camera's error against the drive's length (simulated
+ * seconds), one colour per pixel noise: solid with dots the measured error, dashed its
+ * Cramer-Rao bound, and the target. `pick(cameraEntry)` returns [error, bound] in the plotted
+ * unit.
  */
 function accuracyPlot(rows, pick, { title, unit, target, testid }) {
-  const W = 560;
-  const H = 280;
-  const m = { top: 24, right: 110, bottom: 40, left: 56 };
-  const iw = W - m.left - m.right;
-  const ih = H - m.top - m.bottom;
+  const box = h("div", { class: "accuracy-plot", testid, "data-rows": rows.length });
   const sigmas = [...new Set(rows.map((r) => r.sigma_px))].sort((a, b) => a - b);
+  const xs = [...new Set(rows.map((r) => r.drive_s))].sort((a, b) => a - b);
   const worst = (r, k) =>
     Math.max(...r.cameras.map((c) => pick(c)[k]).filter((v) => Number.isFinite(v)), 0);
-  const pts = rows.map((r) => ({ x: r.drive_s, s: r.sigma_px, e: worst(r, 0), b: worst(r, 1) }));
-  const xmax = Math.max(...pts.map((p) => p.x), 1) * 1.05;
-  const ymax = Math.max(...pts.map((p) => Math.max(p.e, p.b)), target || 0, 1e-9) * 1.1;
-  const x = (v) => m.left + (v / xmax) * iw;
-  const y = (v) => m.top + ih - (v / ymax) * ih;
-  const svg = s("svg", { class: "plot", viewBox: `0 0 ${W} ${H}`, role: "img", testid });
-  svg.append(s("title", null, title));
-  for (let i = 0; i <= 4; i += 1) {
-    const v = (ymax * i) / 4;
-    svg.append(
-      s("line", { class: "grid-line", x1: m.left, x2: m.left + iw, y1: y(v), y2: y(v) }),
-      s("text", { x: m.left - 8, y: y(v) + 4, "text-anchor": "end" }, v.toPrecision(2)),
-    );
+  const at = (sg, k) =>
+    xs.map((x) => {
+      const row = rows.find((r) => r.sigma_px === sg && r.drive_s === x);
+      return row ? worst(row, k) : null;
+    });
+  const series = [];
+  const data = [xs];
+  sigmas.forEach((sg, i) => {
+    const colour = `series-${(i % 5) + 1}`;
+    series.push({ label: `σ ${sg} px`, colour, width: 2, points: true });
+    data.push(at(sg, 0));
+    series.push({ label: `bound, σ ${sg} px`, colour, width: 2, dash: [5, 4], points: false });
+    data.push(at(sg, 1));
+  });
+  if (target) {
+    series.push({ label: `target ${target} ${unit}`, colour: "target", width: 1.5, dash: [5, 4], points: false });
+    data.push(xs.map(() => target));
   }
-  for (let i = 0; i <= 4; i += 1) {
-    const v = (xmax * i) / 4;
-    svg.append(
-      s("text", { x: x(v), y: m.top + ih + 16, "text-anchor": "middle" }, v.toFixed(0)),
-    );
-  }
-  svg.append(
-    s("line", { class: "axis", x1: m.left, x2: m.left + iw, y1: y(0), y2: y(0) }),
-    s("text", { x: m.left + iw / 2, y: H - 6, "text-anchor": "middle" }, "drive (s)"),
-    s(
-      "text",
-      { x: 14, y: m.top + ih / 2, transform: `rotate(-90 14 ${m.top + ih / 2})`, "text-anchor": "middle" },
-      `worst camera (${unit})`,
+  // Drawn once the box is laid out, at its width.
+  requestAnimationFrame(() =>
+    lineChart(box, { title, x: "drive (s)", y: `worst camera (${unit})`, series, data, height: 280, fromZero: true }).catch(
+      (err) => mount(box, h("p", { class: "small badge bad" }, err.message)),
     ),
   );
-  if (target) {
-    svg.append(
-      s("line", { class: "mean", x1: m.left, x2: m.left + iw, y1: y(target), y2: y(target) }),
-      s("text", { class: "mean-label", x: m.left + iw, y: y(target) - 6, "text-anchor": "end" }, `target ${target} ${unit}`),
-    );
-  }
-  sigmas.forEach((sg, k) => {
-    const colour = SERIES[k % SERIES.length];
-    const ser = pts.filter((p) => p.s === sg).sort((a, b) => a.x - b.x);
-    const line = (key, dash) =>
-      s("polyline", {
-        points: ser.map((p) => `${x(p.x)},${y(p[key])}`).join(" "),
-        fill: "none",
-        stroke: colour,
-        "stroke-width": 2,
-        "stroke-dasharray": dash ? "5 4" : null,
-      });
-    svg.append(line("e", false), line("b", true));
-    for (const p of ser) {
-      const dot = s("circle", { cx: x(p.x), cy: y(p.e), r: 3, fill: colour, "data-value": p.e });
-      dot.append(s("title", null, `sigma ${sg} px, ${p.x.toFixed(0)} s: ${p.e.toPrecision(3)} ${unit} (bound ${p.b.toPrecision(3)})`));
-      svg.append(dot);
-    }
-    svg.append(
-      s("line", { x1: W - m.right + 12, x2: W - m.right + 32, y1: m.top + 14 * k + 6, y2: m.top + 14 * k + 6, stroke: colour, "stroke-width": 2 }),
-      s("text", { x: W - m.right + 36, y: m.top + 14 * k + 10 }, `σ ${sg} px`),
-    );
-  });
-  svg.append(
-    s("text", { x: W - m.right + 12, y: m.top + 14 * sigmas.length + 14 }, "dashed: bound"),
-  );
-  return svg;
+  return box;
 }
 
 function accuracyView(r) {
