@@ -16,7 +16,7 @@ export function colour(name) {
 }
 
 /** Return token `name`, a #rrggbb colour, as [r, g, b] (0..255), for painting pixels. */
-export function rgb(name) {
+export function channels(name) {
   const hex = colour(name);
   const m = /^#([0-9a-f]{2})([0-9a-f]{2})([0-9a-f]{2})$/i.exec(hex);
   if (!m) throw new Error(`colour token --${name} is ${hex}, not #rrggbb`);

@@ -81,19 +81,17 @@ function vertexMean(poly) {
   return [poly.reduce((t, p) => t + p[0], 0) / n, poly.reduce((t, p) => t + p[1], 0) / n];
 }
 
-/** Draw each room (at least three corners) into `g`: its polygon and its name at its centroid.
- * `fills`: colours the rooms take in turn (else the stylesheet's). */
-export function drawRooms(g, rooms, tf, { fills = null } = {}) {
-  rooms.forEach((room, i) => {
+/** Draw each room (at least three corners) into `g`: its polygon and its name at its centroid. */
+export function drawRooms(g, rooms, tf) {
+  for (const room of rooms) {
     const poly = room.polygon || [];
-    if (poly.length < 3) return;
-    const fill = fills ? fills[i % fills.length] : null;
-    g.append(s("polygon", { class: "room", points: pointsAttr(poly, tf), fill }));
+    if (poly.length < 3) continue;
+    g.append(s("polygon", { class: "room", points: pointsAttr(poly, tf) }));
     const [cx, cy] = centroid(poly);
     g.append(
       s("text", { class: "room-label", x: tf.X(cx), y: tf.Y(cy), "text-anchor": "middle" }, room.name),
     );
-  });
+  }
 }
 
 /** Draw the walls ({start, end, thickness} m) into `g`, each as thick as it is (2 units at

@@ -16,9 +16,6 @@ const DEVICES = [
   ["rooms", "Rooms", null, false],
 ];
 
-// The rooms' fills, in turn.
-const ROOM_FILLS = ["#dbeafe", "#dcfce7", "#ffedd5", "#f3e8ff", "#fee2e2"];
-
 /** A top-down floor plan (world X right, Y up) with the rooms and, for every camera with a
  * pose, its position and the wedge its optical axis points along on the floor. */
 function floorPlan(rooms, cameras) {
@@ -33,7 +30,7 @@ function floorPlan(rooms, cameras) {
   const tf = planTransform(pts, { width: 640, minHeight: 360, maxHeight: 360, margin: 0, pad: 24 });
   const gRooms = s("g");
   const gCams = s("g");
-  drawRooms(gRooms, rooms, tf, { fills: ROOM_FILLS });
+  drawRooms(gRooms, rooms, tf);
   drawScaleBar(gRooms, tf, { minPx: 50 });
   drawCameras(gCams, posed, tf, { view: "wedge" });
   return planSvg(tf, { className: "plot floorplan", label: "Floor plan with cameras", testid: "floorplan" }, gRooms, gCams);

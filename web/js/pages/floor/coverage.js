@@ -2,31 +2,22 @@
 // cameras seeing it) painted under the plan, its legend, its note and the read-out under the
 // mouse.
 
+import { channels, cssVar } from "../../colours.js";
 import { eventToWorld } from "../../plan.js";
 import { fmt, h, mount, s } from "../../ui.js";
 
-// Viridis (matplotlib), dark to bright; the accuracy map runs bright (precise) to dark.
-const VIRIDIS = [
-  [68, 1, 84],
-  [72, 40, 120],
-  [62, 74, 137],
-  [49, 104, 142],
-  [38, 130, 142],
-  [31, 158, 137],
-  [53, 183, 121],
-  [110, 206, 88],
-  [181, 222, 43],
-  [253, 231, 37],
-];
-// Cameras seeing a cell: none, 1 (position only from one view), 2, 3, 4 or more.
-const COUNT_COLOURS = [null, [254, 215, 170], [147, 197, 253], [59, 130, 246], [30, 64, 175]];
+// Viridis (matplotlib), dark to bright, and the colours of 1, 2, 3 and 4+ cameras: tokens of
+// app.css. The accuracy map runs bright (precise) to dark.
+const VIRIDIS = Array.from({ length: 10 }, (_, i) => `viridis-${i}`);
+const COUNT_COLOURS = [null, "coverage-1", "coverage-2", "coverage-3", "coverage-4"];
+const NOT_SEEN_ALPHA = 70; // no camera sees the cell: the muted grey, faint
 
-/** Return the colour (r, g, b) of t in [0, 1] on viridis. */
-function viridis(t) {
-  const x = Math.min(Math.max(t, 0), 1) * (VIRIDIS.length - 1);
-  const i = Math.min(Math.floor(x), VIRIDIS.length - 2);
+/** Return the colour (r, g, b) of t in [0, 1] on viridis (`scale`: its stops as [r, g, b]). */
+function viridis(t, scale) {
+  const x = Math.min(Math.max(t, 0), 1) * (scale.length - 1);
+  const i = Math.min(Math.floor(x), scale.length - 2);
   const f = x - i;
-  return VIRIDIS[i].map((c, k) => Math.round(c + f * (VIRIDIS[i + 1][k] - c)));
+  return scale[i].map((c, k) => Math.round(c + f * (scale[i + 1][k] - c)));
 }
 
 /** Paint the coverage grid as an image: one pixel per cell, row 0 at the largest y. */
@@ -38,20 +29,18 @@ function coverageImage(cov, mode, stdTop) {
   canvas.height = ny;
   const ctx = canvas.getContext("2d");
   const img = ctx.createImageData(nx, ny);
+  const scale = VIRIDIS.map(channels);
+  const counts = COUNT_COLOURS.map((name) => (name ? channels(name) : null));
+  const notSeen = [...channels("muted"), NOT_SEEN_ALPHA];
   for (let iy = 0; iy < ny; iy++) {
     const row = ny - 1 - iy;
     for (let ix = 0; ix < nx; ix++) {
       const n = cov.n_cameras[iy][ix];
       const std = cov.crb_std[iy][ix];
-      let rgb = null;
-      if (mode === "count") rgb = COUNT_COLOURS[Math.min(n, 4)];
-      else if (n > 0 && std !== null && Number.isFinite(std)) rgb = viridis(1 - std / stdTop);
-      const o = 4 * (row * nx + ix);
-      if (rgb) {
-        img.data.set([rgb[0], rgb[1], rgb[2], 255], o);
-      } else {
-        img.data.set([100, 116, 139, 70], o); // no camera sees it: a faint grey
-      }
+      let c = null;
+      if (mode === "count") c = counts[Math.min(n, 4)];
+      else if (n > 0 && std !== null && Number.isFinite(std)) c = viridis(1 - std / stdTop, scale);
+      img.data.set(c ? [c[0], c[1], c[2], 255] : notSeen, 4 * (row * nx + ix));
     }
   }
   ctx.putImageData(img, 0, 0);
@@ -72,7 +61,7 @@ function legendBar(top) {
   // Bright (precise) on the left: viridis from its bright end.
   const stops = [...VIRIDIS]
     .reverse()
-    .map((c, i) => `rgb(${c.join(",")}) ${((100 * i) / (VIRIDIS.length - 1)).toFixed(1)}%`)
+    .map((name, i) => `${cssVar(name)} ${((100 * i) / (VIRIDIS.length - 1)).toFixed(1)}%`)
     .join(", ");
   const ticks = [0, 0.25, 0.5, 0.75, 1].map((f) => top * 1000 * f);
   return h(
@@ -102,7 +91,7 @@ function countLegend() {
           "span",
           {
             style: {
-              "--swatch": COUNT_COLOURS[i] ? `rgb(${COUNT_COLOURS[i].join(",")})` : "#cbd5e1",
+              "--swatch": cssVar(COUNT_COLOURS[i] || "line-2"),
             },
           },
           n,

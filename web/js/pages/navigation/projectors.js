@@ -64,6 +64,64 @@ function runLine(run) {
   );
 }
 
+/** The button that applies a succeeded run (`apply(run)`) to its projector, named by
+ * `nameOf(id)`. */
+function applyButton(run, { nameOf, apply }) {
+  return h(
+    "button",
+    {
+      class: "btn primary",
+      type: "button",
+      testid: "calib-apply",
+      onClick: async (ev) => {
+        const btn = ev.currentTarget;
+        try {
+          await busy(btn, () => apply(run));
+          btn.textContent = "Applied";
+          btn.disabled = true;
+        } catch (err) {
+          toastError(err);
+        }
+      },
+    },
+    `Apply to ${nameOf(run.result.projector_id)}`,
+  );
+}
+
+/** Show a calibration run in `box`: its status, its error, and once it succeeded its fit and
+ * the button that applies it. */
+function showCalibrationRun(box, run, actions) {
+  const done = run.status === "succeeded" && run.result;
+  mount(
+    box,
+    runLine(run),
+    run.error ? h("p", { class: "small badge bad", testid: "calib-error" }, run.error) : null,
+    done ? calibrationFacts(run.result) : null,
+    done ? h("div", { class: "form-actions" }, applyButton(run, actions)) : null,
+  );
+}
+
+/** Offer `items`, the projectors of `space`, in both selects, keeping the choices that still
+ * hold: those with a mount pose plan paths; any of them can be calibrated. */
+function fillSelects({ planSelect, calSelect, start, why }, items, space) {
+  const planning = planSelect.value;
+  const calibrating = calSelect.value;
+  planSelect.replaceChildren(
+    h("option", { value: "" }, "No projector"),
+    ...items.map((p) => h("option", { value: p.id, disabled: !p.T_world_projector }, named(p))),
+  );
+  calSelect.replaceChildren(...items.map((p) => h("option", { value: p.id }, named(p))));
+  if (items.some((p) => String(p.id) === planning && p.T_world_projector)) planSelect.value = planning;
+  if (items.some((p) => String(p.id) === calibrating)) calSelect.value = calibrating;
+  start.disabled = !items.length;
+  why.hidden = items.length > 0;
+  why.textContent = items.length
+    ? ""
+    : `No projector is registered in ${space.name}: register it (POST /api/v1/projectors ` +
+      "with this space's id) to calibrate it here. The digital twin registers its own " +
+      "projector in its home when the service runs with INTSPACE_SIMULATION=true.";
+}
+
 /**
  * The projectors of `space` (the one picked in the header): `planSelect` picks the one paths
  * are planned with; `calibration` ({toolbar, why, box}) calibrates any of them. fill(items)
@@ -84,25 +142,9 @@ export function projectorViews(space) {
   // Why the calibration cannot start, when it cannot.
   const why = h("p", { class: "small muted", testid: "calib-why", hidden: true });
 
-  // Those with a mount pose plan paths; any of them can be calibrated.
   const fill = (items) => {
     projectors = items;
-    const planning = planSelect.value;
-    const calibrating = calSelect.value;
-    planSelect.replaceChildren(
-      h("option", { value: "" }, "No projector"),
-      ...projectors.map((p) => h("option", { value: p.id, disabled: !p.T_world_projector }, named(p))),
-    );
-    calSelect.replaceChildren(...projectors.map((p) => h("option", { value: p.id }, named(p))));
-    if (projectors.some((p) => String(p.id) === planning && p.T_world_projector)) planSelect.value = planning;
-    if (projectors.some((p) => String(p.id) === calibrating)) calSelect.value = calibrating;
-    start.disabled = !projectors.length;
-    why.hidden = projectors.length > 0;
-    why.textContent = projectors.length
-      ? ""
-      : `No projector is registered in ${space.name}: register it (POST /api/v1/projectors ` +
-        "with this space's id) to calibrate it here. The digital twin registers its own " +
-        "projector in its home when the service runs with INTSPACE_SIMULATION=true.";
+    fillSelects({ planSelect, calSelect, start, why }, items, space);
   };
 
   const apply = async (run) => {
@@ -112,38 +154,8 @@ export function projectorViews(space) {
     if (!planSelect.value) planSelect.value = String(applied.id);
     box.dataset.applied = String(run.id);
   };
-  const applyButton = (run) => {
-    const target = projectors.find((p) => p.id === run.result.projector_id);
-    return h(
-      "button",
-      {
-        class: "btn primary",
-        type: "button",
-        testid: "calib-apply",
-        onClick: async (ev) => {
-          const btn = ev.currentTarget;
-          try {
-            await busy(btn, () => apply(run));
-            btn.textContent = "Applied";
-            btn.disabled = true;
-          } catch (err) {
-            toastError(err);
-          }
-        },
-      },
-      `Apply to ${target?.name ?? `projector #${run.result.projector_id}`}`,
-    );
-  };
-  const showRun = (run) => {
-    const done = run.status === "succeeded" && run.result;
-    mount(
-      box,
-      runLine(run),
-      run.error ? h("p", { class: "small badge bad", testid: "calib-error" }, run.error) : null,
-      done ? calibrationFacts(run.result) : null,
-      done ? h("div", { class: "form-actions" }, applyButton(run)) : null,
-    );
-  };
+  const nameOf = (id) => projectors.find((p) => p.id === id)?.name ?? `projector #${id}`;
+  const showRun = (run) => showCalibrationRun(box, run, { nameOf, apply });
 
   // GET /calibration-runs/{id} until the run ends.
   const follow = (id) => {
