@@ -14,7 +14,8 @@ import {
 import { errorBox, h, mount } from "./ui.js";
 import { renderOverview } from "./pages/overview.js";
 import { renderCameras, renderCamera } from "./pages/cameras.js";
-import { renderCalibration, renderRun } from "./pages/calibration.js";
+import { renderCalibration } from "./pages/calibration.js";
+import { renderRun } from "./pages/calibration/run.js";
 import { renderScene } from "./pages/scene.js";
 import { renderFloor } from "./pages/floor.js";
 import { renderLandmarks } from "./pages/landmarks.js";

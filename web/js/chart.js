@@ -47,7 +47,9 @@ export async function lineChart(
       width: width ?? chartWidth(box),
       height,
       // fromZero: the y axis starts at 0 and leaves a tenth above the largest value.
-      scales: fromZero ? { x: { time }, y: { range: (_u, _min, max) => [0, (max || 1) * 1.1] } } : { x: { time } },
+      scales: fromZero
+        ? { x: { time }, y: { range: (_u, _min, max) => [0, (max || 1) * 1.1] } }
+        : { x: { time } },
       axes: [{ label: x }, { label: y }],
       series: [
         { label: x },
@@ -56,7 +58,9 @@ export async function lineChart(
           stroke: colour(sr.colour),
           width: sr.width ?? 1.5,
           ...(sr.dash ? { dash: sr.dash } : {}),
-          ...(sr.points === undefined ? {} : { points: { show: sr.points, fill: colour(sr.colour) } }),
+          ...(sr.points === undefined
+            ? {}
+            : { points: { show: sr.points, fill: colour(sr.colour) } }),
         })),
       ],
     },

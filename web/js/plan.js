@@ -89,7 +89,11 @@ export function drawRooms(g, rooms, tf) {
     g.append(s("polygon", { class: "room", points: pointsAttr(poly, tf) }));
     const [cx, cy] = centroid(poly);
     g.append(
-      s("text", { class: "room-label", x: tf.X(cx), y: tf.Y(cy), "text-anchor": "middle" }, room.name),
+      s(
+        "text",
+        { class: "room-label", x: tf.X(cx), y: tf.Y(cy), "text-anchor": "middle" },
+        room.name,
+      ),
     );
   }
 }
@@ -115,7 +119,11 @@ export function drawWalls(g, walls, { X, Y, scale }) {
 export function drawFurniture(g, furniture, tf) {
   for (const f of furniture) {
     g.append(
-      s("polygon", { class: "plan-furniture", points: pointsAttr(f.footprint, tf) }, s("title", null, f.name)),
+      s(
+        "polygon",
+        { class: "plan-furniture", points: pointsAttr(f.footprint, tf) },
+        s("title", null, f.name),
+      ),
     );
   }
 }
@@ -134,14 +142,18 @@ export function drawCameras(g, cameras, tf, { view = "axis" } = {}) {
     const len = Math.hypot(T[0][2], T[1][2]);
     const u = len > 1e-3 ? [T[0][2] / len, -T[1][2] / len] : null;
     if (view === "axis" && u) {
-      g.append(s("line", { class: "cam-axis", x1: px, y1: py, x2: px + 26 * u[0], y2: py + 26 * u[1] }));
+      g.append(
+        s("line", { class: "cam-axis", x1: px, y1: py, x2: px + 26 * u[0], y2: py + 26 * u[1] }),
+      );
     } else if (view === "wedge" && u) {
       const reach = 40;
       const side = (a) => [
         px + reach * (u[0] * Math.cos(a) - u[1] * Math.sin(a)),
         py + reach * (u[0] * Math.sin(a) + u[1] * Math.cos(a)),
       ];
-      g.append(s("polygon", { class: "cam-view", points: `${px},${py} ${side(0.45)} ${side(-0.45)}` }));
+      g.append(
+        s("polygon", { class: "cam-view", points: `${px},${py} ${side(0.45)} ${side(-0.45)}` }),
+      );
     } else if (view === "wedge") {
       g.append(s("circle", { class: "cam-view", cx: px, cy: py, r: 16 }));
     }
@@ -150,7 +162,12 @@ export function drawCameras(g, cameras, tf, { view = "axis" } = {}) {
       s("circle", { class: "cam", cx: px, cy: py, r: 5 }, s("title", null, c.name)),
       s(
         "text",
-        { class: "cam-label", x: right ? px - 8 : px + 8, y: py - 7, "text-anchor": right ? "end" : "start" },
+        {
+          class: "cam-label",
+          x: right ? px - 8 : px + 8,
+          y: py - 7,
+          "text-anchor": right ? "end" : "start",
+        },
         c.name,
       ),
     );
@@ -162,7 +179,11 @@ export function drawScaleBar(g, tf, { minPx = 60 } = {}) {
   const metres = [0.5, 1, 2, 5, 10].find((v) => v * tf.scale >= minPx) || 10;
   g.append(
     s("path", { class: "scale-bar", d: `M12 ${tf.H - 14} v4 h${metres * tf.scale} v-4` }),
-    s("text", { x: 12 + (metres * tf.scale) / 2, y: tf.H - 18, "text-anchor": "middle" }, `${metres} m`),
+    s(
+      "text",
+      { x: 12 + (metres * tf.scale) / 2, y: tf.H - 18, "text-anchor": "middle" },
+      `${metres} m`,
+    ),
   );
 }
 
@@ -179,7 +200,10 @@ export function drawZones(g, zones, tf) {
     const label = `${z.name}: ${z.occupancy ?? "–"}`;
     const shape = z.read_only
       ? null
-      : s("polygon", { class: `zone${occupied ? " occupied" : ""}`, points: pointsAttr(z.polygon, tf) });
+      : s("polygon", {
+          class: `zone${occupied ? " occupied" : ""}`,
+          points: pointsAttr(z.polygon, tf),
+        });
     const text = s(
       "text",
       {
@@ -216,7 +240,11 @@ export function ellipse2Sigma(cov) {
   const r = Math.hypot((sxx - syy) / 2, sxy);
   const l1 = Math.max(mean + r, 0);
   const l2 = Math.max(mean - r, 0);
-  return { a: 2 * Math.sqrt(l1), b: 2 * Math.sqrt(l2), angle: 0.5 * Math.atan2(2 * sxy, sxx - syy) };
+  return {
+    a: 2 * Math.sqrt(l1),
+    b: 2 * Math.sqrt(l2),
+    angle: 0.5 * Math.atan2(2 * sxy, sxx - syy),
+  };
 }
 
 /** The kind a target is drawn as: robot, person, or unknown for anything else. */
@@ -332,7 +360,12 @@ export function robotPose({ x, y, theta }, radius, { X, Y, scale }, attrs = {}, 
     "g",
     { class: "plan-robot", ...attrs },
     s("circle", { cx: X(x), cy: Y(y), r }),
-    s("line", { x1: X(x), y1: Y(y), x2: X(x) + r * Math.cos(theta), y2: Y(y) - r * Math.sin(theta) }),
+    s("line", {
+      x1: X(x),
+      y1: Y(y),
+      x2: X(x) + r * Math.cos(theta),
+      y2: Y(y) - r * Math.sin(theta),
+    }),
     ...children,
   );
 }

@@ -1,7 +1,7 @@
 // Cameras: the chosen space's table with an add form, and one camera's health, latest image,
 // intrinsics, history and exports.
 
-import { api, currentSpace, download, inSpace, list, poll, spaceById } from "../api.js";
+import { api, busy, currentSpace, download, inSpace, list, poll, spaceById } from "../api.js";
 import { barChart } from "../plot.js";
 import { placePanel } from "./placement.js";
 import {
@@ -257,24 +257,23 @@ function addCameraForm(space, onCreated) {
       onSubmit: async (ev) => {
         ev.preventDefault();
         mount(error);
-        submit.disabled = true;
         try {
-          const cam = await api("/cameras", {
-            method: "POST",
-            json: {
-              name: name.value.trim(),
-              width: Number(width.value),
-              height: Number(height.value),
-              space_id: space ? space.id : null,
-            },
+          await busy(submit, async () => {
+            const cam = await api("/cameras", {
+              method: "POST",
+              json: {
+                name: name.value.trim(),
+                width: Number(width.value),
+                height: Number(height.value),
+                space_id: space ? space.id : null,
+              },
+            });
+            toast(`Camera “${cam.name}” added`);
+            form.reset();
+            onCreated(cam);
           });
-          toast(`Camera “${cam.name}” added`);
-          form.reset();
-          onCreated(cam);
         } catch (err) {
           mount(error, errorBox(err, "camera-form-error"));
-        } finally {
-          submit.disabled = false;
         }
       },
     },

@@ -4,7 +4,14 @@
 // floor/targets.js and floor/twin.js each hold one of its parts.
 
 import { api, currentSpace, inSpace, list, poll } from "../api.js";
-import { drawCameras, drawRooms, drawScaleBar, drawZones, planSvg, planTransform } from "../plan.js";
+import {
+  drawCameras,
+  drawRooms,
+  drawScaleBar,
+  drawZones,
+  planSvg,
+  planTransform,
+} from "../plan.js";
 import { h, mount, panel, s } from "../ui.js";
 import { coverageLayer } from "./floor/coverage.js";
 import { liveTargets, targetsOf } from "./floor/targets.js";
@@ -54,7 +61,9 @@ async function readFloor() {
 function floorTransform({ rooms, cameras, cov, targets }) {
   const extent = [
     ...rooms.flatMap((r) => r.polygon || []),
-    ...cameras.filter((c) => Array.isArray(c.T_world_camera)).map((c) => [c.T_world_camera[0][3], c.T_world_camera[1][3]]),
+    ...cameras
+      .filter((c) => Array.isArray(c.T_world_camera))
+      .map((c) => [c.T_world_camera[0][3], c.T_world_camera[1][3]]),
   ];
   if (cov) extent.push([cov.x[0], cov.y[0]], [cov.x.at(-1), cov.y.at(-1)]);
   for (const t of targets) if (t.xy) extent.push(t.xy);
@@ -64,7 +73,11 @@ function floorTransform({ rooms, cameras, cov, targets }) {
 
 /** The plan's SVG with its layers, bottom to top; rooms, cameras and the scale bar drawn. */
 function floorDrawing(tf, { rooms, cameras }) {
-  const svg = planSvg(tf, { className: "plot floormap", label: "Floor plan with live positions", testid: "floor-map" });
+  const svg = planSvg(tf, {
+    className: "plot floormap",
+    label: "Floor plan with live positions",
+    testid: "floor-map",
+  });
   const g = {
     heat: s("g", { class: "heat" }),
     rooms: s("g"),
@@ -117,7 +130,12 @@ function planPanel(svg, live, coverage) {
     h(
       "div",
       { class: "floor-foot" },
-      h("label", { class: "small inline" }, live.history.toggle, "show ended targets (last 10 min)"),
+      h(
+        "label",
+        { class: "small inline" },
+        live.history.toggle,
+        "show ended targets (last 10 min)",
+      ),
       live.history.note,
     ),
     h("div", { class: "floor-foot" }, coverage.controls, coverage.legend, coverage.readout),
@@ -132,7 +150,12 @@ export async function renderFloor(main) {
   const { svg, g } = floorDrawing(tf, floor);
   const spaceIds = [...new Set(floor.rooms.map((r) => r.space_id))];
   const zones = followZones(g.zones, spaceIds, tf);
-  const coverage = coverageLayer(floor.cov, floor.coverageError, { svg, gHeat: g.heat, tf, cameras: floor.cameras });
+  const coverage = coverageLayer(floor.cov, floor.coverageError, {
+    svg,
+    gHeat: g.heat,
+    tf,
+    cameras: floor.cameras,
+  });
   const live = await liveTargets(space, tf, g, floor.targets);
   const twin = twinPanel(space, floor.twin, { gTruth: g.truth, tf, onReset: live.clearTracks });
   mount(

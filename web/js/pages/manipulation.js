@@ -2,7 +2,7 @@
 // on the twin, its result against the twin's truth, applied to the arm), and fetch tasks on
 // the twin with their phases and episode metrics as they run.
 
-import { api, inSpace, list, poll } from "../api.js";
+import { api, busy, inSpace, list, poll } from "../api.js";
 import {
   errorBox,
   fmt,
@@ -99,18 +99,17 @@ function addArmForm(robots, onAdded) {
       onSubmit: async (event) => {
         event.preventDefault();
         mount(error);
-        submit.disabled = true;
         try {
-          const arm = await api("/arms", {
-            method: "POST",
-            json: { robot_id: Number(robot.value), name: name.value },
+          await busy(submit, async () => {
+            const arm = await api("/arms", {
+              method: "POST",
+              json: { robot_id: Number(robot.value), name: name.value },
+            });
+            toast(`Arm #${arm.id} added`);
+            await onAdded();
           });
-          toast(`Arm #${arm.id} added`);
-          await onAdded();
         } catch (err) {
           mount(error, errorBox(err, "arm-error"));
-        } finally {
-          submit.disabled = false;
         }
       },
     },
@@ -178,15 +177,14 @@ function handEyeResult(run, onApplied) {
       type: "button",
       testid: "hand-eye-apply",
       onClick: async () => {
-        apply.disabled = true;
         try {
-          const arm = await api(`/calibration-runs/${run.id}/apply`, { method: "POST" });
-          toast(`Hand-eye transform applied to arm #${arm.id}`);
-          await onApplied();
+          await busy(apply, async () => {
+            const arm = await api(`/calibration-runs/${run.id}/apply`, { method: "POST" });
+            toast(`Hand-eye transform applied to arm #${arm.id}`);
+            await onApplied();
+          });
         } catch (err) {
           toastError(err);
-        } finally {
-          apply.disabled = false;
         }
       },
     },
@@ -304,27 +302,26 @@ function handEyePanel(arms, stops, onApplied) {
       testid: "hand-eye-form",
       onSubmit: async (event) => {
         event.preventDefault();
-        submit.disabled = true;
         try {
-          const run = await api("/calibration-runs", {
-            method: "POST",
-            json: {
-              kind: "hand-eye",
-              arm_id: Number(arm.value),
-              method: method.value,
-              twin: {
-                views: Number(views.value),
-                rendered: rendered.checked,
-                seed: seed.value === "" ? null : Number(seed.value),
+          await busy(submit, async () => {
+            const run = await api("/calibration-runs", {
+              method: "POST",
+              json: {
+                kind: "hand-eye",
+                arm_id: Number(arm.value),
+                method: method.value,
+                twin: {
+                  views: Number(views.value),
+                  rendered: rendered.checked,
+                  seed: seed.value === "" ? null : Number(seed.value),
+                },
               },
-            },
+            });
+            stops.handEye?.();
+            stops.handEye = follow(`/calibration-runs/${run.id}`, draw);
           });
-          stops.handEye?.();
-          stops.handEye = follow(`/calibration-runs/${run.id}`, draw);
         } catch (err) {
           mount(out, errorBox(err, "hand-eye-error"));
-        } finally {
-          submit.disabled = false;
         }
       },
     },
@@ -472,17 +469,16 @@ function tasksPanel(arms, tasks, stops) {
       testid: "task-form",
       onSubmit: async (event) => {
         event.preventDefault();
-        submit.disabled = true;
         try {
-          const task = await api("/tasks", {
-            method: "POST",
-            json: { kind: "fetch", arm_id: Number(arm.value), episodes: Number(episodes.value) },
+          await busy(submit, async () => {
+            const task = await api("/tasks", {
+              method: "POST",
+              json: { kind: "fetch", arm_id: Number(arm.value), episodes: Number(episodes.value) },
+            });
+            show(task.id);
           });
-          show(task.id);
         } catch (err) {
           mount(out, errorBox(err, "task-error"));
-        } finally {
-          submit.disabled = false;
         }
       },
     },

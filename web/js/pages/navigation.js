@@ -27,7 +27,11 @@ export async function renderNavigation(main) {
     projectorId: () => (pj.planSelect.value ? Number(pj.planSelect.value) : null),
     onPath: (path) => follow.setPath(path),
   });
-  const planBadge = h("span", { class: "badge", testid: "nav-floor-plan" }, `Floor plan: ${drawing.floor_plan}`);
+  const planBadge = h(
+    "span",
+    { class: "badge", testid: "nav-floor-plan" },
+    `Floor plan: ${drawing.floor_plan}`,
+  );
 
   mount(
     main,

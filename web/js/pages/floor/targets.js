@@ -36,7 +36,9 @@ function scaleText(factors) {
   if (!factors.size) return "";
   const notes = [...factors].map(([kind, k]) => `${kind} ${k > 1 ? `×${k}` : "true size"}`);
   const enlarged = [...factors.values()].some((k) => k > 1);
-  return `2σ ellipses: ${notes.join(", ")}` + (enlarged ? " (enlarged where tiny at this scale)" : "");
+  return (
+    `2σ ellipses: ${notes.join(", ")}` + (enlarged ? " (enlarged where tiny at this scale)" : "")
+  );
 }
 
 /** One table row per target: label, kind, state, position and one standard deviation. */
@@ -70,7 +72,11 @@ class LiveTargets {
     this.latest = new Map(); // label -> target
     this.scaleNote = h("span", { class: "small muted", testid: "ellipse-scale" }, "");
     this.clock = h("span", { class: "mono small", testid: "positions-time" }, "");
-    this.emptyNote = h("p", { class: "small muted", testid: "targets-empty" }, "No target located yet.");
+    this.emptyNote = h(
+      "p",
+      { class: "small muted", testid: "targets-empty" },
+      "No target located yet.",
+    );
     this.tableBody = h("tbody");
   }
 
@@ -86,7 +92,13 @@ class LiveTargets {
       testid: `track-${label}`,
     }));
     drawTracks(this.groups.tracks, tracks, this.tf);
-    drawTargets(this.groups.ellipses, this.groups.targets, items, this.tf, (k) => factors.get(k) || 1);
+    drawTargets(
+      this.groups.ellipses,
+      this.groups.targets,
+      items,
+      this.tf,
+      (k) => factors.get(k) || 1,
+    );
     this.tableBody.replaceChildren(...items.map(targetRow));
   }
 
@@ -237,7 +249,15 @@ function targetsTable(live) {
       h(
         "table",
         { testid: "targets-table", class: "compact" },
-        h("thead", null, h("tr", null, heads.map((t, i) => h("th", { class: i >= 3 ? "num" : null }, t)))),
+        h(
+          "thead",
+          null,
+          h(
+            "tr",
+            null,
+            heads.map((t, i) => h("th", { class: i >= 3 ? "num" : null }, t)),
+          ),
+        ),
         live.tableBody,
       ),
     ),

@@ -29,7 +29,11 @@ function twinFacts(tw, paused) {
     tw.robot_error_rms_m !== undefined && tw.robot_error_rms_m !== null
       ? [
           h("dt", null, "Robot error (RMS)"),
-          h("dd", { class: "num", testid: "twin-error" }, `${fmt(tw.robot_error_rms_m * 100, 2)} cm`),
+          h(
+            "dd",
+            { class: "num", testid: "twin-error" },
+            `${fmt(tw.robot_error_rms_m * 100, 2)} cm`,
+          ),
         ]
       : null,
     tw.scene ? [h("dt", null, "Scene"), h("dd", null, tw.scene)] : null,
@@ -96,7 +100,11 @@ export function twinPanel(space, twin0, { gTruth, tf, onReset }) {
     }
     const paused = tw.paused || tw.running === false;
     const actions = paused ? control("resume", "Resume") : control("pause", "Pause");
-    mount(box, twinFacts(tw, paused), h("div", { class: "form-actions" }, actions, control("reset", "Reset")));
+    mount(
+      box,
+      twinFacts(tw, paused),
+      h("div", { class: "form-actions" }, actions, control("reset", "Reset")),
+    );
     drawTruth(gTruth, tw, tf);
   };
   if (twin0.error) off(twin0.error);

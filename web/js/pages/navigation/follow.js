@@ -4,7 +4,7 @@
 
 import { api, busy, poll } from "../../api.js";
 import { lineChart } from "../../chart.js";
-import { fmt, h, mount, statusBadge, toastError } from "../../ui.js";
+import { fmt, h, mount, resultsTable, statusBadge, toastError } from "../../ui.js";
 
 const POLL_MS = 500; // GET /paths/{id} while its follow task runs
 const LAWS = [
@@ -13,31 +13,28 @@ const LAWS = [
   ["proportional", "Proportional (baseline)"],
 ];
 
+/** What the finished follow task measured. */
 function metricsTable(result) {
-  const row = (label, value, testid) =>
-    h("tr", null, h("th", null, label), h("td", { class: "mono", testid }, value));
   const mm = (v) => (v === null || v === undefined ? "–" : `${fmt(v * 1000, 1)} mm`);
-  return h(
-    "table",
-    { class: "nav-metrics", testid: "follow-metrics" },
-    h(
-      "tbody",
-      null,
-      row("RMS error", mm(result.rms_m), "follow-rms"),
-      row("Max error", mm(result.max_m)),
-      row("Steady (straight stretches)", mm(result.steady_m)),
-      row("Finished drawing at", result.finish_s === null ? "never" : `${fmt(result.finish_s, 1)} s`),
-      row("Spot lost", String(result.lost_events)),
-      row("Drawing error (max)", mm(result.drawing_error_max_m)),
-    ),
-  );
+  return resultsTable("follow-metrics", [
+    ["RMS error", mm(result.rms_m), "follow-rms"],
+    ["Max error", mm(result.max_m)],
+    ["Steady (straight stretches)", mm(result.steady_m)],
+    ["Finished drawing at", result.finish_s === null ? "never" : `${fmt(result.finish_s, 1)} s`],
+    ["Spot lost", String(result.lost_events)],
+    ["Drawing error (max)", mm(result.drawing_error_max_m)],
+  ]);
 }
 
 /** The follow task's status line, its error and, once done, its metrics. */
 function followFacts(follow) {
   const progress =
     follow.status === "running" && follow.progress !== null
-      ? h("span", { class: "small muted", testid: "follow-progress" }, ` ${fmt(100 * follow.progress, 0)} %`)
+      ? h(
+          "span",
+          { class: "small muted", testid: "follow-progress" },
+          ` ${fmt(100 * follow.progress, 0)} %`,
+        )
       : null;
   return [
     h(
@@ -45,10 +42,14 @@ function followFacts(follow) {
       null,
       "Follow task: ",
       statusBadge(follow.status, "follow-status"),
-      follow.law ? h("span", { class: "small muted" }, ` ${follow.law}, seed ${follow.seed}`) : null,
+      follow.law
+        ? h("span", { class: "small muted" }, ` ${follow.law}, seed ${follow.seed}`)
+        : null,
       progress,
     ),
-    follow.error ? h("p", { class: "small badge bad", testid: "follow-error" }, follow.error) : null,
+    follow.error
+      ? h("p", { class: "small badge bad", testid: "follow-error" }, follow.error)
+      : null,
     follow.result ? metricsTable(follow.result) : null,
   ];
 }

@@ -21,7 +21,15 @@ const W = 900; // SVG user units across; the height follows the plan's aspect, a
  * for the path, the run and the start and goal marks. */
 function planDrawing(drawing) {
   const extent = drawing.rooms.flatMap((r) => r.polygon);
-  const tf = planTransform(extent.length ? extent : [[0, 0], [5, 4]], { width: W, minHeight: 320 });
+  const tf = planTransform(
+    extent.length
+      ? extent
+      : [
+          [0, 0],
+          [5, 4],
+        ],
+    { width: W, minHeight: 320 },
+  );
   const svg = planSvg(tf, {
     className: "plot floormap nav-plan",
     label: "Floor plan: click a start, then a goal",
@@ -97,7 +105,9 @@ function drawPath(g, path, tf) {
   g.replaceChildren();
   if (!path) return;
   if (path.trajectory) {
-    g.append(s("polyline", { class: "nav-spot-path", points: pointsAttr(path.trajectory.spot, tf) }));
+    g.append(
+      s("polyline", { class: "nav-spot-path", points: pointsAttr(path.trajectory.spot, tf) }),
+    );
   }
   g.append(
     s("polyline", {
@@ -116,7 +126,10 @@ function drawMarks(g, start, goal, tf) {
     [start, "nav-start", "start"],
     [goal, "nav-goal", "goal"],
   ]) {
-    if (p) g.append(s("circle", { class: cls, cx: tf.X(p[0]), cy: tf.Y(p[1]), r: 7, testid: `nav-${label}` }));
+    if (p)
+      g.append(
+        s("circle", { class: cls, cx: tf.X(p[0]), cy: tf.Y(p[1]), r: 7, testid: `nav-${label}` }),
+      );
   }
 }
 
@@ -143,7 +156,10 @@ export function planView(drawing, spaceId, { projectorId, onPath }) {
       path = await api("/paths", { method: "POST", json: body });
     } catch (err) {
       hint.textContent = "Click a new start.";
-      mount(summary, h("p", { class: "small badge bad", testid: "nav-error" }, err.detail || err.message));
+      mount(
+        summary,
+        h("p", { class: "small badge bad", testid: "nav-error" }, err.detail || err.message),
+      );
       drawPath(g.path, null, tf);
       g.run.replaceChildren();
       onPath(null);

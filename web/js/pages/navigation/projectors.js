@@ -5,7 +5,7 @@
 // scene.
 
 import { api, busy, list, poll } from "../../api.js";
-import { fmt, h, mount, statusBadge, toast, toastError } from "../../ui.js";
+import { fmt, h, mount, resultsTable, statusBadge, toast, toastError } from "../../ui.js";
 
 const POLL_MS = 500; // GET a calibration run while it runs
 const TERMINAL = new Set(["succeeded", "failed", "interrupted"]);
@@ -15,36 +15,25 @@ const named = (p) => (p.T_world_projector ? p.name : `${p.name} (uncalibrated)`)
 /** What a finished projector calibration run found: its fit, and (the twin's own check) its
  * errors against the twin's true mount. */
 function calibrationFacts(result) {
-  const row = (label, value, testid) =>
-    h("tr", null, h("th", null, label), h("td", { class: "mono", testid }, value));
   const e = result.twin_errors;
-  return h(
-    "table",
-    { class: "nav-metrics", testid: "calib-result" },
-    h(
-      "tbody",
-      null,
-      row("Spots", String(result.spots), "calib-spots"),
-      row("RMS floor error", `${fmt(result.rms_m * 1000, 1)} mm`, "calib-rms"),
-      row("Tilt offset", `${fmt((result.tilt_offset_rad * 180) / Math.PI, 3)}°`),
-      row(
-        "Mount position",
-        result.T_world_projector.slice(0, 3).map((r) => fmt(r[3], 3)).join(", ") + " m",
-        "calib-position",
-      ),
-      row(
-        "Uncertainty (one std)",
-        `${fmt(result.position_std_m * 1000, 1)} mm, ${fmt(result.rotation_std_deg, 3)}°`,
-      ),
-      e
-        ? row(
-            "Against the twin",
-            `${fmt(e.position_m * 1000, 1)} mm, ${fmt(e.rotation_deg, 3)}°`,
-            "calib-twin-errors",
-          )
-        : null,
-    ),
-  );
+  const position = result.T_world_projector.slice(0, 3).map((r) => fmt(r[3], 3));
+  return resultsTable("calib-result", [
+    ["Spots", String(result.spots), "calib-spots"],
+    ["RMS floor error", `${fmt(result.rms_m * 1000, 1)} mm`, "calib-rms"],
+    ["Tilt offset", `${fmt((result.tilt_offset_rad * 180) / Math.PI, 3)}°`],
+    ["Mount position", `${position.join(", ")} m`, "calib-position"],
+    [
+      "Uncertainty (one std)",
+      `${fmt(result.position_std_m * 1000, 1)} mm, ${fmt(result.rotation_std_deg, 3)}°`,
+    ],
+    e
+      ? [
+          "Against the twin",
+          `${fmt(e.position_m * 1000, 1)} mm, ${fmt(e.rotation_deg, 3)}°`,
+          "calib-twin-errors",
+        ]
+      : null,
+  ]);
 }
 
 /** A run's status line: its link, its status and, while it runs, its stage and progress. */
@@ -55,7 +44,11 @@ function runLine(run) {
     "p",
     null,
     "Run ",
-    h("a", { href: `#/calibration/runs/${run.id}`, class: "mono", testid: "calib-run" }, `#${run.id}`),
+    h(
+      "a",
+      { href: `#/calibration/runs/${run.id}`, class: "mono", testid: "calib-run" },
+      `#${run.id}`,
+    ),
     ": ",
     statusBadge(run.status, "calib-status"),
     run.status === "running" && p
@@ -111,7 +104,8 @@ function fillSelects({ planSelect, calSelect, start, why }, items, space) {
     ...items.map((p) => h("option", { value: p.id, disabled: !p.T_world_projector }, named(p))),
   );
   calSelect.replaceChildren(...items.map((p) => h("option", { value: p.id }, named(p))));
-  if (items.some((p) => String(p.id) === planning && p.T_world_projector)) planSelect.value = planning;
+  if (items.some((p) => String(p.id) === planning && p.T_world_projector))
+    planSelect.value = planning;
   if (items.some((p) => String(p.id) === calibrating)) calSelect.value = calibrating;
   start.disabled = !items.length;
   why.hidden = items.length > 0;
@@ -131,7 +125,10 @@ export function projectorViews(space) {
   let projectors = [];
   let reads = null;
   const planSelect = h("select", { testid: "nav-projector", "aria-label": "Projector" });
-  const calSelect = h("select", { testid: "calib-projector", "aria-label": "Projector to calibrate" });
+  const calSelect = h("select", {
+    testid: "calib-projector",
+    "aria-label": "Projector to calibrate",
+  });
   const images = h("input", { type: "checkbox", testid: "calib-images", checked: true });
   const start = h(
     "button",
@@ -190,7 +187,10 @@ export function projectorViews(space) {
       follow(run.id);
     } catch (err) {
       start.disabled = false;
-      mount(box, h("p", { class: "small badge bad", testid: "calib-error" }, err.detail || err.message));
+      mount(
+        box,
+        h("p", { class: "small badge bad", testid: "calib-error" }, err.detail || err.message),
+      );
     }
   });
 
