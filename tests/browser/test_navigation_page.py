@@ -97,6 +97,7 @@ def test_navigation_page_plans_between_two_clicks_and_follows(service, browser_p
 
     page.get_by_test_id("nav-law").select_option("adaptive")
     page.get_by_test_id("nav-follow").click()
+    expect(page.get_by_test_id("follow-status")).to_be_visible()  # the task is started
     # The task's length depends on the machine's load: wait while it advances, not a fixed time.
     assert _wait_while_advancing(service, path_id) == "succeeded"
     expect(page.get_by_test_id("follow-status")).to_have_text("succeeded")
