@@ -70,7 +70,12 @@ def show_space(
             status.HTTP_409_CONFLICT,
             detail="the 3D scene does not run in this process (INTSPACE_VISER_ENABLED)",
         )
+    before = scene.space_id
     scene.show(session, body.space_id)
+    if body.space_id != before:
+        # The robot, the people and their tracks belong to the space shown before: they leave
+        # with its cameras, now, not at the twin's next frame (seconds away on a busy machine).
+        scene.scene.clear_agents()
     return scene_link(request, scene)
 
 

@@ -391,6 +391,17 @@ class SceneService(ArmLayer, LandmarkLayer):
             self._dirty_tracks.add(ident)
             self._cond.notify_all()
 
+    def clear_agents(self) -> None:
+        """Remove every agent and every track (the space shown changed: they were its)."""
+        with self._cond:
+            gone = set(self._agents) | set(self._tracks)
+            self._agents.clear()
+            self._tracks.clear()
+            self._track_covs.clear()
+            self._dirty_agents |= gone
+            self._dirty_tracks |= gone
+            self._cond.notify_all()
+
     def set_track(
         self,
         id: str,

@@ -48,13 +48,6 @@ def _pick(page: Page, space_id: int) -> None:
     expect(page.get_by_test_id("space-picker")).to_have_value(str(space_id))
 
 
-@pytest.mark.xfail(
-    reason=(
-        "the 3D scene still showed the twin's agents once after switching space in a full "
-        "parallel run; passes alone; under investigation"
-    ),
-    strict=False,
-)
 def test_every_page_shows_the_space_picked(start_service, browser_page: Page, scene_reader):
     page = browser_page
     scene = default_scene()

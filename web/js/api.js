@@ -81,8 +81,8 @@ async function problemFrom(response) {
 /**
  * Call the API and return the decoded JSON (null for 204). Throws ApiError on any non-2xx,
  * and a plain Error with a readable message when the service cannot be reached.
- * options: {method, json, form, raw, checkingToken} - json is sent as a JSON body, form as
- * multipart; checkingToken: a 401 is the answer sought, not a sign that the session ended.
+ * options: {method, json, form, raw, checkingToken} - json is sent as a JSON body, form (a
+ * FormData or the fields formData() takes) as multipart; checkingToken: a 401 is the answer sought, not a sign that the session ended.
  * Writes carry the session's CSRF token (X-CSRF-Token).
  */
 export async function api(path, options = {}) {
@@ -94,7 +94,8 @@ export async function api(path, options = {}) {
     headers["Content-Type"] = "application/json";
     body = JSON.stringify(options.json);
   } else if (options.form !== undefined) {
-    body = options.form; // the browser sets the multipart boundary
+    // The browser sets the multipart boundary.
+    body = options.form instanceof FormData ? options.form : formData(options.form);
   }
   let response;
   try {
@@ -115,6 +116,109 @@ export async function api(path, options = {}) {
   if (response.status === 204) return null;
   const type = response.headers.get("content-type") || "";
   return type.includes("json") ? response.json() : response.text();
+}
+
+/** Return a multipart body of `fields`: {name: value}, a value a string, a number, a File or a
+ * list of Files (each appended under the name with its own file name). */
+export function formData(fields) {
+  const body = new FormData();
+  for (const [name, value] of Object.entries(fields)) {
+    if (value === null || value === undefined) continue;
+    const values = value instanceof FileList || Array.isArray(value) ? [...value] : [value];
+    for (const v of values) {
+      if (v instanceof File) body.append(name, v, v.name);
+      else body.append(name, String(v));
+    }
+  }
+  return body;
+}
+
+/** Run `action()` with `button` disabled, so a second click cannot send the request again;
+ * the button is enabled again whatever happened. Returns what `action` returns (or throws). */
+export async function busy(button, action) {
+  button.disabled = true;
+  try {
+    return await action();
+  } finally {
+    button.disabled = false;
+  }
+}
+
+// -- polling -------------------------------------------------------------------------------------
+// Every page that follows something live asks the service again and again. One loop does it for
+// all of them: one request at a time, slower after failures, and stopped when the page is left.
+
+const polls = new Set();
+
+/**
+ * Call `request()` now (or after `interval` ms with `delay`) and again `interval` ms after each
+ * answer, until stopped; `onValue(value)` is given each answer and returning false stops it
+ * (the thing followed is done). A failure goes to `onError(err)`, and the next try waits twice
+ * as long each time (up to `maxInterval`); a refusal (4xx) will not change, so it stops the
+ * poll when `stopOn4xx`. Requests never overlap. Every poll stops when the page is left
+ * (leavePage()), but one the whole dashboard keeps (`keep`). Returns {stop(), now()}: now() asks again at once, or right after the request
+ * in flight.
+ */
+export function poll(
+  request,
+  { interval, maxInterval = 8 * interval, onValue, onError, stopOn4xx = false, delay = false, keep = false },
+) {
+  let stopped = false;
+  let timer = null;
+  let inFlight = false;
+  let again = false;
+  let wait = interval;
+  const handle = {
+    stop() {
+      stopped = true;
+      clearTimeout(timer);
+      polls.delete(handle);
+    },
+    now() {
+      if (stopped) return;
+      if (inFlight) again = true;
+      else {
+        clearTimeout(timer);
+        tick();
+      }
+    },
+  };
+  const schedule = (ms) => {
+    if (!stopped) timer = setTimeout(tick, ms);
+  };
+  async function tick() {
+    timer = null;
+    inFlight = true;
+    let goOn = true;
+    try {
+      const value = await request();
+      if (stopped) return;
+      wait = interval;
+      goOn = onValue ? (await onValue(value)) !== false : true;
+    } catch (err) {
+      if (stopped) return;
+      wait = Math.min(2 * wait, maxInterval);
+      onError?.(err);
+      if (stopOn4xx && err.status >= 400 && err.status < 500) goOn = false;
+    } finally {
+      inFlight = false;
+    }
+    if (stopped) return;
+    if (!goOn) handle.stop();
+    else if (again) {
+      again = false;
+      tick();
+    } else schedule(wait);
+  }
+  if (!keep) polls.add(handle);
+  if (delay) schedule(interval);
+  else tick();
+  return handle;
+}
+
+/** Stop every poll the page started: called by the router when the page is left. */
+export function leavePage() {
+  for (const handle of [...polls]) handle.stop();
 }
 
 /** Return a list endpoint's items and total, whatever the page envelope looks like. */

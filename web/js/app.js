@@ -5,14 +5,17 @@ import {
   chooseSpace,
   currentSession,
   loadSession,
+  leavePage,
   loadSpaces,
+  poll,
   signIn,
   signOut,
 } from "./api.js";
 import { errorBox, h, mount } from "./ui.js";
 import { renderOverview } from "./pages/overview.js";
 import { renderCameras, renderCamera } from "./pages/cameras.js";
-import { renderCalibration, renderRun } from "./pages/calibration.js";
+import { renderCalibration } from "./pages/calibration.js";
+import { renderRun } from "./pages/calibration/run.js";
 import { renderScene } from "./pages/scene.js";
 import { renderFloor } from "./pages/floor.js";
 import { renderLandmarks } from "./pages/landmarks.js";
@@ -58,6 +61,7 @@ async function route() {
   const seq = ++renderSeq;
   if (typeof cleanup === "function") cleanup();
   cleanup = null;
+  leavePage();
   const { path, query } = parseHash();
   const main = document.getElementById("main");
   const title = document.getElementById("page-title");
@@ -209,19 +213,26 @@ function renderAuth(notice = "") {
   mount(box, status, form);
 }
 
-async function refreshServiceBadge() {
+/** Show the service's health in the sidebar, read again every 15 s on every page. */
+function followServiceHealth() {
   const dot = document.getElementById("service-dot");
   const text = document.getElementById("service-text");
-  try {
-    const health = await api("/health");
-    const ok = health.status === "ok";
-    dot.className = `dot ${ok ? "ok" : "bad"}`;
-    text.textContent = `Service ${health.status}${health.version ? ` · v${health.version}` : ""}`;
-  } catch (err) {
-    dot.className = "dot bad";
-    text.textContent = `Service unreachable`;
-    text.title = err.message;
-  }
+  poll(() => api("/health"), {
+    interval: 15_000,
+    maxInterval: 15_000,
+    keep: true,
+    onValue: (health) => {
+      const ok = health.status === "ok";
+      dot.className = `dot ${ok ? "ok" : "bad"}`;
+      text.textContent = `Service ${health.status}${health.version ? ` · v${health.version}` : ""}`;
+      text.title = "";
+    },
+    onError: (err) => {
+      dot.className = "dot bad";
+      text.textContent = `Service unreachable`;
+      text.title = err.message;
+    },
+  });
 }
 
 function decorateNav() {
@@ -253,6 +264,5 @@ window.addEventListener("auth-required", (ev) => {
 decorateNav();
 // Who is signed in is asked while the first page loads (its reads carry the cookie anyway).
 loadSession().then(() => renderAuth());
-refreshServiceBadge();
-setInterval(refreshServiceBadge, 15_000);
+followServiceHealth();
 route();

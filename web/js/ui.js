@@ -177,6 +177,24 @@ export function matrixTable(M, digits = 3, testid) {
 }
 
 /** Replace a container's children. */
+/** A table of results, one row per [label, value, testid?] (null rows left out); the values
+ * in monospace. */
+export function resultsTable(testid, rows) {
+  return h(
+    "table",
+    { class: "nav-metrics", testid },
+    h(
+      "tbody",
+      null,
+      rows
+        .filter(Boolean)
+        .map(([label, value, id]) =>
+          h("tr", null, h("th", null, label), h("td", { class: "mono", testid: id }, value)),
+        ),
+    ),
+  );
+}
+
 export function mount(container, ...children) {
   container.replaceChildren();
   append(container, children);

@@ -1,7 +1,7 @@
 // Cameras: the chosen space's table with an add form, and one camera's health, latest image,
 // intrinsics, history and exports.
 
-import { api, currentSpace, download, inSpace, list, spaceById } from "../api.js";
+import { api, busy, currentSpace, download, inSpace, list, poll, spaceById } from "../api.js";
 import { barChart } from "../plot.js";
 import { placePanel } from "./placement.js";
 import {
@@ -38,53 +38,54 @@ function liveView(id) {
   const status = h("span", { class: "small muted", testid: "camera-live-status" }, "Loading…");
   const missing = h("div");
   let url = null;
-  let timer = null;
-  let stopped = false;
   let frames = 0;
-  const tick = async () => {
-    if (stopped) return;
-    let wait = LIVE_MS;
-    if (document.visibilityState === "hidden") {
-      timer = setTimeout(tick, wait);
-      return;
-    }
-    try {
-      const response = await fetch(`/api/v1/cameras/${id}/frame.jpg?overlay=true`, {
-        headers: { Accept: "image/jpeg" },
-        credentials: "same-origin",
-      });
-      if (stopped) return;
-      if (!response.ok) {
-        wait = LIVE_RETRY_MS;
-        img.hidden = true;
-        status.textContent = "";
-        mount(missing, noImage(response.status, await reasonOf(response)));
-      } else {
-        const blob = await response.blob();
-        if (stopped) return;
-        const next = URL.createObjectURL(blob);
-        await new Promise((resolve) => {
-          img.onload = resolve;
-          img.onerror = resolve;
-          img.src = next;
-        });
-        if (url) URL.revokeObjectURL(url);
-        url = next;
-        frames += 1;
-        img.hidden = false;
-        img.dataset.frames = String(frames);
-        mount(missing);
-        const t = response.headers.get("x-sim-time") || response.headers.get("x-frame-time");
-        status.textContent =
-          `Refreshed ${new Date().toLocaleTimeString()}` + (t ? ` · sim time ${Number(t).toFixed(1)} s` : "");
-      }
-    } catch (err) {
-      status.textContent = `The service did not answer (${err.message}).`;
-      wait = LIVE_RETRY_MS;
-    }
-    if (!stopped) timer = setTimeout(tick, wait);
+  // A frame decoded from the blob before it is shown, so the image never flickers half-loaded.
+  const show = async ({ blob, t }) => {
+    const next = URL.createObjectURL(blob);
+    await new Promise((resolve) => {
+      img.onload = resolve;
+      img.onerror = resolve;
+      img.src = next;
+    });
+    if (url) URL.revokeObjectURL(url);
+    url = next;
+    frames += 1;
+    img.hidden = false;
+    img.dataset.frames = String(frames);
+    mount(missing);
+    status.textContent =
+      `Refreshed ${new Date().toLocaleTimeString()}` + (t ? ` · sim time ${Number(t).toFixed(1)} s` : "");
   };
-  tick();
+  const frame = async () => {
+    if (document.visibilityState === "hidden") return null;
+    const response = await fetch(`/api/v1/cameras/${id}/frame.jpg?overlay=true`, {
+      headers: { Accept: "image/jpeg" },
+      credentials: "same-origin",
+    });
+    if (!response.ok) {
+      throw Object.assign(new Error("no frame"), {
+        status: response.status,
+        reason: await reasonOf(response),
+      });
+    }
+    const t = response.headers.get("x-sim-time") || response.headers.get("x-frame-time");
+    return { blob: await response.blob(), t };
+  };
+  // No frame (no twin, no node yet): look again less and less often, up to LIVE_RETRY_MS.
+  const live = poll(frame, {
+    interval: LIVE_MS,
+    maxInterval: LIVE_RETRY_MS,
+    onValue: (got) => (got ? show(got) : undefined),
+    onError: (err) => {
+      if (err.reason === undefined) {
+        status.textContent = `The service did not answer (${err.message}).`;
+        return;
+      }
+      img.hidden = true;
+      status.textContent = "";
+      mount(missing, noImage(err.status, err.reason));
+    },
+  });
   return {
     panel: panel(
       "Live image",
@@ -94,8 +95,7 @@ function liveView(id) {
       h("div", { style: { marginTop: "8px" } }, status),
     ),
     stop: () => {
-      stopped = true;
-      clearTimeout(timer);
+      live.stop();
       if (url) URL.revokeObjectURL(url);
     },
   };
@@ -200,19 +200,12 @@ function healthFacts(health) {
 /** The camera's health, read again every HEALTH_MS. Returns {panel, stop}. */
 function healthView(id, initial) {
   const box = h("div", null, healthFacts(initial));
-  let stopped = false;
-  let timer = null;
-  const tick = async () => {
-    if (stopped) return;
-    try {
-      const cam = await api(`/cameras/${id}`);
-      if (!stopped) mount(box, healthFacts(cam.health));
-    } catch {
-      /* the next read says more; the last health stays shown */
-    }
-    if (!stopped) timer = setTimeout(tick, HEALTH_MS);
-  };
-  timer = setTimeout(tick, HEALTH_MS);
+  // On a failure the last health stays shown; the next read says more.
+  const reads = poll(() => api(`/cameras/${id}`), {
+    interval: HEALTH_MS,
+    delay: true,
+    onValue: (cam) => mount(box, healthFacts(cam.health)),
+  });
   return {
     panel: panel(
       "Health",
@@ -220,10 +213,7 @@ function healthView(id, initial) {
         "own cameras. Offline: no report for 5 s; stalled: reports but no frame.",
       box,
     ),
-    stop: () => {
-      stopped = true;
-      clearTimeout(timer);
-    },
+    stop: () => reads.stop(),
   };
 }
 
@@ -267,24 +257,23 @@ function addCameraForm(space, onCreated) {
       onSubmit: async (ev) => {
         ev.preventDefault();
         mount(error);
-        submit.disabled = true;
         try {
-          const cam = await api("/cameras", {
-            method: "POST",
-            json: {
-              name: name.value.trim(),
-              width: Number(width.value),
-              height: Number(height.value),
-              space_id: space ? space.id : null,
-            },
+          await busy(submit, async () => {
+            const cam = await api("/cameras", {
+              method: "POST",
+              json: {
+                name: name.value.trim(),
+                width: Number(width.value),
+                height: Number(height.value),
+                space_id: space ? space.id : null,
+              },
+            });
+            toast(`Camera “${cam.name}” added`);
+            form.reset();
+            onCreated(cam);
           });
-          toast(`Camera “${cam.name}” added`);
-          form.reset();
-          onCreated(cam);
         } catch (err) {
           mount(error, errorBox(err, "camera-form-error"));
-        } finally {
-          submit.disabled = false;
         }
       },
     },

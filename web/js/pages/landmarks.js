@@ -1,8 +1,8 @@
 // Landmarks: the registry's landmarks with their printable artwork, detection on an uploaded
 // photo (outlines and labels drawn over it), and the semantic and navigation maps read so far.
 
-import { api, currentSpace, inSpace, list } from "../api.js";
-import { drawRooms, planTransform } from "../floorplan.js";
+import { api, busy, currentSpace, inSpace, list } from "../api.js";
+import { drawRooms, planSvg, planTransform } from "../plan.js";
 import { errorBox, fmt, h, mount, panel, s, sig, toastError } from "../ui.js";
 
 const BASE = "/api/v1";
@@ -200,21 +200,20 @@ function detectForm(cameras, out) {
       onSubmit: async (event) => {
         event.preventDefault();
         if (!file.files.length) return;
-        const body = new FormData();
-        body.append("image", file.files[0]);
-        body.append("camera_id", camera.value);
-        submit.disabled = true;
         mount(out, h("p", { class: "muted" }, "Detecting…"));
         try {
-          const result = await api("/landmarks/detect", { method: "POST", form: body });
-          if (shown) URL.revokeObjectURL(shown);
-          shown = URL.createObjectURL(file.files[0]);
-          mount(out, overlay(shown, result), detectionTable(result));
+          await busy(submit, async () => {
+            const result = await api("/landmarks/detect", {
+              method: "POST",
+              form: { image: file.files[0], camera_id: camera.value },
+            });
+            if (shown) URL.revokeObjectURL(shown);
+            shown = URL.createObjectURL(file.files[0]);
+            mount(out, overlay(shown, result), detectionTable(result));
+          });
         } catch (err) {
           mount(out, errorBox(err, "detect-error"));
           toastError(err);
-        } finally {
-          submit.disabled = false;
         }
       },
     },
@@ -267,13 +266,11 @@ function mapPlan(rooms, semantic, navigation) {
   const { X, Y } = tf;
   const gRooms = s("g");
   drawRooms(gRooms, rooms, tf);
-  const svg = s(
-    "svg",
+  const svg = planSvg(
+    tf,
     {
-      class: "plot floormap maps-plan",
-      viewBox: `0 0 ${tf.W} ${tf.H}`,
-      role: "img",
-      "aria-label": "Semantic and navigation maps on the floor plan",
+      className: "plot floormap maps-plan",
+      label: "Semantic and navigation maps on the floor plan",
       testid: "maps-plan",
     },
     gRooms,

@@ -2,7 +2,7 @@
 // on the twin, its result against the twin's truth, applied to the arm), and fetch tasks on
 // the twin with their phases and episode metrics as they run.
 
-import { api, inSpace, list } from "../api.js";
+import { api, busy, inSpace, list, poll } from "../api.js";
 import {
   errorBox,
   fmt,
@@ -99,18 +99,17 @@ function addArmForm(robots, onAdded) {
       onSubmit: async (event) => {
         event.preventDefault();
         mount(error);
-        submit.disabled = true;
         try {
-          const arm = await api("/arms", {
-            method: "POST",
-            json: { robot_id: Number(robot.value), name: name.value },
+          await busy(submit, async () => {
+            const arm = await api("/arms", {
+              method: "POST",
+              json: { robot_id: Number(robot.value), name: name.value },
+            });
+            toast(`Arm #${arm.id} added`);
+            await onAdded();
           });
-          toast(`Arm #${arm.id} added`);
-          await onAdded();
         } catch (err) {
           mount(error, errorBox(err, "arm-error"));
-        } finally {
-          submit.disabled = false;
         }
       },
     },
@@ -134,26 +133,18 @@ function armSelect(id, arms) {
 
 /** Poll `path` until its status is terminal, drawing each state; returns a stop function. */
 function follow(path, draw, onDone) {
-  let stopped = false;
-  let timer = null;
-  const poll = async () => {
-    try {
-      const item = await api(path);
-      if (stopped) return;
+  const reads = poll(() => api(path), {
+    interval: POLL_MS,
+    stopOn4xx: true, // a refusal will not change; keep trying while the service is unreachable
+    onError: toastError,
+    onValue: (item) => {
       draw(item);
-      if (TERMINAL.has(item.status)) onDone?.(item);
-      else timer = setTimeout(poll, POLL_MS);
-    } catch (err) {
-      if (stopped) return;
-      toastError(err);
-      if (!(err.status >= 400 && err.status < 500)) timer = setTimeout(poll, POLL_MS * 4);
-    }
-  };
-  poll();
-  return () => {
-    stopped = true;
-    clearTimeout(timer);
-  };
+      if (!TERMINAL.has(item.status)) return true;
+      onDone?.(item);
+      return false;
+    },
+  });
+  return () => reads.stop();
 }
 
 function progressLine(label, fraction, testid) {
@@ -186,15 +177,14 @@ function handEyeResult(run, onApplied) {
       type: "button",
       testid: "hand-eye-apply",
       onClick: async () => {
-        apply.disabled = true;
         try {
-          const arm = await api(`/calibration-runs/${run.id}/apply`, { method: "POST" });
-          toast(`Hand-eye transform applied to arm #${arm.id}`);
-          await onApplied();
+          await busy(apply, async () => {
+            const arm = await api(`/calibration-runs/${run.id}/apply`, { method: "POST" });
+            toast(`Hand-eye transform applied to arm #${arm.id}`);
+            await onApplied();
+          });
         } catch (err) {
           toastError(err);
-        } finally {
-          apply.disabled = false;
         }
       },
     },
@@ -312,27 +302,26 @@ function handEyePanel(arms, stops, onApplied) {
       testid: "hand-eye-form",
       onSubmit: async (event) => {
         event.preventDefault();
-        submit.disabled = true;
         try {
-          const run = await api("/calibration-runs", {
-            method: "POST",
-            json: {
-              kind: "hand-eye",
-              arm_id: Number(arm.value),
-              method: method.value,
-              twin: {
-                views: Number(views.value),
-                rendered: rendered.checked,
-                seed: seed.value === "" ? null : Number(seed.value),
+          await busy(submit, async () => {
+            const run = await api("/calibration-runs", {
+              method: "POST",
+              json: {
+                kind: "hand-eye",
+                arm_id: Number(arm.value),
+                method: method.value,
+                twin: {
+                  views: Number(views.value),
+                  rendered: rendered.checked,
+                  seed: seed.value === "" ? null : Number(seed.value),
+                },
               },
-            },
+            });
+            stops.handEye?.();
+            stops.handEye = follow(`/calibration-runs/${run.id}`, draw);
           });
-          stops.handEye?.();
-          stops.handEye = follow(`/calibration-runs/${run.id}`, draw);
         } catch (err) {
           mount(out, errorBox(err, "hand-eye-error"));
-        } finally {
-          submit.disabled = false;
         }
       },
     },
@@ -480,17 +469,16 @@ function tasksPanel(arms, tasks, stops) {
       testid: "task-form",
       onSubmit: async (event) => {
         event.preventDefault();
-        submit.disabled = true;
         try {
-          const task = await api("/tasks", {
-            method: "POST",
-            json: { kind: "fetch", arm_id: Number(arm.value), episodes: Number(episodes.value) },
+          await busy(submit, async () => {
+            const task = await api("/tasks", {
+              method: "POST",
+              json: { kind: "fetch", arm_id: Number(arm.value), episodes: Number(episodes.value) },
+            });
+            show(task.id);
           });
-          show(task.id);
         } catch (err) {
           mount(out, errorBox(err, "task-error"));
-        } finally {
-          submit.disabled = false;
         }
       },
     },

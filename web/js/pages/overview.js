@@ -2,8 +2,8 @@
 // cameras.
 
 import { api, currentSpace, inSpace, list } from "../api.js";
-import { floorPlan } from "../plot.js";
-import { badge, errorBox, fmt, h, mount, panel, statusBadge, when } from "../ui.js";
+import { drawCameras, drawRooms, drawScaleBar, planSvg, planTransform } from "../plan.js";
+import { badge, errorBox, fmt, h, mount, panel, s, statusBadge, when } from "../ui.js";
 import { cameraCounts } from "./cameras.js";
 
 // [registry path, label, link, whether devices of no space count too]: the Cameras and
@@ -15,6 +15,26 @@ const DEVICES = [
   ["landmarks", "Landmarks", "#/landmarks", true],
   ["rooms", "Rooms", null, false],
 ];
+
+/** A top-down floor plan (world X right, Y up) with the rooms and, for every camera with a
+ * pose, its position and the wedge its optical axis points along on the floor. */
+function floorPlan(rooms, cameras) {
+  const posed = cameras.filter((c) => Array.isArray(c.T_world_camera));
+  const pts = [
+    ...rooms.flatMap((r) => r.polygon || []),
+    ...posed.map((c) => [c.T_world_camera[0][3], c.T_world_camera[1][3]]),
+  ];
+  if (!pts.length) {
+    return h("p", { class: "empty", testid: "floorplan-empty" }, "No rooms or posed cameras yet.");
+  }
+  const tf = planTransform(pts, { width: 640, minHeight: 360, maxHeight: 360, margin: 0, pad: 24 });
+  const gRooms = s("g");
+  const gCams = s("g");
+  drawRooms(gRooms, rooms, tf);
+  drawScaleBar(gRooms, tf, { minPx: 50 });
+  drawCameras(gCams, posed, tf, { view: "wedge" });
+  return planSvg(tf, { className: "plot floorplan", label: "Floor plan with cameras", testid: "floorplan" }, gRooms, gCams);
+}
 
 /** Settle every promise; failures come back as {error}. */
 function settle(promises) {

@@ -3,7 +3,7 @@
 // length when it has no intrinsics) and every pair's residual is drawn on both; apply the fit.
 
 import { api, list } from "../api.js";
-import { drawRooms, eventToWorld, planTransform } from "../floorplan.js";
+import { drawRooms, eventToWorld, planSvg, planTransform } from "../plan.js";
 import { errorBox, fmt, h, mount, panel, s, toast, toastError } from "../ui.js";
 
 const PLAN_W = 560;
@@ -45,16 +45,9 @@ export async function placePanel(cam, onApplied) {
   );
   const gRooms = s("g");
   const gFloor = s("g");
-  const plan = s(
-    "svg",
-    {
-      class: "plot floormap place-floor",
-      viewBox: `0 0 ${tf.W} ${tf.H}`,
-      role: "img",
-      "aria-label": "Floor plan: click the same point",
-      testid: "place-floor",
-      "data-transform": JSON.stringify(tf.json),
-    },
+  const plan = planSvg(
+    tf,
+    { className: "plot floormap place-floor", label: "Floor plan: click the same point", testid: "place-floor" },
     gRooms,
     gFloor,
   );

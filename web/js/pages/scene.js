@@ -4,6 +4,7 @@
 // service to show (PUT /scene) when it shows another.
 
 import { api, currentSession, currentSpace, spaceById } from "../api.js";
+import { cssVar } from "../colours.js";
 import { h, infoBox, mount, panel } from "../ui.js";
 
 /** Return the viewer's address as a same-origin path (the iframe must share the cookie). */
@@ -40,9 +41,9 @@ export async function renderScene(main) {
   const legend = h(
     "div",
     { class: "legend", "aria-label": "Legend" },
-    h("span", { style: { "--swatch": "#2563eb" } }, "Calibrated camera"),
-    h("span", { style: { "--swatch": "#d97706" } }, "Pose known, no intrinsics"),
-    h("span", { style: { "--swatch": "#94969f" } }, "Uncalibrated pose (parked beside the plan)"),
+    h("span", { style: { "--swatch": cssVar("brand-2") } }, "Calibrated camera"),
+    h("span", { style: { "--swatch": cssVar("amber-600") } }, "Pose known, no intrinsics"),
+    h("span", { style: { "--swatch": cssVar("scene-parked") } }, "Uncalibrated pose (parked beside the plan)"),
   );
   mount(
     main,
