@@ -84,15 +84,17 @@ def is_decided(hypotheses: tuple[PoseHypothesis, ...]) -> bool:
 def covering_covariance(hypotheses: tuple[PoseHypothesis, ...]) -> Array:
     """Return the (6, 6) second moment of the hypotheses' mixture about the first one's pose,
     of (left rotation perturbation, translation): sum_i p_i (C_i + d_i d_i^T), with d_i the
-    hypothesis' offset (log(R_i R_0^T), t_i - t_0). The hypotheses' cov must be of the left
-    perturbation too. A Gaussian with it covers every hypothesis."""
-    if not hypotheses:
-        raise InvalidInput("covering_covariance needs at least one hypothesis")
+    hypothesis' offset (log(R_i R_0^T), t_i - t_0), p_i their probabilities renormalised over
+    those given. The hypotheses' cov must be of the left perturbation. A Gaussian with it
+    covers every hypothesis: hypothesis i lies within d_i^T C^-1 d_i <= 1 / p_i of it."""
+    if not hypotheses or sum(h.probability for h in hypotheses) <= 0:
+        raise InvalidInput("covering_covariance needs a hypothesis of positive probability")
     R0, t0 = hypotheses[0].T[:3, :3], hypotheses[0].T[:3, 3]
     C = np.zeros((6, 6))
     for h in hypotheses:
         d = np.concatenate([matrix_to_rotvec(h.T[:3, :3] @ R0.T), h.T[:3, 3] - t0])
         C += h.probability * (h.cov + np.outer(d, d))
+    C /= sum(h.probability for h in hypotheses)  # (of those given, should they not sum to 1)
     return 0.5 * (C + C.T)
 
 
