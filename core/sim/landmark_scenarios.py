@@ -24,7 +24,10 @@ by a random angle about its normal, on a random wall. Sensor noise: `NOISE`.
 
 Per bin: located % (a detection of the right kind within 10 % of the distance), position error
 as % of distance and normal error (deg), medians and 95th percentiles, flips (normal error over
-`FLIP_DEG`, the other branch of the two-fold ambiguity); decoding over the views whose modules
+`FLIP_DEG`, the other branch of the two-fold ambiguity), the views whose image cannot decide
+the pose (`undecided_pct`: a signpost reporting both of its rings' poses, core.landmarks.
+ambiguity) and the flips among the decided ones (`decided_flips_pct`: a wrong pose reported
+with a good pose's confidence); decoding over the views whose modules
 span at least 2 px along both image axes (the smaller singular value of the projection at the
 centre): ours (rectified), zxing-cpp and cv2.QRCodeDetector on the raw image. Anchor: an
 AprilTag 36h11 of the same outer size at the same pose, same noise, in its own image, located
@@ -165,6 +168,8 @@ class LandmarkPoseBin:
     flips_pct_within_limit: float | None = None
     tag_normal_error_deg_p95_within_limit: float | None = None
     tag_flips_pct_within_limit: float | None = None
+    undecided_pct: float | None = None
+    decided_flips_pct: float | None = None
 
 
 @dataclass(frozen=True)
@@ -256,6 +261,8 @@ class _Tally:
     tag_loc: int = 0
     tag_pos: list[float] | None = None
     tag_nrm: list[float] | None = None
+    undecided: int = 0
+    decided_flips: int = 0
 
     def __post_init__(self) -> None:
         self.pos, self.nrm, self.tag_pos, self.tag_nrm = [], [], [], []
@@ -293,6 +300,10 @@ def _score_ours(
             assert tally.pos is not None and tally.nrm is not None
             tally.pos.append(100 * float(np.linalg.norm(hits[0].position - T[:3, 3])) / d)
             tally.nrm.append(_normal_error(hits[0].normal, T))
+            if not hits[0].decided:
+                tally.undecided += 1
+            elif tally.nrm[-1] > FLIP_DEG:
+                tally.decided_flips += 1
     if module is not None and module >= MIN_DECODE_MODULE_PX:
         tally.dec_views += 1
         tally.ours += any(h.text == text for h in hits)
@@ -441,6 +452,8 @@ def landmark_pose(
                     tag_flips_pct_within_limit=_pct(
                         sum(e > FLIP_DEG for e in near_tag), len(near_tag)
                     ),
+                    undecided_pct=_pct(tally.undecided, tally.located),
+                    decided_flips_pct=_pct(tally.decided_flips, tally.located - tally.undecided),
                 )
             )
     goals = _goals(out, limits, at45)

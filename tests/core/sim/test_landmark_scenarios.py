@@ -46,6 +46,11 @@ def test_landmark_pose_small_study() -> None:
         assert b["normal_error_deg_median"] < 2.0  # spec 04: < 2 deg at 45 deg
         if b["decode_views"]:
             assert b["decoded_pct"] >= b["zxing_raw_pct"]
+        # A frame's pose has no alternative: always decided. No decided pose flips here
+        # (at most 1 % of decided poses may, core.landmarks.ambiguity).
+        if b["kind"] == "object":
+            assert b["undecided_pct"] == 0.0
+        assert b["decided_flips_pct"] in (0.0, None)
     with pytest.raises(InvalidInput):
         landmark_pose(None, 0, views_per_bin=0)
 
