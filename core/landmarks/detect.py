@@ -949,7 +949,7 @@ class _Candidates:
     cov: tuple[Array, Array]  # (6, 6) of (rotation about camera axes, translation), per candidate
     # log-likelihood of each candidate from the rings' centre: the pencil centre against the
     # centre the candidate predicts (the pole of its vanishing line with respect to the outer
-    # conic), Gaussian in their difference under its covariance from both conics' fits.
+    # conic), Gaussian in their difference (its noise model in _ring_candidates).
     centre_loglik: Array
 
 
