@@ -49,6 +49,13 @@ from core.geometry.camera import (
 )
 from core.geometry.rotations import rotvec_to_matrix
 from core.homography.estimate import dlt_homography
+from core.landmarks.ambiguity import (
+    DECIDED_PROBABILITY,
+    PoseHypothesis,
+    covering_covariance,
+    is_decided,
+    probabilities,
+)
 from core.landmarks.artwork import FRAME_BAND, RING_RADII, pattern_layout
 from core.landmarks.conics import (
     ConicFit,
@@ -78,6 +85,12 @@ MIN_READ_MODULE_PX = 1.2
 _NOMINAL_MODULES = 33
 _PATCH_MIN, _PATCH_MAX = 120, 256
 _UNKNOWN_ANGLE_VAR = np.pi**2 / 3  # rotation about the normal uniform on (-pi, pi]
+# The rings' two poses (core.landmarks.ambiguity): the decoder's symbol corners are taken to
+# be within this many modules (standard deviation; zxing-cpp and OpenCV place them from the
+# finder patterns' module edges), and a wall within this angle of vertical for the mounting
+# prior (the wall's plumb and the head's level, radians).
+SYMBOL_CORNER_SD = 0.5
+WALL_TILT_SD = math.radians(2.0)
 
 
 @dataclass(frozen=True)
@@ -92,8 +105,12 @@ class LandmarkDetection:
     decoded ("too small", "too oblique", "blurred", "damaged", "foreign payload"), None when
     decoded; text: the symbol's raw text when one was read; orientation_known: whether the
     rotation about the normal was fixed by the symbol (else its variance is that of a uniform
-    angle); rms: edge fit RMS, pixels; alternative: the other pose of the rings' two-fold
-    ambiguity (None for frames).
+    angle); rms: edge fit RMS, pixels; hypotheses: for rings, both poses of their two-fold
+    ambiguity (core.landmarks.ambiguity), best first, each with its covariance of (rvec, t)
+    and its probability given the image (the rings' centre, the symbol, the mounting prior);
+    () for frames. The first is T_cam_mark. When the image cannot decide (`decided` False),
+    cov is the two poses' covering covariance (a good pose's confidence is never claimed);
+    when it decides, cov is the chosen pose's own.
     """
 
     kind: str
@@ -105,7 +122,7 @@ class LandmarkDetection:
     text: str | None = None
     orientation_known: bool = False
     rms: float = 0.0
-    alternative: Array | None = field(default=None, repr=False)
+    hypotheses: tuple[PoseHypothesis, ...] = field(default=(), repr=False)
 
     @property
     def position(self) -> Array:
@@ -116,6 +133,17 @@ class LandmarkDetection:
     def normal(self) -> Array:
         """Return the unit normal (3,) out of the printed face, camera coordinates."""
         return self.T_cam_mark[:3, 2]
+
+    @property
+    def decided(self) -> bool:
+        """Return whether the image decides the pose (one hypothesis, or the first at least
+        core.landmarks.ambiguity.DECIDED_PROBABILITY)."""
+        return is_decided(self.hypotheses)
+
+    @property
+    def probability(self) -> float:
+        """Return the reported pose's probability given the image (1 for frames)."""
+        return self.hypotheses[0].probability if self.hypotheses else 1.0
 
 
 def detect_landmarks(
@@ -919,6 +947,10 @@ class _Candidates:
     normals: tuple[Array, Array]
     depths: Array
     cov: tuple[Array, Array]  # (6, 6) of (rotation about camera axes, translation), per candidate
+    # log-likelihood of each candidate from the rings' centre: the pencil centre against the
+    # centre the candidate predicts (the pole of its vanishing line with respect to the outer
+    # conic), Gaussian in their difference (its noise model in _ring_candidates).
+    centre_loglik: Array
 
 
 def _ring_candidates(rf: _RingFit, K: Array) -> _Candidates:
@@ -929,6 +961,7 @@ def _ring_candidates(rf: _RingFit, K: Array) -> _Candidates:
     # along their principal axes), ignoring the rotation about the normal (added later from
     # the symbol): the nominal pair first, then each perturbed one, in one batch.
     outer, inner = [Q0], [Qn]
+    points = [0.0]  # the points of the fit each sigma point perturbs
     for k, f in enumerate((rf.fits[0], rf.fits[-1])):
         w, U = np.linalg.eigh(f.cov)
         base = _coeffs6(f.C)
@@ -939,7 +972,9 @@ def _ring_candidates(rf: _RingFit, K: Array) -> _Candidates:
             Qp = K.T @ _conic6(base + np.sqrt(s2) * u) @ K
             outer.append(Qp if k == 0 else Q0)
             inner.append(Qp if k == 1 else Qn)
+            points.append(float(f.n))
     Q0s, Qns = np.array(outer), np.array(inner)
+    n_pts = np.array(points)
     skip = (DegenerateConfiguration, np.linalg.LinAlgError)
     try:
         ms, (pa, pb), dps = _ring_pose(Q0s, Qns, r0)
@@ -954,19 +989,46 @@ def _ring_candidates(rf: _RingFit, K: Array) -> _Candidates:
             except skip:
                 continue
             good.append(i)
-        ms, (pa, pb), dps = _ring_pose(Q0s[good], Qns[good], r0)
+        Q0s, n_pts = Q0s[good], n_pts[good]
+        ms, (pa, pb), dps = _ring_pose(Q0s, Qns[good], r0)
     m, normals, depths = ms[0], (pa[0], pb[0]), dps[0]
-    mp, pa, pb, dps = ms[1:], pa[1:], pb[1:], dps[1:]
+    # What the conics' covariances leave out: a deformation of an edge curve moves its conic's
+    # centre by about the fit's RMS residual in any direction (pixels, to normalised units).
+    floor = np.eye(2) * (rf.fits[0].rms ** 2 + rf.fits[-1].rms ** 2) / (K[0, 0] * K[1, 1])
     covs = []
+    maha = np.empty(2)
+    logdet = np.empty(2)
     for j in range(2):
         # Match each perturbed candidate to candidate j by its normal; one-sided difference of
         # (rotation of the normal, centre).
         first = (pa @ normals[j] >= pb @ normals[j])[:, None]
         n_p = np.where(first, pa, pb)
+        n_p[0] = normals[j]
         d_p = np.where(first[:, 0], dps[:, 0], dps[:, 1])
-        dv = np.concatenate([np.cross(normals[j], n_p), d_p[:, None] * mp - depths[j] * m], 1)
+        dv = np.concatenate(
+            [np.cross(normals[j], n_p[1:]), d_p[1:, None] * ms[1:] - depths[j] * m], 1
+        )
         covs.append(dv.T @ dv)
-    return _Candidates(m, normals, depths, (covs[0], covs[1]))
+        # The centre's evidence: r = pencil centre - pole of the vanishing line n (normalised
+        # coordinates), nominal and at each sigma point (its covariance, first order). The
+        # edge points' errors are taken as fully correlated along each curve (what limits
+        # them is systematic: the blur of bands a pixel or two wide, the pixel grid's phase,
+        # the lens model), so each fit's covariance is scaled by its number of points: its
+        # conic is then as uncertain as its own RMS residual, not that over sqrt(points).
+        pole = np.linalg.solve(Q0s, n_p[..., None])[..., 0]
+        r = ms[:, :2] - pole[:, :2] / pole[:, 2:3]
+        dr = (r[1:] - r[0]) * np.sqrt(n_pts[1:])[:, None]
+        S = dr.T @ dr + floor
+        logdet[j] = np.linalg.slogdet(S)[1]
+        maha[j] = float(r[0] @ np.linalg.solve(S, r[0]))
+    # When even the better candidate misses the centre by more than its noise (chi-square of
+    # 2 degrees of freedom above its mean), the noise is larger than modelled (an edge curve
+    # that is two merged edges, a band the blur has deformed): the scale is estimated from
+    # that candidate's misfit (the Birge ratio), so the evidence is weighed by the noise the
+    # image shows.
+    scale = max(1.0, float(np.min(maha)) / 2.0)
+    loglik = -0.5 * maha / scale - 0.5 * logdet
+    return _Candidates(m, normals, depths, (covs[0], covs[1]), loglik)
 
 
 def _coeffs6(C: Array) -> Array:
@@ -1012,7 +1074,9 @@ def _finish_rings(
             reads[k] = _read_symbol(ctx, R, t, half, lay.qr_side)
             if reads[k] is not None:
                 break
-    choice = None
+    # Each candidate's log-likelihood: the rings' centre, then the symbol and the mounting
+    # prior when there are (core.landmarks.ambiguity).
+    loglik = cands.centre_loglik.copy()
     # 1. The symbol: its corners, read under either candidate, are rays from the camera; laid on
     # each candidate's plane they form a square only on the right one (the wrong plane shears
     # it). The candidate whose rectification decoded is not evidence by itself: near the
@@ -1025,53 +1089,70 @@ def _finish_rings(
         for n, (R, t) in zip(cands.normals, poses, strict=True):
             P3 = rays * ((n @ t) / (rays @ n))[:, None]
             fits.append(_square_fit(((P3 - t) @ R)[:, :2]))
-        sq = [f[1] if f is not None else np.inf for f in fits]
-        if np.isfinite(min(sq)):
-            choice = int(np.argmin(sq))
-            fit = fits[choice]
-            assert fit is not None
-            reads[choice] = _Read(
-                read_any.text, None, fit[0], read_any.var_psi, fit[1], read_any.module_px
+        if any(f is not None for f in fits):
+            for j, fit in enumerate(fits):
+                if fit is None:  # the corners out of order on this plane: not the symbol's
+                    loglik[j] = -np.inf
+                    continue
+                # The squareness residual (RMS over the 4 corners, in half sides) in modules
+                # (half side = _NOMINAL_MODULES / 2 of them), 4 residual degrees of freedom
+                # (8 coordinates, a similarity fitted), corners SYMBOL_CORNER_SD modules.
+                res = fit[1] * _NOMINAL_MODULES / 2
+                loglik[j] += -0.5 * 4 * res * res / SYMBOL_CORNER_SD**2
+                reads[j] = _Read(
+                    read_any.text, None, fit[0], read_any.var_psi, fit[1], read_any.module_px
+                )
+    # 2. The vertical-wall prior: the normal horizontal, within WALL_TILT_SD and the
+    # candidate's own uncertainty across it.
+    if ctx.up is not None:
+        for j, n in enumerate(cands.normals):
+            e = math.asin(min(abs(float(n @ ctx.up)), 1.0))
+            a = np.cross(n, ctx.up)
+            var = WALL_TILT_SD**2 + float(a @ cands.cov[j][:3, :3] @ a) / max(
+                1.0 - float(n @ ctx.up) ** 2, 1e-6
             )
-    # 2. The vertical-wall prior: the normal perpendicular to up.
-    if choice is None and ctx.up is not None:
-        dots = [abs(float(n @ ctx.up)) for n in cands.normals]
-        if abs(dots[0] - dots[1]) > 0.05:
-            choice = int(np.argmin(dots))
-    # 3. The pencil centre against each candidate's predicted centre (the pole of its
-    # vanishing line with respect to the outer conic).
-    if choice is None:
-        Q0 = ctx.K.T @ rf.fits[0].C @ ctx.K
-        errs = []
-        for n in cands.normals:
-            pole = np.linalg.solve(Q0, n)
-            pole = pole / pole[2]
-            errs.append(float(np.linalg.norm(pole[:2] - cands.m[:2] / cands.m[2])))
-        choice = int(np.argmin(errs))
-    R, t = poses[choice]
-    read = reads[choice]
-    psi_known = False
-    var_psi = _UNKNOWN_ANGLE_VAR
-    if read is not None and read.psi is not None:
-        R = R @ _rz(read.psi)
-        psi_known = True
-        var_psi = read.var_psi
-    elif ctx.decode and read is None:
-        psi = _symbol_angle(ctx, R, t, lay.qr_side, free=True)
-        if psi is not None:
-            R = R @ _rz(psi)
+            loglik[j] += -0.5 * e * e / var - 0.5 * math.log(var)
+    if not np.any(np.isfinite(loglik)):
+        return None
+    prob = probabilities(loglik)
+    order = [int(np.argmax(prob)), 1 - int(np.argmax(prob))]
+    decided = prob[order[0]] >= DECIDED_PROBABILITY
+    hyps: list[tuple[Array, Array, Array, _Read | None, bool]] = []
+    for rank, j in enumerate(order):
+        R, t = poses[j]
+        read = reads[j]
+        psi_known = False
+        var_psi = _UNKNOWN_ANGLE_VAR
+        if read is not None and read.psi is not None:
+            R = R @ _rz(read.psi)
             psi_known = True
-            var_psi = (1.0 / _NOMINAL_MODULES) ** 2
-    cov_theta = cands.cov[choice].copy()
-    n = cands.normals[choice]
-    cov_theta[:3, :3] += var_psi * np.outer(n, n)
+            var_psi = read.var_psi
+        elif ctx.decode and read is None and (rank == 0 or not decided):
+            psi = _symbol_angle(ctx, R, t, lay.qr_side, free=True)
+            if psi is not None:
+                R = R @ _rz(psi)
+                psi_known = True
+                var_psi = (1.0 / _NOMINAL_MODULES) ** 2
+        cov_theta = cands.cov[j].copy()
+        n = cands.normals[j]
+        cov_theta[:3, :3] += var_psi * np.outer(n, n)
+        hyps.append((R, t, cov_theta, read, psi_known))
+    T = [np.eye(4), np.eye(4)]
+    for k, (R, t, _, _, _) in enumerate(hyps):
+        T[k][:3, :3], T[k][:3, 3] = R, t
+    # Of the left perturbation (the candidates' own), for the covering covariance.
+    left = tuple(PoseHypothesis(T[k], hyps[k][2], float(prob[j])) for k, j in enumerate(order))
+    R, t, cov_theta, read, psi_known = hyps[0]
+    if not decided:
+        cov_theta = covering_covariance(left)
+    hypotheses = tuple(
+        PoseHypothesis(h.T, _rvec_cov(h.T[:3, :3], h.cov), h.probability) for h in left
+    )
     cov = _rvec_cov(R, cov_theta)
-    other = 1 - choice
-    T_alt = np.eye(4)
-    T_alt[:3, :3] = _rotation(cands.normals[other], 0.0)
-    T_alt[:3, 3] = cands.depths[other] * cands.m
     rms = float(np.mean([f.rms for f in rf.fits]))
-    return _result(ctx, "signpost", R, t, cov, outline, lay.qr_side, read, psi_known, rms, T_alt)
+    return _result(
+        ctx, "signpost", R, t, cov, outline, lay.qr_side, read, psi_known, rms, hypotheses
+    )
 
 
 def _rvec_cov(R: Array, cov_theta: Array) -> Array:
@@ -1313,7 +1394,7 @@ def _finish(
             R = R @ _rz(psi)
             known = True
     # cov is of the left rotation perturbation, invariant under the turn about z.
-    return _result(ctx, kind, R, t, _rvec_cov(R, cov), outline, lay.qr_side, read, known, rms, None)
+    return _result(ctx, kind, R, t, _rvec_cov(R, cov), outline, lay.qr_side, read, known, rms, ())
 
 
 def _result(
@@ -1327,7 +1408,7 @@ def _result(
     read: _Read | None,
     known: bool,
     rms: float,
-    alternative: Array | None,
+    hypotheses: tuple[PoseHypothesis, ...],
 ) -> LandmarkDetection:
     T = np.eye(4)
     T[:3, :3] = R
@@ -1355,7 +1436,7 @@ def _result(
         text=text,
         orientation_known=known,
         rms=rms,
-        alternative=alternative,
+        hypotheses=hypotheses,
     )
 
 

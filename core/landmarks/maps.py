@@ -27,6 +27,7 @@ from core._validate import as_matrix
 from core.errors import IntspaceError, InvalidInput
 from core.geometry.camera import left_jacobian_so3
 from core.geometry.rotations import matrix_to_rotvec, nearest_rotation, rotvec_to_matrix
+from core.landmarks.ambiguity import PoseHypothesis
 from core.landmarks.detect import LandmarkDetection
 from core.landmarks.payload import ObjectMark, Signpost
 
@@ -53,17 +54,36 @@ def _cov6(cov: ArrayLike, name: str) -> Array:
     return C
 
 
-def detection_in_world(det: LandmarkDetection, T_world_cam: ArrayLike) -> tuple[Array, Array]:
-    """Return (T_world_mark (4, 4), its (6, 6) covariance of (left rotation perturbation in the
-    world frame, position in the world)) of a detection seen by a camera at T_world_cam (held
-    exact). The detection's covariance is of (rvec, t) in the camera frame."""
-    Twc = _pose_matrix(T_world_cam, "T_world_cam")
-    T = Twc @ det.T_cam_mark
-    Jl = left_jacobian_so3(matrix_to_rotvec(det.T_cam_mark[:3, :3]))
+def _in_world(T_cam_mark: Array, cov: Array, Twc: Array) -> tuple[Array, Array]:
+    T = Twc @ T_cam_mark
+    Jl = left_jacobian_so3(matrix_to_rotvec(T_cam_mark[:3, :3]))
     M = np.zeros((6, 6))
     M[:3, :3] = Twc[:3, :3] @ Jl
     M[3:, 3:] = Twc[:3, :3]
-    return T, M @ det.cov @ M.T
+    return T, M @ cov @ M.T
+
+
+def detection_in_world(det: LandmarkDetection, T_world_cam: ArrayLike) -> tuple[Array, Array]:
+    """Return (T_world_mark (4, 4), its (6, 6) covariance of (left rotation perturbation in the
+    world frame, position in the world)) of a detection seen by a camera at T_world_cam (held
+    exact). The detection's covariance is of (rvec, t) in the camera frame (for a signpost
+    whose image cannot decide its pose, the covariance covering both of its poses)."""
+    Twc = _pose_matrix(T_world_cam, "T_world_cam")
+    return _in_world(det.T_cam_mark, det.cov, Twc)
+
+
+def hypotheses_in_world(
+    det: LandmarkDetection, T_world_cam: ArrayLike
+) -> tuple[PoseHypothesis, ...]:
+    """Return a detection's pose hypotheses in the world frame of a camera at T_world_cam (held
+    exact), best first: each T_world_mark (4, 4), its own (6, 6) covariance of (left rotation
+    perturbation in the world, position) and its probability given the image; one hypothesis
+    (probability 1) for a detection without alternatives (a frame). What
+    core.landmarks.ambiguity.fuse_hypotheses fuses over views."""
+    Twc = _pose_matrix(T_world_cam, "T_world_cam")
+    if not det.hypotheses:
+        return (PoseHypothesis(*_in_world(det.T_cam_mark, det.cov, Twc), 1.0),)
+    return tuple(PoseHypothesis(*_in_world(h.T, h.cov, Twc), h.probability) for h in det.hypotheses)
 
 
 @dataclass

@@ -24,7 +24,10 @@ by a random angle about its normal, on a random wall. Sensor noise: `NOISE`.
 
 Per bin: located % (a detection of the right kind within 10 % of the distance), position error
 as % of distance and normal error (deg), medians and 95th percentiles, flips (normal error over
-`FLIP_DEG`, the other branch of the two-fold ambiguity); decoding over the views whose modules
+`FLIP_DEG`, the other branch of the two-fold ambiguity), the views whose image cannot decide
+the pose (`undecided_pct`: a signpost reporting both of its rings' poses, core.landmarks.
+ambiguity) and the flips among the decided ones (`decided_flips_pct`: a wrong pose reported
+with a good pose's confidence); decoding over the views whose modules
 span at least 2 px along both image axes (the smaller singular value of the projection at the
 centre): ours (rectified), zxing-cpp and cv2.QRCodeDetector on the raw image. Anchor: an
 AprilTag 36h11 of the same outer size at the same pose, same noise, in its own image, located
@@ -71,9 +74,16 @@ from numpy.typing import NDArray
 
 from core.errors import InvalidInput
 from core.geometry.camera import undistort_points
+from core.landmarks.ambiguity import PoseHypothesis, fuse_hypotheses, is_decided
 from core.landmarks.artwork import make_artwork, pattern_layout
 from core.landmarks.detect import LandmarkDetection, detect_landmarks
-from core.landmarks.maps import NavigationMap, NoRoute, SemanticMap, detection_in_world
+from core.landmarks.maps import (
+    NavigationMap,
+    NoRoute,
+    SemanticMap,
+    detection_in_world,
+    hypotheses_in_world,
+)
 from core.landmarks.payload import ObjectMark, PayloadError, Signpost, decode_payload
 from core.localization import NetworkCamera
 from core.localization.occluders import line_of_sight
@@ -158,6 +168,8 @@ class LandmarkPoseBin:
     flips_pct_within_limit: float | None = None
     tag_normal_error_deg_p95_within_limit: float | None = None
     tag_flips_pct_within_limit: float | None = None
+    undecided_pct: float | None = None
+    decided_flips_pct: float | None = None
 
 
 @dataclass(frozen=True)
@@ -249,6 +261,8 @@ class _Tally:
     tag_loc: int = 0
     tag_pos: list[float] | None = None
     tag_nrm: list[float] | None = None
+    undecided: int = 0
+    decided_flips: int = 0
 
     def __post_init__(self) -> None:
         self.pos, self.nrm, self.tag_pos, self.tag_nrm = [], [], [], []
@@ -286,6 +300,10 @@ def _score_ours(
             assert tally.pos is not None and tally.nrm is not None
             tally.pos.append(100 * float(np.linalg.norm(hits[0].position - T[:3, 3])) / d)
             tally.nrm.append(_normal_error(hits[0].normal, T))
+            if not hits[0].decided:
+                tally.undecided += 1
+            elif tally.nrm[-1] > FLIP_DEG:
+                tally.decided_flips += 1
     if module is not None and module >= MIN_DECODE_MODULE_PX:
         tally.dec_views += 1
         tally.ours += any(h.text == text for h in hits)
@@ -434,6 +452,8 @@ def landmark_pose(
                     tag_flips_pct_within_limit=_pct(
                         sum(e > FLIP_DEG for e in near_tag), len(near_tag)
                     ),
+                    undecided_pct=_pct(tally.undecided, tally.located),
+                    decided_flips_pct=_pct(tally.decided_flips, tally.located - tally.undecided),
                 )
             )
     goals = _goals(out, limits, at45)
@@ -606,11 +626,27 @@ def polar_command(robot: Array, goal: Array) -> tuple[float, float, float]:
 
 @dataclass
 class _Track:
-    """The tracked landmark in the odometry frame: T_odom_mark, its kind, last seen time."""
+    """The tracked landmark in the odometry frame: T_odom_mark, its kind, last seen time, and
+    the poses the views so far leave possible (core.landmarks.ambiguity, best first, T the
+    first; () for a landmark known from a map, not seen yet)."""
 
     T: Array
     kind: str
     seen: float
+    hypotheses: tuple[PoseHypothesis, ...] = ()
+
+    @property
+    def decided(self) -> bool:
+        """Return whether the views decide the landmark's pose."""
+        return is_decided(self.hypotheses)
+
+    def normal(self) -> Array:
+        """Return the normal to approach along (odometry frame): the pose's when decided, else
+        the hypotheses' probability-weighted mean (between the two candidates: the line of
+        sight, where the next views decide), never one of two undecided normals."""
+        if self.decided:
+            return self.T[:3, 2]
+        return np.asarray(sum(h.probability * h.normal for h in self.hypotheses), dtype=np.float64)
 
 
 @dataclass
@@ -801,8 +837,8 @@ class HeadRobot:
         innovation fails the chi-square test (RELOCALISE_CHI2), is refused as an outlier.
         Return whether it was applied."""
         rec = det.record
-        if not isinstance(rec, Signpost) or not det.orientation_known:
-            return False
+        if not isinstance(rec, Signpost) or not det.orientation_known or not det.decided:
+            return False  # (a pose the image cannot decide fixes nothing)
         if float(np.linalg.norm(det.position)) > RELOCALISE_M:
             return False
         T_world_mark = np.eye(4)
@@ -849,6 +885,16 @@ class HeadRobot:
         """Return T_odom_mark (4, 4) of a detection in the current frame."""
         return self.T_odom_cam() @ det.T_cam_mark
 
+    def track(self, det: LandmarkDetection, track: _Track | None = None) -> _Track:
+        """Return the track of a landmark after a detection of it in the current frame: a view
+        that decides its pose replaces the estimate (the newest, nearest view is the best);
+        one that cannot decide is fused with the track's hypotheses (core.landmarks.
+        ambiguity.fuse_hypotheses), both carried until the views together decide."""
+        hyps = hypotheses_in_world(det, self.T_odom_cam())
+        if track is not None and track.hypotheses and not det.decided:
+            hyps = fuse_hypotheses(track.hypotheses, hyps)
+        return _Track(hyps[0].T, det.kind, self.time, hyps)
+
     def read(self, track: _Track | None, timeout: float = READ_TIMEOUT_S) -> ReadOutcome:
         """Return the outcome of reading a landmark by PBVS (spec 04 sec. 5).
 
@@ -870,13 +916,13 @@ class HeadRobot:
         sweep = self.head.pan_limits[1]
         sweeps = 0
         if track is not None:  # a landmark located earlier: lost only if unseen from now on
-            track = _Track(track.T, track.kind, self.time)
+            track = _Track(track.T, track.kind, self.time, track.hypotheses)
         while self.time - t0 < timeout:
             dets = self.look()
             if track is None:
                 located = sorted(dets, key=lambda d: float(np.linalg.norm(d.position)))
                 if located:
-                    track = _Track(self.locate(located[0]), located[0].kind, self.time)
+                    track = self.track(located[0])
                 else:
                     # Sweep the pan range end to end (0.4 rad a frame, under half the field),
                     # looking level and then up in turn (a signpost near and above the head).
@@ -895,7 +941,7 @@ class HeadRobot:
                     if e < MATCH_RADIUS and (best is None or e < best[0]):
                         best = (e, d)
                 if best is not None:
-                    track = _Track(self.locate(best[1]), track.kind, self.time)
+                    track = self.track(best[1], track)
                     if best[1].record is not None:
                         err = self._task_error(track, f)
                         seen_from = self.T_odom_cam()
@@ -912,7 +958,7 @@ class HeadRobot:
     def _goal(self, track: _Track, f: float) -> tuple[Array, Array]:
         """Return the base's reading pose (x, y, yaw) and the camera's (3,) in the odom frame."""
         m = track.T[:3, 3]
-        n = track.T[:3, 2].copy()
+        n = track.normal().copy()
         n[2] = 0.0
         nn = float(np.linalg.norm(n))
         if nn < 0.3:  # a mark facing up or down: approach from where the robot stands
@@ -1611,7 +1657,7 @@ class _Survey:
                     for _, t in todo
                 ):
                     dist = float(np.linalg.norm(d.position))
-                    todo.append((dist, _Track(T, d.kind, r.time)))
+                    todo.append((dist, r.track(d)))
             r.drive(0.0, 0.0, FRAME_DT)
         todo.sort(key=lambda x: x[0])
         return [t for _, t in todo if not self.known(t.T[:3, 3], t.kind)]

@@ -187,6 +187,13 @@ def _detect(args: argparse.Namespace) -> int:
         n = d.normal
         read = d.text if d.record is None else f"{d.record.kind} #{d.record.id} {d.record.name!r}"
         why = "" if d.reason is None else f" (not read: {d.reason})"
+        if not d.decided:
+            # The image cannot decide between the rings' two poses: say so, with both normals.
+            m = d.hypotheses[1].normal
+            why += (
+                f"; undecided pose (p = {d.probability:.2f}), or normal "
+                f"({m[0]:+.3f}, {m[1]:+.3f}, {m[2]:+.3f})"
+            )
         print(
             f"  {d.kind:8s} at ({p[0]:+.3f}, {p[1]:+.3f}, {p[2]:+.3f}) m, normal "
             f"({n[0]:+.3f}, {n[1]:+.3f}, {n[2]:+.3f}), "
@@ -217,4 +224,9 @@ def _as_json(d: LandmarkDetection) -> dict[str, Any]:
         "record": record,
         "reason": d.reason,
         "text": d.text,
+        "decided": d.decided,
+        "hypotheses": [
+            {"T_cam_mark": h.T.tolist(), "cov": h.cov.tolist(), "probability": h.probability}
+            for h in d.hypotheses
+        ],
     }

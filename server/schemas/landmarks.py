@@ -40,6 +40,14 @@ Covariance6 = Annotated[
 ]
 
 
+class PoseHypothesisOut(BaseModel):
+    """One pose a signpost may have (core.landmarks.ambiguity.PoseHypothesis)."""
+
+    T_cam_mark: list[list[float]] = Field(description="4x4 mark frame in the camera, metres.")
+    cov: list[list[float]] = Field(description="6x6 covariance of (rotation vector, t).")
+    probability: float = Field(description="Its probability given the image, 0-1.")
+
+
 class Detection(BaseModel):
     """One landmark found in an image (core.landmarks.detect_landmarks)."""
 
@@ -55,6 +63,16 @@ class Detection(BaseModel):
     text: str | None = Field(description="The symbol's raw text when one was read.")
     orientation_known: bool
     rms_px: float
+    decided: bool = Field(
+        True,
+        description="Whether the image decides the pose; when not, cov covers both of a "
+        "signpost's poses (docs/landmark-poses.md).",
+    )
+    hypotheses: list[PoseHypothesisOut] = Field(
+        default_factory=list,
+        description="A signpost's two poses, best first (the first is T_cam_mark), each with "
+        "its own covariance and its probability given the image; empty for object marks.",
+    )
 
 
 class DetectResult(BaseModel):

@@ -86,7 +86,9 @@ def record_json(record: Record | None) -> dict[str, Any] | None:
 
 def detection_json(det: LandmarkDetection) -> dict[str, Any]:
     """Return one detection as JSON: kind, outline (N, 2) px, T_cam_mark, cov (rvec then t),
-    position and normal in the camera frame, record or reason, raw text, diagnostics."""
+    position and normal in the camera frame, record or reason, raw text, diagnostics, and
+    whether the image decides the pose with the poses it leaves possible (a signpost's two,
+    each with its own covariance and probability; when undecided, cov covers both)."""
     return {
         "kind": det.kind,
         "outline": np.asarray(det.outline, float).tolist(),
@@ -100,6 +102,11 @@ def detection_json(det: LandmarkDetection) -> dict[str, Any]:
         "text": det.text,
         "orientation_known": bool(det.orientation_known),
         "rms_px": float(det.rms),
+        "decided": bool(det.decided),
+        "hypotheses": [
+            {"T_cam_mark": h.T.tolist(), "cov": h.cov.tolist(), "probability": h.probability}
+            for h in det.hypotheses
+        ],
     }
 
 

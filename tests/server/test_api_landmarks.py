@@ -175,6 +175,16 @@ def test_detect_with_K_locates_and_reads_both_kinds(client: TestClient, admin) -
         cov = np.array(det["cov"])
         assert cov.shape == (6, 6) and np.linalg.eigvalsh(cov).min() > 0
         assert len(det["outline"]) >= 4
+        # The symbol is read here: the image decides the pose. A signpost gives both of its
+        # rings' poses, the first the reported one, their probabilities summing to 1.
+        assert det["decided"] is True
+        hyps = det["hypotheses"]
+        if kind == "object":
+            assert hyps == []
+        else:
+            assert len(hyps) == 2 and np.allclose(hyps[0]["T_cam_mark"], est)
+            assert hyps[0]["probability"] >= 0.99
+            assert abs(sum(h["probability"] for h in hyps) - 1.0) < 1e-9
 
 
 def test_detect_with_a_registered_camera_and_bad_input(client: TestClient, admin) -> None:

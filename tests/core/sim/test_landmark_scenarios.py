@@ -10,11 +10,13 @@ import numpy as np
 import pytest
 
 from core.errors import InvalidInput
+from core.landmarks.ambiguity import PoseHypothesis
 from core.sim.landmark_scenarios import (
     HeadRobot,
     _calibrated,
     _se2_exp,
     _se2_log,
+    _Track,
     floor_pose,
     landmark_pose,
     landmark_reading,
@@ -46,6 +48,11 @@ def test_landmark_pose_small_study() -> None:
         assert b["normal_error_deg_median"] < 2.0  # spec 04: < 2 deg at 45 deg
         if b["decode_views"]:
             assert b["decoded_pct"] >= b["zxing_raw_pct"]
+        # A frame's pose has no alternative: always decided. No decided pose flips here
+        # (at most 1 % of decided poses may, core.landmarks.ambiguity).
+        if b["kind"] == "object":
+            assert b["undecided_pct"] == 0.0
+        assert b["decided_flips_pct"] in (0.0, None)
     with pytest.raises(InvalidInput):
         landmark_pose(None, 0, views_per_bin=0)
 
@@ -180,3 +187,38 @@ def test_a_reading_pose_with_nothing_free_on_its_normal_takes_the_nearest_free_p
     stand = goal[:2] + ap.offset
     assert robot._free(stand) and np.linalg.norm(ap.offset) <= 0.5
     np.testing.assert_allclose(ap.route[-1], stand, atol=0.08)  # the route leads there
+
+
+def _facing(n: list[float]) -> np.ndarray:
+    z = np.asarray(n, float) / np.linalg.norm(n)
+    x = np.cross([0.0, 0.0, 1.0], z)
+    x /= np.linalg.norm(x)
+    T = np.eye(4)
+    T[:3, :3] = np.column_stack([x, np.cross(z, x), z])
+    T[:3, 3] = [3.0, 0.0, 1.2]
+    return T
+
+
+def test_an_undecided_track_approaches_between_its_two_poses() -> None:
+    # A signpost seen from the origin along +x: its two poses' normals mirrored about the line
+    # of sight (-x), 40 deg either side. Undecided (0.7 / 0.3), the approach is along their
+    # weighted mean, between the two and off both; decided, along the chosen one.
+    a, b = _facing([-np.cos(0.7), np.sin(0.7), 0.0]), _facing([-np.cos(0.7), -np.sin(0.7), 0.0])
+    cov = np.eye(6) * 1e-4
+    undecided = _Track(
+        a, "signpost", 0.0, (PoseHypothesis(a, cov, 0.7), PoseHypothesis(b, cov, 0.3))
+    )
+    assert not undecided.decided
+    n = undecided.normal()
+    n = n / np.linalg.norm(n)
+    angle = lambda u, v: float(np.degrees(np.arccos(np.clip(u @ v, -1, 1))))  # noqa: E731
+    assert angle(n, a[:3, 2]) > 10.0 and angle(n, b[:3, 2]) > 10.0
+    # The weighted mean of the two unit normals: (0.7 - 0.3) sin 0.7 across the line of sight.
+    expected = np.degrees(np.arctan2(0.4 * np.sin(0.7), np.cos(0.7)))
+    assert angle(n, np.array([-1.0, 0.0, 0.0])) == pytest.approx(expected, abs=1e-9)
+    decided = _Track(
+        a, "signpost", 0.0, (PoseHypothesis(a, cov, 0.999), PoseHypothesis(b, cov, 0.001))
+    )
+    assert decided.decided and np.allclose(decided.normal(), a[:3, 2])
+    # A landmark known only from a map (no view yet) keeps its pose.
+    assert _Track(a, "signpost", 0.0).decided
