@@ -156,7 +156,8 @@ def detect_landmarks(
         if np.linalg.norm(upv) < 1e-9:
             raise InvalidInput("up must be a non-zero direction")
         upv = upv / np.linalg.norm(upv)
-    b, g, r = cv2.split(img)
+    # (into planes numpy allocates: cv2.split allocating its own is 2.5 times as slow)
+    b, g, r = cv2.split(img, list(np.empty((3, *img.shape[:2]), np.uint8)))
     bg = cv2.max(b, g)
     ctx = _Context(img, cv2.max(bg, r), Km, d, upv, decode)
     blue = cv2.subtract(b, cv2.max(g, r))
@@ -309,10 +310,15 @@ def _iso_points(score: Image, roi: tuple[int, int, int, int], inside: Image) -> 
     A thin band broken by the threshold into pieces still gives one boundary per edge."""
     x0, y0, x1, y1 = roi
     roi_score = score[y0:y1, x0:x1]
-    m = cv2.moments(inside, binaryImage=True)
-    if m["m00"] == 0:
+    # The centroid of `inside` from its column and row counts: two reductions where cv2.moments
+    # makes a pass per moment; integer sums, so the same value exactly.
+    cols = cv2.reduce(inside, 0, cv2.REDUCE_SUM, dtype=cv2.CV_32S).ravel()
+    rows = cv2.reduce(inside, 1, cv2.REDUCE_SUM, dtype=cv2.CV_32S).ravel()
+    m00 = float(cols.sum())
+    if m00 == 0:
         return []
-    cx, cy = m["m10"] / m["m00"], m["m01"] / m["m00"]
+    cx = float(cols @ np.arange(len(cols), dtype=np.float64)) / m00
+    cy = float(rows @ np.arange(len(rows), dtype=np.float64)) / m00
     # Half-way between the pattern's plateau (the 90th percentile of the scores over `inside`,
     # linearly interpolated as numpy's percentile, from their histogram: blur lowers thin
     # bands' pixels, and a low level would widen the bands) and the white page around it (~0).
@@ -326,7 +332,7 @@ def _iso_points(score: Image, roi: tuple[int, int, int, int], inside: Image) -> 
     # threshold of an 8-bit image tests (one pass each, no floating-point copy of the ROI).
     _, above = cv2.threshold(roi_score, float(level), 1, cv2.THRESH_BINARY)
     _, below = cv2.threshold(roi_score, float(level), 1, cv2.THRESH_BINARY_INV)
-    _, lb = cv2.connectedComponents(below, connectivity=8)
+    n_labels, lb = cv2.connectedComponents(below, connectivity=8)
     # Exact integer gradients (|Sobel| <= 4 * 255), as the floating-point ones were.
     gxi = cv2.Sobel(roi_score, cv2.CV_16S, 1, 0, ksize=3)
     gyi = cv2.Sobel(roi_score, cv2.CV_16S, 0, 1, ksize=3)
@@ -334,7 +340,7 @@ def _iso_points(score: Image, roi: tuple[int, int, int, int], inside: Image) -> 
     width = roi_score.shape[1]
     # Gathers by flat index into the raveled (contiguous) ROI arrays: numpy's two-dimensional
     # fancy indexing recomputes the flat index at every gather.
-    flat_patch, flat_above, flat_lb = roi_score.ravel(), above.ravel(), lb.ravel()
+    flat_patch, flat_above, flat_lb = roi_score.ravel(), above.ravel().view(bool), lb.ravel()
     flat_gx, flat_gy = gxi.ravel(), gyi.ravel()
     for axis in (1, 0):
         ia = above[:, :-1] if axis == 1 else above[:-1, :]
@@ -348,24 +354,28 @@ def _iso_points(score: Image, roi: tuple[int, int, int, int], inside: Image) -> 
         va = flat_patch.take(ka).astype(np.float32)
         vb = flat_patch.take(kb).astype(np.float32)
         f = (level - va) / (vb - va)
-        lab_b = np.where(flat_above.take(ka) == 1, flat_lb.take(kb), flat_lb.take(ka))
-        px = xx + (f if axis == 1 else 0.0)
-        py = yy + (f if axis == 0 else 0.0)
+        lab_b = flat_lb.take(np.where(flat_above.take(ka), kb, ka))  # the pixel below the level
+        if axis == 1:
+            px, py = xx + f, yy.astype(np.float64)
+        else:
+            px, py = xx.astype(np.float64), yy + f
         # The score's gradient (toward the pattern) against the direction from the centre: an
-        # outer edge has the pattern on its inner side.
-        gx = flat_gx.take(ka).astype(np.float32) + flat_gx.take(kb)
-        gy = flat_gy.take(ka).astype(np.float32) + flat_gy.take(kb)
+        # outer edge has the pattern on its inner side. (Two Sobel values sum exactly in int16.)
+        gx = (flat_gx.take(ka) + flat_gx.take(kb)).astype(np.float32)
+        gy = (flat_gy.take(ka) + flat_gy.take(kb)).astype(np.float32)
         outer_edge = gx * (px - cx) + gy * (py - cy) < 0
         xs.append(px)
         ys.append(py)
-        keys.append(lab_b.astype(np.int64) * 2 + outer_edge)
+        keys.append(lab_b * 2 + outer_edge)
     if not keys:
         return []
     key = np.concatenate(keys)
-    order = np.argsort(key, kind="stable")
-    xy = np.stack([np.concatenate(xs), np.concatenate(ys)], 1)[order]
-    xy += (x0, y0)
+    # (numpy's stable sort of 16-bit keys, as few labels give, is a radix sort)
+    order = np.argsort(key.astype(np.int16) if n_labels < 16000 else key, kind="stable")
     key = key[order]
+    xy = np.empty((len(key), 2))
+    np.add(np.concatenate(xs)[order], x0, out=xy[:, 0])
+    np.add(np.concatenate(ys)[order], y0, out=xy[:, 1])
     cuts = [0, *(np.flatnonzero(key[1:] != key[:-1]) + 1).tolist(), len(key)]
     return [xy[a:b] for a, b in pairwise(cuts) if b - a >= 8]
 
@@ -561,13 +571,16 @@ def _frame_sides(frames: list[_FrameCurves]) -> list[_FrameEdges | None]:
     L = np.sqrt(np.sum(side * side, -1))  # (curves, 4)
     u = side / np.maximum(L, 1e-12)[..., None]
     margin = np.maximum(1.5, 0.12 * L)
-    d = pts[:, None, :] - Q[which]  # (N, 4, 2)
-    uw = u[which]
-    s = np.sum(d * uw, -1)
-    dn = np.abs(d[..., 1] * uw[..., 0] - d[..., 0] * uw[..., 1])
-    mw = margin[which]
-    ok = (s > mw) & (s < L[which] - mw) & (dn < 3.0)
-    dn = np.where(ok, dn, np.inf)
+    # Per point and side (N, 4), by coordinate: each curve's values repeated over its points
+    # (a repeat, where gathering the (N, 4, 2) arrays costs twice the arithmetic).
+    dx = pts[:, :1] - np.repeat(Q[..., 0], sizes, 0)
+    dy = pts[:, 1:] - np.repeat(Q[..., 1], sizes, 0)
+    ux, uy = np.repeat(u[..., 0], sizes, 0), np.repeat(u[..., 1], sizes, 0)
+    s = dx * ux + dy * uy
+    dn = np.abs(dy * ux - dx * uy)
+    mw = np.repeat(margin, sizes, 0)
+    ok = (s > mw) & (s < np.repeat(L, sizes, 0) - mw) & (dn < 3.0)
+    dn[~ok] = np.inf
     best = np.argmin(dn, 1)
     on = np.take_along_axis(dn, best[:, None], 1)[:, 0] < np.inf
     # Labels within each frame: 0-3 the outline's sides, 4-7 the hole's.
