@@ -74,9 +74,18 @@ MAX_CORNER_RMS_PX = 0.6
 # (pixels) a rectified read can use.
 MAX_READ_OBLIQUITY = 75.0
 MIN_READ_MODULE_PX = 1.2
+# Below this module size (pixels) a read is not tried: none succeeded in 336 tries of rendered
+# views under 1.2 px (bench_landmarks' camera, 0.9-2 m), where it costs a resampling and a
+# decoder pass each.
+MIN_TRY_MODULE_PX = 1.0
 # A nominal symbol (version 4, 33 modules) for the "too small" diagnosis before decoding.
 _NOMINAL_MODULES = 33
 _PATCH_MIN, _PATCH_MAX = 120, 256
+# A frame's symbol is read on a patch with modules of this many pixels (never fewer than the
+# image's): its corners only fix the frame's rotation to a quarter turn, so a finer patch buys
+# nothing but resampling and decoding time (both cost the patch's area). The rings' corners
+# give their rotation and resolve their ambiguity: their patches keep 2.5 pixels per image pixel.
+FRAME_PATCH_MODULE_PX = 4.0
 _UNKNOWN_ANGLE_VAR = np.pi**2 / 3  # rotation about the normal uniform on (-pi, pi]
 
 
@@ -1154,16 +1163,26 @@ def _module_px(ctx: _Context, R: Array, t: Array, side: float) -> float:
     return side * math.sqrt(2 * det * det / big) if big > 0 else 0.0
 
 
-def _read_symbol(ctx: _Context, R: Array, t: Array, half: float, qr_side: float) -> _Read | None:
+def _read_symbol(
+    ctx: _Context,
+    R: Array,
+    t: Array,
+    half: float,
+    qr_side: float,
+    patch_module_px: float = math.inf,
+) -> _Read | None:
     """Return the symbol read on the rectified patch of the square [-half, half]^2 (None when no
     symbol could be read): its text, corners in the mark plane, the rotation psi about the
     normal that puts x along its rows, and how square it is under this pose (RMS distance of
-    its corners to the best-fitting square of side qr_side, in units of qr_side)."""
+    its corners to the best-fitting square of side qr_side, in units of qr_side). The patch
+    has 2.5 pixels per image pixel, at most patch_module_px per module (at least one pixel per
+    image pixel)."""
     qpx = _module_px(ctx, R, t, qr_side)
-    if qpx / _NOMINAL_MODULES < MIN_READ_MODULE_PX * 0.5:
+    if qpx / _NOMINAL_MODULES < MIN_TRY_MODULE_PX:
         return None
     # 2.5 patch pixels per image pixel: modules of >= 1.2 px get >= 3 px, what zxing-cpp needs.
-    px = int(np.clip(2.5 * qpx * 2 * half / qr_side, _PATCH_MIN, _PATCH_MAX))
+    scale = max(1.0, min(2.5, patch_module_px / (qpx / _NOMINAL_MODULES)))
+    px = int(np.clip(scale * qpx * 2 * half / qr_side, _PATCH_MIN, _PATCH_MAX))
     grey = _rectify(ctx, R, t, half, px, grey=True)
     # OpenCV's detector is the fallback where zxing-cpp fails; it is slow (tens of ms) and
     # reads nothing zxing-cpp cannot below 1.5 px modules, so it is not tried there.
@@ -1314,7 +1333,11 @@ def _finish(
     """Fix the frame's rotation about its normal from the symbol and read it; cov is of
     (left rotation perturbation, t)."""
     lay = pattern_layout("object", size)
-    read = _read_symbol(ctx, R, t, lay.frame_inner, lay.qr_side) if ctx.decode else None
+    read = (
+        _read_symbol(ctx, R, t, lay.frame_inner, lay.qr_side, FRAME_PATCH_MODULE_PX)
+        if ctx.decode
+        else None
+    )
     known = False
     if read is not None and read.psi is not None:
         k = int(np.round(read.psi / (np.pi / 2)))
