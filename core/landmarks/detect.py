@@ -1227,12 +1227,20 @@ def _rectify(
 def _module_px(ctx: _Context, R: Array, t: Array, side: float) -> float:
     """Return the image extent (pixels) of `side` metres at the mark centre, along its most
     foreshortened direction."""
-    z = t[2]
-    J = ctx.K[:2, :2] @ (R[:2, :2] * z - np.outer(t[:2], R[2, :2])) / z**2
+    # J = K[:2, :2] (R[:2, :2] z - t[:2] R[2, :2]) / z^2, in plain floats (numpy's per-call
+    # cost is most of the time on 2 x 2 matrices).
+    (r00, r01, _), (r10, r11, _), (r20, r21, _) = R.tolist()
+    tx, ty, z = t.tolist()
+    (k00, k01, _), (_, k11, _), _ = ctx.K.tolist()
+    m00, m01 = r00 * z - tx * r20, r01 * z - tx * r21
+    m10, m11 = r10 * z - ty * r20, r11 * z - ty * r21
+    z2 = z * z
+    J00, J01 = (k00 * m00 + k01 * m10) / z2, (k00 * m01 + k01 * m11) / z2
+    J10, J11 = k11 * m10 / z2, k11 * m11 / z2
     # The smaller singular value of a 2x2 matrix in closed form (the stable root of
     # s^4 - |J|_F^2 s^2 + det(J)^2 = 0: the product of the two over the larger).
-    f2 = float(np.sum(J * J))
-    det = float(J[0, 0] * J[1, 1] - J[0, 1] * J[1, 0])
+    f2 = J00 * J00 + J01 * J01 + J10 * J10 + J11 * J11
+    det = J00 * J11 - J01 * J10
     big = f2 + math.sqrt(max(f2 * f2 - 4 * det * det, 0.0))
     return side * math.sqrt(2 * det * det / big) if big > 0 else 0.0
 
