@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Callable
+from functools import partial
 
 # One core: numpy's BLAS threads too (before numpy loads).
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
@@ -114,14 +115,16 @@ def errors(view: LandmarkView, dets: list, zx: list, cv_pts: list) -> dict[str, 
     truths = view.truth
     qr = {i: pattern_layout(a.kind, a.size).qr_side for i, a in enumerate(ARTS)}
     index = {a.text: i for i, a in enumerate(ARTS)}
-    pos, normal, corners = [], [], []
+    pos: list[float] = []
+    normal: list[float] = []
+    corners: list[float] = []
     for d in dets:
         # The truth nearest the detection's centre.
         k = int(np.argmin([np.linalg.norm(t.T_cam_mark[:3, 3] - d.position) for t in truths]))
         T = truths[k].T_cam_mark
-        pos.append(100 * np.linalg.norm(d.position - T[:3, 3]) / np.linalg.norm(T[:3, 3]))
+        pos.append(100 * float(np.linalg.norm(d.position - T[:3, 3]) / np.linalg.norm(T[:3, 3])))
         cos = float(np.clip(d.normal @ T[:3, 2], -1.0, 1.0))
-        normal.append(np.degrees(np.arccos(cos)))
+        normal.append(float(np.degrees(np.arccos(cos))))
         if d.kind == "object":
             corners.append(_corner_rms(d.outline, truths[k].corners))
     zx_err = [
@@ -178,13 +181,12 @@ def main() -> None:
             for t, p in zip(cv_texts if ok else (), cv_corners if ok else (), strict=True)
         ]
         err = errors(view, dets, zx, cv_read)
-        times = interleaved(
-            {
-                "detect_landmarks": lambda img=img: detect_landmarks(img, CAM.K, CAM.dist),
-                "zxingcpp raw": lambda img=img: zxingcpp.read_barcodes(img),
-                "cv2.QRCodeDetector raw": lambda img=img: qr.detectAndDecodeMulti(img),
-            }
-        )
+        calls: dict[str, Callable[[], object]] = {
+            "detect_landmarks": partial(detect_landmarks, img, CAM.K, CAM.dist),
+            "zxingcpp raw": partial(zxingcpp.read_barcodes, img),
+            "cv2.QRCodeDetector raw": partial(qr.detectAndDecodeMulti, img),
+        }
+        times = interleaved(calls)
         anchor = np.array(times["zxingcpp raw"])
         found = {
             "detect_landmarks": (len(dets), sum(d.text in texts for d in dets)),

@@ -277,7 +277,7 @@ def _ideal_grid(K: bytes, dist: bytes, width: int, height: int) -> Array | None:
     return np.ascontiguousarray(np.moveaxis(ideal, -1, 0))
 
 
-def _bilinear(g: Array, k: Array, width: int, a: Array, b: Array) -> Array:
+def _bilinear(g: Array, k: NDArray[np.intp], width: int, a: Array, b: Array) -> Array:
     """Return the bilinear interpolation of the raveled grid g (rows of `width`) in the cells
     whose top-left nodes are k, at fractions a (down) and b (across)."""
     g00, g01 = g.take(k), g.take(k + 1)
