@@ -1257,13 +1257,16 @@ def _read_symbol(
     symbol could be read): its text, corners in the mark plane, the rotation psi about the
     normal that puts x along its rows, and how square it is under this pose (RMS distance of
     its corners to the best-fitting square of side qr_side, in units of qr_side). The patch
-    has 2.5 pixels per image pixel, at most patch_module_px per module (at least one pixel per
-    image pixel)."""
+    has 2.5 pixels per image pixel; from 2-pixel modules on, at most patch_module_px per module
+    (at least one pixel per image pixel)."""
     qpx = _module_px(ctx, R, t, qr_side)
     if qpx / _NOMINAL_MODULES < MIN_TRY_MODULE_PX:
         return None
     # 2.5 patch pixels per image pixel: modules of >= 1.2 px get >= 3 px, what zxing-cpp needs.
-    scale = max(1.0, min(2.5, patch_module_px / (qpx / _NOMINAL_MODULES)))
+    # (The coarser patch only from 2 px modules: below, reads are at the decoder's margin,
+    # where any change of the patch turns some views from read to unread and back.)
+    module = qpx / _NOMINAL_MODULES
+    scale = 2.5 if module < 2.0 else max(1.0, min(2.5, patch_module_px / module))
     px = int(np.clip(scale * qpx * 2 * half / qr_side, _PATCH_MIN, _PATCH_MAX))
     grey = _rectify(ctx, R, t, half, px, grey=True)
     # OpenCV's detector is the fallback where zxing-cpp fails; it is slow (tens of ms) and
