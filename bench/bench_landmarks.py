@@ -9,7 +9,8 @@ For each frame: core.landmarks.detect_landmarks (every landmark found, located w
 covariance, its symbol read on the rectified patch), zxingcpp.read_barcodes on the raw frame
 and cv2.QRCodeDetector.detectAndDecodeMulti on the raw frame (zxing-cpp with its defaults), best
 of 30 single-threaded runs, the three interleaved round by round so that their ratios share the
-machine's load, and the median over the rounds of each round's ratio; with what each found and
+machine's load, and the median over the rounds of each round's ratio, in wall time and in CPU
+time (this thread's: less disturbed on a loaded machine); with what each found and
 read and its error against the rendering's truth: the corners it reports (the frames' outer
 corners for detect_landmarks, the symbols' corners for the QR readers; RMS pixels, median over
 the landmarks), and detect_landmarks' pose (position error in % of the distance, normal error
@@ -20,6 +21,7 @@ core.
 from __future__ import annotations
 
 import os
+import time
 from collections.abc import Callable
 from functools import partial
 
@@ -81,14 +83,20 @@ def frame(distances: tuple[float, float], seed: int) -> LandmarkView:
     return render_landmarks(CAM, placements, noise=SensorNoise(), rng=seed)
 
 
-def interleaved(calls: dict[str, Callable[[], object]], rounds: int = 30) -> dict[str, list[float]]:
-    """Return each call's wall times (seconds) over `rounds` rounds that run every call once in
-    turn, so that all of them see the same load on a shared machine."""
-    times: dict[str, list[float]] = {name: [] for name in calls}
+def interleaved(
+    calls: dict[str, Callable[[], object]], rounds: int = 30
+) -> tuple[dict[str, list[float]], dict[str, list[float]]]:
+    """Return each call's wall times and CPU times (this thread's, seconds) over `rounds` rounds
+    that run every call once in turn, so that all of them see the same load on a shared
+    machine (CPU time is the less disturbed by other processes on a loaded one)."""
+    wall: dict[str, list[float]] = {name: [] for name in calls}
+    cpu: dict[str, list[float]] = {name: [] for name in calls}
     for _ in range(rounds):
         for name, fn in calls.items():
-            times[name].append(best_of(fn, repeats=1))
-    return times
+            c0 = time.thread_time()
+            wall[name].append(best_of(fn, repeats=1))
+            cpu[name].append(time.thread_time() - c0)
+    return wall, cpu
 
 
 def _corner_rms(found: np.ndarray, truth: np.ndarray) -> float:
@@ -186,8 +194,9 @@ def main() -> None:
             "zxingcpp raw": partial(zxingcpp.read_barcodes, img),
             "cv2.QRCodeDetector raw": partial(qr.detectAndDecodeMulti, img),
         }
-        times = interleaved(calls)
+        times, cpu = interleaved(calls)
         anchor = np.array(times["zxingcpp raw"])
+        cpu_anchor = np.array(cpu["zxingcpp raw"])
         found = {
             "detect_landmarks": (len(dets), sum(d.text in texts for d in dets)),
             "zxingcpp raw": (len(zx), sum(r.text in texts for r in zx)),
@@ -200,6 +209,9 @@ def main() -> None:
                 "read": f"{n_read}/{len(ARTS)}",
                 # Each round's ratio, then their median: the load shared within a round.
                 "median ratio": f"{np.median(np.array(times[method]) / anchor):.2f}x",
+                # The same from CPU time: best of the rounds, and the median of their ratios.
+                "cpu ratio": f"{min(cpu[method]) / cpu_anchor.min():.2f}x",
+                "cpu median": f"{np.median(np.array(cpu[method]) / cpu_anchor):.2f}x",
             }
             rows.append((method, min(times[method]), {**extra, **err[method]}))
         print_table(
