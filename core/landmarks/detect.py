@@ -29,6 +29,7 @@
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 from itertools import pairwise
@@ -44,6 +45,7 @@ from core.calibration.pose import pose_from_homography
 from core.errors import ConvergenceError, DegenerateConfiguration, InvalidInput
 from core.geometry.camera import (
     as_distortion,
+    distortion_jacobian,
     distortion_model,
     undistort_points,
 )
@@ -81,9 +83,19 @@ MAX_CORNER_RMS_PX = 0.6
 # (pixels) a rectified read can use.
 MAX_READ_OBLIQUITY = 75.0
 MIN_READ_MODULE_PX = 1.2
+# Below this module size (pixels) a read is not tried: none succeeded in 336 tries of rendered
+# views under 1.2 px (bench_landmarks' camera, 0.9-2 m), where it costs a resampling and a
+# decoder pass each.
+MIN_TRY_MODULE_PX = 1.0
 # A nominal symbol (version 4, 33 modules) for the "too small" diagnosis before decoding.
 _NOMINAL_MODULES = 33
 _PATCH_MIN, _PATCH_MAX = 120, 256
+# A frame's symbol with modules of 2 px or more is read on a patch with modules of this many
+# pixels (never fewer than the image's): its corners only fix the frame's rotation to a quarter
+# turn, so a finer patch buys nothing but resampling and decoding time (both cost the patch's
+# area). The rings' corners give their rotation and resolve their ambiguity: their patches keep
+# 2.5 pixels per image pixel.
+FRAME_PATCH_MODULE_PX = 4.0
 _UNKNOWN_ANGLE_VAR = np.pi**2 / 3  # rotation about the normal uniform on (-pi, pi]
 # The rings' two poses (core.landmarks.ambiguity): the decoder's symbol corners are taken to
 # be within this many modules (standard deviation; zxing-cpp and OpenCV place them from the
@@ -184,7 +196,8 @@ def detect_landmarks(
         if np.linalg.norm(upv) < 1e-9:
             raise InvalidInput("up must be a non-zero direction")
         upv = upv / np.linalg.norm(upv)
-    b, g, r = cv2.split(img)
+    # (into planes numpy allocates: cv2.split allocating its own is 2.5 times as slow)
+    b, g, r = cv2.split(img, list(np.empty((3, *img.shape[:2]), np.uint8)))
     bg = cv2.max(b, g)
     ctx = _Context(img, cv2.max(bg, r), Km, d, upv, decode)
     blue = cv2.subtract(b, cv2.max(g, r))
@@ -251,7 +264,11 @@ class _Context:
     def undistort(self, px: Array) -> Array:
         if not np.any(self.dist):
             return px
-        return undistort_points(px, self.K, self.dist, to_pixels=True, tol=1e-10)
+        h, w = self.image.shape[:2]
+        grid = _ideal_grid(self.K.tobytes(), self.dist.tobytes(), w, h)
+        if grid is None:
+            return undistort_points(px, self.K, self.dist, to_pixels=True, tol=1e-10)
+        return _undistort_from_grid(px, self.K, self.dist, grid)
 
     def distort(self, ideal: Array) -> Array:
         if not np.any(self.dist):
@@ -266,6 +283,74 @@ class _Context:
             x, y, _, _ = distortion_model(x, y, self.dist)
         K = self.K
         return np.stack([K[0, 0] * x + K[0, 1] * y + K[0, 2], K[1, 1] * y + K[1, 2]], -1)
+
+
+# The undistortion of the edge points starts from the ideal coordinates of a grid of pixels
+# this far apart, interpolated (bilinear: at most 4e-3 px off over bench_landmarks' image, 6e-3
+# px over the head camera's), where Newton from the distorted point takes two more iterations.
+_GRID_STEP = 8
+
+
+@functools.lru_cache(maxsize=8)
+def _ideal_grid(K: bytes, dist: bytes, width: int, height: int) -> Array | None:
+    """Return the ideal normalised coordinates (2, gh, gw) (x, then y) of the distorted pixels
+    (j, i) * _GRID_STEP covering a width x height image (once per camera: a few ms), or None
+    where the distortion is not invertible on it."""
+    xs = np.arange(0, width + _GRID_STEP, _GRID_STEP, dtype=np.float64)
+    ys = np.arange(0, height + _GRID_STEP, _GRID_STEP, dtype=np.float64)
+    uv = np.stack(np.meshgrid(xs, ys), -1)
+    try:
+        ideal = undistort_points(uv, np.frombuffer(K).reshape(3, 3), np.frombuffer(dist))
+    except ConvergenceError:
+        return None
+    return np.ascontiguousarray(np.moveaxis(ideal, -1, 0))
+
+
+def _bilinear(g: Array, k: NDArray[np.intp], width: int, a: Array, b: Array) -> Array:
+    """Return the bilinear interpolation of the raveled grid g (rows of `width`) in the cells
+    whose top-left nodes are k, at fractions a (down) and b (across)."""
+    g00, g01 = g.take(k), g.take(k + 1)
+    top = g00 + b * (g01 - g00)
+    g10, g11 = g.take(k + width), g.take(k + width + 1)
+    return top + a * (g10 + b * (g11 - g10) - top)
+
+
+def _undistort_from_grid(px: Array, K: Array, dist: Array, grid: Array) -> Array:
+    """Return the ideal pixels (N, 2) of distorted pixels px (N, 2): core.geometry.camera's
+    undistort_points (Newton on the same model, stopped at a step of 1e-10), started from the
+    grid's bilinear interpolation instead of the distorted point, so two iterations converge.
+    Raises ConvergenceError where Newton does not converge."""
+    fx, s, cx = K[0, 0], K[0, 1], K[0, 2]
+    fy, cy = K[1, 1], K[1, 2]
+    yd = (px[:, 1] - cy) / fy
+    xd = (px[:, 0] - cx - s * yd) / fx
+    gh, gw = grid.shape[1:]
+    u, v = px[:, 0] / _GRID_STEP, px[:, 1] / _GRID_STEP
+    # (a point off the image extrapolates from the nearest cell: a start all the same)
+    j = np.clip(u.astype(np.intp), 0, gw - 2)
+    i = np.clip(v.astype(np.intp), 0, gh - 2)
+    b, a = u - j, v - i
+    k = i * gw + j
+    x, y = (_bilinear(g.ravel(), k, gw, a, b) for g in grid)
+    scale = max(1.0, float(np.max(np.abs(xd), initial=0.0)), float(np.max(np.abs(yd), initial=0.0)))
+    step = np.inf
+    for _ in range(20):
+        fx_d, fy_d, rad, r2 = distortion_model(x, y, dist)
+        ex, ey = fx_d - xd, fy_d - yd
+        a11, a12, a21, a22 = distortion_jacobian(x, y, rad, r2, dist)
+        det = a11 * a22 - a12 * a21
+        dx = (a22 * ex - a12 * ey) / det
+        dy = (a11 * ey - a21 * ex) / det
+        x -= dx
+        y -= dy
+        step = max(float(np.max(np.abs(dx), initial=0.0)), float(np.max(np.abs(dy), initial=0.0)))
+        if not np.isfinite(step) or step <= 1e-10 * scale:
+            break
+    if not np.isfinite(step) or step > 1e-9 * scale:
+        raise ConvergenceError(
+            "undistortion did not converge; the distortion is not invertible at these pixels"
+        )
+    return np.stack([fx * x + s * y + cx, fy * y + cy], -1)
 
 
 def _undistort_each(ctx: _Context, points: list[Array]) -> list[Array | None]:
@@ -337,10 +422,15 @@ def _iso_points(score: Image, roi: tuple[int, int, int, int], inside: Image) -> 
     A thin band broken by the threshold into pieces still gives one boundary per edge."""
     x0, y0, x1, y1 = roi
     roi_score = score[y0:y1, x0:x1]
-    m = cv2.moments(inside, binaryImage=True)
-    if m["m00"] == 0:
+    # The centroid of `inside` from its column and row counts: two reductions where cv2.moments
+    # makes a pass per moment; integer sums, so the same value exactly.
+    cols = cv2.reduce(inside, 0, cv2.REDUCE_SUM, dtype=cv2.CV_32S).ravel()
+    rows = cv2.reduce(inside, 1, cv2.REDUCE_SUM, dtype=cv2.CV_32S).ravel()
+    m00 = float(cols.sum())
+    if m00 == 0:
         return []
-    cx, cy = m["m10"] / m["m00"], m["m01"] / m["m00"]
+    cx = float(cols @ np.arange(len(cols), dtype=np.float64)) / m00
+    cy = float(rows @ np.arange(len(rows), dtype=np.float64)) / m00
     # Half-way between the pattern's plateau (the 90th percentile of the scores over `inside`,
     # linearly interpolated as numpy's percentile, from their histogram: blur lowers thin
     # bands' pixels, and a low level would widen the bands) and the white page around it (~0).
@@ -354,7 +444,7 @@ def _iso_points(score: Image, roi: tuple[int, int, int, int], inside: Image) -> 
     # threshold of an 8-bit image tests (one pass each, no floating-point copy of the ROI).
     _, above = cv2.threshold(roi_score, float(level), 1, cv2.THRESH_BINARY)
     _, below = cv2.threshold(roi_score, float(level), 1, cv2.THRESH_BINARY_INV)
-    _, lb = cv2.connectedComponents(below, connectivity=8)
+    n_labels, lb = cv2.connectedComponents(below, connectivity=8)
     # Exact integer gradients (|Sobel| <= 4 * 255), as the floating-point ones were.
     gxi = cv2.Sobel(roi_score, cv2.CV_16S, 1, 0, ksize=3)
     gyi = cv2.Sobel(roi_score, cv2.CV_16S, 0, 1, ksize=3)
@@ -362,7 +452,7 @@ def _iso_points(score: Image, roi: tuple[int, int, int, int], inside: Image) -> 
     width = roi_score.shape[1]
     # Gathers by flat index into the raveled (contiguous) ROI arrays: numpy's two-dimensional
     # fancy indexing recomputes the flat index at every gather.
-    flat_patch, flat_above, flat_lb = roi_score.ravel(), above.ravel(), lb.ravel()
+    flat_patch, flat_above, flat_lb = roi_score.ravel(), above.ravel().view(bool), lb.ravel()
     flat_gx, flat_gy = gxi.ravel(), gyi.ravel()
     for axis in (1, 0):
         ia = above[:, :-1] if axis == 1 else above[:-1, :]
@@ -376,24 +466,28 @@ def _iso_points(score: Image, roi: tuple[int, int, int, int], inside: Image) -> 
         va = flat_patch.take(ka).astype(np.float32)
         vb = flat_patch.take(kb).astype(np.float32)
         f = (level - va) / (vb - va)
-        lab_b = np.where(flat_above.take(ka) == 1, flat_lb.take(kb), flat_lb.take(ka))
-        px = xx + (f if axis == 1 else 0.0)
-        py = yy + (f if axis == 0 else 0.0)
+        lab_b = flat_lb.take(np.where(flat_above.take(ka), kb, ka))  # the pixel below the level
+        if axis == 1:
+            px, py = xx + f, yy.astype(np.float64)
+        else:
+            px, py = xx.astype(np.float64), yy + f
         # The score's gradient (toward the pattern) against the direction from the centre: an
-        # outer edge has the pattern on its inner side.
-        gx = flat_gx.take(ka).astype(np.float32) + flat_gx.take(kb)
-        gy = flat_gy.take(ka).astype(np.float32) + flat_gy.take(kb)
+        # outer edge has the pattern on its inner side. (Two Sobel values sum exactly in int16.)
+        gx = (flat_gx.take(ka) + flat_gx.take(kb)).astype(np.float32)
+        gy = (flat_gy.take(ka) + flat_gy.take(kb)).astype(np.float32)
         outer_edge = gx * (px - cx) + gy * (py - cy) < 0
         xs.append(px)
         ys.append(py)
-        keys.append(lab_b.astype(np.int64) * 2 + outer_edge)
+        keys.append(lab_b * 2 + outer_edge)
     if not keys:
         return []
     key = np.concatenate(keys)
-    order = np.argsort(key, kind="stable")
-    xy = np.stack([np.concatenate(xs), np.concatenate(ys)], 1)[order]
-    xy += (x0, y0)
+    # (numpy's stable sort of 16-bit keys, as few labels give, is a radix sort)
+    order = np.argsort(key.astype(np.int16) if n_labels < 16000 else key, kind="stable")
     key = key[order]
+    xy = np.empty((len(key), 2))
+    np.add(np.concatenate(xs)[order], x0, out=xy[:, 0])
+    np.add(np.concatenate(ys)[order], y0, out=xy[:, 1])
     cuts = [0, *(np.flatnonzero(key[1:] != key[:-1]) + 1).tolist(), len(key)]
     return [xy[a:b] for a, b in pairwise(cuts) if b - a >= 8]
 
@@ -589,13 +683,16 @@ def _frame_sides(frames: list[_FrameCurves]) -> list[_FrameEdges | None]:
     L = np.sqrt(np.sum(side * side, -1))  # (curves, 4)
     u = side / np.maximum(L, 1e-12)[..., None]
     margin = np.maximum(1.5, 0.12 * L)
-    d = pts[:, None, :] - Q[which]  # (N, 4, 2)
-    uw = u[which]
-    s = np.sum(d * uw, -1)
-    dn = np.abs(d[..., 1] * uw[..., 0] - d[..., 0] * uw[..., 1])
-    mw = margin[which]
-    ok = (s > mw) & (s < L[which] - mw) & (dn < 3.0)
-    dn = np.where(ok, dn, np.inf)
+    # Per point and side (N, 4), by coordinate: each curve's values repeated over its points
+    # (a repeat, where gathering the (N, 4, 2) arrays costs twice the arithmetic).
+    dx = pts[:, :1] - np.repeat(Q[..., 0], sizes, 0)
+    dy = pts[:, 1:] - np.repeat(Q[..., 1], sizes, 0)
+    ux, uy = np.repeat(u[..., 0], sizes, 0), np.repeat(u[..., 1], sizes, 0)
+    s = dx * ux + dy * uy
+    dn = np.abs(dy * ux - dx * uy)
+    mw = np.repeat(margin, sizes, 0)
+    ok = (s > mw) & (s < np.repeat(L, sizes, 0) - mw) & (dn < 3.0)
+    dn[~ok] = np.inf
     best = np.argmin(dn, 1)
     on = np.take_along_axis(dn, best[:, None], 1)[:, 0] < np.inf
     # Labels within each frame: 0-3 the outline's sides, 4-7 the hole's.
@@ -1212,26 +1309,47 @@ def _rectify(
 def _module_px(ctx: _Context, R: Array, t: Array, side: float) -> float:
     """Return the image extent (pixels) of `side` metres at the mark centre, along its most
     foreshortened direction."""
-    z = t[2]
-    J = ctx.K[:2, :2] @ (R[:2, :2] * z - np.outer(t[:2], R[2, :2])) / z**2
+    # J = K[:2, :2] (R[:2, :2] z - t[:2] R[2, :2]) / z^2, in plain floats (numpy's per-call
+    # cost is most of the time on 2 x 2 matrices).
+    (r00, r01, _), (r10, r11, _), (r20, r21, _) = R.tolist()
+    tx, ty, z = t.tolist()
+    (k00, k01, _), (_, k11, _), _ = ctx.K.tolist()
+    m00, m01 = r00 * z - tx * r20, r01 * z - tx * r21
+    m10, m11 = r10 * z - ty * r20, r11 * z - ty * r21
+    z2 = z * z
+    J00, J01 = (k00 * m00 + k01 * m10) / z2, (k00 * m01 + k01 * m11) / z2
+    J10, J11 = k11 * m10 / z2, k11 * m11 / z2
     # The smaller singular value of a 2x2 matrix in closed form (the stable root of
     # s^4 - |J|_F^2 s^2 + det(J)^2 = 0: the product of the two over the larger).
-    f2 = float(np.sum(J * J))
-    det = float(J[0, 0] * J[1, 1] - J[0, 1] * J[1, 0])
+    f2 = J00 * J00 + J01 * J01 + J10 * J10 + J11 * J11
+    det = J00 * J11 - J01 * J10
     big = f2 + math.sqrt(max(f2 * f2 - 4 * det * det, 0.0))
     return side * math.sqrt(2 * det * det / big) if big > 0 else 0.0
 
 
-def _read_symbol(ctx: _Context, R: Array, t: Array, half: float, qr_side: float) -> _Read | None:
+def _read_symbol(
+    ctx: _Context,
+    R: Array,
+    t: Array,
+    half: float,
+    qr_side: float,
+    patch_module_px: float = math.inf,
+) -> _Read | None:
     """Return the symbol read on the rectified patch of the square [-half, half]^2 (None when no
     symbol could be read): its text, corners in the mark plane, the rotation psi about the
     normal that puts x along its rows, and how square it is under this pose (RMS distance of
-    its corners to the best-fitting square of side qr_side, in units of qr_side)."""
+    its corners to the best-fitting square of side qr_side, in units of qr_side). The patch
+    has 2.5 pixels per image pixel; from 2-pixel modules on, at most patch_module_px per module
+    (at least one pixel per image pixel)."""
     qpx = _module_px(ctx, R, t, qr_side)
-    if qpx / _NOMINAL_MODULES < MIN_READ_MODULE_PX * 0.5:
+    if qpx / _NOMINAL_MODULES < MIN_TRY_MODULE_PX:
         return None
     # 2.5 patch pixels per image pixel: modules of >= 1.2 px get >= 3 px, what zxing-cpp needs.
-    px = int(np.clip(2.5 * qpx * 2 * half / qr_side, _PATCH_MIN, _PATCH_MAX))
+    # (The coarser patch only from 2 px modules: below, reads are at the decoder's margin,
+    # where any change of the patch turns some views from read to unread and back.)
+    module = qpx / _NOMINAL_MODULES
+    scale = 2.5 if module < 2.0 else max(1.0, min(2.5, patch_module_px / module))
+    px = int(np.clip(scale * qpx * 2 * half / qr_side, _PATCH_MIN, _PATCH_MAX))
     grey = _rectify(ctx, R, t, half, px, grey=True)
     # OpenCV's detector is the fallback where zxing-cpp fails; it is slow (tens of ms) and
     # reads nothing zxing-cpp cannot below 1.5 px modules, so it is not tried there.
@@ -1382,7 +1500,11 @@ def _finish(
     """Fix the frame's rotation about its normal from the symbol and read it; cov is of
     (left rotation perturbation, t)."""
     lay = pattern_layout("object", size)
-    read = _read_symbol(ctx, R, t, lay.frame_inner, lay.qr_side) if ctx.decode else None
+    read = (
+        _read_symbol(ctx, R, t, lay.frame_inner, lay.qr_side, FRAME_PATCH_MODULE_PX)
+        if ctx.decode
+        else None
+    )
     known = False
     if read is not None and read.psi is not None:
         k = int(np.round(read.psi / (np.pi / 2)))

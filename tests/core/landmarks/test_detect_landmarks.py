@@ -6,10 +6,11 @@ import numpy as np
 import pytest
 
 from core.errors import InvalidInput
+from core.geometry.camera import as_distortion, undistort_points
 from core.geometry.rotations import rotvec_to_matrix
 from core.landmarks import ObjectMark, Signpost
 from core.landmarks.artwork import make_artwork
-from core.landmarks.detect import detect_landmarks
+from core.landmarks.detect import _Context, detect_landmarks
 from core.sim.render import SensorNoise
 from core.sim.render.landmarks import (
     LandmarkCamera,
@@ -137,3 +138,41 @@ def test_nothing_found_on_a_plain_wall_and_bad_input_rejected() -> None:
         detect_landmarks(view.image, np.eye(2))
     with pytest.raises(InvalidInput):
         detect_landmarks(view.image, CAM.K, frame_size=0.0)
+
+
+@pytest.mark.parametrize("psi", [0.3, 2.0, -2.5])
+def test_frame_with_large_modules_read_on_a_coarser_patch(psi: float) -> None:
+    # Modules of ~3.5 px facing the camera: the frame's patch has 4 px modules, about one patch
+    # pixel per image pixel (not 2.5), and still reads with the rotation about the normal right.
+    art = make_artwork(CUP)
+    T = _pose(30.0, 15.0, [0.01, 0.02, 0.33], psi=psi)
+    view = render_landmarks(
+        CAM, [(artwork_texture(art), T, art.size, art.module_mm / 1000)], noise=NOISE, rng=4
+    )
+    assert view.truth[0].module_px is not None and view.truth[0].module_px > 3.0
+    (det,) = detect_landmarks(view.image, CAM.K, CAM.dist)
+    assert det.record == CUP and det.reason is None and det.orientation_known
+    R_err = det.T_cam_mark[:3, :3].T @ T[:3, :3]
+    angle = np.degrees(np.arccos(np.clip((np.trace(R_err) - 1) / 2, -1, 1)))
+    assert angle < 2.0  # as at 60 deg: a quarter-turn error would be 90
+
+
+def test_edge_points_undistorted_from_the_grid_as_by_newton_alone() -> None:
+    # The grid-started Newton converges to the same points as Newton from the distorted pixels
+    # (core.geometry.camera.undistort_points to machine precision): within 1e-9 px over the
+    # whole image, corners included (float64 rounding on ~1000 px coordinates is ~1e-13).
+    rng = np.random.default_rng(0)
+    px = np.concatenate(
+        [
+            rng.uniform([0, 0], [CAM.width - 1, CAM.height - 1], (5000, 2)),
+            [[0, 0], [CAM.width - 1, 0], [CAM.width - 1, CAM.height - 1], [0, CAM.height - 1]],
+        ]
+    )
+    image = np.zeros((CAM.height, CAM.width, 3), np.uint8)
+    ctx = _Context(image, image[..., 0], CAM.K, as_distortion(CAM.dist), None, True)
+    ideal = ctx.undistort(px)
+    reference = undistort_points(px, CAM.K, CAM.dist, to_pixels=True)
+    assert np.max(np.abs(ideal - reference)) < 1e-9
+    # Without distortion there is nothing to undo.
+    plain = _Context(image, image[..., 0], CAM.K, np.zeros(5), None, True)
+    assert np.array_equal(plain.undistort(px), px)
