@@ -41,6 +41,7 @@ import tempfile  # noqa: E402
 import time  # noqa: E402
 from dataclasses import dataclass  # noqa: E402
 from pathlib import Path  # noqa: E402
+from typing import Any  # noqa: E402
 
 import cv2  # noqa: E402
 import httpx  # noqa: E402
@@ -170,6 +171,13 @@ def place_camera(truth: Truth, size: tuple[int, int] = SIZE) -> Placement:
     return Placement(K=K, T_world_camera=np.linalg.inv(T_camera_world), errors=err)
 
 
+def _network_camera(placement: Placement):
+    """Return the placed camera as core's NetworkCamera (768 x 576)."""
+    from core.localization import NetworkCamera
+
+    return NetworkCamera.from_pose(placement.K, None, placement.T_world_camera, SIZE, CAMERA)
+
+
 # ---------------------------------------------------------------------------------------------
 # Part 1: the detectors' boxes
 
@@ -234,7 +242,7 @@ def measure_detectors(frames: list[NDArray[np.uint8]], truth: Truth) -> list[Det
     """Return each detector's box score on the frames (frame k is ground-truth frame k + 1)
     and its frames per second per core (thread CPU time) at 768 x 576 and 640 x 480."""
     from core.localization.detect import PersonDetector
-    from core.localization.ssd_people import SsdConfig, SsdPeopleDetector
+    from core.localization.ssd_people import SsdPeopleDetector
 
     cv2.setNumThreads(1)
     results = []
@@ -245,21 +253,31 @@ def measure_detectors(frames: list[NDArray[np.uint8]], truth: Truth) -> list[Det
             detect(image)
         return len(images) / (time.thread_time() - start)
 
-    # dnn: the node's default (300 px tiles at the camera's resolution, 64 px overlap), and two
-    # cheaper candidates measured beside it: the whole frame in one pass (the model shrinks it
-    # to 300 x 300) and 2 rows of tiles at 768 x 576 (24 px overlap, seams joined).
+    # dnn: the node's default (the whole frame at the camera's resolution, one pass), and the
+    # model zoo's own way beside it: the whole frame squashed to 300 x 300.
+    camera = _network_camera(place_camera(truth))
+
+    def squashed(dnn):
+        def detect(image):
+            h, w = image.shape[:2]
+            small = cv2.resize(image, (300, 300), interpolation=cv2.INTER_AREA)
+            found = dnn.detect_boxes(small)
+            return found.boxes * [w / 300.0, h / 300.0, w / 300.0, h / 300.0]
+
+        return detect
+
     candidates = [
-        ("dnn (SSDLite-MobileNetV2, tiles)", SsdConfig()),
-        ("dnn, whole frame", SsdConfig(tile_px=max(SIZE))),
-        ("dnn, tiles with 24 px overlap", SsdConfig(tile_overlap_px=24)),
+        ("dnn (SSDLite-MobileNetV2)", lambda d: lambda im: d.detect_boxes(im, camera).boxes),
+        ("dnn, squashed to 300 x 300", squashed),
     ]
-    for name, config in candidates:
-        dnn = SsdPeopleDetector(config=config)
-        boxes = {k + 1: dnn.detect_boxes(image).boxes for k, image in enumerate(frames)}
+    for name, make in candidates:
+        detect = make(SsdPeopleDetector())
+        boxes = {k + 1: detect(image) for k, image in enumerate(frames)}
         speed = {}
         for size in (SIZE, (640, 480)):
             images = [cv2.resize(f, size, interpolation=cv2.INTER_AREA) for f in frames[:40]]
-            speed[size] = timed(SsdPeopleDetector(config=config).detect_boxes, images)
+            # The camera's view is for its own size; at 640 x 480 the whole frame is used.
+            speed[size] = timed(make(SsdPeopleDetector()), images)
         results.append(DetectorResult(name, score_boxes(truth, boxes), speed))
 
     # background: the node's learning (its first 30 frames teach the model), then the blobs.
@@ -327,10 +345,14 @@ def clip_video(source: Path, frames: int, out: Path) -> Path:
     return out
 
 
-def track_through_service(video: Path, placement: Placement, workdir: Path) -> TrackingRun:
+def track_through_service(
+    video: Path, placement: Placement, workdir: Path, posted: list[Any] | None = None
+) -> TrackingRun:
     """Start `intspace serve`, register and place the camera, play `video` through
     `intspace node --source VIDEO --camera NAME --source-fps 7` with an ingest token, and
-    return the service's tracks."""
+    return the service's tracks. With `posted` (each frame's PersonBoxes, detected
+    beforehand), post every frame's boxes one frame each 1/7 s instead, as the node posts
+    them: the node's figures on a machine that would keep up with every frame."""
     admin = "pets-bench-admin-token"
     port = _free_port()
     env = _env()
@@ -383,38 +405,11 @@ def track_through_service(video: Path, placement: Placement, workdir: Path) -> T
             "/tokens", json={"name": "pets node", "scopes": ["ingest"], "camera_ids": [camera_id]}
         )
         assert token.status_code == 201, token.text
-        node_env = _env()
-        node_env["INTSPACE_TOKEN"] = token.json()["token"]
-        node_log = workdir / "node.log"
-        with node_log.open("w") as log:
-            node = subprocess.run(
-                [
-                    sys.executable,
-                    "-m",
-                    "server.cli",
-                    "node",
-                    "--source",
-                    str(video),
-                    "--camera",
-                    CAMERA,
-                    "--source-fps",
-                    f"{SOURCE_FPS:g}",
-                    "--api",
-                    api,
-                ],
-                cwd=REPO,
-                env=node_env,
-                stdout=subprocess.DEVNULL,
-                stderr=log,
-                timeout=1800,
-            )
-        text = node_log.read_text()
-        if node.returncode != 0:
-            raise RuntimeError(f"intspace node exited {node.returncode}:\n{text}")
-        found = re.search(r"frame (\d+) of the file captured at ([0-9.]+)", text)
-        if found is None:
-            raise RuntimeError(f"the node did not say when its file's frames were captured:{text}")
-        t0 = float(found.group(2)) - int(found.group(1)) / SOURCE_FPS
+        ingest = token.json()["token"]
+        if posted is None:
+            t0, text = _play_node(video, api, ingest, workdir)
+        else:
+            t0, text = _post_frames(posted, api, ingest, camera_id)
         # The tracker releases the posted frames after its reorder window (1 s) and writes
         # tracks twice a second: wait that long, then until the stored tracks stop growing.
         time.sleep(2.0)
@@ -435,6 +430,67 @@ def track_through_service(video: Path, placement: Placement, workdir: Path) -> T
         except subprocess.TimeoutExpired:
             serve.kill()
         serve_log.close()
+
+
+def _play_node(video: Path, api: str, token: str, workdir: Path) -> tuple[float, str]:
+    """Run `intspace node` on `video` to its end; return the capture time of the file's frame
+    0 (what the node said) and the node's log."""
+    node_env = _env()
+    node_env["INTSPACE_TOKEN"] = token
+    node_log = workdir / "node.log"
+    with node_log.open("w") as log:
+        node = subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "server.cli",
+                "node",
+                "--source",
+                str(video),
+                "--camera",
+                CAMERA,
+                "--source-fps",
+                f"{SOURCE_FPS:g}",
+                "--api",
+                api,
+            ],
+            cwd=REPO,
+            env=node_env,
+            stdout=subprocess.DEVNULL,
+            stderr=log,
+            timeout=1800,
+        )
+    text = node_log.read_text()
+    if node.returncode != 0:
+        raise RuntimeError(f"intspace node exited {node.returncode}:\n{text}")
+    found = re.search(r"frame (\d+) of the file captured at ([0-9.]+)", text)
+    if found is None:
+        raise RuntimeError(f"the node did not say when its file's frames were captured:{text}")
+    return float(found.group(2)) - int(found.group(1)) / SOURCE_FPS, text
+
+
+def _post_frames(posted: list[Any], api: str, token: str, camera_id: int) -> tuple[float, str]:
+    """POST /observations each frame's boxes (the node's own box_observations) at its capture
+    time, frame k at t0 + k / 7 s on the service's clock (this machine's); return t0 and a
+    line like the node's."""
+    from server.node.runner import box_observations
+
+    t0 = time.time() + 1.0
+    detections = empty = 0
+    with httpx.Client(headers={"Authorization": f"Bearer {token}"}, timeout=30) as client:
+        for k, found in enumerate(posted):
+            t = t0 + k / SOURCE_FPS
+            time.sleep(max(0.0, t - time.time()))
+            obs = box_observations(camera_id, t, found)
+            body: dict[str, Any] = {"observations": obs}
+            if not obs:
+                body = {"empty_frames": [{"camera_id": camera_id, "t": t}]}
+            answer = client.post(f"{api}/observations", json=body)
+            if answer.status_code != 200:
+                raise RuntimeError(f"POST /observations: {answer.status_code} {answer.text}")
+            detections += len(obs)
+            empty += not obs
+    return t0, f"posted {detections} detection(s) and {empty} empty frame(s)"
 
 
 def _stored_tracks(http: httpx.Client) -> dict[int, Array]:
@@ -478,9 +534,9 @@ class TrackScore:
 
 
 def score_tracking(
-    run: TrackingRun, truth: Truth, frames: int, hold_s: float | None = None
+    run: TrackingRun, truth: Truth, frames: int, hold_s: float | None = None, first: int = 1
 ) -> TrackScore:
-    """Return the MOT metrics of the run on ground-truth frames 1..frames: at frame f (captured
+    """Return the MOT metrics of the run on ground-truth frames first..frames: at frame f (captured
     at t0 + (f - 1) / 7) each target answers with its latest track point at most `hold_s` old
     (default: the tracker's coast_after, 0.5 s: until then GET /targets shows the target as
     confirmed at that point, which is what a user sees); hypotheses within 1 m of a conf 0
@@ -493,7 +549,7 @@ def score_tracking(
     hold = TrackerConfig().coast_after if hold_s is None else hold_s
     acc = mm.MOTAccumulator(auto_id=True)
     series = {tid: pts for tid, pts in run.points.items()}
-    for f in range(1, frames + 1):
+    for f in range(first, frames + 1):
         tau = run.t0 + (f - 1) / SOURCE_FPS
         hyp_ids, hyp_xy = [], []
         for tid, pts in series.items():
@@ -534,13 +590,23 @@ def score_tracking(
     )
 
 
-def run_tracking(frames: int, workdir: Path) -> tuple[TrackScore, TrackingRun, Placement]:
-    """Place the camera, play the first `frames` frames of the clip through serve + node and
-    score the tracks on ground-truth frames 1..frames."""
+def run_tracking(
+    frames: int, workdir: Path, every_frame: bool = False
+) -> tuple[TrackScore, TrackingRun, Placement]:
+    """Place the camera, play the first `frames` frames of the clip through serve + node (or,
+    `every_frame`, post every frame's boxes detected beforehand) and score the tracks on
+    ground-truth frames 1..frames."""
     truth = load_truth()
     placement = place_camera(truth)
     clip = clip_video(video_path(), frames, workdir / "clip.mkv")
-    run = track_through_service(clip, placement, workdir)
+    posted = None
+    if every_frame:
+        from core.localization.ssd_people import SsdPeopleDetector
+
+        camera = _network_camera(placement)
+        dnn = SsdPeopleDetector()
+        posted = [dnn.detect_boxes(image, camera) for image in read_frames(clip, frames)]
+    run = track_through_service(clip, placement, workdir, posted)
     return score_tracking(run, truth, frames), run, placement
 
 
@@ -550,6 +616,11 @@ def main() -> None:
     parser.add_argument("--skip-detectors", action="store_true")
     parser.add_argument("--skip-tracking", action="store_true")
     parser.add_argument("--workdir", type=Path, help="keep the logs and the service's data here")
+    parser.add_argument(
+        "--every-frame",
+        action="store_true",
+        help="post every frame's boxes (detected beforehand) at 7 Hz instead of running the node",
+    )
     args = parser.parse_args()
     frames = min(max(args.frames, 1), 400)
     video = video_path()
@@ -576,12 +647,16 @@ def main() -> None:
     if not args.skip_tracking:
         if args.workdir is not None:
             args.workdir.mkdir(parents=True, exist_ok=True)
-            score, run, _ = run_tracking(frames, args.workdir)
+            score, run, _ = run_tracking(frames, args.workdir, args.every_frame)
         else:
             with tempfile.TemporaryDirectory(prefix="bench-pets-") as tmp:
-                score, run, _ = run_tracking(frames, Path(tmp))
+                score, run, _ = run_tracking(frames, Path(tmp), args.every_frame)
         posted = re.search(r"posted (\d+) detection\(s\) and (\d+) empty frame", run.node_log)
-        print(f"\nintspace serve + intspace node on frames 1-{frames} (floor, 1 m)")
+        how = "every frame's boxes posted at 7 Hz" if args.every_frame else "intspace node"
+        print(f"\nintspace serve + {how} on frames 1-{frames} (floor, 1 m)")
+        detected = re.search(r"(\d+) detected in", run.node_log)
+        if detected:
+            print(f"  node: detected in {detected.group(1)} of {frames} frames")
         if posted:
             print(f"  node: {posted.group(1)} detections, {posted.group(2)} empty frames posted")
         print(
@@ -590,6 +665,14 @@ def main() -> None:
             f"misses {score.misses}  matches {score.matches}"
         )
         print(f"  person targets {len(run.points)}  robot targets {run.robot_targets} (goal 0)")
+        truth = load_truth()
+        halves = [(1, frames // 2), (frames // 2 + 1, frames)] if frames >= 2 else []
+        for first, last in halves:
+            part = score_tracking(run, truth, last, first=first)
+            print(
+                f"  frames {first}-{last}: MOTA {part.mota:.3f}  IDF1 {part.idf1:.3f}  switches "
+                f"{part.switches}  false positives {part.false_positives}  misses {part.misses}"
+            )
 
 
 if __name__ == "__main__":

@@ -22,9 +22,10 @@ from numpy.typing import NDArray
 
 from core.errors import IntspaceError, InvalidInput
 from core.localization import NetworkCamera
+from core.localization.boxes import BOX_SIDES
 from core.localization.detect import MarkerDetectorConfig, PersonDetector
 from core.localization.detections import FrameDetection, PeopleDetector, detect_frame
-from core.localization.ssd_people import SsdConfig, SsdPeopleDetector
+from core.localization.ssd_people import PersonBoxes, SsdConfig, SsdPeopleDetector
 from server.node.client import NodeError, ServiceClient, Uploader
 from server.node.clock import StageDelays
 from server.node.config import CameraConfig, NodeConfig
@@ -140,6 +141,26 @@ def observation(camera_id: int, t: float, d: FrameDetection) -> dict[str, Any] |
         "kind": d.kind,
         "height": float(d.height),
     }
+
+
+def box_observations(camera_id: int, t: float, found: PersonBoxes) -> list[dict[str, Any]]:
+    """Return a neural detector's boxes as POST /observations takes them: each person's box,
+    score and cut sides, so the service measures its foot on the body's axis
+    (core.localization.boxes.foot_on_axis, as for any detector's boxes); a box whose bottom is
+    cut is stored there but gives no floor position."""
+    out = []
+    for box, score, cut in zip(found.boxes, found.scores, found.cut, strict=True):
+        out.append(
+            {
+                "camera_id": camera_id,
+                "t": float(t),
+                "box": [float(v) for v in box],
+                "score": float(score),
+                "cut": [side for side, c in zip(BOX_SIDES, cut, strict=True) if c],
+                "kind": "person",
+            }
+        )
+    return out
 
 
 @dataclass
@@ -361,16 +382,23 @@ class Node:
                 run.people.learn(image)
                 run.learned += 1
                 learning = True
+            boxes = isinstance(run.people, SsdPeopleDetector)
             found = detect_frame(
                 image,
                 marker=self._marker,
                 marker_height=height,
-                people=None if learning else run.people,
+                people=None if learning or boxes else run.people,
                 camera=run.network,
             )
             obs = [observation(run.camera_id, t, d) for d in found]
             kept = [o for o in obs if o is not None]
-            if found:
+            if isinstance(run.people, SsdPeopleDetector):
+                # The boxes go to the service whole: it measures their feet on the body's
+                # axis with the camera's geometry and floor plan, as for any detector's boxes.
+                kept += box_observations(
+                    run.camera_id, t, run.people.detect_boxes(image, run.network)
+                )
+            if kept:
                 self.uploader.push(kept)
                 run.detections += len(kept)
             else:

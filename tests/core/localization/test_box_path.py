@@ -10,10 +10,13 @@ import numpy as np
 
 from core.calibration import place_camera
 from core.localization import DEFAULT_BOX_NOISE, box_foot, foot_on_axis
+from core.localization.detect import BodyModel
 from core.localization.detections import FrameDetection
 from core.sim import tracking_scenarios as ts
 from core.sim.occluders import scene_occluders
 
+# The twin's walkers are rigid cylinders of a trunk's size: their boxes are the trunk's.
+WALKER = BodyModel()
 SEED = 17  # test_tracking_async_api.py's: the network calibration is cached per process
 MINUTES = 0.15
 
@@ -37,7 +40,9 @@ def test_boxes_of_the_twins_walkers_track_like_the_pixel_path():
                 continue
             x, y, w, h = d.bbox
             box = [x, y, x + w, y + h]
-            foot = foot_on_axis(box, box_foot(box), calibrated.cameras[f.camera], occluders=plan)
+            foot = foot_on_axis(
+                box, box_foot(box), calibrated.cameras[f.camera], occluders=plan, body=WALKER
+            )
             if foot.measured[0]:
                 found.append(FrameDetection("person", foot.pixel[0], foot.cov[0], 0.0, d.bbox))
         boxed.append(dataclasses.replace(f, found=tuple(found)))
