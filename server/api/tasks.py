@@ -8,7 +8,7 @@ import secrets
 import time
 from typing import Annotated
 
-from fastapi import APIRouter, Body, HTTPException, Path, Query, status
+from fastapi import APIRouter, Body, Depends, HTTPException, Path, Query, status
 from sqlalchemy import select
 
 from server.api._crud import check_references, get_or_404, paginate
@@ -24,11 +24,26 @@ from server.api.errors import PROBLEM_RESPONSES, FieldProblem
 from server.db.models import Arm, Task
 from server.schemas.common import MAX_ID, Page
 from server.schemas.manipulation import FetchTaskCreate, TaskStatus
-from server.services.manipulation import FetchRefused, arm_values, closed_form, fetch_target
+from server.services.manipulation import (
+    FetchRefused,
+    arm_values,
+    closed_form,
+    expire_stale_tasks,
+    fetch_target,
+)
 from server.services.survey import AnyTaskRead, SurveyTaskCreate, survey_task
 
 router = APIRouter(prefix="/tasks", tags=["tasks"], responses=PROBLEM_RESPONSES)
 TaskId = Annotated[int, Path(ge=1, le=MAX_ID)]
+
+
+def settle_stale_tasks(session: SessionDep, runner: TaskRunnerDep) -> None:
+    """Mark interrupted the tasks of processes that stopped, so that a read never shows a task
+    running that nothing runs (the runner's heartbeat does it too, every few seconds)."""
+    expire_stale_tasks(session, runner.stale_s)
+
+
+Settled = Depends(settle_stale_tasks)
 TaskCreate = Annotated[FetchTaskCreate | SurveyTaskCreate, Body(discriminator="kind")]
 
 
@@ -89,7 +104,7 @@ def create_task(body: TaskCreate, session: SessionDep, twin: TwinDep, runner: Ta
     return task
 
 
-@router.get("", response_model=Page[AnyTaskRead], dependencies=[ReadAccess])
+@router.get("", response_model=Page[AnyTaskRead], dependencies=[ReadAccess, Settled])
 def list_tasks(
     session: SessionDep,
     page: PageDep,
@@ -105,7 +120,7 @@ def list_tasks(
     return paginate(session, stmt, page)
 
 
-@router.get("/{task_id}", response_model=AnyTaskRead, dependencies=[ReadAccess])
+@router.get("/{task_id}", response_model=AnyTaskRead, dependencies=[ReadAccess, Settled])
 def get_task(task_id: TaskId, session: SessionDep):
     """Return a task: its status, phase, progress, and its result (episode by episode)."""
     return get_or_404(session, Task, task_id, "task")

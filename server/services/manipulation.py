@@ -351,14 +351,18 @@ _LIVE = ("queued", "running")
 
 def expire_stale_tasks(session: Session, stale_s: float) -> int:
     """Mark interrupted the queued or running tasks whose process has shown no sign of life
-    for `stale_s` seconds (it stopped or died); return how many."""
-    now = time.time()
+    for `stale_s` seconds (it stopped or died); return how many. Reads first, so that a call
+    that finds none (nearly every one: reading tasks calls it) writes nothing."""
+    stale = and_(
+        Task.status.in_(_LIVE),
+        or_(Task.heartbeat.is_(None), Task.heartbeat < time.time() - stale_s),
+    )
+    if session.scalar(select(Task.id).where(stale).limit(1)) is None:
+        session.rollback()  # ends the read's transaction, as the write's commit would
+        return 0
     result = session.execute(
         update(Task)
-        .where(
-            Task.status.in_(_LIVE),
-            or_(Task.heartbeat.is_(None), Task.heartbeat < now - stale_s),
-        )
+        .where(stale)
         .values(
             status="interrupted",
             error="the process running it stopped before it finished",
