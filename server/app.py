@@ -265,7 +265,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         if settings.simulation:
             twin = await run_in_threadpool(_start_twin, settings, factory, live, app)
         app.state.twin = twin
-        app.state.task_runner = TwinTaskRunner(factory, scene=app.state.scene_sync, twin=twin)
+        app.state.task_runner = await run_in_threadpool(
+            TwinTaskRunner, factory, scene=app.state.scene_sync, twin=twin
+        )
         with factory() as session:
             app.state.scene_sync.load(session)
         live.start()

@@ -551,6 +551,8 @@ class TaskRunner:
         for cancel in held.values():
             cancel.set()
         self._pool.shutdown(wait=False, cancel_futures=True)
+        # A beat in progress ends before the service closes its database under it.
+        self._beat.join(timeout=5.0)
         if not held:
             return 0
         with self.factory() as session:

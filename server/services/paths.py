@@ -58,10 +58,10 @@ from server.db.base import utcnow
 from server.db.models import (
     PlannedPath,
     Projector,
-    ProjectorCalibration,
     Robot,
     Room,
 )
+from server.services.calibration.projector import latest_calibration
 
 log = logging.getLogger(__name__)
 
@@ -198,12 +198,7 @@ def _check_endpoint(plan: Any, grid: OccupancyGrid, p: np.ndarray, name: str, cl
 def tilt_offset_of(session: Session, row: Projector) -> float:
     """Return the tilt offset (rad) of the projector's latest applied calibration when its pose
     is still the registered one (a pose entered by hand since has no known offset), else 0."""
-    latest = session.scalars(
-        select(ProjectorCalibration)
-        .where(ProjectorCalibration.projector_id == row.id)
-        .order_by(ProjectorCalibration.id.desc())
-        .limit(1)
-    ).first()
+    latest = latest_calibration(session, row.id)
     if latest is None or row.T_world_projector is None:
         return 0.0
     same = np.allclose(latest.T_world_projector, row.T_world_projector, rtol=0.0, atol=1e-12)

@@ -146,6 +146,16 @@ def calibrate_projector_run(
     }
 
 
+def latest_calibration(session: Session, projector_id: int) -> ProjectorCalibration | None:
+    """Return the newest entry of a projector's calibration history, None when it has none."""
+    return session.scalars(
+        select(ProjectorCalibration)
+        .where(ProjectorCalibration.projector_id == projector_id)
+        .order_by(ProjectorCalibration.id.desc())
+        .limit(1)
+    ).first()
+
+
 def apply(session: Session, run: CalibrationRun, scene: SceneSync) -> Projector:
     """Set the projector's pose from a succeeded projector run and record it in the
     projector's calibration history (once: applying the run in force again adds nothing);
@@ -161,12 +171,7 @@ def apply(session: Session, run: CalibrationRun, scene: SceneSync) -> Projector:
             "run_id",
             "path",
         )
-    latest = session.scalars(
-        select(ProjectorCalibration)
-        .where(ProjectorCalibration.projector_id == projector.id)
-        .order_by(ProjectorCalibration.id.desc())
-        .limit(1)
-    ).first()
+    latest = latest_calibration(session, projector.id)
     if (
         latest is not None
         and latest.calibration_run_id == run.id
