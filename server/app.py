@@ -48,14 +48,17 @@ from server.db.session import make_engine, make_session_factory
 from server.schemas.registry import CameraHeartbeat
 from server.security import AuthFailureLimiter, SecurityHeaders, install_log_redaction
 from server.services.auth import TokenCache
+from server.services.calibration import RunRefused
 from server.services.camera_health import CameraHealthBook
 from server.services.frames import LatestFrames
 from server.services.frigate import FrigateSource
 from server.services.home import HomePublisher
 from server.services.mqtt import BrokerUrl, MqttLink
 from server.services.ownership import SpaceLocks
+from server.services.paths import FollowTasks
 from server.services.runs import LeasePolicy, RunExecutor
 from server.services.scene_sync import SceneSync
+from server.services.survey import TwinTaskRunner
 from server.services.targets import LiveTargets
 from server.services.tracking import TrackingService
 from server.services.zones import ZoneService
@@ -262,6 +265,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         if settings.simulation:
             twin = await run_in_threadpool(_start_twin, settings, factory, live, app)
         app.state.twin = twin
+        app.state.task_runner = await run_in_threadpool(
+            TwinTaskRunner, factory, scene=app.state.scene_sync, twin=twin
+        )
         with factory() as session:
             app.state.scene_sync.load(session)
         live.start()
@@ -284,8 +290,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         finally:
             if twin is not None:
                 await run_in_threadpool(twin.stop)
-            if getattr(app.state, "task_runner", None) is not None:
-                await run_in_threadpool(app.state.task_runner.shutdown)
+            await run_in_threadpool(app.state.task_runner.shutdown)
             if frigate_link is not None:
                 await run_in_threadpool(frigate_link.stop)
             if frigate is not None:
@@ -320,6 +325,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.session_factory = factory
     app.state.executor = None
     app.state.twin = None
+    app.state.task_runner = None
+    app.state.follow_tasks = FollowTasks(factory)
     app.state.targets = LiveTargets(factory)
     app.state.tracking = None
     app.state.zones = None
@@ -334,6 +341,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.viser_port = settings.viser_port
 
     install_error_handlers(app)
+    app.add_exception_handler(RunRefused, calibration_runs.answer_refused)
     app.include_router(api_router())
     install_api_fallback(app, API_PREFIX)
     if settings.cors_origins:

@@ -1,18 +1,17 @@
 """Arms on robots: kinematic model (DH parameters, joint limits, tool, mount), eye-in-hand
-camera, hand-eye transform and its history; hand-eye calibration runs of an arm."""
+camera, hand-eye transform and its history, the arm's hand-eye calibration runs (made and
+applied by server.services.calibration.hand_eye through /calibration-runs)."""
 
 from __future__ import annotations
 
-import secrets
 from typing import Annotated, Any
 
-from fastapi import APIRouter, HTTPException, Path, Query, status
-from sqlalchemy import or_, select, update
+from fastapi import APIRouter, Path, Query, status
+from sqlalchemy import select
 
 from server.api._crud import apply_changes, check_references, get_or_404, paginate
 from server.api.deps import PageDep, ReadAccess, SessionDep, WriteAccess
 from server.api.errors import PROBLEM_RESPONSES, FieldProblem
-from server.db.base import utcnow
 from server.db.models import Arm, CalibrationRun, Camera, HandEyeCalibration, Robot
 from server.schemas.calibration import CalibrationRunRead
 from server.schemas.common import MAX_ID, Page
@@ -21,24 +20,11 @@ from server.schemas.manipulation import (
     ArmRead,
     ArmUpdate,
     HandEyeCalibrationRead,
-    HandEyeRunCreate,
 )
-from server.services.manipulation import (
-    arm_model_problem,
-    arm_values,
-    closed_form,
-    pose_pairs_problem,
-)
+from server.services.manipulation import arm_model_problem, arm_read
 
 router = APIRouter(prefix="/arms", tags=["arms"], responses=PROBLEM_RESPONSES)
 ArmId = Annotated[int, Path(ge=1, le=MAX_ID)]
-_COLUMNS = tuple(name for name in ArmRead.model_fields if name != "closed_form")
-
-
-def arm_read(arm: Arm) -> ArmRead:
-    """Return an arm as the API shows it (with whether it has the closed-form IK)."""
-    data: dict[str, Any] = {name: getattr(arm, name) for name in _COLUMNS}
-    return ArmRead.model_validate({**data, "closed_form": closed_form(arm_values(arm))})
 
 
 def _check_unique_name(session, arm: Arm | None, changes: dict[str, Any]) -> None:
@@ -160,105 +146,3 @@ def list_arm_runs(arm_id: ArmId, session: SessionDep, page: PageDep):
         .order_by(CalibrationRun.id.desc())
     )
     return paginate(session, stmt, page)
-
-
-# --------------------------------------------------------------------------------------------
-# Hand-eye runs (POST /calibration-runs with kind "hand-eye", and their apply)
-
-
-def hand_eye_run(body: HandEyeRunCreate, session, twin_running: bool) -> CalibrationRun:
-    """Return the (unsaved) queued run of a hand-eye request, refusing what it could not
-    calibrate: 409 without the twin for source "twin"; 422 naming the field for an arm the
-    twin cannot simulate, pose pairs whose motions are degenerate or whose pixels do not
-    match, refinement without K."""
-    check_references(session, {"arm_id": (Arm, body.arm_id)})
-    arm = session.get(Arm, body.arm_id)
-    assert arm is not None
-    values = arm_values(arm)
-    options: dict[str, Any] = {"method": body.method, "refine": body.refine}
-    inputs: dict[str, Any] = {"arm_id": arm.id, "arm": values, "source": body.source}
-    if body.source == "twin":
-        if not twin_running:
-            raise HTTPException(
-                status.HTTP_409_CONFLICT,
-                detail="a twin hand-eye run simulates the twin's arm and camera; start the "
-                "service with INTSPACE_SIMULATION=true, or upload your arm's pose pairs "
-                "(source 'poses')",
-            )
-        if not closed_form(values):
-            raise FieldProblem(
-                422,
-                "arm_id",
-                f"arm {arm.id} is not of the Puma type whose closed-form inverse kinematics "
-                "places the twin's views; calibrate it from pose pairs (source 'poses')",
-            )
-        twin = body.twin.model_dump()
-        if twin["seed"] is None:
-            twin["seed"] = secrets.randbelow(2**31)
-        options.update(twin)
-    else:
-        assert body.T_base_ee is not None and body.T_cam_target is not None
-        problem = pose_pairs_problem(
-            body.T_base_ee, body.T_cam_target, body.image_points, body.object_points
-        )
-        if problem is not None:
-            raise FieldProblem(422, *problem)
-        K, dist = body.K, body.dist
-        if body.image_points is not None and K is None:
-            camera = session.get(Camera, arm.camera_id) if arm.camera_id is not None else None
-            if camera is None or camera.K is None:
-                raise FieldProblem(
-                    422,
-                    "K",
-                    "refining by reprojection needs the camera's K: give K (and dist), or "
-                    "give the arm a calibrated eye-in-hand camera",
-                )
-            K, dist = camera.K, dist if dist is not None else camera.dist
-        inputs.update(
-            T_base_ee=body.T_base_ee,
-            T_cam_target=body.T_cam_target,
-            object_points=body.object_points,
-            image_points=body.image_points,
-            K=K,
-            dist=dist,
-        )
-    return CalibrationRun(
-        kind="hand-eye",
-        source=body.source,
-        camera_id=arm.camera_id,
-        arm_id=arm.id,
-        inputs=inputs,
-        options=options,
-    )
-
-
-def apply_hand_eye_run(run: CalibrationRun, session) -> ArmRead:
-    """Set the run's arm's T_ee_camera from a succeeded hand-eye run and record it in the
-    arm's history; applying the run the arm already has changes nothing (one conditional
-    UPDATE, so concurrent applies record it once)."""
-    if run.arm_id is None:
-        raise HTTPException(status.HTTP_409_CONFLICT, detail=f"the arm of run {run.id} was deleted")
-    arm = get_or_404(session, Arm, run.arm_id, "arm")
-    assert run.result is not None
-    X = run.result["X"]
-    changed = session.execute(
-        update(Arm)
-        .where(Arm.id == arm.id, or_(Arm.hand_eye_run_id.is_(None), Arm.hand_eye_run_id != run.id))
-        .values(T_ee_camera=X, hand_eye_run_id=run.id, updated_at=utcnow())
-        .execution_options(synchronize_session=False)
-    )
-    if changed.rowcount == 1:
-        session.add(
-            HandEyeCalibration(
-                arm_id=arm.id,
-                calibration_run_id=run.id,
-                T_ee_camera=X,
-                rotation_std_deg=run.result["rotation_std_deg"],
-                translation_std_m=run.result["translation_std_m"],
-                rms_px=run.result.get("rms_px"),
-                method=run.result["method"],
-            )
-        )
-    session.commit()
-    session.refresh(arm)
-    return arm_read(arm)

@@ -7,41 +7,33 @@ from typing import Annotated
 
 from fastapi import (
     APIRouter,
-    Depends,
     File,
     Form,
     HTTPException,
     Path,
     Query,
-    Request,
     UploadFile,
     status,
 )
+from fastapi.responses import JSONResponse
 from pydantic import Field
-from sqlalchemy import or_, select, update
+from sqlalchemy import select
+from starlette.requests import Request
 
 from server.api._crud import check_references, get_or_404, paginate
-from server.api.arms import apply_hand_eye_run, hand_eye_run
 from server.api.deps import (
+    ExecutorDep,
     PageDep,
     ReadAccess,
     SceneDep,
     SessionDep,
     SettingsDep,
+    TwinDep,
     WriteAccess,
-    get_executor,
 )
-from server.api.errors import PROBLEM_RESPONSES, FieldProblem
+from server.api.errors import PROBLEM_RESPONSES, FieldProblem, problem_response
 from server.api.limits import check_image_size
-from server.api.paths import apply_projector_run, projector_run
-from server.db.base import utcnow
-from server.db.models import (
-    RUN_SUCCEEDED,
-    CalibrationRun,
-    CalibrationRunFile,
-    Camera,
-    CameraCalibration,
-)
+from server.db.models import RUN_SUCCEEDED, CalibrationRun, CalibrationRunFile, Camera
 from server.schemas.calibration import (
     CalibrationRunRead,
     DistortionModel,
@@ -49,29 +41,30 @@ from server.schemas.calibration import (
     RunStatus,
     implausible_square,
 )
-from server.schemas.common import MAX_ID, Page
+from server.schemas.common import MAX_ID, FieldError, Page
 from server.schemas.manipulation import ArmRead, HandEyeRunCreate
 from server.schemas.paths import ProjectorRunCreate
 from server.schemas.registry import CameraRead, ProjectorRead
 from server.schemas.twin import NetworkRunCreate
-from server.services.calibration import decode_image
-from server.services.placement import placement_values
-from server.services.runs import RunExecutor
+from server.services.calibration import RunContext, RunRefused, decode_image, intrinsics, kind_of
+from server.services.runs import queue_run
 
 router = APIRouter(
     prefix="/calibration-runs", tags=["calibration runs"], responses=PROBLEM_RESPONSES
 )
 RunId = Annotated[int, Path(ge=1, le=MAX_ID)]
-ExecutorDep = Annotated[RunExecutor | None, Depends(get_executor)]
 _PATTERN = re.compile(r"^\s*(\d{1,3})\s*[xX]\s*(\d{1,3})\s*$")
 
 
-def _queue(session, executor: RunExecutor | None, run: CalibrationRun) -> CalibrationRun:
-    session.add(run)
-    session.commit()
-    if executor is not None:
-        executor.submit(run.id)
-    return run
+async def answer_refused(request: Request, exc: Exception) -> JSONResponse:
+    """Answer a run that cannot be created or applied (RunRefused) as problem details, naming
+    the field at fault when there is one."""
+    del request
+    assert isinstance(exc, RunRefused)
+    errors = None
+    if exc.field is not None:
+        errors = [FieldError(field=exc.field, location=exc.location, reason=str(exc))]
+    return problem_response(exc.status, str(exc), errors)
 
 
 @router.post(
@@ -87,61 +80,18 @@ def create_calibration_run(
     ],
     session: SessionDep,
     executor: ExecutorDep,
-    request: Request,
+    twin: TwinDep,
+    settings: SettingsDep,
 ):
     """Queue a calibration; poll GET /calibration-runs/{id}. Kind "intrinsics": Zhang's method
     on point correspondences of one camera. Kind "network": the twin's calibration drive (the
     robot's marker driven over the floor) calibrates every twin camera, intrinsics and pose.
     Kind "hand-eye": an arm's eye-in-hand camera, on the twin or from uploaded pose pairs.
     Kind "projector": the twin's projector's mount, from spots the ceiling cameras locate."""
-    if isinstance(body, ProjectorRunCreate):
-        return _queue(session, executor, projector_run(body, session, request))
-    if isinstance(body, HandEyeRunCreate):
-        twin = getattr(request.app.state, "twin", None)
-        return _queue(session, executor, hand_eye_run(body, session, twin is not None))
-    if isinstance(body, NetworkRunCreate):
-        twin = getattr(request.app.state, "twin", None)
-        if twin is None:
-            raise HTTPException(
-                status.HTTP_409_CONFLICT,
-                detail="a network run drives the digital twin's robot; start the service with "
-                "INTSPACE_SIMULATION=true",
-            )
-        run = CalibrationRun(
-            kind="network",
-            source="twin",
-            camera_id=None,
-            inputs={"space_id": twin.space_id, "cameras": dict(twin.camera_ids)},
-            options=body.options.model_dump(),
-        )
-        return _queue(session, executor, run)
-    check_references(session, {"camera_id": (Camera, body.camera_id)})
-    _check_image_size(session, body.camera_id, tuple(body.image_size), "image_size", "body")
-    run = CalibrationRun(
-        kind=body.kind,
-        source="correspondences",
-        camera_id=body.camera_id,
-        inputs=body.model_dump(include={"image_size", "object_points", "image_points"}),
-        options=body.options.model_dump(),
-    )
-    return _queue(session, executor, run)
-
-
-def _check_image_size(
-    session, camera_id: int, size: tuple[int, ...], field: str, location: str
-) -> None:
-    """Refuse (409) a run whose images are not the size of its camera's: its result could
-    never be applied to that camera."""
-    camera = session.get(Camera, camera_id)
-    if camera is not None and (camera.width, camera.height) != size:
-        raise FieldProblem(
-            409,
-            field,
-            f"the images are {size[0]}x{size[1]} but camera {camera_id} is "
-            f"{camera.width}x{camera.height}; calibrate with images of the camera's size or "
-            "fix the camera's width and height first",
-            location,
-        )
+    create = kind_of(body.kind).create
+    assert create is not None  # every kind of the body's union is created here
+    run = create(body, RunContext(session, twin, settings.twin_seed))
+    return queue_run(session, run, executor)
 
 
 @router.post(
@@ -221,17 +171,16 @@ def upload_calibration_run(
         )
     if size is None:
         raise FieldProblem(422, "files", "upload at least one image", "form")
-    _check_image_size(session, camera_id, size, "files", "form")
-
-    run = CalibrationRun(
-        kind="intrinsics",
-        source="images",
-        camera_id=camera_id,
-        inputs={"chessboard": [cols, rows], "square_m": square, "image_size": list(size)},
-        options={"skew": skew, "distortion": distortion},
-        files=blobs,
+    run = intrinsics.create_from_images(
+        session,
+        camera_id,
+        blobs,
+        size,
+        (cols, rows),
+        square,
+        {"skew": skew, "distortion": distortion},
     )
-    return _queue(session, executor, run)
+    return queue_run(session, run, executor)
 
 
 @router.get("", response_model=Page[CalibrationRunRead], dependencies=[ReadAccess])
@@ -275,127 +224,4 @@ def apply_calibration_run(run_id: RunId, session: SessionDep, scene: SceneDep):
             status.HTTP_409_CONFLICT,
             detail=f"run {run_id} is {run.status}; only a succeeded run can be applied",
         )
-    if run.kind == "hand-eye":
-        return apply_hand_eye_run(run, session)
-    if run.kind == "projector":
-        return apply_projector_run(run, session, scene)
-    if run.kind == "network":
-        return _apply_network(run, session, scene)
-    if run.kind == "placement":
-        return apply_placement(run, session, scene)
-    if run.camera_id is None:
-        raise HTTPException(
-            status.HTTP_409_CONFLICT, detail=f"the camera of run {run_id} was deleted"
-        )
-    camera = get_or_404(session, Camera, run.camera_id, "camera")
-    width, height = run.result["image_size"]
-    if (width, height) != (camera.width, camera.height):
-        raise HTTPException(
-            status.HTTP_409_CONFLICT,
-            detail=f"run {run_id} calibrated {width}x{height} images but camera {camera.id} is "
-            f"{camera.width}x{camera.height}; fix the camera's size or calibrate again",
-        )
-    values = {"K": run.result["K"], "dist": run.result["dist"]}
-    if _set_calibration(session, camera.id, run.id, values):
-        session.add(
-            CameraCalibration(
-                camera_id=camera.id,
-                calibration_run_id=run.id,
-                K=run.result["K"],
-                dist=run.result["dist"],
-                rms=run.result.get("rms"),
-                image_width=width,
-                image_height=height,
-            )
-        )
-        session.commit()
-        session.refresh(camera)
-        scene.camera_changed(camera)
-    return camera
-
-
-def apply_placement(run: CalibrationRun, session, scene) -> Camera:
-    """Set a camera's pose (and K and distortion when the run estimated them) from a
-    placement run, recording it in the camera's calibration history; applying the run the
-    camera already has changes nothing."""
-    assert run.result is not None
-    if run.camera_id is None:
-        raise HTTPException(
-            status.HTTP_409_CONFLICT, detail=f"the camera of run {run.id} was deleted"
-        )
-    camera = get_or_404(session, Camera, run.camera_id, "camera")
-    width, height = run.result["image_size"]
-    if (width, height) != (camera.width, camera.height):
-        raise HTTPException(
-            status.HTTP_409_CONFLICT,
-            detail=f"run {run.id} placed a {width}x{height} camera but camera {camera.id} is "
-            f"{camera.width}x{camera.height}; place it again",
-        )
-    values = placement_values(run.result)
-    if _set_calibration(session, camera.id, run.id, values):
-        session.add(
-            CameraCalibration(
-                camera_id=camera.id,
-                calibration_run_id=run.id,
-                K=values.get("K", camera.K),
-                dist=values.get("dist", camera.dist or [0.0] * 5),
-                rms=run.result.get("rms"),
-                image_width=width,
-                image_height=height,
-            )
-        )
-        session.commit()
-        session.refresh(camera)
-        scene.camera_changed(camera)
-    return camera
-
-
-def _set_calibration(session, camera_id: int, run_id: int, values: dict) -> bool:
-    """Set a camera's calibration from run `run_id` unless it is already that run's; return
-    whether it changed. One conditional UPDATE, so two concurrent applies of one run change
-    the camera (and add to its history) once: applying is idempotent."""
-    result = session.execute(
-        update(Camera)
-        .where(
-            Camera.id == camera_id,
-            or_(Camera.calibration_run_id.is_(None), Camera.calibration_run_id != run_id),
-        )
-        .values(status="calibrated", calibration_run_id=run_id, updated_at=utcnow(), **values)
-        .execution_options(synchronize_session=False)
-    )
-    return result.rowcount == 1
-
-
-def _apply_network(run: CalibrationRun, session, scene) -> list[Camera]:
-    cameras, changed = [], []
-    for result in run.result["cameras"] if run.result else []:
-        camera = session.get(Camera, result.get("camera_id") or 0)
-        if camera is None:
-            continue  # deleted since the run
-        cameras.append(camera)
-        values = {k: result[k] for k in ("K", "dist", "T_world_camera")}
-        if not _set_calibration(session, camera.id, run.id, values):
-            continue  # applied already
-        changed.append(camera)
-        width, height = result["image_size"]
-        session.add(
-            CameraCalibration(
-                camera_id=camera.id,
-                calibration_run_id=run.id,
-                K=result["K"],
-                dist=result["dist"],
-                rms=result["rms"],
-                image_width=width,
-                image_height=height,
-            )
-        )
-    if not cameras:
-        raise HTTPException(
-            status.HTTP_409_CONFLICT, detail=f"the cameras of run {run.id} were all deleted"
-        )
-    session.commit()
-    for camera in cameras:
-        session.refresh(camera)
-    for camera in changed:
-        scene.camera_changed(camera)
-    return cameras
+    return kind_of(run.kind).apply(session, run, scene)

@@ -1,4 +1,6 @@
-"""Dependencies shared by the routers: settings, database session, caller, pagination.
+"""Dependencies shared by the routers: settings, database session, the services start-up
+built (run executor, 3D scene, digital twin, task runner, follow tasks, camera frames), caller,
+pagination. Routes take these, typed; only this module reads them off the app.
 
 Who is calling is read from one of two places, never from a URL:
 
@@ -28,8 +30,12 @@ from starlette.requests import HTTPConnection
 from server.schemas.common import MAX_ID
 from server.security import AuthFailureLimiter
 from server.services.auth import KIND_SESSION, Principal, TokenCache, authenticate, csrf_token
+from server.services.frames import LatestFrames
+from server.services.manipulation import TaskRunner
+from server.services.paths import FollowTasks
 from server.services.runs import RunExecutor
 from server.services.scene_sync import SceneSync
+from server.services.twin import Twin
 from server.settings import Settings
 
 SESSION_COOKIE = "intspace_session"
@@ -93,9 +99,38 @@ async def get_executor(request: Request) -> RunExecutor | None:
     return request.app.state.executor
 
 
+async def get_twin(request: Request) -> Twin | None:
+    """Return the running digital twin, None without simulation."""
+    twin: Twin | None = request.app.state.twin
+    return twin
+
+
+async def get_task_runner(request: Request) -> TaskRunner:
+    """Return the runner of robot tasks (fetch, survey) started with the app."""
+    runner: TaskRunner = request.app.state.task_runner
+    return runner
+
+
+async def get_follow_tasks(request: Request) -> FollowTasks:
+    """Return the follow tasks of planned paths run by this process."""
+    tasks: FollowTasks = request.app.state.follow_tasks
+    return tasks
+
+
+async def get_latest_frames(request: Request) -> LatestFrames:
+    """Return the service's store of uploaded camera frames."""
+    frames: LatestFrames = request.app.state.latest_frames
+    return frames
+
+
 SessionDep = Annotated[Session, Depends(get_session)]
 SettingsDep = Annotated[Settings, Depends(get_settings)]
 SceneDep = Annotated[SceneSync, Depends(get_scene)]
+ExecutorDep = Annotated[RunExecutor | None, Depends(get_executor)]
+TwinDep = Annotated[Twin | None, Depends(get_twin)]
+TaskRunnerDep = Annotated[TaskRunner, Depends(get_task_runner)]
+FollowTasksDep = Annotated[FollowTasks, Depends(get_follow_tasks)]
+FramesDep = Annotated[LatestFrames, Depends(get_latest_frames)]
 
 
 class AuthRefused(Exception):

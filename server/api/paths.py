@@ -3,27 +3,32 @@
 `POST /paths` plans (core.navigation) and, with a projector, returns the joint trajectory that
 draws it (core.projector); `POST /paths/{id}/follow` starts the follow task on the digital
 twin, whose status, progress, metrics and series (tracking error, robot pose, spot)
-`GET /paths/{id}` returns, the series so far while the task runs (poll it). Projector
-calibration runs (kind "projector" of POST /calibration-runs) are made and applied here, and
-`GET /projectors/{id}/calibrations` lists a projector's history. server.services.paths has
-the rules.
+`GET /paths/{id}` returns, the series so far while the task runs (poll it).
+`GET /projectors/{id}/calibrations` lists a projector's history, beside the paths it draws.
+server.services.paths has the rules.
 """
 
 from __future__ import annotations
 
 import logging
-import threading
 from typing import Annotated, Any
 
-from fastapi import APIRouter, Path, Query, Request, status
+from fastapi import APIRouter, Path, Query, status
 from sqlalchemy import select
-from sqlalchemy.orm import Session
 
-from core.sim import Scene
 from server.api._crud import get_or_404, paginate
-from server.api.deps import PageDep, ReadAccess, SessionDep, WriteAccess
+from server.api.deps import (
+    FollowTasksDep,
+    PageDep,
+    ReadAccess,
+    SceneDep,
+    SessionDep,
+    SettingsDep,
+    TwinDep,
+    WriteAccess,
+)
 from server.api.errors import PROBLEM_RESPONSES, FieldProblem
-from server.db.models import CalibrationRun, PlannedPath, Projector, ProjectorCalibration, Space
+from server.db.models import PlannedPath, Projector, ProjectorCalibration, Space
 from server.schemas.common import MAX_ID, Page
 from server.schemas.paths import (
     FollowCreate,
@@ -31,7 +36,6 @@ from server.schemas.paths import (
     PathRead,
     PathSummary,
     ProjectorCalibrationRead,
-    ProjectorRunCreate,
 )
 from server.services import paths as service
 from server.services.floor_plan import twin_scene_of
@@ -42,31 +46,15 @@ log = logging.getLogger(__name__)
 # No prefix: the projectors' calibration history lives here too, beside the runs that make it.
 router = APIRouter(tags=["paths"], responses=PROBLEM_RESPONSES)
 PathId = Annotated[int, Path(ge=1, le=MAX_ID)]
-_TASKS_LOCK = threading.Lock()
-
-
-def follow_tasks(request: Request) -> service.FollowTasks:
-    """Return the app's follow tasks (made on first use)."""
-    state = request.app.state
-    with _TASKS_LOCK:
-        tasks = getattr(state, "follow_tasks", None)
-        if tasks is None:
-            tasks = service.FollowTasks(state.session_factory)
-            state.follow_tasks = tasks
-    return tasks
-
-
-def _scene(request: Request, session: Session, space_id: int) -> Scene | None:
-    return twin_scene_of(getattr(request.app.state, "twin", None), session, space_id)
 
 
 def _refused(exc: service.PathProblem, location: str = "body") -> FieldProblem:
     return FieldProblem(exc.status, exc.field, str(exc), location)
 
 
-def path_read(row: PlannedPath) -> dict[str, Any]:
+def path_read(row: PlannedPath) -> PathRead:
     """Return the API view of a path row."""
-    return {
+    view = {
         "id": row.id,
         "space_id": row.space_id,
         "projector_id": row.projector_id,
@@ -83,6 +71,7 @@ def path_read(row: PlannedPath) -> dict[str, Any]:
         "follow": service.follow_view(row),
         "created_at": row.created_at,
     }
+    return PathRead.model_validate(view)
 
 
 @router.get("/paths", response_model=Page[PathSummary], dependencies=[ReadAccess])
@@ -101,7 +90,7 @@ def list_paths(
 
 @router.get("/paths/floor-plan", dependencies=[ReadAccess])
 def get_floor_plan(
-    request: Request,
+    twin: TwinDep,
     session: SessionDep,
     space_id: Annotated[int, Query(ge=1, le=MAX_ID)],
 ) -> dict[str, Any]:
@@ -111,7 +100,7 @@ def get_floor_plan(
     if session.get(Space, space_id) is None:
         raise FieldProblem(404, "space_id", f"no space with id {space_id}", "query")
     try:
-        choice = service.floor_plan_of(session, space_id, _scene(request, session, space_id))
+        choice = service.floor_plan_of(session, space_id, twin_scene_of(twin, session, space_id))
     except service.PathProblem as exc:
         raise _refused(exc, "query") from exc
     radius = service.robot_radius_of(session, space_id)
@@ -129,7 +118,7 @@ def get_floor_plan(
     status_code=status.HTTP_201_CREATED,
     dependencies=[WriteAccess],
 )
-def create_path(body: PathCreate, request: Request, session: SessionDep):
+def create_path(body: PathCreate, twin: TwinDep, scene: SceneDep, session: SessionDep):
     """Plan a path from `start` to `goal` on the space's floor plan (the twin's walls and
     furniture in the twin's home, else the registered rooms), keeping the robot's radius plus
     5 cm from every obstacle; with `projector_id`, also the projector's joint trajectory drawing
@@ -144,7 +133,7 @@ def create_path(body: PathCreate, request: Request, session: SessionDep):
             raise FieldProblem(422, "projector_id", f"no projector with id {body.projector_id}")
     try:
         choice = service.floor_plan_of(
-            session, body.space_id, _scene(request, session, body.space_id)
+            session, body.space_id, twin_scene_of(twin, session, body.space_id)
         )
         radius = (
             body.robot_radius
@@ -163,14 +152,14 @@ def create_path(body: PathCreate, request: Request, session: SessionDep):
         )
     except service.PathProblem as exc:
         raise _refused(exc) from exc
-    _show_in_scene(request, row, projector)
+    _show_in_scene(scene, row, projector)
     return path_read(row)
 
 
-def _show_in_scene(request: Request, row: PlannedPath, projector: Projector | None) -> None:
+def _show_in_scene(sync: SceneSync, row: PlannedPath, projector: Projector | None) -> None:
     """Draw the new path in the live 3D scene, with the projector that draws it (its mount and
     its beam on the path's first spot); a scene failure never fails the request."""
-    scene = getattr(getattr(request.app.state, "scene_sync", None), "scene", None)
+    scene = sync.scene
     if scene is None:
         return
     try:
@@ -202,7 +191,14 @@ def get_path(path_id: PathId, session: SessionDep):
     status_code=status.HTTP_202_ACCEPTED,
     dependencies=[WriteAccess],
 )
-def follow_path(path_id: PathId, request: Request, session: SessionDep, body: FollowCreate):
+def follow_path(
+    path_id: PathId,
+    session: SessionDep,
+    body: FollowCreate,
+    tasks: FollowTasksDep,
+    twin: TwinDep,
+    settings: SettingsDep,
+):
     """Start following the path on the digital twin with the chosen law: the twin's projector
     draws the spot, the robot's floor camera (15 Hz, 100 ms latency) sees it and the law steers
     the robot onto it. Answers at once; poll `GET /paths/{id}` for the status, the progress, the
@@ -210,11 +206,9 @@ def follow_path(path_id: PathId, request: Request, session: SessionDep, body: Fo
     path has no projector trajectory, is not in the twin's home, or is being followed
     already."""
     row = get_or_404(session, PlannedPath, path_id, "path")
-    seed = body.seed if body.seed is not None else request.app.state.settings.twin_seed
+    seed = body.seed if body.seed is not None else settings.twin_seed
     try:
-        follow_tasks(request).start(
-            session, row, _scene(request, session, row.space_id), body.law, seed
-        )
+        tasks.start(session, row, twin_scene_of(twin, session, row.space_id), body.law, seed)
     except service.PathProblem as exc:
         raise _refused(exc, "path" if exc.field == "path_id" else "body") from exc
     session.refresh(row)
@@ -231,36 +225,7 @@ def delete_path(path_id: PathId, session: SessionDep) -> None:
 
 
 # --------------------------------------------------------------------------------------------
-# Projector calibration runs (kind "projector", queued by POST /calibration-runs)
-
-
-def projector_run(body: ProjectorRunCreate, session: Session, request: Request) -> CalibrationRun:
-    """Return the (unsaved) queued run of a projector calibration request, refusing what it
-    could not calibrate: 409 for a projector outside the twin's home, 422 naming the field for
-    an unknown projector or too few usable cameras."""
-    projector = session.get(Projector, body.projector_id)
-    if projector is None:
-        raise FieldProblem(422, "projector_id", f"no projector with id {body.projector_id}")
-    scene = None if projector.space_id is None else _scene(request, session, projector.space_id)
-    seed = body.seed if body.seed is not None else request.app.state.settings.twin_seed
-    try:
-        return service.projector_run(session, projector, scene, body.camera_ids, seed, body.images)
-    except service.PathProblem as exc:
-        raise _refused(exc) from exc
-
-
-def apply_projector_run(
-    run: CalibrationRun, session: Session, scene: SceneSync | None = None
-) -> Projector:
-    """Apply a succeeded projector run: the projector's pose, with an entry in its history;
-    the 3D scene (when given) then draws the projector and its beam from the new pose."""
-    try:
-        projector = service.apply_projector_run(session, run)
-    except service.PathProblem as exc:
-        raise _refused(exc, "path") from exc
-    if scene is not None:
-        scene.projector_changed(projector)
-    return projector
+# A projector's calibration history (its runs: server.services.calibration.projector)
 
 
 @router.get(

@@ -14,33 +14,22 @@ from typing import Annotated
 
 import cv2
 import numpy as np
-from fastapi import APIRouter, Body, Depends, HTTPException, Path, Request, Response, status
+from fastapi import APIRouter, Body, Depends, HTTPException, Path, Response, status
 
 from server.api._crud import get_or_404
-from server.api.calibration_runs import apply_placement
-from server.api.deps import SceneDep, SessionDep, SettingsDep, WriteAccess, require_write
+from server.api.deps import FramesDep, SceneDep, SessionDep, SettingsDep, WriteAccess, require_write
 from server.api.errors import PROBLEM_RESPONSES, FieldProblem
 from server.api.limits import MiB, read_image_header
 from server.db.models import Camera
 from server.schemas.calibration import PlacementCreate
 from server.schemas.common import MAX_ID
 from server.services.auth import Principal
-from server.services.frames import LatestFrames
-from server.services.placement import placement_run
+from server.services.calibration import placement
 
 router = APIRouter(prefix="/cameras", tags=["cameras"], responses=PROBLEM_RESPONSES)
 CameraId = Annotated[int, Path(ge=1, le=MAX_ID)]
 # A camera's JPEG frame, at most (bytes): a 4K frame at quality 95 is ~3 MB.
 MAX_FRAME_BYTES = 4 * MiB
-
-
-def get_latest_frames(request: Request) -> LatestFrames:
-    """Return the service's store of uploaded camera frames."""
-    frames: LatestFrames = request.app.state.latest_frames
-    return frames
-
-
-FramesDep = Annotated[LatestFrames, Depends(get_latest_frames)]
 
 
 @router.post(
@@ -59,11 +48,11 @@ def place_camera_from_points(
     and K, every point's residual (pixels), the rejected points and standard deviations.
     Degenerate points (on a line, at one spot, a view that fixes no focal length) -> 422."""
     camera = get_or_404(session, Camera, camera_id, "camera")
-    run = placement_run(body, camera)
+    run = placement.create(body, camera)
     session.add(run)
     session.commit()
     if body.apply:
-        apply_placement(run, session, scene)
+        placement.apply(session, run, scene)
     result = run.result or {}
     return {
         "run_id": run.id,

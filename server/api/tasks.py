@@ -1,60 +1,56 @@
-"""Robot tasks on the digital twin: a fetch (grasp episodes with an arm) runs in a background
-thread; its phase, progress and result are stored as it goes and read back by id."""
+"""Robot tasks on the digital twin: a fetch (grasp episodes with an arm) or a survey runs in a
+background thread of the task runner started with the service; its phase, progress and result
+are stored as it goes and read back by id."""
 
 from __future__ import annotations
 
 import secrets
-import threading
 import time
 from typing import Annotated
 
-from fastapi import APIRouter, Body, Depends, HTTPException, Path, Query, Request, status
+from fastapi import APIRouter, Body, Depends, HTTPException, Path, Query, status
 from sqlalchemy import select
 
 from server.api._crud import check_references, get_or_404, paginate
-from server.api.deps import PageDep, ReadAccess, SessionDep, WriteAccess
+from server.api.deps import (
+    PageDep,
+    ReadAccess,
+    SessionDep,
+    TaskRunnerDep,
+    TwinDep,
+    WriteAccess,
+)
 from server.api.errors import PROBLEM_RESPONSES, FieldProblem
 from server.db.models import Arm, Task
 from server.schemas.common import MAX_ID, Page
 from server.schemas.manipulation import FetchTaskCreate, TaskStatus
 from server.services.manipulation import (
     FetchRefused,
-    TaskRunner,
     arm_values,
     closed_form,
+    expire_stale_tasks,
     fetch_target,
 )
-from server.services.survey import AnyTaskRead, SurveyTaskCreate, TwinTaskRunner, survey_task
+from server.services.survey import AnyTaskRead, SurveyTaskCreate, survey_task
 
 router = APIRouter(prefix="/tasks", tags=["tasks"], responses=PROBLEM_RESPONSES)
 TaskId = Annotated[int, Path(ge=1, le=MAX_ID)]
-_runner_lock = threading.Lock()
 
 
-def get_task_runner(request: Request) -> TaskRunner:
-    """Return the app's task runner, started on first use (app.state.task_runner)."""
-    state = request.app.state
-    with _runner_lock:
-        runner = getattr(state, "task_runner", None)
-        if runner is None:
-            twin = getattr(state, "twin", None)
-            runner = TwinTaskRunner(state.session_factory, scene=state.scene_sync, twin=twin)
-            state.task_runner = runner
-    return runner
+def settle_stale_tasks(session: SessionDep, runner: TaskRunnerDep) -> None:
+    """Mark interrupted the tasks of processes that stopped, so that a read never shows a task
+    running that nothing runs (the runner's heartbeat does it too, every few seconds)."""
+    expire_stale_tasks(session, runner.stale_s)
 
 
-RunnerDep = Annotated[TaskRunner, Depends(get_task_runner)]
-# Reading tasks starts the runner too: it marks interrupted the tasks of processes that stopped.
-Runner = Depends(get_task_runner)
-
-
+Settled = Depends(settle_stale_tasks)
 TaskCreate = Annotated[FetchTaskCreate | SurveyTaskCreate, Body(discriminator="kind")]
 
 
 @router.post(
     "", response_model=AnyTaskRead, status_code=status.HTTP_202_ACCEPTED, dependencies=[WriteAccess]
 )
-def create_task(body: TaskCreate, session: SessionDep, request: Request, runner: RunnerDep):
+def create_task(body: TaskCreate, session: SessionDep, twin: TwinDep, runner: TaskRunnerDep):
     """Start a task on the twin; poll GET /tasks/{id} for its phase, progress and result.
     Kind "fetch": the arm fetches a marked box from the dining table, `episodes` times; with
     `object` (an id or name of the twin's semantic map), the box at the pose the map holds:
@@ -62,7 +58,6 @@ def create_task(body: TaskCreate, session: SessionDep, request: Request, runner:
     it from there.
     Kind "survey": the robot tours the home, reads the landmarks and fills the twin space's
     semantic and navigation maps (GET /maps/semantic) as it reads them."""
-    twin = getattr(request.app.state, "twin", None)
     if twin is None or twin.space_id is None:
         raise HTTPException(
             status.HTTP_409_CONFLICT,
@@ -109,7 +104,7 @@ def create_task(body: TaskCreate, session: SessionDep, request: Request, runner:
     return task
 
 
-@router.get("", response_model=Page[AnyTaskRead], dependencies=[ReadAccess, Runner])
+@router.get("", response_model=Page[AnyTaskRead], dependencies=[ReadAccess, Settled])
 def list_tasks(
     session: SessionDep,
     page: PageDep,
@@ -125,7 +120,7 @@ def list_tasks(
     return paginate(session, stmt, page)
 
 
-@router.get("/{task_id}", response_model=AnyTaskRead, dependencies=[ReadAccess, Runner])
+@router.get("/{task_id}", response_model=AnyTaskRead, dependencies=[ReadAccess, Settled])
 def get_task(task_id: TaskId, session: SessionDep):
     """Return a task: its status, phase, progress, and its result (episode by episode)."""
     return get_or_404(session, Task, task_id, "task")

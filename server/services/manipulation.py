@@ -1,6 +1,6 @@
-"""Mobile manipulation in the service: arms from the registry as core's kinematic models,
-hand-eye calibration runs (on the twin, or from uploaded pose pairs), and fetch tasks run on
-the twin in background threads with their phase and result stored as they go.
+"""Mobile manipulation in the service: arms from the registry as core's kinematic models (and
+as the API shows them), and fetch tasks run on the twin in background threads with their phase
+and result stored as they go. Hand-eye runs are server.services.calibration.hand_eye.
 
 The twin's simulated eye-in-hand camera sits where core.manipulation's default manipulator
 mounts it; that true mount only renders (or projects) what the camera sees and scores the
@@ -13,7 +13,7 @@ import logging
 import math
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
@@ -24,15 +24,12 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from core.errors import IntspaceError, InvalidInput
 from core.manipulation import (
-    METHODS,
-    DegenerateMotions,
     DHArm,
     MobileManipulator,
     calibrate_hand_eye,
     default_manipulator,
     pose_error,
 )
-from core.manipulation.hand_eye import check_motions, relative_motions
 from core.sim.manipulation_scenarios import (
     GRASP_PHASES,
     GraspEpisode,
@@ -46,7 +43,8 @@ from core.sim.render import Renderer
 from core.sim.scene import default_scene
 from server.db.base import utcnow
 from server.db.models import Arm, SemanticObject, Task
-from server.services.runs import worker_id
+from server.schemas.manipulation import ArmRead
+from server.services.jobs import rows_changed, worker_id
 
 if TYPE_CHECKING:
     from server.services.scene_sync import SceneSync
@@ -67,6 +65,15 @@ def arm_values(arm: Any) -> dict[str, Any]:
         key: getattr(arm, key)
         for key in ("dh", "limits", "tool", "home", "T_robot_arm", "T_ee_camera")
     }
+
+
+_COLUMNS = tuple(name for name in ArmRead.model_fields if name != "closed_form")
+
+
+def arm_read(arm: Arm) -> ArmRead:
+    """Return an arm as the API shows it (with whether it has the closed-form IK)."""
+    data: dict[str, Any] = {name: getattr(arm, name) for name in _COLUMNS}
+    return ArmRead.model_validate({**data, "closed_form": closed_form(arm_values(arm))})
 
 
 def dh_arm(values: dict[str, Any], name: str = "arm") -> DHArm:
@@ -118,141 +125,6 @@ def twin_manipulator(values: dict[str, Any]) -> MobileManipulator:
         T_base_arm=np.asarray(values["T_robot_arm"], dtype=float),
         T_ee_camera=default_manipulator().T_ee_camera,
     )
-
-
-# --------------------------------------------------------------------------------------------
-# Hand-eye runs
-
-
-def pose_pairs_problem(
-    T_base_ee: Sequence[Any],
-    T_cam_target: Sequence[Any],
-    image_points: Sequence[Any] | None,
-    object_points: Sequence[Any] | None,
-) -> Problem | None:
-    """Return (field, reason) when uploaded pose pairs cannot be calibrated (unequal counts,
-    a degenerate motion set, pixels that do not match the views), None when they can."""
-    n = len(T_base_ee)
-    if len(T_cam_target) != n:
-        return (
-            "T_cam_target",
-            f"{len(T_cam_target)} target poses for {n} end-effector poses; give one of each "
-            "per view",
-        )
-    try:
-        A, _ = relative_motions(
-            np.asarray(T_base_ee, dtype=float), np.asarray(T_cam_target, dtype=float)
-        )
-        check_motions(A)
-    except DegenerateMotions as exc:
-        return ("T_base_ee", f"degenerate motions: {exc}")
-    if (image_points is None) != (object_points is None):
-        return (
-            "image_points" if image_points is None else "object_points",
-            "refinement needs both object_points and image_points (and K); give both or none",
-        )
-    if image_points is not None and object_points is not None:
-        if len(image_points) != n:
-            return ("image_points", f"{len(image_points)} views of pixels for {n} pose pairs")
-        m = len(object_points)
-        for i, view in enumerate(image_points):
-            if len(view) != m:
-                return (
-                    f"image_points.{i}",
-                    f"{len(view)} pixels for {m} object points; give every target point's "
-                    "pixel in every view",
-                )
-    return None
-
-
-def _method_row(name: str, X: np.ndarray, truth: np.ndarray, rs: float, ts: float) -> dict:
-    dp, dr = pose_error(X, truth)
-    return {
-        "method": name,
-        "rotation_error_deg": math.degrees(float(dr)),
-        "translation_error_mm": 1e3 * float(dp),
-        "rotation_std_deg": rs,
-        "translation_std_mm": 1e3 * ts,
-    }
-
-
-def calibrate_hand_eye_run(
-    inputs: dict[str, Any], options: dict[str, Any], progress: Progress
-) -> dict[str, Any]:
-    """Return the stored result of a hand-eye run (raising core's typed errors on bad data).
-
-    inputs: arm_id, arm (its stored fields at submission), source, and for source "poses" the
-    pose lists with optional object_points, image_points, K, dist. options: method, refine,
-    and for the twin views, sigma_px, rendered, seed."""
-    method = options["method"]
-    extra: dict[str, Any] = {}
-    if inputs["source"] == "twin":
-        mm = twin_manipulator(inputs["arm"])
-        seed = options["seed"]
-        progress(f"simulating {options['views']} eye-in-hand views", 0.05)
-        views = hand_eye_views(
-            np.random.default_rng(seed),
-            views=options["views"],
-            sigma_px=options["sigma_px"],
-            rendered=options["rendered"],
-            manipulator=mm,
-        )
-        E, C = views.T_base_ee, views.T_cam_target
-        P, uv, K, dist = views.object_points, views.image_points, views.K, views.dist
-        extra = {"seed": seed, "sigma_px": options["sigma_px"], "rendered": options["rendered"]}
-    else:
-        E = np.asarray(inputs["T_base_ee"], dtype=float)
-        C = np.asarray(inputs["T_cam_target"], dtype=float)
-        P = inputs.get("object_points")
-        uv = inputs.get("image_points")
-        K = inputs.get("K")
-        dist = inputs.get("dist")
-    progress("calibrating", 0.8)
-    refine = bool(options["refine"]) and uv is not None
-    result = calibrate_hand_eye(
-        E,
-        C,
-        method=method,
-        object_points=P if refine else None,
-        image_points=uv if refine else None,
-        K=K if refine else None,
-        dist=dist if refine else None,
-    )
-    out: dict[str, Any] = {
-        "kind": "hand-eye",
-        "arm_id": inputs["arm_id"],
-        "source": inputs["source"],
-        "method": result.method,
-        "X": result.X.tolist(),
-        "covariance": result.covariance.tolist(),
-        "rotation_std_deg": result.rotation_std_deg,
-        "translation_std_m": result.translation_std_m,
-        "views": int(E.shape[0]),
-        "motions": result.motions,
-        "rotation_residuals_deg": result.rotation_residuals_deg.tolist(),
-        "translation_residuals_m": result.translation_residuals_m.tolist(),
-        "refined": result.refined,
-        "rms_px": result.rms_px,
-        "per_view_rms_px": (
-            None if result.per_view_rms_px is None else result.per_view_rms_px.tolist()
-        ),
-        "iterations": result.iterations,
-        "T_base_target": result.T_base_target.tolist(),
-        **extra,
-    }
-    if inputs["source"] == "twin":
-        # Scoring only: every method on the same views, and this result, against the truth.
-        truth = views.true_X
-        rows = []
-        for m in METHODS:
-            r = calibrate_hand_eye(E, C, method=m)
-            rows.append(_method_row(m, r.X, truth, r.rotation_std_deg, r.translation_std_m))
-        out["methods"] = rows
-        out["truth"] = _method_row(
-            result.method, result.X, truth, result.rotation_std_deg, result.translation_std_m
-        )
-    progress("done", 1.0)
-    return out
 
 
 # --------------------------------------------------------------------------------------------
@@ -479,14 +351,18 @@ _LIVE = ("queued", "running")
 
 def expire_stale_tasks(session: Session, stale_s: float) -> int:
     """Mark interrupted the queued or running tasks whose process has shown no sign of life
-    for `stale_s` seconds (it stopped or died); return how many."""
-    now = time.time()
+    for `stale_s` seconds (it stopped or died); return how many. Reads first, so that a call
+    that finds none (nearly every one: reading tasks calls it) writes nothing."""
+    stale = and_(
+        Task.status.in_(_LIVE),
+        or_(Task.heartbeat.is_(None), Task.heartbeat < time.time() - stale_s),
+    )
+    if session.scalar(select(Task.id).where(stale).limit(1)) is None:
+        session.rollback()  # ends the read's transaction, as the write's commit would
+        return 0
     result = session.execute(
         update(Task)
-        .where(
-            Task.status.in_(_LIVE),
-            or_(Task.heartbeat.is_(None), Task.heartbeat < now - stale_s),
-        )
+        .where(stale)
         .values(
             status="interrupted",
             error="the process running it stopped before it finished",
@@ -495,7 +371,7 @@ def expire_stale_tasks(session: Session, stale_s: float) -> int:
         .execution_options(synchronize_session=False)
     )
     session.commit()
-    return int(result.rowcount or 0)
+    return rows_changed(result)
 
 
 @dataclass(frozen=True)
@@ -557,7 +433,7 @@ class TaskRunner:
                 .execution_options(synchronize_session=False)
             )
             session.commit()
-        return result.rowcount == 1
+        return rows_changed(result) == 1
 
     def _run(self, task_id: int, cancel: threading.Event) -> None:
         arm: Arm | None = None
@@ -675,6 +551,8 @@ class TaskRunner:
         for cancel in held.values():
             cancel.set()
         self._pool.shutdown(wait=False, cancel_futures=True)
+        # A beat in progress ends before the service closes its database under it.
+        self._beat.join(timeout=5.0)
         if not held:
             return 0
         with self.factory() as session:
@@ -689,4 +567,4 @@ class TaskRunner:
                 .execution_options(synchronize_session=False)
             )
             session.commit()
-        return int(result.rowcount or 0)
+        return rows_changed(result)

@@ -21,9 +21,8 @@ with the heartbeat, every `_HEARTBEAT_S`: the tracking error, the robot's true p
 true spot, 5 Hz), then the metrics and the whole series. A task whose heartbeat stopped (the
 service was stopped) reads as interrupted.
 
-Projector calibration runs (kind "projector", executed by server.services.runs): the twin's
-`projector-calibration` scenario with the registry's calibrated ceiling cameras locating the
-spots; applying one sets the projector's pose and adds an entry to its calibration history.
+Projector calibration runs, which set the registered pose this module reads, are
+server.services.calibration.projector.
 """
 
 from __future__ import annotations
@@ -57,14 +56,12 @@ from core.sim import navigation_scenarios as nav
 from core.sim.render import Renderer
 from server.db.base import utcnow
 from server.db.models import (
-    CalibrationRun,
-    Camera,
     PlannedPath,
     Projector,
-    ProjectorCalibration,
     Robot,
     Room,
 )
+from server.services.calibration.projector import latest_calibration
 
 log = logging.getLogger(__name__)
 
@@ -201,12 +198,7 @@ def _check_endpoint(plan: Any, grid: OccupancyGrid, p: np.ndarray, name: str, cl
 def tilt_offset_of(session: Session, row: Projector) -> float:
     """Return the tilt offset (rad) of the projector's latest applied calibration when its pose
     is still the registered one (a pose entered by hand since has no known offset), else 0."""
-    latest = session.scalars(
-        select(ProjectorCalibration)
-        .where(ProjectorCalibration.projector_id == row.id)
-        .order_by(ProjectorCalibration.id.desc())
-        .limit(1)
-    ).first()
+    latest = latest_calibration(session, row.id)
     if latest is None or row.T_world_projector is None:
         return 0.0
     same = np.allclose(latest.T_world_projector, row.T_world_projector, rtol=0.0, atol=1e-12)
@@ -629,159 +621,3 @@ class LiveSeries:
             np.asarray(self._spot),
             step=1,
         )
-
-
-# --------------------------------------------------------------------------------------------
-# Projector calibration runs (kind "projector")
-
-
-def projector_run(
-    session: Session,
-    projector: Projector,
-    scene: Scene | None,
-    camera_ids: Sequence[int] | None,
-    seed: int,
-    images: bool,
-) -> CalibrationRun:
-    """Return the (unsaved) queued projector calibration run of `projector` on the twin, with
-    the calibrated cameras that will locate its spots. Raises PathProblem: the projector not in
-    the twin's home (409), fewer than two usable cameras of the twin's (422)."""
-    if scene is None or scene.projector is None:
-        raise PathProblem(
-            409,
-            "projector_id",
-            f"projector {projector.id} is not in the digital twin's home: a projector "
-            "calibration run commands the twin's projector",
-        )
-    if camera_ids is None:
-        rows = session.scalars(
-            select(Camera).where(Camera.space_id == projector.space_id).order_by(Camera.id)
-        ).all()
-    else:
-        found = {c.id: c for c in session.scalars(select(Camera).where(Camera.id.in_(camera_ids)))}
-        missing = [i for i in camera_ids if i not in found]
-        if missing:
-            raise PathProblem(422, "camera_ids", f"no camera with id {missing[0]}")
-        rows = [found[i] for i in camera_ids]
-    twin_names = {c.name for c in scene.cameras}
-    cameras, refused = [], []
-    for c in rows:
-        if c.name not in twin_names:
-            refused.append(f"camera {c.id} ({c.name}) is not one of the twin's")
-        elif c.K is None or c.T_world_camera is None:
-            refused.append(f"camera {c.id} ({c.name}) has no intrinsics or pose")
-        else:
-            cameras.append(
-                {
-                    "camera_id": c.id,
-                    "name": c.name,
-                    "K": c.K,
-                    "dist": c.dist,
-                    "T_world_camera": c.T_world_camera,
-                    "width": c.width,
-                    "height": c.height,
-                }
-            )
-    if len(cameras) < 2:
-        raise PathProblem(
-            422,
-            "camera_ids",
-            f"locating the spots takes at least two calibrated cameras of the twin; "
-            f"{len(cameras)} usable" + "".join(f"; {why}" for why in refused),
-        )
-    return CalibrationRun(
-        kind="projector",
-        source="twin",
-        camera_id=None,
-        inputs={"projector_id": projector.id, "cameras": cameras},
-        options={"seed": seed, "images": images},
-    )
-
-
-def calibrate_projector_run(
-    inputs: dict[str, Any],
-    options: dict[str, Any],
-    progress: Callable[[str, float], None],
-) -> dict[str, Any]:
-    """Return the stored result of a projector calibration run: the twin's
-    `projector-calibration` scenario (core.sim.navigation_scenarios.projector_calibration)
-    with the registry's calibrated cameras locating the spots."""
-    from core.localization import NetworkCamera
-    from core.sim import default_scene
-
-    scene = default_scene()
-    cams = inputs["cameras"]
-    progress("locating the spots", 0.1)
-    cameras = [
-        NetworkCamera.from_pose(
-            c["K"], c["dist"], c["T_world_camera"], (c["width"], c["height"]), c["name"]
-        )
-        for c in cams
-    ]
-    fit = nav.projector_calibration(
-        scene,
-        int(options.get("seed", 0)),
-        cameras=cameras,
-        cameras_from="the registry's calibrated cameras",
-        images=bool(options.get("images", True)),
-    )
-    progress("done", 1.0)
-    return {
-        "kind": "projector",
-        "projector_id": int(inputs["projector_id"]),
-        "T_world_projector": fit.model.T_world_base.tolist(),
-        "tilt_offset_rad": float(fit.model.theta[1]),
-        "spots": fit.spots,
-        "rms_m": fit.rms_m,
-        "position_std_m": fit.position_std_m,
-        "rotation_std_deg": fit.rotation_std_deg,
-        "spot_error_rms_m": fit.spot_error_rms_m,
-        "cameras": list(fit.cameras),
-        "camera_ids": [int(c["camera_id"]) for c in cams],
-        "spots_from": fit.spots_from,
-        "twin_errors": {
-            "position_m": fit.position_error_m,
-            "rotation_deg": fit.rotation_error_deg,
-            "aligned_position_m": fit.aligned_position_error_m,
-            "aligned_rotation_deg": fit.aligned_rotation_error_deg,
-            "tilt_offset_rad": fit.tilt_offset_error_rad,
-        },
-    }
-
-
-def apply_projector_run(session: Session, run: CalibrationRun) -> Projector:
-    """Set the projector's pose from a succeeded projector run and record it in the
-    projector's calibration history (once: applying the run in force again adds nothing);
-    return the projector. Raises PathProblem (409) when the projector is gone."""
-    assert run.result is not None
-    result = run.result
-    projector = session.get(Projector, int(result["projector_id"]))
-    if projector is None:
-        raise PathProblem(
-            409, "run_id", f"projector {result['projector_id']} of run {run.id} was deleted"
-        )
-    latest = session.scalars(
-        select(ProjectorCalibration)
-        .where(ProjectorCalibration.projector_id == projector.id)
-        .order_by(ProjectorCalibration.id.desc())
-        .limit(1)
-    ).first()
-    if (
-        latest is not None
-        and latest.calibration_run_id == run.id
-        and projector.T_world_projector == result["T_world_projector"]
-    ):
-        return projector
-    projector.T_world_projector = result["T_world_projector"]
-    session.add(
-        ProjectorCalibration(
-            projector_id=projector.id,
-            calibration_run_id=run.id,
-            T_world_projector=result["T_world_projector"],
-            tilt_offset=float(result["tilt_offset_rad"]),
-            rms_m=float(result["rms_m"]),
-            spots=int(result["spots"]),
-        )
-    )
-    session.commit()
-    return projector

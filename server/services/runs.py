@@ -8,16 +8,13 @@ its lease has expired any worker re-queues the run, or fails it with the reason 
 (interrupted after `max_attempts` claims). Queued runs stay queued whatever happens to the
 workers. Every write of an attempt (progress, result, error) is conditional on its worker
 still holding the claim, so an attempt that lost its claim writes nothing: a run's result is
-written once."""
+written once. What a run computes is its kind's (server.services.calibration.kinds)."""
 
 from __future__ import annotations
 
 import logging
-import os
-import socket
 import threading
 import time
-import uuid
 from collections.abc import Callable, Collection
 from dataclasses import dataclass
 from datetime import datetime, timedelta
@@ -35,9 +32,9 @@ from server.db.models import (
     RUN_RUNNING,
     RUN_SUCCEEDED,
     CalibrationRun,
-    CalibrationRunFile,
 )
-from server.services import calibration
+from server.services.calibration import kind_of
+from server.services.jobs import rows_changed, worker_id
 
 if TYPE_CHECKING:
     from server.settings import Settings
@@ -78,12 +75,6 @@ class LeasePolicy:
         return (now or utcnow()) + timedelta(seconds=self.lease_s)
 
 
-def worker_id() -> str:
-    """Return a name for this executor that no other process shares: host, pid and a nonce
-    (a pid is reused after a restart, the nonce is not)."""
-    return f"{socket.gethostname()[:80]}:{os.getpid()}:{uuid.uuid4().hex[:8]}"
-
-
 def claim_run(session: Session, run_id: int, owner: str, policy: LeasePolicy) -> bool:
     """Move run `run_id` from queued to running under a lease held by `owner`; return False
     when someone else has it. The conditional UPDATE is atomic on SQLite and PostgreSQL."""
@@ -103,7 +94,7 @@ def claim_run(session: Session, run_id: int, owner: str, policy: LeasePolicy) ->
         )
     )
     session.commit()
-    return result.rowcount == 1
+    return rows_changed(result) == 1
 
 
 def claim_next_run(session: Session, owner: str, policy: LeasePolicy) -> int | None:
@@ -166,30 +157,34 @@ def _release(
     session: Session, claimed: Any, policy: LeasePolicy, give_up_status: str, reason: str
 ) -> Released:
     now = utcnow()
-    requeued = session.execute(
-        update(CalibrationRun)
-        .where(claimed, CalibrationRun.attempts < policy.max_attempts)
-        .values(
-            status=RUN_QUEUED,
-            lease_owner=None,
-            lease_expires_at=None,
-            progress_stage=None,
-            progress_fraction=None,
+    requeued = rows_changed(
+        session.execute(
+            update(CalibrationRun)
+            .where(claimed, CalibrationRun.attempts < policy.max_attempts)
+            .values(
+                status=RUN_QUEUED,
+                lease_owner=None,
+                lease_expires_at=None,
+                progress_stage=None,
+                progress_fraction=None,
+            )
         )
-    ).rowcount
-    given_up = session.execute(
-        update(CalibrationRun)
-        .where(claimed, CalibrationRun.attempts >= policy.max_attempts)
-        .values(
-            status=give_up_status,
-            error=f"{reason}, {policy.max_attempts} time(s): given up",
-            finished_at=now,
-            lease_owner=None,
-            lease_expires_at=None,
+    )
+    given_up = rows_changed(
+        session.execute(
+            update(CalibrationRun)
+            .where(claimed, CalibrationRun.attempts >= policy.max_attempts)
+            .values(
+                status=give_up_status,
+                error=f"{reason}, {policy.max_attempts} time(s): given up",
+                finished_at=now,
+                lease_owner=None,
+                lease_expires_at=None,
+            )
         )
-    ).rowcount
+    )
     session.commit()
-    return Released(int(requeued or 0), int(given_up or 0))
+    return Released(requeued, given_up)
 
 
 def release_expired_runs(session: Session, policy: LeasePolicy) -> Released:
@@ -260,7 +255,7 @@ class Attempt:
                 .values(progress_stage=stage[:80], progress_fraction=min(max(fraction, 0.0), 1.0))
             )
             session.commit()
-        if result.rowcount != 1:
+        if rows_changed(result) != 1:
             self.cancel.set()
             raise RunCancelled(f"run {self.run_id}: the claim was lost")
         self._last = (stage, now)
@@ -273,44 +268,19 @@ class Attempt:
             .values(finished_at=utcnow(), lease_owner=None, lease_expires_at=None, **values)
         )
         session.commit()
-        return result.rowcount == 1
+        return rows_changed(result) == 1
 
 
-def compute(
-    session: Session, run: CalibrationRun, progress: calibration.Progress
-) -> dict[str, Any]:
-    """Return the result of a claimed run (raising core's typed errors on bad data)."""
-    if run.kind == "network":
-        return calibration.calibrate_network(run.inputs, run.options, progress)
-    if run.kind == "hand-eye":
-        # Imported here: server.services.manipulation uses this module's worker ids.
-        from server.services.manipulation import calibrate_hand_eye_run
-
-        return calibrate_hand_eye_run(run.inputs, run.options, progress)
-    if run.kind == "projector":
-        # Imported here: a worker loads the twin's navigation scenarios only when it needs them.
-        from server.services.paths import calibrate_projector_run
-
-        return calibrate_projector_run(run.inputs, run.options, progress)
-    if run.kind == "placement":
-        # Made finished by POST /cameras/{id}/placement; computed again only if re-queued.
-        from server.services.placement import compute_placement
-
-        return compute_placement(run.camera_id or 0, run.inputs)
-    if run.source == "images":
-        files = session.execute(
-            select(CalibrationRunFile.filename, CalibrationRunFile.data)
-            .where(CalibrationRunFile.run_id == run.id)
-            .order_by(CalibrationRunFile.position)
-        ).all()
-        return calibration.calibrate_from_images(
-            [f.data for f in files],
-            run.inputs,
-            run.options,
-            progress,
-            names=[f.filename for f in files],
-        )
-    return calibration.calibrate_from_correspondences(run.inputs, run.options, progress)
+def queue_run(
+    session: Session, run: CalibrationRun, executor: RunExecutor | None
+) -> CalibrationRun:
+    """Store `run` queued and tell the in-process executor (None: external workers poll the
+    queue); return it."""
+    session.add(run)
+    session.commit()
+    if executor is not None:
+        executor.submit(run.id)
+    return run
 
 
 def execute_claimed_run(
@@ -328,7 +298,7 @@ def execute_claimed_run(
             return None
         outcome: dict[str, Any]
         try:
-            result = compute(session, run, attempt.progress)
+            result = kind_of(run.kind).compute(session, run, attempt.progress)
             outcome = {
                 "status": RUN_SUCCEEDED,
                 "result": result,

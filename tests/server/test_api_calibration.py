@@ -484,7 +484,7 @@ def test_worker_claims_queued_runs(make_settings, admin, shared_data_dir):
 def test_progress_is_reported_and_shutdown_hands_the_run_back(make_settings, admin, monkeypatch):
     import time
 
-    from server.services import calibration
+    from server.services.calibration import intrinsics
 
     def slow_calibration(inputs, options, progress):
         # A long run reporting its progress; each report is a point where it can be stopped.
@@ -493,7 +493,7 @@ def test_progress_is_reported_and_shutdown_hands_the_run_back(make_settings, adm
             time.sleep(0.025)
         raise AssertionError("the run should have been stopped at shutdown")
 
-    monkeypatch.setattr(calibration, "calibrate_from_correspondences", slow_calibration)
+    monkeypatch.setattr(intrinsics, "calibrate_from_correspondences", slow_calibration)
     body = {
         "kind": "intrinsics",
         "image_size": [640, 480],

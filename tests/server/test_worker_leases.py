@@ -121,7 +121,7 @@ def test_an_attempt_that_lost_its_claim_writes_nothing(make_settings, admin, fac
 def test_heartbeats_keep_a_run_longer_than_its_lease(make_settings, admin, factory, monkeypatch):
     import time as clock
 
-    from server.services import calibration
+    from server.services.calibration import intrinsics
     from server.services.runs import RunExecutor
 
     def long_calibration(inputs, options, progress):
@@ -131,7 +131,7 @@ def test_heartbeats_keep_a_run_longer_than_its_lease(make_settings, admin, facto
             clock.sleep(0.05)
         return {"K": [[1.0, 0, 0], [0, 1.0, 0], [0, 0, 1]], "dist": [], "rms": 0.0}
 
-    monkeypatch.setattr(calibration, "calibrate_from_correspondences", long_calibration)
+    monkeypatch.setattr(intrinsics, "calibrate_from_correspondences", long_calibration)
     (run_id,) = _queue_runs(make_settings, admin, 1)
     policy = LeasePolicy(lease_s=1.0, heartbeat_s=0.2, max_attempts=3)
     finished: list[tuple[int, str | None]] = []

@@ -1,5 +1,6 @@
-"""Placement runs: a camera placed from floor points, created finished (the fit takes
-milliseconds), stored like any calibration run and applied through the same route.
+"""Placement runs (kind "placement"): a camera placed from floor points, created finished by
+POST /cameras/{id}/placement (the fit takes milliseconds), stored like any calibration run and
+applied through the same route.
 
 A run of kind "placement" (source "points") keeps the clicked pairs as its inputs and the
 camera's intrinsics it was computed with; its result is the camera's pose T_world_camera, K
@@ -12,11 +13,22 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+from sqlalchemy.orm import Session
 
 from core.calibration import place_camera
 from server.db.base import utcnow
 from server.db.models import RUN_SUCCEEDED, CalibrationRun, Camera
-from server.schemas.calibration import PlacementCreate
+from server.schemas.calibration import PlacementCreate, PlacementRunResult
+from server.services.calibration._shared import (
+    Progress,
+    camera_history_entry,
+    run_camera,
+    set_camera_calibration,
+)
+from server.services.scene_sync import SceneSync
+
+KIND = "placement"
+Result = PlacementRunResult
 
 
 def placement_inputs(body: PlacementCreate, camera: Camera) -> dict[str, Any]:
@@ -63,13 +75,13 @@ def compute_placement(camera_id: int, inputs: dict[str, Any]) -> dict[str, Any]:
     }
 
 
-def placement_run(body: PlacementCreate, camera: Camera) -> CalibrationRun:
+def create(body: PlacementCreate, camera: Camera) -> CalibrationRun:
     """Return a finished placement run of `camera` (not yet added to a session)."""
     inputs = placement_inputs(body, camera)
     result = compute_placement(camera.id, inputs)
     now = utcnow()
     return CalibrationRun(
-        kind="placement",
+        kind=KIND,
         source="points",
         status=RUN_SUCCEEDED,
         camera_id=camera.id,
@@ -82,6 +94,13 @@ def placement_run(body: PlacementCreate, camera: Camera) -> CalibrationRun:
     )
 
 
+def compute(session: Session, run: CalibrationRun, progress: Progress) -> dict[str, Any]:
+    """Return the result of a placement run's inputs again (it was made finished; it is
+    computed here only if it was re-queued)."""
+    del session, progress
+    return compute_placement(run.camera_id or 0, run.inputs)
+
+
 def placement_values(result: dict[str, Any]) -> dict[str, Any]:
     """Return the camera columns a placement result sets: the pose, and K and distortion when
     they were estimated (a camera with known intrinsics keeps them)."""
@@ -90,3 +109,28 @@ def placement_values(result: dict[str, Any]) -> dict[str, Any]:
         values["K"] = result["K"]
         values["dist"] = result["dist"]
     return values
+
+
+def apply(session: Session, run: CalibrationRun, scene: SceneSync) -> Camera:
+    """Set a camera's pose (and K and distortion when the run estimated them) from a
+    placement run, recording it in the camera's calibration history; return the camera.
+    Applying the run the camera already has changes nothing. Raises RunRefused (409) when the
+    camera was deleted or resized since."""
+    camera = run_camera(session, run, "placed a {width}x{height} camera", "place it again")
+    assert run.result is not None
+    values = placement_values(run.result)
+    if set_camera_calibration(session, camera.id, run.id, values):
+        session.add(
+            camera_history_entry(
+                camera.id,
+                run.id,
+                values.get("K", camera.K),
+                values.get("dist", camera.dist or [0.0] * 5),
+                run.result.get("rms"),
+                run.result["image_size"],
+            )
+        )
+        session.commit()
+        session.refresh(camera)
+        scene.camera_changed(camera)
+    return camera

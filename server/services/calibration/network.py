@@ -1,18 +1,18 @@
-"""Calibration jobs: decode inputs, call core.calibration, shape the result for storage."""
+"""Network runs (kind "network", source "twin"): the digital twin's calibration drive, the
+robot's marker driven over the floor, calibrates every camera of the twin, intrinsics and pose,
+registered to the world by the robot's tour of the signposts; the result carries each camera's
+errors against the twin and their Cramer-Rao bound. Applying one sets every calibrated camera
+that still exists, with an entry in its calibration history."""
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
 from typing import Any
 
-import cv2
 import numpy as np
+from sqlalchemy.orm import Session
 
-from core.calibration.detect import Chessboard, board_object_points, find_chessboard
-from core.calibration.io import CalibrationRecord, to_opencv_yaml, to_ros_yaml
 from core.calibration.network import CalibratedCamera
-from core.calibration.zhang import CameraCalibration, calibrate_camera
-from core.errors import InvalidInput, PatternNotFound
+from core.errors import InvalidInput
 from core.sim import Scene, SensorNoise
 from core.sim.network_drive import drive_marker_calibration
 from core.sim.network_registration import can_register, register_network
@@ -24,10 +24,22 @@ from core.sim.network_scenarios import (
     drive_programme,
 )
 from core.sim.render import renderer_for
-from core.sim.scenario_records import CameraCalibrationError
+from core.sim.scenario_records import AccuracyRow, CameraCalibrationError
+from server.db.models import CalibrationRun, Camera
+from server.schemas.calibration import NetworkRunResult
+from server.schemas.twin import NetworkRunCreate
+from server.services.calibration._shared import (
+    Progress,
+    RunContext,
+    RunRefused,
+    camera_history_entry,
+    no_progress,
+    set_camera_calibration,
+)
+from server.services.scene_sync import SceneSync
 
-# Reports how far a run has come: (stage, fraction of the whole run 0-1); may raise to stop it.
-Progress = Callable[[str, float], None]
+KIND = "network"
+Result = NetworkRunResult
 
 # The accuracy study of a network run: drive lengths (s) and pixel noise levels (px).
 STUDY_BUDGETS_S = (100.0, 200.0, 300.0)
@@ -38,113 +50,34 @@ STUDY_SIGMAS_PX = (0.25, 0.5, 1.0)
 DRIVE_SHARE = 0.45
 
 
-def _no_progress(stage: str, fraction: float) -> None:
-    del stage, fraction
-
-
-def decode_image(data: bytes, max_pixels: int) -> np.ndarray | None:
-    """Return the decoded image (grey or BGR uint8), None when `data` is not an image OpenCV
-    can read or holds more than `max_pixels` pixels."""
-    if not data:
-        return None
-    image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
-    if image is None or image.ndim not in (2, 3) or image.shape[0] * image.shape[1] > max_pixels:
-        return None
-    if image.dtype != np.uint8:
-        image = cv2.convertScaleAbs(image, alpha=255.0 / max(float(image.max()), 1.0))
-    if image.ndim == 3 and image.shape[2] == 4:
-        image = cv2.cvtColor(image, cv2.COLOR_BGRA2BGR)
-    return image
-
-
-def _result(calibration: CameraCalibration, views_used: list[int] | None) -> dict[str, Any]:
-    return {
-        "K": np.asarray(calibration.K, dtype=float).tolist(),
-        "dist": np.asarray(calibration.dist, dtype=float).ravel().tolist(),
-        "rms": float(calibration.rms),
-        "std_intrinsics": {k: float(v) for k, v in calibration.std_intrinsics.items()},
-        "per_view_rms": np.asarray(calibration.per_view_rms, dtype=float).ravel().tolist(),
-        "image_size": [int(v) for v in calibration.image_size],
-        "views_used": views_used,
-    }
-
-
-def calibrate_from_correspondences(
-    inputs: dict[str, Any], options: dict[str, Any], progress: Progress = _no_progress
-) -> dict:
-    """Return the stored result of Zhang's calibration on inline correspondences."""
-    progress("calibrating", 0.0)
-    calibration = calibrate_camera(
-        [np.asarray(v, dtype=float) for v in inputs["object_points"]],
-        [np.asarray(v, dtype=float) for v in inputs["image_points"]],
-        tuple(inputs["image_size"]),
-        skew=bool(options.get("skew", False)),
-        distortion=str(options.get("distortion", "k1k2p1p2")),
-    )
-    return _result(calibration, None)
-
-
-def calibrate_from_images(
-    images: Sequence[bytes],
-    inputs: dict[str, Any],
-    options: dict[str, Any],
-    progress: Progress = _no_progress,
-    *,
-    names: Sequence[str] | None = None,
-) -> dict:
-    """Return the stored result of Zhang's calibration on photos of a chessboard. Photos that
-    cannot be used are skipped and named in `skipped` with the reason (their indices are
-    missing from views_used); raises PatternNotFound, naming them, when none can be used."""
-    names = list(names) if names is not None else [f"image-{i}" for i in range(len(images))]
-    cols, rows = inputs["chessboard"]
-    model = board_object_points_for(cols, rows, float(inputs["square_m"]))
-    object_points, image_points, used = [], [], []
-    skipped: list[dict[str, Any]] = []
-    for index, data in enumerate(images):
-        # Detection is most of the run; the calibration itself takes the last tenth.
-        progress("detecting the chessboard", 0.9 * index / len(images))
-        image = decode_image(data, max_pixels=2**31)
-        if image is None:
-            skipped.append(_skip(index, names, "not an image OpenCV can decode"))
-            continue
-        try:
-            detection = find_chessboard(image, (cols, rows))
-        except PatternNotFound:
-            skipped.append(_skip(index, names, f"no {cols}x{rows} chessboard found"))
-            continue
-        except cv2.error:
-            # OpenCV's detectors assert on images too small for their windows.
-            skipped.append(_skip(index, names, "too small for the chessboard detector"))
-            continue
-        object_points.append(model[detection.ids])
-        image_points.append(detection.corners)
-        used.append(index)
-    if not used:
-        listed = "; ".join(f"{s['filename']}: {s['reason']}" for s in skipped[:10])
-        more = f" (and {len(skipped) - 10} more)" if len(skipped) > 10 else ""
-        raise PatternNotFound(
-            f"no {cols}x{rows} chessboard (inner corners) found in any of the {len(images)} "
-            f"images ({listed}{more}); check the pattern size (inner corners, not squares) "
-            "and the photos"
+def create(body: NetworkRunCreate, context: RunContext) -> CalibrationRun:
+    """Return the (unsaved) queued network run of the twin's cameras, each named by its
+    registry id. Raises RunRefused (409) without the twin."""
+    twin = context.twin
+    if twin is None:
+        raise RunRefused(
+            409,
+            "a network run drives the digital twin's robot; start the service with "
+            "INTSPACE_SIMULATION=true",
         )
-    progress("calibrating", 0.9)
-    calibration = calibrate_camera(
-        object_points,
-        image_points,
-        tuple(inputs["image_size"]),
-        skew=bool(options.get("skew", False)),
-        distortion=str(options.get("distortion", "k1k2p1p2")),
+    return CalibrationRun(
+        kind=KIND,
+        source="twin",
+        camera_id=None,
+        inputs={"space_id": twin.space_id, "cameras": dict(twin.camera_ids)},
+        options=body.options.model_dump(),
     )
-    return {**_result(calibration, used), "skipped": skipped}
 
 
-def _skip(index: int, names: Sequence[str], reason: str) -> dict[str, Any]:
-    return {"index": index, "filename": names[index], "reason": reason}
+def compute(session: Session, run: CalibrationRun, progress: Progress) -> dict[str, Any]:
+    """Return the stored result of a claimed network run (calibrate_network)."""
+    del session  # the run's inputs name everything it needs
+    return calibrate_network(run.inputs, run.options, progress)
 
 
 def calibrate_network(
-    inputs: dict[str, Any], options: dict[str, Any], progress: Progress = _no_progress
-) -> dict:
+    inputs: dict[str, Any], options: dict[str, Any], progress: Progress = no_progress
+) -> dict[str, Any]:
     """Return the stored result of calibrating the twin's cameras by driving the robot's
     marker (`network_calibration_drive`), each camera named by its registry id too."""
     from core.sim import default_scene
@@ -163,32 +96,6 @@ def calibrate_network(
     return result
 
 
-def board_object_points_for(cols: int, rows: int, square_m: float) -> np.ndarray:
-    """Return the (cols * rows, 3) model points of a chessboard of inner corners, metres."""
-    return board_object_points(Chessboard(cols, rows), square_m)
-
-
-def calibration_yaml(
-    K: list[list[float]],
-    dist: list[float],
-    image_size: tuple[int, int],
-    fmt: str,
-    *,
-    camera_name: str,
-    rms: float | None = None,
-) -> str:
-    """Return a calibration as OpenCV FileStorage YAML ("opencv") or ROS camera_info YAML
-    ("ros"), written by core.calibration.io."""
-    record = CalibrationRecord(
-        K=np.asarray(K, dtype=float),
-        dist=np.asarray(dist, dtype=float),
-        image_size=image_size,
-        rms=rms,
-        camera_name=camera_name,
-    )
-    return to_ros_yaml(record) if fmt == "ros" else to_opencv_yaml(record)
-
-
 def _std_of(cal: CalibratedCamera) -> dict[str, Any]:
     """Return a calibrated camera's standard deviations by parameter, with the focal length's
     (fx + fy) / 2 from the covariance."""
@@ -198,7 +105,7 @@ def _std_of(cal: CalibratedCamera) -> dict[str, Any]:
     for n in ("fx", "fy"):
         if n in names:
             a[names.index(n)] = 0.5
-    f_std = float(np.sqrt(max(a @ cal.covariance @ a, 0.0))) if cal.covariance.size else 0.0
+    f_std = float(np.sqrt(max(float(a @ cal.covariance @ a), 0.0))) if cal.covariance.size else 0.0
     return {
         "f_px": f_std,
         "rvec_rad": [std.get(n, 0.0) for n in ("rx", "ry", "rz")],
@@ -236,7 +143,7 @@ def network_calibration_drive(
     stops: int = 32,
     minutes: float = DRIVE_S / 60.0,
     study: bool = True,
-    progress: Progress = _no_progress,
+    progress: Progress = no_progress,
 ) -> dict[str, Any]:
     """Return the result of calibrating the scene's cameras by the robot's marker
     (core.sim.network_drive: each camera's own chessboard calibration, the robot driving for
@@ -312,7 +219,7 @@ def network_calibration_drive(
         # (seed, length): one call per row gives the rows of one call over all of them.
         cases = [(b, s) for b in STUDY_BUDGETS_S for s in STUDY_SIGMAS_PX]
         done_at = np.cumsum([0.0] + [b for b, _ in cases]) / sum(b for b, _ in cases)
-        rows = []
+        rows: list[AccuracyRow] = []
         for k, (budget, sigma) in enumerate(cases):
             progress("accuracy study", DRIVE_SHARE + (1 - DRIVE_SHARE) * float(done_at[k]))
             rows += accuracy_study(
@@ -357,3 +264,38 @@ def network_calibration_drive(
         "accuracy": accuracy,
         "registration": registration,
     }
+
+
+def apply(session: Session, run: CalibrationRun, scene: SceneSync) -> list[Camera]:
+    """Set intrinsics and pose of every camera the run calibrated that still exists, each with
+    an entry in its calibration history (once: a camera that has the run already is left as
+    it is); return those cameras. Raises RunRefused (409) when they were all deleted."""
+    # Only the fields applying reads: a result is what its run stored, whatever version wrote it.
+    cameras, changed = [], []
+    for calibrated in run.result["cameras"] if run.result else []:
+        camera = session.get(Camera, calibrated.get("camera_id") or 0)
+        if camera is None:
+            continue  # deleted since the run
+        cameras.append(camera)
+        values = {k: calibrated[k] for k in ("K", "dist", "T_world_camera")}
+        if not set_camera_calibration(session, camera.id, run.id, values):
+            continue  # applied already
+        changed.append(camera)
+        session.add(
+            camera_history_entry(
+                camera.id,
+                run.id,
+                calibrated["K"],
+                calibrated["dist"],
+                calibrated["rms"],
+                calibrated["image_size"],
+            )
+        )
+    if not cameras:
+        raise RunRefused(409, f"the cameras of run {run.id} were all deleted")
+    session.commit()
+    for camera in cameras:
+        session.refresh(camera)
+    for camera in changed:
+        scene.camera_changed(camera)
+    return cameras
