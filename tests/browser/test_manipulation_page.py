@@ -27,6 +27,8 @@ except ImportError:  # pragma: no cover - depends on the environment
         raise  # in CI the browser tests must run
     pytest.skip("playwright is not installed (pip install -e '.[dev]')", allow_module_level=True)
 
+from tests.support.waiting import wait_for_run
+
 
 def sign_in(page: Page, base_url: str, token: str) -> None:
     page.goto(f"{base_url}/")
@@ -132,8 +134,12 @@ def test_manipulation_page_calibrates_and_fetches(start_service, browser_page: P
         body = {"kind": "projector", "projector_id": projector["id"], "seed": 2, "images": False}
         run = service.api("POST", "/calibration-runs", body)
         page.goto(f"{service.base_url}/#/calibration/runs/{run['id']}")
-        expect(page.get_by_test_id("run-status")).to_have_text("succeeded", timeout=60_000)
-        run = service.api("GET", f"/calibration-runs/{run['id']}")
+        # Waited for while its progress moves (a stage every few seconds: a minute without a
+        # change is a run that stopped, not a busy machine).
+        run = wait_for_run(
+            lambda: service.api("GET", f"/calibration-runs/{run['id']}"), stalled_after_s=60.0
+        )
+        expect(page.get_by_test_id("run-status")).to_have_text("succeeded")
         result = run["result"]
         expect(page.get_by_test_id("projector-T").locator("td")).to_have_count(16)
         shown = page.get_by_test_id("projector-T").locator("td").all_inner_texts()

@@ -24,6 +24,8 @@ except ImportError:  # pragma: no cover - depends on the environment
         raise  # in CI the browser tests must run
     pytest.skip("playwright is not installed (pip install -e '.[dev]')", allow_module_level=True)
 
+from tests.support.waiting import task_progress, wait_while_advancing
+
 START, GOAL = (1.0, 2.5), (5.2, 1.45)
 
 
@@ -96,7 +98,17 @@ def test_navigation_page_plans_between_two_clicks_and_follows(service, browser_p
 
     page.get_by_test_id("nav-law").select_option("adaptive")
     page.get_by_test_id("nav-follow").click()
-    expect(page.get_by_test_id("follow-status")).to_have_text("succeeded", timeout=60_000)
+    # Waited for while the following's state moves (idle until the page's request lands,
+    # then its progress as it goes): a minute without a change is a follower that stopped,
+    # not a busy machine.
+    wait_while_advancing(
+        lambda: service.api("GET", f"/paths/{path_id}")["follow"],
+        done=lambda follow: follow["status"] in ("succeeded", "failed", "interrupted"),
+        progress=task_progress,
+        stalled_after_s=60.0,
+        what="the path's following",
+    )
+    expect(page.get_by_test_id("follow-status")).to_have_text("succeeded")
     follow = service.api("GET", f"/paths/{path_id}")["follow"]
     assert follow["law"] == "adaptive"
     expect(page.get_by_test_id("follow-rms")).to_have_text(
