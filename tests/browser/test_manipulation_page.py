@@ -27,7 +27,7 @@ except ImportError:  # pragma: no cover - depends on the environment
         raise  # in CI the browser tests must run
     pytest.skip("playwright is not installed (pip install -e '.[dev]')", allow_module_level=True)
 
-from tests.support.waiting import wait_for_run
+from tests.support.waiting import task_progress, wait_for_run, wait_while_advancing
 
 
 def sign_in(page: Page, base_url: str, token: str) -> None:
@@ -75,7 +75,22 @@ def test_manipulation_page_calibrates_and_fetches(start_service, browser_page: P
         # A fetch: the phase while it runs, then the metrics and each episode's phases.
         page.get_by_test_id("task-episodes").fill("2")
         page.get_by_test_id("task-start").click()
-        expect(page.get_by_test_id("task-status")).to_have_text("succeeded", timeout=60_000)
+
+        def fetch_task() -> dict:
+            # The arm's one task, once the page's request has created it.
+            items = service.api("GET", f"/tasks?arm_id={arm['id']}")["items"]
+            return items[0] if items else {"status": "not created yet"}
+
+        # Waited for while its phase and progress move (each episode reports as it goes: a
+        # minute without a change is a task that stopped, not a busy machine).
+        wait_while_advancing(
+            fetch_task,
+            done=lambda task: task["status"] in ("succeeded", "failed", "interrupted"),
+            progress=task_progress,
+            stalled_after_s=60.0,
+            what="the fetch task",
+        )
+        expect(page.get_by_test_id("task-status")).to_have_text("succeeded")
         expect(page.get_by_test_id("task-phase")).to_have_text("done")
         metrics = page.get_by_test_id("task-metrics")
         expect(metrics).to_contain_text("2 of 2")
