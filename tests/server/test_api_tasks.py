@@ -49,9 +49,10 @@ def _arm(client, admin, **fields) -> dict:
     return response.json()
 
 
-def _wait(client, admin, task_id: int, stalled_after_s: float = 60.0) -> dict:
+def _wait(client, admin, task_id: int, stalled_after_s: float = 180.0) -> dict:
     """Return the task once it ends, with the phases seen while it ran; fail when its phase
-    and progress stay the same for `stalled_after_s` seconds (never at a total deadline)."""
+    and progress stay the same for `stalled_after_s` seconds (never at a total deadline). A
+    fetch reports once per rendered episode (~5 s of CPU; over 60 s on a loaded machine)."""
     phases = set()
 
     def read() -> dict:
