@@ -37,6 +37,7 @@ from core.geometry.camera import project_points, undistort_points
 from core.geometry.rotations import matrix_to_rotvec, nearest_rotation
 from core.manipulation import (
     METHODS,
+    BasePlacement,
     MobileManipulator,
     base_transform,
     calibrate_hand_eye,
@@ -659,42 +660,46 @@ PROBE_SHIFTS = ((0.03, 0.0, -0.03), (-0.03, 0.0, -0.03), (0.0, 0.03, -0.03), (0.
 ROOM_M = 0.05
 
 
-def _bases_with_room(
-    mm: MobileManipulator, T_world_mark: Array, T_ee_cam: Array, candidates: Array
-) -> Array:
-    """Return the candidate base poses (k, 3) from which the arm reaches the poses the
+def _has_room(mm: MobileManipulator, T_world_mark: Array, T_ee_cam: Array, base: Array) -> bool:
+    """Return whether the arm, from base pose `base` (x, y, theta), reaches the poses the
     controller moves through around the pre-grasp pose over the believed mark
     `T_world_mark`: the first look (LOOK_BACK above the pre-grasp view) and at least one of
     its probe motions (PROBE_SHIFTS), for the mark where it is believed and moved by ROOM_M
-    along each floor axis. `T_ee_cam` is the hand-eye estimate. All candidates when none has
-    that room (the fetch then tries from the nearest that reaches the pre-grasp pose)."""
+    along each floor axis. `T_ee_cam` is the hand-eye estimate."""
+    T_arm_world = invert_pose(base_transform(base) @ mm.T_base_arm)
     probes = []
     for shift in PROBE_SHIFTS:
         P = np.eye(4)
         P[:3, 3] = shift
         probes.append(T_ee_cam @ P @ invert_pose(T_ee_cam))
-    looks = []
     for dx, dy in ((0.0, 0.0), (ROOM_M, 0.0), (-ROOM_M, 0.0), (0.0, ROOM_M), (0.0, -ROOM_M)):
         look = T_world_mark @ _pre_grasp()
         look[:3, 3] += [dx, dy, 0.0]
         look[:3, 3] -= LOOK_BACK * look[:3, 2]
-        looks.append(look)
+        T = T_arm_world @ look
+        if not mm.arm.ik_analytic(T) or not any(mm.arm.ik_analytic(T @ P) for P in probes):
+            return False
+    return True
 
-    def reaches(T_world_base_arm_inv: Array, T_world_ee: Array) -> bool:
-        return bool(mm.arm.ik_analytic(T_world_base_arm_inv @ T_world_ee))
 
-    keep = []
-    for base in candidates:
-        T_arm_world = invert_pose(base_transform(base) @ mm.T_base_arm)
-        keep.append(
-            all(
-                reaches(T_arm_world, look)
-                and any(reaches(T_arm_world, look @ probe) for probe in probes)
-                for look in looks
-            )
-        )
-    chosen = np.asarray(candidates)[np.array(keep, dtype=bool)]
-    return chosen if len(chosen) else np.asarray(candidates)
+def _place_with_room(
+    mm: MobileManipulator, T_world_mark: Array, T_ee_cam: Array, start: Array
+) -> BasePlacement:
+    """Return the base placement (MobileManipulator.place_base over the corridor's
+    candidates) for the pre-grasp pose over the believed mark from which the arm also has
+    room for the first look and its probe (`_has_room`): the best placement, then the next
+    best while one lacks that room; the best when none has it. Raises InvalidInput when no
+    candidate reaches the pre-grasp pose."""
+    target = T_world_mark @ _pre_grasp()
+    cands = _base_candidates(T_world_mark)
+    best = place = mm.place_base(target, start, candidates=cands)
+    while not _has_room(mm, T_world_mark, T_ee_cam, place.base):
+        cands = cands[np.any(cands != place.base, axis=1)]
+        try:
+            place = mm.place_base(target, start, candidates=cands)
+        except InvalidInput:
+            return best
+    return place
 
 
 # A mark the controller grasps faces up: its normal within this of the world's +Z.
@@ -838,8 +843,7 @@ def grasp_episode(
         # Where the arm has room for the first look and its probe, not only the pre-grasp
         # pose: the nearest base that barely reaches the pre-grasp pose left the arm no
         # room to move the camera up and sideways from there (seed 102's reach failures).
-        cands = _bases_with_room(mm, T_prior, T_ee_cam, _base_candidates(T_prior))
-        place = mm.place_base(T_prior @ _pre_grasp(), start_est, candidates=cands)
+        place = _place_with_room(mm, T_prior, T_ee_cam, start_est)
     except InvalidInput:
         return fail("no base placement", 0.0, 0, 0)
     q = _look_posture(mm)
