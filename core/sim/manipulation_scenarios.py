@@ -37,6 +37,7 @@ from core.geometry.camera import project_points, undistort_points
 from core.geometry.rotations import matrix_to_rotvec, nearest_rotation
 from core.manipulation import (
     METHODS,
+    BasePlacement,
     MobileManipulator,
     base_transform,
     calibrate_hand_eye,
@@ -650,6 +651,57 @@ def _base_candidates(T_world_mark: Array) -> Array:
     )
 
 
+# The first look is taken this far above the pre-grasp view, along the camera's axis (m), and
+# the look-then-move probe moves the camera by these (m, camera frame) from there.
+LOOK_BACK = 0.05
+PROBE_SHIFTS = ((0.03, 0.0, -0.03), (-0.03, 0.0, -0.03), (0.0, 0.03, -0.03), (0.0, -0.03, -0.03))
+# The base is placed where the arm also reaches the first look and a probe for the mark moved
+# by this along each floor axis (m): the prior's standard deviation (grasp_episode's default).
+ROOM_M = 0.05
+
+
+def _has_room(mm: MobileManipulator, T_world_mark: Array, T_ee_cam: Array, base: Array) -> bool:
+    """Return whether the arm, from base pose `base` (x, y, theta), reaches the poses the
+    controller moves through around the pre-grasp pose over the believed mark
+    `T_world_mark`: the first look (LOOK_BACK above the pre-grasp view) and at least one of
+    its probe motions (PROBE_SHIFTS), for the mark where it is believed and moved by ROOM_M
+    along each floor axis. `T_ee_cam` is the hand-eye estimate."""
+    T_arm_world = invert_pose(base_transform(base) @ mm.T_base_arm)
+    probes = []
+    for shift in PROBE_SHIFTS:
+        P = np.eye(4)
+        P[:3, 3] = shift
+        probes.append(T_ee_cam @ P @ invert_pose(T_ee_cam))
+    for dx, dy in ((0.0, 0.0), (ROOM_M, 0.0), (-ROOM_M, 0.0), (0.0, ROOM_M), (0.0, -ROOM_M)):
+        look = T_world_mark @ _pre_grasp()
+        look[:3, 3] += [dx, dy, 0.0]
+        look[:3, 3] -= LOOK_BACK * look[:3, 2]
+        T = T_arm_world @ look
+        if not mm.arm.ik_analytic(T) or not any(mm.arm.ik_analytic(T @ P) for P in probes):
+            return False
+    return True
+
+
+def _place_with_room(
+    mm: MobileManipulator, T_world_mark: Array, T_ee_cam: Array, start: Array
+) -> BasePlacement:
+    """Return the base placement (MobileManipulator.place_base over the corridor's
+    candidates) for the pre-grasp pose over the believed mark from which the arm also has
+    room for the first look and its probe (`_has_room`): the best placement, then the next
+    best while one lacks that room; the best when none has it. Raises InvalidInput when no
+    candidate reaches the pre-grasp pose."""
+    target = T_world_mark @ _pre_grasp()
+    cands = _base_candidates(T_world_mark)
+    best = place = mm.place_base(target, start, candidates=cands)
+    while not _has_room(mm, T_world_mark, T_ee_cam, place.base):
+        cands = cands[np.any(cands != place.base, axis=1)]
+        try:
+            place = mm.place_base(target, start, candidates=cands)
+        except InvalidInput:
+            return best
+    return place
+
+
 # A mark the controller grasps faces up: its normal within this of the world's +Z.
 _MAX_MARK_TILT = math.radians(20.0)
 
@@ -788,9 +840,10 @@ def grasp_episode(
 
     # Base placement for the prior's pre-grasp pose, from the corridor.
     try:
-        place = mm.place_base(
-            T_prior @ _pre_grasp(), start_est, candidates=_base_candidates(T_prior)
-        )
+        # Where the arm has room for the first look and its probe, not only the pre-grasp
+        # pose: the nearest base that barely reaches the pre-grasp pose left the arm no
+        # room to move the camera up and sideways from there (seed 102's reach failures).
+        place = _place_with_room(mm, T_prior, T_ee_cam, start_est)
     except InvalidInput:
         return fail("no base placement", 0.0, 0, 0)
     q = _look_posture(mm)
@@ -876,7 +929,7 @@ def grasp_episode(
     ) -> tuple[Array | None, Array, Array | None]:
         """Camera 5 cm above the pre-grasp view (or at it, if out of reach), shifted by
         (dx, dy) in its image plane: (joints or None, camera pose, pixels or None)."""
-        for back in (0.05, 0.0):
+        for back in (LOOK_BACK, 0.0):
             look = T_arm_mark @ _pre_grasp()
             look[:3, 3] -= back * look[:3, 2]
             shift = np.eye(4)
@@ -924,7 +977,7 @@ def grasp_episode(
     enter("look then move")
     # One small known camera motion (the first of these the arm reaches).
     q2 = None
-    for shift in ([0.03, 0.0, -0.03], [-0.03, 0.0, -0.03], [0.0, 0.03, -0.03], [0.0, -0.03, -0.03]):
+    for shift in PROBE_SHIFTS:
         probe = np.eye(4)
         probe[:3, 3] = shift
         q2 = move_to(F1 @ probe @ invert_pose(T_ee_cam), q1)

@@ -9,10 +9,11 @@ service's own); a script with `Authorization: Bearer <read token>`.
 
 from __future__ import annotations
 
-import asyncio
 import contextlib
-from typing import Annotated
+from collections.abc import Awaitable, Callable
+from typing import Annotated, Any
 
+import anyio
 import httpx
 from fastapi import APIRouter, HTTPException, Path, Request, WebSocket, status
 from fastapi.responses import Response
@@ -29,6 +30,8 @@ UPSTREAM_HOST = "127.0.0.1"
 # Headers of viser's answer passed on to the browser; the rest (its server name, connection
 # handling) stays between the two processes.
 _PASSED = ("content-type", "content-encoding", "content-length", "last-modified", "etag")
+# How long closing both sides of a relay may take when the relay ends (s).
+CLOSE_TIMEOUT_S = 5.0
 
 
 def _viser_port(connection: Request | WebSocket) -> int:
@@ -102,25 +105,39 @@ async def scene_socket(websocket: WebSocket) -> None:
         return
     await websocket.accept(subprotocol=who.subprotocol)
     # Either side may leave at any time (a browser closing its tab, viser stopping): the relay
-    # then ends quietly, closing the other side; a client that goes away is no error.
-    tasks = [
-        asyncio.create_task(_to_viser(websocket, upstream)),
-        asyncio.create_task(_to_browser(upstream, websocket)),
-    ]
+    # then ends quietly, closing the other side; a client that goes away is no error. The two
+    # directions run in one anyio task group, so that a cancellation of this handler (the
+    # service stopping, the connection's scope ending) reaches them as that same cancellation
+    # and ends the handler as cancelled by its scope. (asyncio tasks cancelled here and then
+    # gathered turned it into a CancelledError of their own, which escaped the scope that
+    # cancelled the handler: the connection's owner saw its handler die of an error.)
     try:
-        await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
+        async with anyio.create_task_group() as relay:
+            relay.start_soon(_one_way, _to_viser, websocket, upstream, relay.cancel_scope)
+            relay.start_soon(_one_way, _to_browser, upstream, websocket, relay.cancel_scope)
     finally:
-        for task in tasks:
-            task.cancel()
-        # A service shutting down cancels this handler too: the tasks end first all the same.
-        await asyncio.gather(*tasks, return_exceptions=True)
-        with contextlib.suppress(ConnectionClosed, OSError):
-            await upstream.close()
-        if websocket.application_state == WebSocketState.CONNECTED:
-            # Starlette's WebSocketDisconnect for a browser already gone (uvicorn's
-            # ClientDisconnected, an OSError, beneath it); RuntimeError once closed.
-            with contextlib.suppress(WebSocketDisconnect, OSError, RuntimeError):
-                await websocket.close()
+        # Closed even when cancelled, within a bounded time.
+        with anyio.move_on_after(CLOSE_TIMEOUT_S, shield=True):
+            with contextlib.suppress(ConnectionClosed, OSError):
+                await upstream.close()
+            if websocket.application_state == WebSocketState.CONNECTED:
+                # Starlette's WebSocketDisconnect for a browser already gone (uvicorn's
+                # ClientDisconnected, an OSError, beneath it); RuntimeError once closed.
+                with contextlib.suppress(WebSocketDisconnect, OSError, RuntimeError):
+                    await websocket.close()
+
+
+async def _one_way(
+    relay: Callable[[Any, Any], Awaitable[None]],
+    source: Any,
+    sink: Any,
+    both: anyio.CancelScope,
+) -> None:
+    """Run one direction of the relay; when it ends, end the other one too."""
+    try:
+        await relay(source, sink)
+    finally:
+        both.cancel()
 
 
 async def _to_viser(websocket: WebSocket, upstream: ClientConnection) -> None:

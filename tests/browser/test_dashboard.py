@@ -24,6 +24,7 @@ import pytest
 import yaml
 
 from tests.browser.conftest import assert_scene_frame_is_proxied
+from tests.support.waiting import wait_for_run
 
 try:
     from playwright.sync_api import Page, expect
@@ -40,6 +41,17 @@ ZHANG_FX, ZHANG_FY = 832.5, 832.53
 ZHANG_TOL = 0.05
 # A camera without intrinsics is drawn with a 60 degree vertical field of view.
 DEFAULT_FOV = math.radians(60.0)
+
+
+def _wait_for_run(service, run_id: int) -> None:
+    """Wait for a calibration run to end while its progress moves (tests/support/waiting.py).
+    These runs report each image or stage within seconds; a minute without a change is a
+    run that stopped, not a busy machine."""
+    wait_for_run(
+        lambda: service.api("GET", f"/calibration-runs/{run_id}"),
+        stalled_after_s=60.0,
+        poll_s=0.25,
+    )
 
 
 def sign_in(page: Page, base_url: str, token: str) -> None:
@@ -173,7 +185,8 @@ def test_calibrate_apply_export_and_see_the_camera_in_the_scene(
     page.get_by_test_id("run-submit").click()
     page.wait_for_url(re.compile(r".*#/calibration/runs/\d+$"))
     run_id = int(page.url.rsplit("/", 1)[1])
-    expect(page.get_by_test_id("run-status")).to_have_text("succeeded", timeout=60_000)
+    _wait_for_run(service, run_id)
+    expect(page.get_by_test_id("run-status")).to_have_text("succeeded")
 
     run = service.api("GET", f"/calibration-runs/{run_id}")
     K = np.array(run["result"]["K"])
@@ -330,10 +343,10 @@ def test_problems_from_the_api_are_shown(
     page.get_by_test_id("run-json-file").set_input_files(path)
     page.get_by_test_id("run-skew").check()
     page.get_by_test_id("run-submit").click()
-    expect(page.get_by_test_id("run-status")).to_have_text(
-        re.compile("failed|succeeded"), timeout=60_000
-    )
+    page.wait_for_url(re.compile(r".*#/calibration/runs/\d+$"))
     run_id = int(page.url.rsplit("/", 1)[1])
+    _wait_for_run(service, run_id)
+    expect(page.get_by_test_id("run-status")).to_have_text(re.compile("failed|succeeded"))
     run = service.api("GET", f"/calibration-runs/{run_id}")
     assert run["status"] == "failed"
     expect(page.get_by_test_id("run-error")).to_contain_text(run["error"][:60])
@@ -356,7 +369,9 @@ def test_calibrate_from_uploaded_chessboard_photos(
     page.get_by_test_id("run-square").fill("0.025")
     page.get_by_test_id("run-distortion").select_option("none")
     page.get_by_test_id("run-submit").click()
-    expect(page.get_by_test_id("run-status")).to_have_text("succeeded", timeout=60_000)
+    page.wait_for_url(re.compile(r".*#/calibration/runs/\d+$"))
+    _wait_for_run(service, int(page.url.rsplit("/", 1)[1]))
+    expect(page.get_by_test_id("run-status")).to_have_text("succeeded")
 
     run_id = int(page.url.rsplit("/", 1)[1])
     run = service.api("GET", f"/calibration-runs/{run_id}")

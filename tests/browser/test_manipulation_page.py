@@ -11,10 +11,8 @@ mount with its errors against the twin; each applies to its arm or projector.
 
 from __future__ import annotations
 
-import json
 import os
 import re
-import time
 
 import numpy as np
 import pytest
@@ -29,28 +27,14 @@ except ImportError:  # pragma: no cover - depends on the environment
         raise  # in CI the browser tests must run
     pytest.skip("playwright is not installed (pip install -e '.[dev]')", allow_module_level=True)
 
+from tests.support.waiting import task_progress, wait_for_run, wait_while_advancing
+
 
 def sign_in(page: Page, base_url: str, token: str) -> None:
     page.goto(f"{base_url}/")
     page.get_by_test_id("token-input").fill(token)
     page.get_by_test_id("token-submit").click()
     expect(page.get_by_test_id("sign-out")).to_be_visible()
-
-
-def wait_while_advancing(read, stall_s: float = 60.0) -> str:
-    """Wait for a job (a run or a task, as `read()` returns it) to end and return its status;
-    fail when neither its status, phase nor progress has moved for `stall_s` seconds (a stuck
-    job, not a slow one)."""
-    last, moved = None, time.monotonic()
-    while True:
-        job = read()
-        if job["status"] not in ("queued", "running"):
-            return job["status"]
-        now = (job["status"], job.get("phase"), json.dumps(job.get("progress")))
-        if now != last:
-            last, moved = now, time.monotonic()
-        assert time.monotonic() - moved < stall_s, f"the job stopped advancing: {job}"
-        time.sleep(0.5)
 
 
 def test_manipulation_page_calibrates_and_fetches(start_service, browser_page: Page):
@@ -77,7 +61,8 @@ def test_manipulation_page_calibrates_and_fetches(start_service, browser_page: P
         # How long a job takes depends on the machine's load: wait while it advances.
         expect(page.get_by_test_id("hand-eye-status")).to_be_visible()
         runs = f"/arms/{arm['id']}/calibration-runs"
-        assert wait_while_advancing(lambda: service.api("GET", runs)["items"][0]) == "succeeded"
+        run = wait_for_run(lambda: service.api("GET", runs)["items"][0], stalled_after_s=60.0)
+        assert run["status"] == "succeeded"
         expect(page.get_by_test_id("hand-eye-status")).to_have_text("succeeded")
         expect(page.get_by_test_id("hand-eye-methods")).to_contain_text("two-group")
         run = service.api("GET", f"/arms/{arm['id']}/calibration-runs")["items"][0]
@@ -96,7 +81,22 @@ def test_manipulation_page_calibrates_and_fetches(start_service, browser_page: P
         page.get_by_test_id("task-episodes").fill("2")
         page.get_by_test_id("task-start").click()
         expect(page.get_by_test_id("task-status")).to_be_visible()
-        assert wait_while_advancing(lambda: service.api("GET", "/tasks")["items"][0]) == "succeeded"
+
+        def fetch_task() -> dict:
+            # The arm's one task, once the page's request has created it.
+            items = service.api("GET", f"/tasks?arm_id={arm['id']}")["items"]
+            return items[0] if items else {"status": "not created yet"}
+
+        # Waited for while its phase and progress move. It reports once per episode, and a
+        # rendered episode is ~5 s of CPU: on two cores shared by ~35 busy processes one went
+        # over 60 s without a report; 180 s (~36x) without a change is a task that stopped.
+        wait_while_advancing(
+            fetch_task,
+            done=lambda task: task["status"] in ("succeeded", "failed", "interrupted"),
+            progress=task_progress,
+            stalled_after_s=180.0,
+            what="the fetch task",
+        )
         expect(page.get_by_test_id("task-status")).to_have_text("succeeded")
         expect(page.get_by_test_id("task-phase")).to_have_text("done")
         metrics = page.get_by_test_id("task-metrics")
@@ -156,10 +156,12 @@ def test_manipulation_page_calibrates_and_fetches(start_service, browser_page: P
         body = {"kind": "projector", "projector_id": projector["id"], "seed": 2, "images": False}
         run = service.api("POST", "/calibration-runs", body)
         page.goto(f"{service.base_url}/#/calibration/runs/{run['id']}")
-        path = f"/calibration-runs/{run['id']}"
-        assert wait_while_advancing(lambda: service.api("GET", path)) == "succeeded"
+        # Waited for while its progress moves (a stage every few seconds: a minute without a
+        # change is a run that stopped, not a busy machine).
+        run = wait_for_run(
+            lambda: service.api("GET", f"/calibration-runs/{run['id']}"), stalled_after_s=60.0
+        )
         expect(page.get_by_test_id("run-status")).to_have_text("succeeded")
-        run = service.api("GET", f"/calibration-runs/{run['id']}")
         result = run["result"]
         expect(page.get_by_test_id("projector-T").locator("td")).to_have_count(16)
         shown = page.get_by_test_id("projector-T").locator("td").all_inner_texts()

@@ -22,6 +22,8 @@ except ImportError:  # pragma: no cover - depends on the environment
         raise  # in CI the browser tests must run
     pytest.skip("playwright is not installed (pip install -e '.[dev]')", allow_module_level=True)
 
+from tests.support.waiting import wait_for_run
+
 
 def test_navigation_page_calibrates_the_projector_and_applies_it(start_service, browser_page: Page):
     page = browser_page
@@ -45,8 +47,14 @@ def test_navigation_page_calibrates_the_projector_and_applies_it(start_service, 
 
         page.get_by_test_id("calib-images").uncheck()
         page.get_by_test_id("calib-start").click()
-        expect(page.get_by_test_id("calib-status")).to_have_text("succeeded", timeout=60_000)
+        # The page names the run it started; waited for while its progress moves (a stage
+        # every few seconds: a minute without a change is a run that stopped).
+        expect(page.get_by_test_id("calib-run")).to_be_visible()
         run_id = int(page.get_by_test_id("calib-run").inner_text().lstrip("#"))
+        wait_for_run(
+            lambda: service.api("GET", f"/calibration-runs/{run_id}"), stalled_after_s=60.0
+        )
+        expect(page.get_by_test_id("calib-status")).to_have_text("succeeded")
         run = service.api("GET", f"/calibration-runs/{run_id}")
         assert run["kind"] == "projector" and run["options"]["images"] is False
         result = run["result"]

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import math
 import os
-import time
 
 import pytest
 
@@ -24,6 +23,8 @@ except ImportError:  # pragma: no cover - depends on the environment
     if os.environ.get("CI", "").strip().lower() not in ("", "0", "false", "no"):
         raise  # in CI the browser tests must run
     pytest.skip("playwright is not installed (pip install -e '.[dev]')", allow_module_level=True)
+
+from tests.support.waiting import task_progress, wait_while_advancing
 
 START, GOAL = (1.0, 2.5), (5.2, 1.45)
 
@@ -98,8 +99,16 @@ def test_navigation_page_plans_between_two_clicks_and_follows(service, browser_p
     page.get_by_test_id("nav-law").select_option("adaptive")
     page.get_by_test_id("nav-follow").click()
     expect(page.get_by_test_id("follow-status")).to_be_visible()  # the task is started
-    # The task's length depends on the machine's load: wait while it advances, not a fixed time.
-    assert _wait_while_advancing(service, path_id) == "succeeded"
+    # Waited for while the following's state moves (idle until the page's request lands,
+    # then its progress as it goes): a minute without a change is a follower that stopped,
+    # not a busy machine.
+    wait_while_advancing(
+        lambda: service.api("GET", f"/paths/{path_id}")["follow"],
+        done=lambda follow: follow["status"] in ("succeeded", "failed", "interrupted"),
+        progress=task_progress,
+        stalled_after_s=60.0,
+        what="the path's following",
+    )
     expect(page.get_by_test_id("follow-status")).to_have_text("succeeded")
     follow = service.api("GET", f"/paths/{path_id}")["follow"]
     assert follow["law"] == "adaptive"
@@ -135,21 +144,6 @@ def test_navigation_page_plans_between_two_clicks_and_follows(service, browser_p
         (series["x"][-1], series["y"][-1]), (series["spot_x"][-1], series["spot_y"][-1])
     )
     assert abs(gap - want) < 0.02  # a pixel or two of the plan's drawing, ~1 cm each
-
-
-def _wait_while_advancing(service, path_id: int, stall_s: float = 60.0) -> str:
-    """Wait for the path's follow task to end and return its status; fail when neither its
-    progress nor its series has moved for `stall_s` seconds (a stuck task, not a slow one)."""
-    last, moved = None, time.monotonic()
-    while True:
-        follow = service.api("GET", f"/paths/{path_id}")["follow"]
-        if follow["status"] not in ("queued", "running"):
-            return follow["status"]
-        now = (follow.get("progress"), len((follow.get("series") or {}).get("t") or []))
-        if now != last:
-            last, moved = now, time.monotonic()
-        assert time.monotonic() - moved < stall_s, f"the follow task stopped advancing: {follow}"
-        time.sleep(0.5)
 
 
 def _js_number(v: float) -> str:

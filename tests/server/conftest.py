@@ -4,7 +4,6 @@ when INTSPACE_TEST_POSTGRES_URL is set, PostgreSQL (a database per session, empt
 from __future__ import annotations
 
 import shutil
-import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -17,6 +16,7 @@ from server.app import create_app
 from server.db.base import Base
 from server.db.migrate import alembic_config
 from server.settings import Settings
+from tests.support.waiting import wait_for_run as support_wait_for_run
 
 ADMIN_TOKEN = "test-admin-token"
 ADMIN = {"Authorization": f"Bearer {ADMIN_TOKEN}"}
@@ -93,18 +93,17 @@ def client(make_settings: Callable[..., Settings]) -> Iterator[TestClient]:
         yield test_client
 
 
-def wait_for_run(client: TestClient, run_id: int, timeout: float = 60.0) -> dict[str, Any]:
-    """Poll a calibration run until it leaves queued/running; return its JSON."""
-    deadline = time.monotonic() + timeout
-    while True:
+def wait_for_run(client: TestClient, run_id: int, stalled_after_s: float = 60.0) -> dict[str, Any]:
+    """Poll a calibration run until it leaves queued/running; return its JSON. It fails when
+    the run's status, stage and fraction stay the same for `stalled_after_s` seconds, never
+    at a total deadline (tests/support/waiting.py)."""
+
+    def read() -> dict[str, Any]:
         response = client.get(f"/api/v1/calibration-runs/{run_id}", headers=ADMIN)
         assert response.status_code == 200, response.text
-        run = response.json()
-        if run["status"] not in ("queued", "running"):
-            return run
-        if time.monotonic() > deadline:
-            raise AssertionError(f"run {run_id} still {run['status']} after {timeout} s")
-        time.sleep(0.05)
+        return response.json()
+
+    return support_wait_for_run(read, stalled_after_s=stalled_after_s, poll_s=0.05)
 
 
 @pytest.fixture

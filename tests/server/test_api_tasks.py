@@ -28,6 +28,7 @@ from core.sim.scene import default_scene
 from server.app import create_app
 from server.db.models import Task
 from server.services.manipulation import PHASES, episode_phases
+from tests.support.waiting import wait_for_task
 
 
 @pytest.fixture
@@ -48,17 +49,20 @@ def _arm(client, admin, **fields) -> dict:
     return response.json()
 
 
-def _wait(client, admin, task_id: int, timeout: float = 60.0) -> dict:
-    deadline = time.monotonic() + timeout
+def _wait(client, admin, task_id: int, stalled_after_s: float = 180.0) -> dict:
+    """Return the task once it ends, with the phases seen while it ran; fail when its phase
+    and progress stay the same for `stalled_after_s` seconds (never at a total deadline). A
+    fetch reports once per rendered episode (~5 s of CPU; over 60 s on a loaded machine)."""
     phases = set()
-    while True:
+
+    def read() -> dict:
         task = client.get(f"/api/v1/tasks/{task_id}", headers=admin).json()
         phases.add(task["phase"])
-        if task["status"] not in ("queued", "running"):
-            task["seen_phases"] = phases
-            return task
-        assert time.monotonic() < deadline, f"task {task_id} still {task['status']}"
-        time.sleep(0.2)
+        return task
+
+    task = wait_for_task(read, stalled_after_s=stalled_after_s)
+    task["seen_phases"] = phases
+    return task
 
 
 # The episodes render every image (seconds each) and do the same on either database; the
@@ -219,7 +223,7 @@ def test_survey_on_the_twin_fills_the_maps(twin_client, admin):
     body = {"kind": "survey", "duration_s": 25, "seed": 1}
     response = client.post("/api/v1/tasks", json=body, headers=admin)
     assert response.status_code == 202, response.text
-    task = _wait(client, admin, response.json()["id"], timeout=240)
+    task = _wait(client, admin, response.json()["id"], stalled_after_s=240)
     assert task["status"] == "succeeded", task["error"]
     assert task["arm_id"] is None and task["progress"] == 1.0
     # While it ran it showed where it was: the first stop's sweep and reads.

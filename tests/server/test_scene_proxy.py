@@ -103,13 +103,6 @@ def test_no_byte_of_the_scene_without_a_read_credential(scene_client, admin):
     assert client.get("/api/v1/scene/view/", headers=bearer).status_code == 403
 
 
-@pytest.mark.xfail(
-    reason=(
-        "the proxied scene's WebSocket was cancelled under load in full parallel runs; "
-        "passes alone; under investigation"
-    ),
-    strict=False,
-)
 def test_with_a_read_credential_the_page_and_the_scene_come_through(scene_client, admin):
     client, port = scene_client
     camera = client.post(

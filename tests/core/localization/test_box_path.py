@@ -14,16 +14,24 @@ from core.localization.detect import BodyModel
 from core.localization.detections import FrameDetection
 from core.sim import tracking_scenarios as ts
 from core.sim.occluders import scene_occluders
+from tests.support.twin_calibration import stored_calibrated_cameras
 
 # The twin's walkers are rigid cylinders of a trunk's size: their boxes are the trunk's.
 WALKER = BodyModel()
-SEED = 17  # test_tracking_async_api.py's: the network calibration is cached per process
+SEED = 17
 MINUTES = 0.15
 
 
 def test_boxes_of_the_twins_walkers_track_like_the_pixel_path():
     scene = ts.tracking_scene()
-    calibrated = ts.calibrated_cameras(scene, SEED)
+    # The home's network calibration for seed 17 as ts.calibrated_cameras computes it (the
+    # robot's marker drive and the signposts' registration, ~45 s), stored once by
+    # tests/support/twin_calibration.py; the values are the ones computed here before (same
+    # floats, so the same figures below). Nothing is easier for it: both paths still run on
+    # these same estimated cameras (with their calibration errors, never the twin's truth),
+    # the same rendered walkers and the same tracker, and the bounds are unchanged. The file
+    # is refused if the scene changes.
+    calibrated = stored_calibrated_cameras(scene, SEED)
     frames, drive = ts.rendered_frames(scene, SEED, calibrated, minutes=MINUTES)
     pixel_path = ts.track_rendered(scene, SEED, frames, drive, calibrated, minutes=MINUTES)
     # The same people as a box detector would give them: each person blob's box only (4

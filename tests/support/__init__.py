@@ -1,0 +1,2 @@
+"""Helpers the tests share: waiting on a run's progress (`waiting`), the twin's network
+calibration stored as test data (`twin_calibration`)."""

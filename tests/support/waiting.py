@@ -1,0 +1,95 @@
+"""Waiting on work that reports its progress (calibration runs, tasks, path following).
+
+A test waits as long as the work advances and fails when it has not advanced for a stated
+time, never at a fixed total deadline: a busy machine slows a run down, it does not stop it,
+and a total deadline fails a run that was advancing (issue 32: a network calibration still
+"running" after 180 s on a busy machine, while its progress moved). What counts as advancing
+is what the work reports (its status, stage and fraction), never a clock of the test's own.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Hashable
+from typing import Any, TypeVar
+
+T = TypeVar("T")
+
+UNFINISHED = ("queued", "running")
+
+
+class Stalled(AssertionError):
+    """The work reported the same progress for longer than the test allows."""
+
+
+def wait_while_advancing(
+    read: Callable[[], T],
+    *,
+    done: Callable[[T], bool],
+    progress: Callable[[T], Hashable],
+    stalled_after_s: float,
+    poll_s: float = 0.1,
+    what: str = "the work",
+) -> T:
+    """Return read()'s value once `done` holds for it; raise Stalled when `progress` of the
+    values read has not changed for `stalled_after_s` seconds (polling every `poll_s`)."""
+    last: Hashable = None
+    since = time.monotonic()
+    started = since
+    while True:
+        value = read()
+        if done(value):
+            return value
+        mark = progress(value)
+        now = time.monotonic()
+        if mark != last:
+            last, since = mark, now
+        elif now - since > stalled_after_s:
+            raise Stalled(
+                f"{what} reported no progress for {stalled_after_s:g} s "
+                f"(after {now - started:.0f} s in all), stuck at {mark!r}: {value!r}"
+            )
+        time.sleep(poll_s)
+
+
+def run_progress(run: dict[str, Any]) -> Hashable:
+    """Return what moves while a calibration run advances: its status, its attempt and the
+    stage and fraction it reported."""
+    reported = run.get("progress") or {}
+    return run["status"], run.get("attempts"), reported.get("stage"), reported.get("fraction")
+
+
+def wait_for_run(
+    read: Callable[[], dict[str, Any]], *, stalled_after_s: float, poll_s: float = 0.1
+) -> dict[str, Any]:
+    """Return the calibration run `read` returns (its JSON) once it is no longer queued or
+    running; raise Stalled when its progress stays the same for `stalled_after_s` seconds."""
+    return wait_while_advancing(
+        read,
+        done=lambda run: run["status"] not in UNFINISHED,
+        progress=run_progress,
+        stalled_after_s=stalled_after_s,
+        poll_s=poll_s,
+        what="the calibration run",
+    )
+
+
+def task_progress(task: dict[str, Any]) -> Hashable:
+    """Return what moves while a task (or a path's following) advances: its status, phase
+    (when it has one) and the share done."""
+    return task["status"], task.get("phase"), task.get("progress")
+
+
+def wait_for_task(
+    read: Callable[[], dict[str, Any]], *, stalled_after_s: float, poll_s: float = 0.2
+) -> dict[str, Any]:
+    """Return the task `read` returns once it is no longer queued or running; raise Stalled
+    when its phase and progress stay the same for `stalled_after_s` seconds."""
+    return wait_while_advancing(
+        read,
+        done=lambda task: task["status"] not in UNFINISHED,
+        progress=task_progress,
+        stalled_after_s=stalled_after_s,
+        poll_s=poll_s,
+        what="the task",
+    )
