@@ -467,9 +467,12 @@ def _marker_at(
     if not np.any(ring):
         return None
     fg = np.median(win[inner if np.count_nonzero(inner) >= 3 else core_m.astype(bool)], axis=0)
-    # The background right behind the edge is what lies just outside the soft edge.
-    band = cv2.dilate(core_m, _BAND_OUT).astype(bool) & ~cv2.dilate(core_m, _BAND_IN).astype(bool)
-    bg = _local_background(win, band)
+    if area >= _LOCAL_BACKGROUND_AREA:
+        # The background right behind the edge is what lies just outside the soft edge.
+        band = cv2.dilate(core_m, _BAND_OUT).astype(bool)
+        bg = _local_background(win, band & ~cv2.dilate(core_m, _BAND_IN).astype(bool))
+    else:
+        bg = np.broadcast_to(np.median(win[ring], axis=0), win.shape)
     axis = fg - bg
     contrast2 = np.maximum(np.einsum("...c,...c->...", axis, axis), 1e-12)
     contrast = float(np.median(np.sqrt(contrast2[near])))
@@ -546,6 +549,12 @@ def _local_background(win: Array, ring: NDArray[np.bool_]) -> Array:
 # pixel's background: ~15 ring pixels of a 4 px wide ring, so a background of 2 grey levels of
 # noise is known to about half a level, while a floor tile's edge still shows.
 _RING_SMOOTH_PX = 2.0
+# Blobs of fewer pixels take the median of their surround as every edge pixel's background: the
+# robot's top disc seen small sits on a top a few pixels wider than itself, and a band 1.5-3.5 px
+# out reaches past it (the covered area then came out up to 33 % large against the calibrated
+# camera's prediction, where the median's is within 9 %); a small disc's centroid moves little
+# with its edge's background (0.03 px median error either way on one drive's 65 top discs).
+_LOCAL_BACKGROUND_AREA = 60
 _BAND_IN = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (3, 3))
 _BAND_OUT = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (7, 7))
 

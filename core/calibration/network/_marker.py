@@ -449,7 +449,8 @@ def _grow(
     window's problem is solved from the previous window's solution (its new stops placed by
     the odometry from the last corrected pose), and a camera enters when the stops it saw
     within the window first suffice, initialised from the corrected positions of its images
-    of the first marker (one height: a plane pose)."""
+    of one marker (one height: a plane pose), the first, or the one it saw most when it saw
+    the first at fewer than `min_poses` stops."""
     C, M = len(names), len(odometry.increments)
     eps = np.zeros((M, 3))
     state: dict[int, Array] = {}  # camera index -> its global parameters
@@ -462,18 +463,24 @@ def _grow(
         n = len(lay.stop)
         poses = compose_increments(sub.start, sub.increments + eps[:end])
         X, _ = lay.points(poses)
-        first = lay.first
+        which = np.arange(n) % lay.markers
         for k in range(C):
             if k in cams:
                 continue
+            # One marker's images (one height: a plane pose): the first marker's, or, when it
+            # was seen at too few stops (the detector refuses a disc partly hidden, and the top
+            # disc is the one the mast's rod crosses), the marker seen most.
+            counts = np.bincount(which[vis[k, :n]], minlength=lay.markers)
+            m = 0 if counts[0] >= min_poses else int(np.argmax(counts))
+            sel = which == m
             r = _init_camera(
                 names[k],
                 k,
                 intrinsics[k],
-                X[first, :2],
-                uv[k, :n][first],
-                vis[k, :n][first],
-                float(lay.height[0]),
+                X[sel, :2],
+                uv[k, :n][sel],
+                vis[k, :n][sel],
+                float(lay.height[m]),
                 min_poses,
                 min_spread,
             )
