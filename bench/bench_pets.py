@@ -171,13 +171,6 @@ def place_camera(truth: Truth, size: tuple[int, int] = SIZE) -> Placement:
     return Placement(K=K, T_world_camera=np.linalg.inv(T_camera_world), errors=err)
 
 
-def _network_camera(placement: Placement):
-    """Return the placed camera as core's NetworkCamera (768 x 576)."""
-    from core.localization import NetworkCamera
-
-    return NetworkCamera.from_pose(placement.K, None, placement.T_world_camera, SIZE, CAMERA)
-
-
 # ---------------------------------------------------------------------------------------------
 # Part 1: the detectors' boxes
 
@@ -242,7 +235,7 @@ def measure_detectors(frames: list[NDArray[np.uint8]], truth: Truth) -> list[Det
     """Return each detector's box score on the frames (frame k is ground-truth frame k + 1)
     and its frames per second per core (thread CPU time) at 768 x 576 and 640 x 480."""
     from core.localization.detect import PersonDetector
-    from core.localization.ssd_people import SsdPeopleDetector
+    from core.localization.ssd_people import SsdConfig, SsdPeopleDetector
 
     cv2.setNumThreads(1)
     results = []
@@ -253,31 +246,21 @@ def measure_detectors(frames: list[NDArray[np.uint8]], truth: Truth) -> list[Det
             detect(image)
         return len(images) / (time.thread_time() - start)
 
-    # dnn: the node's default (the whole frame at the camera's resolution, one pass), and the
-    # model zoo's own way beside it: the whole frame squashed to 300 x 300.
-    camera = _network_camera(place_camera(truth))
-
-    def squashed(dnn):
-        def detect(image):
-            h, w = image.shape[:2]
-            small = cv2.resize(image, (300, 300), interpolation=cv2.INTER_AREA)
-            found = dnn.detect_boxes(small)
-            return found.boxes * [w / 300.0, h / 300.0, w / 300.0, h / 300.0]
-
-        return detect
-
+    # dnn: the node's default (300 px tiles at the camera's resolution, 64 px overlap), and two
+    # cheaper candidates measured beside it: the whole frame in one pass (the model shrinks it
+    # to 300 x 300) and 2 rows of tiles at 768 x 576 (24 px overlap, seams joined).
     candidates = [
-        ("dnn (SSDLite-MobileNetV2)", lambda d: lambda im: d.detect_boxes(im, camera).boxes),
-        ("dnn, squashed to 300 x 300", squashed),
+        ("dnn (SSDLite-MobileNetV2, tiles)", SsdConfig()),
+        ("dnn, whole frame", SsdConfig(tile_px=max(SIZE))),
+        ("dnn, tiles with 24 px overlap", SsdConfig(tile_overlap_px=24)),
     ]
-    for name, make in candidates:
-        detect = make(SsdPeopleDetector())
-        boxes = {k + 1: detect(image) for k, image in enumerate(frames)}
+    for name, config in candidates:
+        dnn = SsdPeopleDetector(config=config)
+        boxes = {k + 1: dnn.detect_boxes(image).boxes for k, image in enumerate(frames)}
         speed = {}
         for size in (SIZE, (640, 480)):
             images = [cv2.resize(f, size, interpolation=cv2.INTER_AREA) for f in frames[:40]]
-            # The camera's view is for its own size; at 640 x 480 the whole frame is used.
-            speed[size] = timed(make(SsdPeopleDetector()), images)
+            speed[size] = timed(SsdPeopleDetector(config=config).detect_boxes, images)
         results.append(DetectorResult(name, score_boxes(truth, boxes), speed))
 
     # background: the node's learning (its first 30 frames teach the model), then the blobs.

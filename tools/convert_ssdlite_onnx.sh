@@ -25,7 +25,4 @@ venv/bin/python -m tf2onnx.convert --graphdef "$pb" \
     --inputs image_tensor:0 \
     --outputs num_detections:0,detection_scores:0,detection_boxes:0,detection_classes:0 \
     --opset 13 --output "$repo/core/localization/models/ssdlite_mobilenet_v2_coco.onnx"
-# Keep the feature extractor and box predictor only: the detector decodes the boxes itself and
-# gives the network whole frames at the camera's resolution (tools/cut_ssdlite_onnx.py).
-venv/bin/python "$repo/tools/cut_ssdlite_onnx.py" "$repo/core/localization/models/ssdlite_mobilenet_v2_coco.onnx"
 echo "onnx sha256: $(sha256sum "$repo/core/localization/models/ssdlite_mobilenet_v2_coco.onnx" | cut -d' ' -f1)"

@@ -1,21 +1,25 @@
 """People in real images as the boxes of a neural detector: SSDLite-MobileNetV2 trained on COCO,
-run on the CPU by onnxruntime over the whole image at the camera's own resolution.
+run on the CPU by onnxruntime, over tiles at the model's own scale.
 
 The model (core/localization/models/, converted once from TensorFlow's object detection model
-zoo, see its README) is its feature extractor and box predictor: convolutions only, so it takes
-an image of any size. The model zoo's graph resized every image to 300 x 300 pixels, where a
-768 x 576 frame shrinks 2.6 times and a person 30 m away, 70 pixels tall, reaches the network
-27 pixels tall, below the smallest boxes it was trained to find. Here the frame goes in whole,
-at its own resolution (or shrunk only as far as the camera's geometry allows, `frame_scale`),
-and the predictor's anchors are laid on each layer's grid at their pixel sizes of the 300 x 300
-training images (`anchor_boxes`): every person is seen whole, at the scale the network knows,
-in one pass (9 overlapping 300 px tiles before: 1.8 times the pixels and seams to mend).
+zoo, see its README) resizes whatever it is given to 300 x 300 pixels. A whole 768 x 576 frame
+would shrink 2.6 times, and a person 30 m away, 70 pixels tall, would reach the network 27
+pixels tall, below the smallest boxes it was trained to find. So the frame is cut into tiles of
+the model's input size (`tile_px`), overlapping by `tile_overlap_px`, and each tile is detected
+at full resolution: 9 tiles for 768 x 576, 6 for 640 x 480 (the bench measures the cost:
+bench/bench_pets.py).
 
-The boxes are decoded as the model zoo's graph decoded them (Faster R-CNN box coder, scale
-factors 10, 10, 5, 5), only the "person" class is kept, with a score of at least
-`score_threshold` and a box at least `min_person_px` tall, and overlapping boxes are merged by
-non-maximum suppression (`nms_iou`). A box that stops at the image's edge or a mask has that
-side marked cut: a cut bottom gives no floor position (core.localization.boxes.box_foot).
+A person on the seam between two tiles is seen whole by one of them when they are smaller
+than the overlap; the other tile gives a part of them, cut by its edge. Boxes from all tiles
+are merged by non-maximum suppression (`nms_iou`), a box cut by an inner tile edge is dropped
+when another box holds most of it (`CONTAINED`), and two parts of one person that no tile saw
+whole (one stops at a seam, the other starts there, over the same columns or rows) are joined
+into one box (`_join_parts`). A box that remains cut by a tile's edge keeps that side marked
+cut, like a box cut by the image's edge or a mask: a cut bottom gives no floor position
+(core.localization.boxes.box_foot).
+
+Only the COCO "person" class is kept, with a score of at least `score_threshold` and a box at
+least `min_person_px` tall.
 """
 
 from __future__ import annotations
@@ -31,51 +35,28 @@ import numpy as np
 from numpy.typing import NDArray
 
 from core.errors import InvalidInput
-from core.localization._projection import project_plane
 from core.localization.boxes import BOX_SIDES, box_foot
 from core.localization.cameras import NetworkCamera
-from core.localization.detect import BodyModel
 from core.localization.detections import FrameDetection
-from core.localization.ground import PointStatus, locate_monocular
 
 Array = NDArray[np.float64]
 
 # The model shipped with the project (package data of core.localization.models).
 DEFAULT_MODEL = "ssdlite_mobilenet_v2_coco.onnx"
-# The side (px) of the square images the model was trained on, which its anchors are sized for.
+# The model's input side (px): its graph resizes every image to this square.
 MODEL_INPUT_PX = 300
-# The model's anchors (the model zoo's ssdlite_mobilenet_v2_coco pipeline: six layers, scales
-# from 0.2 to 0.95 of the input's side, aspect ratios 1, 2, 1/2, 3, 1/3 and one more square
-# between a layer's scale and the next's; the lowest layer only a 0.1 square and 0.2 at 2 and
-# 1/2). The grid of layer k is the model's own; the boxes laid on it are these.
-ANCHOR_SCALES = (0.2, 0.35, 0.5, 0.65, 0.8, 0.95)
-ANCHOR_RATIOS = (1.0, 2.0, 0.5, 3.0, 1.0 / 3.0)
-# The Faster R-CNN box coder's scale factors (y, x, h, w) the model was trained with.
-BOX_CODER_SCALE = (10.0, 10.0, 5.0, 5.0)
-# The smallest anchor is 0.1 x 300 = 30 px square: a person shorter than that at the model's
-# input matches no anchor and is not looked for.
-SMALLEST_ANCHOR_PX = 30.0
-# The smallest person-shaped anchor is 0.2 x 300 / sqrt(0.5) = 85 px tall and 42 px wide
-# (aspect 0.5). A standing person's box (0.4 as wide as tall) inside it matches it at IoU 0.5,
-# the matcher's threshold in training, from 0.4 h^2 / (85 x 42) = 0.5: h = 67 px. A frame is
-# shrunk no further than to show its smallest person this tall.
-PERSON_ANCHOR_PX = 67.0
-# The person's class among the predictor's two (0 is the background).
-PERSON_CLASS = 1
-# A box side within this many pixels of an edge (the image's, a mask's) touches it: the
-# model's boxes are regressed to about a pixel, and a box that stops at an edge is clipped
+# The COCO label of a person in the TensorFlow model zoo's numbering (1-based, 1 = person).
+COCO_PERSON = 1
+# A box cut by a tile's inner edge is a part of someone another tile sees whole when at least
+# this fraction of its area lies in another kept box.
+CONTAINED = 0.6
+# A box side within this many pixels of an edge (the image's, a tile's, a mask's) touches it:
+# the model's boxes are regressed to about a pixel, and a box that stops at an edge is clipped
 # there exactly.
 EDGE_PX = 2.0
-# The model's tensors (the names TensorFlow's export gave them, kept by the converter): the
-# preprocessed image (RGB scaled to [-1, 1], NCHW), the box encodings (N, A, 1, 4), the class
-# logits (N, A, 2) and each layer's class predictor, whose shape gives the layer's grid.
-_INPUT = "Preprocessor/sub:0"
-_BOXES = "concat:0"
-_LOGITS = "concat_1:0"
-_LAYERS = [f"BoxPredictor_{k}/ClassPredictor/BiasAdd:0" for k in range(len(ANCHOR_SCALES))]
-# The least side (px) of an image the network takes (its deepest layers need a few pixels):
-# smaller images are padded to it.
-_LEAST_SIDE = MODEL_INPUT_PX
+# The model's graph names (TensorFlow's object detection API export, kept by the converter).
+_INPUT = "image_tensor:0"
+_OUTPUTS = ["num_detections:0", "detection_scores:0", "detection_boxes:0", "detection_classes:0"]
 
 
 @dataclass(frozen=True)
@@ -83,38 +64,40 @@ class SsdConfig:
     """The neural person detector's settings.
 
     score_threshold: the least score of a kept box (0.5, the model zoo's own threshold for
-    showing a detection); min_person_px: the least box height (px) of a person; nms_iou: the
-    IoU above which two boxes are one person (0.5, PASCAL's match criterion); threads:
-    onnxruntime's threads (1: a camera per core); person_px: with the camera's calibration, the
-    height (px, at the model's input) of the smallest person on the camera's floor that the
-    frame may be shrunk to (PERSON_ANCHOR_PX; `frame_scale`).
+    showing a detection); min_person_px: the least box height (px) of a person; tile_px: the
+    tiles' side (px; the model's input, so a person is seen at the camera's own resolution);
+    tile_overlap_px: the least overlap between neighbouring tiles (px; a person narrower and
+    shorter than this is whole in some tile); nms_iou: the IoU above which two boxes are one
+    person (0.5, PASCAL's match criterion); threads: onnxruntime's threads (1: a camera per
+    core).
     """
 
     score_threshold: float = 0.5
     min_person_px: float = 20.0
+    tile_px: int = MODEL_INPUT_PX
+    tile_overlap_px: int = 64
     nms_iou: float = 0.5
     threads: int = 1
-    person_px: float = PERSON_ANCHOR_PX
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.score_threshold <= 1.0:
             raise InvalidInput(f"score_threshold must lie in [0, 1], got {self.score_threshold}")
         if not self.min_person_px >= 0:
             raise InvalidInput(f"min_person_px must be >= 0, got {self.min_person_px}")
+        if self.tile_px < 32 or not 0 <= self.tile_overlap_px < self.tile_px // 2:
+            raise InvalidInput(
+                "tile_px must be >= 32 and tile_overlap_px in [0, tile_px / 2), got "
+                f"{self.tile_px} and {self.tile_overlap_px}"
+            )
         if not 0.0 < self.nms_iou <= 1.0 or self.threads < 1:
             raise InvalidInput("nms_iou must lie in (0, 1] and threads be >= 1")
-        if not SMALLEST_ANCHOR_PX <= self.person_px <= MODEL_INPUT_PX:
-            raise InvalidInput(
-                f"person_px must lie in [{SMALLEST_ANCHOR_PX:g}, {MODEL_INPUT_PX}], got "
-                f"{self.person_px}"
-            )
 
 
 @dataclass(frozen=True)
 class PersonBoxes:
     """N people's boxes: boxes (N, 4) x0, y0, x1, y1 px; scores (N,) in [0, 1]; cut (N, 4)
-    bool, the sides (BOX_SIDES order: bottom, top, left, right) that stop at the image's edge
-    or a mask rather than at the person."""
+    bool, the sides (BOX_SIDES order: bottom, top, left, right) that stop at the image's edge,
+    a mask or a tile's edge rather than at the person."""
 
     boxes: Array
     scores: Array
@@ -135,118 +118,13 @@ def default_model_path() -> Path:
     return path
 
 
-def anchor_boxes(grids: Sequence[tuple[int, int]], size: tuple[int, int]) -> Array:
-    """Return the anchors (A, 4) ymin, xmin, ymax, xmax px of the model's layers for an input
-    of `size` (width, height) px whose layers have the grids (rows, columns) `grids`, in the
-    predictor's order (layer, row, column, anchor).
-
-    As TensorFlow's SSD anchor generator lays them (ssd_anchor_generator, ANCHOR_SCALES and
-    ANCHOR_RATIOS): anchor centres at the middles of the grid's cells over the input; each box
-    of scale s and aspect ratio a (width over height) is s sqrt(a) by s / sqrt(a) times 300 px,
-    the side of the training images, so that an anchor keeps the size in pixels the network
-    learnt for it whatever the input's size. For a 300 x 300 input this is the model zoo's own
-    anchor set."""
-    width, height = size
-    scales = (*ANCHOR_SCALES, 1.0)
-    out = []
-    for k, (rows, cols) in enumerate(grids):
-        if k == 0:
-            shapes = [(0.1, 1.0), (scales[0], 2.0), (scales[0], 0.5)]
-        else:
-            shapes = [(scales[k], a) for a in ANCHOR_RATIOS]
-            shapes.append((float(np.sqrt(scales[k] * scales[k + 1])), 1.0))
-        s = np.array([p[0] for p in shapes])
-        a = np.array([p[1] for p in shapes])
-        h = MODEL_INPUT_PX * s / np.sqrt(a)
-        w = MODEL_INPUT_PX * s * np.sqrt(a)
-        cy = (np.arange(rows) + 0.5) * height / rows
-        cx = (np.arange(cols) + 0.5) * width / cols
-        y = np.broadcast_to(cy[:, None, None], (rows, cols, len(shapes))).ravel()
-        x = np.broadcast_to(cx[None, :, None], (rows, cols, len(shapes))).ravel()
-        hh = np.broadcast_to(h, (rows, cols, len(shapes))).ravel()
-        ww = np.broadcast_to(w, (rows, cols, len(shapes))).ravel()
-        out.append(np.stack([y - hh / 2, x - ww / 2, y + hh / 2, x + ww / 2], axis=1))
-    return np.concatenate(out) if out else np.zeros((0, 4))
-
-
-def decode_boxes(encodings: Array, anchors: Array) -> Array:
-    """Return the boxes (A, 4) x0, y0, x1, y1 px of the box encodings (A, 4) ty, tx, th, tw
-    relative to `anchors` (A, 4) ymin, xmin, ymax, xmax px: the Faster R-CNN box coder
-    (Ren et al. 2015, eq. 2) with BOX_CODER_SCALE, as the model zoo's graph decodes them."""
-    ha = anchors[:, 2] - anchors[:, 0]
-    wa = anchors[:, 3] - anchors[:, 1]
-    yc = 0.5 * (anchors[:, 0] + anchors[:, 2]) + encodings[:, 0] / BOX_CODER_SCALE[0] * ha
-    xc = 0.5 * (anchors[:, 1] + anchors[:, 3]) + encodings[:, 1] / BOX_CODER_SCALE[1] * wa
-    h = np.exp(encodings[:, 2] / BOX_CODER_SCALE[2]) * ha
-    w = np.exp(encodings[:, 3] / BOX_CODER_SCALE[3]) * wa
-    return np.stack([xc - w / 2, yc - h / 2, xc + w / 2, yc + h / 2], axis=1)
-
-
-# Columns sampled per image row to bound a person's image height there.
-_COLUMNS = 17
-
-
-def person_heights(camera: NetworkCamera, body: BodyModel | None = None) -> tuple[Array, Array]:
-    """Return, per image row v (H,), the least and the greatest image height (px) of a standing
-    person whose feet are on that row: a short one (body.height - 2 height_sigma) anywhere
-    along the row, a tall one (+ 2 height_sigma); NaN where the row's rays miss the floor in
-    front of the camera (above the horizon)."""
-    if camera.image_size is None:
-        raise InvalidInput("the camera's image size is needed to know its people's sizes")
-    mdl = body or BodyModel()
-    width, height = camera.image_size
-    u = np.linspace(0.0, width - 1.0, _COLUMNS)
-    v = np.arange(height, dtype=np.float64)
-    feet = np.stack(np.broadcast_arrays(u[None, :], v[:, None]), axis=-1).reshape(-1, 2)
-    floor = locate_monocular(camera, feet, 0.0)
-    ok = floor.status == PointStatus.OK
-    out = []
-    for stature in (mdl.height - 2.0 * mdl.height_sigma, mdl.height + 2.0 * mdl.height_sigma):
-        h = np.full(feet.shape[0], np.nan)
-        if ok.any():
-            head = project_plane(camera, floor.point[ok, :2], stature)
-            good = head.depth > 0
-            h[np.flatnonzero(ok)[good]] = feet[ok, 1][good] - head.pixels[good, 1]
-        out.append(h.reshape(height, _COLUMNS))
-    with np.errstate(all="ignore"):
-        short = np.where(np.isnan(out[0]).all(axis=1), np.nan, np.nanmin(out[0], axis=1))
-        tall = np.where(np.isnan(out[1]).all(axis=1), np.nan, np.nanmax(out[1], axis=1))
-    return short, tall
-
-
-@dataclass(frozen=True)
-class FrameView:
-    """What of a camera's frame the detector looks at: rows [top, height) px of the frame,
-    shrunk by `scale` (<= 1)."""
-
-    top: int
-    scale: float
-
-
-def frame_scale(
-    camera: NetworkCamera, config: SsdConfig | None = None, body: BodyModel | None = None
-) -> FrameView:
-    """Return the part of a placed camera's frames worth detecting in, and by how much it may
-    be shrunk.
-
-    A row of feet is worth looking at when a tall person standing there (person_heights) is at
-    least the model's smallest anchor (SMALLEST_ANCHOR_PX) and `config.min_person_px` tall;
-    the rows above the highest head of those people hold nobody the detector could find. The
-    frame is shrunk by s = min(1, person_px / h) for the shortest person h on those rows, so
-    that nobody becomes smaller than the smallest person-shaped anchor matches (never
-    enlarged). A ceiling camera over a room, whose people are all hundreds of pixels tall,
-    is looked at at a fraction of its pixels; a camera over a campus, whose far people are
-    barely `person_px` tall, at its full resolution."""
-    cfg = config or SsdConfig()
-    short, tall = person_heights(camera, body)
-    smallest = max(SMALLEST_ANCHOR_PX, cfg.min_person_px)
-    rows = np.flatnonzero(np.isfinite(short) & np.isfinite(tall) & (tall >= smallest))
-    if not rows.size:
-        return FrameView(top=0, scale=1.0)
-    head = rows - tall[rows] - EDGE_PX
-    top = int(max(0.0, np.floor(np.min(head))))
-    scale = float(min(1.0, cfg.person_px / np.min(short[rows])))
-    return FrameView(top=top, scale=scale)
+def tile_origins(length: int, tile: int, overlap: int) -> list[int]:
+    """Return the first pixel of each tile covering `length` pixels with tiles of `tile`
+    pixels that overlap by at least `overlap`, spread evenly (one tile when it fits)."""
+    if length <= tile:
+        return [0]
+    n = int(np.ceil((length - tile) / (tile - overlap))) + 1
+    return [round(i * (length - tile) / (n - 1)) for i in range(n)]
 
 
 def box_cuts(
@@ -317,7 +195,7 @@ class SsdPeopleDetector:
         options = ort.SessionOptions()
         options.intra_op_num_threads = self.config.threads
         options.inter_op_num_threads = 1
-        options.log_severity_level = 3
+        options.log_severity_level = 3  # the converted graph's unused outputs are not news
         source = str(default_model_path()) if model is None else model
         if isinstance(source, os.PathLike):
             source = os.fspath(source)
@@ -328,90 +206,64 @@ class SsdPeopleDetector:
         except Exception as exc:  # onnxruntime raises its own untyped errors
             raise InvalidInput(f"not a usable ONNX person detector model: {exc}") from exc
         names = {o.name for o in self._session.get_outputs()}
-        wanted = {_BOXES, _LOGITS, *_LAYERS}
-        if _INPUT not in {i.name for i in self._session.get_inputs()} or not names >= wanted:
+        if _INPUT not in {i.name for i in self._session.get_inputs()} or not names >= set(_OUTPUTS):
             raise InvalidInput(
-                f"the model must take {_INPUT} and give {', '.join(sorted(wanted))}: "
-                "SSDLite-MobileNetV2's feature extractor and box predictor "
-                "(core/localization/models/README.md)"
+                f"the model must take {_INPUT} and give {', '.join(_OUTPUTS)} (a TensorFlow "
+                "object detection API export)"
             )
         self.mask = mask
-        self._anchors: dict[tuple[int, int], Array] = {}
-        self._view: tuple[NetworkCamera, FrameView] | None = None
 
-    def view(self, camera: NetworkCamera | None, size: tuple[int, int]) -> FrameView:
-        """Return what of a frame of `size` (width, height) this detector looks at: for a
-        placed camera of that size `frame_scale` (kept: worked out once), else all of it at
-        its own resolution."""
-        if camera is None or camera.image_size != tuple(size):
-            return FrameView(top=0, scale=1.0)
-        if self._view is None or self._view[0] is not camera:
-            self._view = (camera, frame_scale(camera, self.config))
-        return self._view[1]
-
-    def _network_boxes(self, rgb: NDArray[np.uint8]) -> tuple[Array, Array]:
-        """Return the person boxes (M, 4) x0, y0, x1, y1 px in an RGB image and their scores
-        (M,), scored at least score_threshold, before non-maximum suppression."""
-        h, w = rgb.shape[:2]
-        x = rgb.astype(np.float32) * np.float32(2.0 / 255.0) - np.float32(1.0)
-        ph, pw = max(h, _LEAST_SIDE), max(w, _LEAST_SIDE)
-        if (ph, pw) != (h, w):
-            # Mid-grey (0 after scaling) beyond the image: nothing there for the model.
-            x = np.pad(x, ((0, ph - h), (0, pw - w), (0, 0)))
-        tensor = np.ascontiguousarray(x.transpose(2, 0, 1)[None])
-        encodings, logits, *layers = self._session.run(
-            [_BOXES, _LOGITS, *_LAYERS], {_INPUT: tensor}
+    def _detect_tile(self, rgb: NDArray[np.uint8]) -> tuple[Array, Array]:
+        """Return the person boxes (M, 4) px in the tile and their scores (M,)."""
+        count, scores, boxes, classes = self._session.run(
+            _OUTPUTS, {_INPUT: np.ascontiguousarray(rgb[None])}
         )
-        grids = tuple((int(a.shape[2]), int(a.shape[3])) for a in layers)
-        anchors = self._anchors.get((pw, ph))
-        if anchors is None or anchors.shape[0] != encodings.shape[1]:
-            anchors = anchor_boxes(grids, (pw, ph))
-            if anchors.shape[0] != encodings.shape[1]:
-                raise InvalidInput(
-                    f"the model gave {encodings.shape[1]} boxes for {len(anchors)} anchors: "
-                    "not SSDLite-MobileNetV2's box predictor"
-                )
-            self._anchors[(pw, ph)] = anchors
-        score = 1.0 / (1.0 + np.exp(-logits[0, :, PERSON_CLASS].astype(np.float64)))
-        keep = np.flatnonzero(score >= self.config.score_threshold)
-        boxes = decode_boxes(encodings[0, keep, 0].astype(np.float64), anchors[keep])
-        # Clipped to the image, as the model zoo's graph clips them to its window.
-        boxes = np.clip(boxes, 0.0, [w, h, w, h])
-        return boxes, score[keep]
+        n = int(count[0])
+        keep = (classes[0, :n] == COCO_PERSON) & (scores[0, :n] >= self.config.score_threshold)
+        h, w = rgb.shape[:2]
+        # The model gives (ymin, xmin, ymax, xmax) as fractions of the tile.
+        b = boxes[0, :n][keep][:, [1, 0, 3, 2]].astype(np.float64) * [w, h, w, h]
+        return b, scores[0, :n][keep].astype(np.float64)
 
-    def detect_boxes(
-        self, image: NDArray[np.uint8], camera: NetworkCamera | None = None
-    ) -> PersonBoxes:
-        """Return the people in a BGR image (H, W, 3) as boxes, scores and cut sides; with the
-        camera's calibration (`camera`), in the part of the frame and at the scale its
-        geometry allows (`frame_scale`)."""
+    def detect_boxes(self, image: NDArray[np.uint8]) -> PersonBoxes:
+        """Return the people in a BGR image (H, W, 3) as boxes, scores and cut sides."""
         img = np.asarray(image)
         if img.ndim != 3 or img.shape[2] != 3 or img.dtype != np.uint8:
             raise InvalidInput(f"image must be BGR uint8 (H, W, 3), got {img.dtype} {img.shape}")
         height, width = img.shape[:2]
+        rgb = img[:, :, ::-1]
         cfg = self.config
-        view = self.view(camera, (width, height))
-        part: NDArray[np.uint8] = img[view.top :, :, ::-1]
-        if view.scale < 1.0:
-            size = (
-                max(1, round(part.shape[1] * view.scale)),
-                max(1, round(part.shape[0] * view.scale)),
-            )
-            part = np.asarray(
-                cv2.resize(np.ascontiguousarray(part), size, interpolation=cv2.INTER_AREA), np.uint8
-            )
-            sx, sy = width / size[0], (height - view.top) / size[1]
-        else:
-            sx = sy = 1.0
-        boxes, score = self._network_boxes(part)
-        boxes = boxes * [sx, sy, sx, sy] + [0.0, view.top, 0.0, view.top]
-        tall = (boxes[:, 3] - boxes[:, 1] >= max(cfg.min_person_px, 1e-9)) & (
-            boxes[:, 2] > boxes[:, 0]
-        )
-        boxes, score = boxes[tall], score[tall]
+        found, scores, seams = [], [], []
+        for y0 in tile_origins(height, cfg.tile_px, cfg.tile_overlap_px):
+            for x0 in tile_origins(width, cfg.tile_px, cfg.tile_overlap_px):
+                x1, y1 = min(width, x0 + cfg.tile_px), min(height, y0 + cfg.tile_px)
+                b, s = self._detect_tile(rgb[y0:y1, x0:x1])
+                b += [x0, y0, x0, y0]
+                # The sides that stop at this tile's inner edges (not the image's).
+                seam = np.zeros((b.shape[0], len(BOX_SIDES)), dtype=bool)
+                seam[:, 0] = (y1 < height) & (b[:, 3] >= y1 - 1 - EDGE_PX)
+                seam[:, 1] = (y0 > 0) & (b[:, 1] <= y0 + EDGE_PX)
+                seam[:, 2] = (x0 > 0) & (b[:, 0] <= x0 + EDGE_PX)
+                seam[:, 3] = (x1 < width) & (b[:, 2] >= x1 - 1 - EDGE_PX)
+                found.append(b)
+                scores.append(s)
+                seams.append(seam)
+        boxes = np.concatenate(found)
+        score = np.concatenate(scores)
+        seam = np.concatenate(seams)
+        tall = boxes[:, 3] - boxes[:, 1] >= cfg.min_person_px
+        boxes, score, seam = boxes[tall], score[tall], seam[tall]
         keep = _nms(boxes, score, cfg.nms_iou)
-        boxes, score = boxes[keep], score[keep]
-        cut = box_cuts(boxes, (width, height), self.mask)
+        boxes, score, seam = boxes[keep], score[keep], seam[keep]
+        part = seam.any(axis=1)
+        if part.any():
+            inside = _intersection(boxes, boxes) / _area(boxes)[:, None]
+            np.fill_diagonal(inside, 0.0)
+            # A part of someone is dropped when a box not cut by a seam holds most of it.
+            held = (inside[:, ~part] >= CONTAINED).any(axis=1)
+            boxes, score, seam = boxes[~(part & held)], score[~(part & held)], seam[~(part & held)]
+            boxes, score, seam = _join_parts(boxes, score, seam)
+        cut = box_cuts(boxes, (width, height), self.mask) | seam
         return PersonBoxes(boxes=boxes, scores=score, cut=cut)
 
     def detect_people(
@@ -423,9 +275,9 @@ class SsdPeopleDetector:
     ) -> list[FrameDetection]:
         """Return a "person" detection (the foot point, height 0) for each box whose bottom is
         not cut (core.localization.boxes.box_foot); a cut bottom gives no floor position. The
-        robot's pixels change nothing: the boxes are people, not blobs that could be the
-        robot's body."""
-        found = self.detect_boxes(image, camera)
+        camera and the robot's pixels change nothing: the boxes are people, not blobs that
+        could be the robot's body."""
+        found = self.detect_boxes(image)
         if not len(found):
             return []
         foot = box_foot(found.boxes, found.cut)
@@ -439,6 +291,58 @@ class SsdPeopleDetector:
                 )
             )
         return out
+
+
+def _join_parts(
+    boxes: Array, scores: Array, seam: NDArray[np.bool_]
+) -> tuple[Array, Array, NDArray[np.bool_]]:
+    """Return the boxes with the two parts of a person cut by a seam joined into one.
+
+    A box whose bottom (right side) stops at a tile's inner edge and a box whose top (left
+    side) starts at the next tile's inner edge, overlapping across the seam and, along it, by
+    at least half of their extents (one-dimensional IoU >= 0.5), are one person seen by two
+    tiles: their union, with the better score, cut where either is cut elsewhere."""
+    b, s, c = boxes.copy(), scores.copy(), seam.copy()
+    alive = np.ones(len(b), dtype=bool)
+    bottom, top, left, right = (BOX_SIDES.index(n) for n in ("bottom", "top", "left", "right"))
+    for first_side, second_side, axis in ((bottom, top, 1), (right, left, 0)):
+        along = 1 - axis  # the coordinate along the seam
+        for i in np.flatnonzero(alive & c[:, first_side]):
+            j_all = np.flatnonzero(alive & c[:, second_side])
+            j_all = j_all[
+                (b[j_all, axis] > b[i, axis]) & (b[j_all, axis] < b[i, axis + 2])
+            ]  # starts inside the first part: the tiles overlap there
+            if not j_all.size:
+                continue
+            lo = np.maximum(b[i, along], b[j_all, along])
+            hi = np.minimum(b[i, along + 2], b[j_all, along + 2])
+            span = np.maximum(b[i, along + 2], b[j_all, along + 2]) - np.minimum(
+                b[i, along], b[j_all, along]
+            )
+            iou = np.maximum(hi - lo, 0.0) / np.maximum(span, 1e-9)
+            k = int(np.argmax(iou))
+            if iou[k] < 0.5:
+                continue
+            j = int(j_all[k])
+            b[i] = [min(b[i, 0], b[j, 0]), min(b[i, 1], b[j, 1]), max(b[i, 2], b[j, 2]),
+                    max(b[i, 3], b[j, 3])]  # fmt: skip
+            s[i] = max(s[i], s[j])
+            joined = c[i] | c[j]
+            joined[first_side] = c[j, first_side]
+            joined[second_side] = c[i, second_side]
+            c[i] = joined
+            alive[j] = False
+    return b[alive], s[alive], c[alive]
+
+
+def _area(b: Array) -> Array:
+    return np.maximum(b[:, 2] - b[:, 0], 0.0) * np.maximum(b[:, 3] - b[:, 1], 0.0)
+
+
+def _intersection(a: Array, b: Array) -> Array:
+    w = np.minimum(a[:, None, 2], b[None, :, 2]) - np.maximum(a[:, None, 0], b[None, :, 0])
+    h = np.minimum(a[:, None, 3], b[None, :, 3]) - np.maximum(a[:, None, 1], b[None, :, 1])
+    return np.maximum(w, 0.0) * np.maximum(h, 0.0)
 
 
 def _nms(boxes: Array, scores: Array, iou: float) -> NDArray[np.int64]:

@@ -1,4 +1,4 @@
-"""The neural person detector (core.localization.ssd_people): anchors, cut sides, and its boxes
+"""The neural person detector (core.localization.ssd_people): tiling, cut sides, and its boxes
 on real footage (PETS 2009 S2.L1, scored against the ground truth's boxes)."""
 
 from __future__ import annotations
@@ -12,7 +12,6 @@ import pytest
 from bench import bench_pets
 from core.errors import InvalidInput
 from core.localization.boxes import BOX_SIDES
-from core.localization.cameras import NetworkCamera
 from core.localization.detect import PersonDetector
 from core.localization.detections import (
     BackgroundPeople,
@@ -22,12 +21,10 @@ from core.localization.detections import (
 from core.localization.ssd_people import (
     SsdConfig,
     SsdPeopleDetector,
-    anchor_boxes,
+    _join_parts,
     box_cuts,
-    decode_boxes,
     default_model_path,
-    frame_scale,
-    person_heights,
+    tile_origins,
 )
 
 BOTTOM, TOP, LEFT, RIGHT = (BOX_SIDES.index(s) for s in ("bottom", "top", "left", "right"))
@@ -53,63 +50,16 @@ def detector() -> SsdPeopleDetector:
     return SsdPeopleDetector()
 
 
-def test_anchors_are_the_model_zoos_and_boxes_decode_as_its_graph_did():
-    # For a 300 x 300 input the model zoo's graph held 1,917 anchors (ymin, xmin, ymax, xmax as
-    # fractions of the image); these are its first three and its last, read from the original
-    # graph's constant (Postprocessor/ExpandDims) to 6 digits.
-    grids = [(19, 19), (10, 10), (5, 5), (3, 3), (2, 2), (1, 1)]
-    anchors = anchor_boxes(grids, (300, 300)) / 300.0
-    assert anchors.shape == (1917, 4)
-    zoo = np.array(
-        [
-            [-0.0236842, -0.0236842, 0.0763158, 0.0763158],
-            [-0.0443949, -0.1151056, 0.0970265, 0.1677372],
-            [-0.1151056, -0.0443949, 0.1677372, 0.0970265],
-        ]
-    )
-    assert np.allclose(anchors[:3], zoo, atol=1e-6)
-    assert np.allclose(anchors[-1], [0.0126603, 0.0126603, 0.9873397, 0.9873397], atol=1e-6)
-    # Layer grids of another size: the same boxes in pixels, the centres on the new grid.
-    big = anchor_boxes([(36, 48)], (768, 576))
-    assert big.shape == (36 * 48 * 3, 4)
-    assert np.allclose(big[0], [8 - 15, 8 - 15, 8 + 15, 8 + 15])  # a 30 px square at (8, 8)
-    # The Faster R-CNN coder: encodings of a known box relative to its anchor decode back.
-    anchor = np.array([[100.0, 50.0, 185.0, 92.0]])  # ymin, xmin, ymax, xmax
-    box = np.array([60.0, 110.0, 80.0, 170.0])  # x0, y0, x1, y1
-    ha, wa = 85.0, 42.0
-    t = [
-        10 * ((110 + 170) / 2 - (100 + 185) / 2) / ha,
-        10 * ((60 + 80) / 2 - (50 + 92) / 2) / wa,
-        5 * np.log(60 / ha),
-        5 * np.log(20 / wa),
-    ]
-    assert np.allclose(decode_boxes(np.array([t]), anchor)[0], box)
-
-
-def test_the_frame_is_shrunk_only_as_far_as_the_cameras_smallest_person_allows():
-    # A camera 2.6 m above a room looking down at 45 degrees, f = 500 px at 640 x 480: its
-    # people are all much taller than the smallest person-shaped anchor (67 px), so the frame
-    # is shrunk; the PETS camera's far people are barely that tall, so it is not.
-    pitch = np.deg2rad(45.0)
-    # Columns: the camera's x (right), y (down in the image) and z (its axis) in the world.
-    c, s = np.cos(pitch), np.sin(pitch)
-    R_wc = np.array([[1.0, 0.0, 0.0], [0.0, -s, c], [0.0, -c, -s]])
-    K = np.array([[500.0, 0.0, 319.5], [0.0, 500.0, 239.5], [0.0, 0.0, 1.0]])
-    T = np.eye(4)
-    T[:3, :3] = R_wc
-    T[:3, 3] = [0.0, -1.0, 2.6]
-    room = NetworkCamera.from_pose(K, None, T, (640, 480))
-    short, tall = person_heights(room)
-    view = frame_scale(room)
-    seen = np.isfinite(short)
-    # The shortest person on the rows looked at is shrunk to exactly 67 px, nobody below.
-    assert 0.2 < view.scale < 1.0
-    assert np.nanmin(short[seen & (tall >= 30)]) * view.scale == pytest.approx(67.0)
-    truth = bench_pets.load_truth() if bench_pets.truth_path().is_file() else None
-    if truth is not None:
-        placed = bench_pets.place_camera(truth)
-        pets = NetworkCamera.from_pose(placed.K, None, placed.T_world_camera, bench_pets.SIZE)
-        assert frame_scale(pets).scale == 1.0
+def test_tiles_cover_the_image_with_the_least_overlap():
+    for length, tile, overlap in [(768, 300, 64), (640, 300, 64), (576, 300, 64), (1920, 300, 0)]:
+        starts = np.array(tile_origins(length, tile, overlap))
+        assert starts[0] == 0 and starts[-1] + tile == length
+        steps = np.diff(starts)
+        assert np.all(tile - steps >= overlap)  # every seam overlaps by at least `overlap`
+        # One tile fewer could not keep that overlap.
+        n = len(starts)
+        assert n == 1 or (n - 2) * (tile - overlap) + tile < length
+    assert tile_origins(200, 300, 64) == [0]
 
 
 def test_sides_are_cut_by_the_image_edge_and_by_a_mask():
@@ -135,11 +85,38 @@ def test_sides_are_cut_by_the_image_edge_and_by_a_mask():
         box_cuts(boxes, size, np.zeros((10, 10), dtype=bool))
 
 
+def test_the_parts_of_a_person_on_a_seam_are_joined():
+    boxes = np.array(
+        [
+            [100.0, 50.0, 130.0, 120.0],  # upper tile: stops at its bottom edge (y 120)
+            [102.0, 110.0, 131.0, 170.0],  # lower tile (from y 110): the same person's legs
+            [300.0, 60.0, 330.0, 120.0],  # stops at the seam too, but nobody continues it
+            [400.0, 110.0, 420.0, 160.0],  # starts at the seam, far from any upper part
+            [200.0, 40.0, 240.0, 90.0],  # stops at a vertical seam (x 240) ...
+            [232.0, 42.0, 260.0, 92.0],  # ... and goes on in the next tile (from x 232)
+        ]
+    )
+    seam = np.zeros((6, 4), dtype=bool)
+    seam[[0, 2], BOTTOM] = True
+    seam[[1, 3], TOP] = True
+    seam[4, RIGHT] = True
+    seam[5, LEFT] = True
+    seam[1, LEFT] = True  # the legs also touch a vertical seam: kept on the joined box
+    scores = np.array([0.6, 0.8, 0.7, 0.5, 0.9, 0.55])
+    b, s, c = _join_parts(boxes, scores, seam)
+    assert len(b) == 4
+    assert b[0].tolist() == [100.0, 50.0, 131.0, 170.0] and s[0] == 0.8
+    assert c[0].tolist() == [False, False, True, False]  # its bottom is the person's feet
+    assert b[1].tolist() == boxes[2].tolist() and c[1, BOTTOM]  # no feet: not measured
+    assert b[2].tolist() == boxes[3].tolist()
+    assert b[3].tolist() == [200.0, 40.0, 260.0, 92.0] and not c[3].any()
+
+
 def test_settings_and_model_are_checked():
     with pytest.raises(InvalidInput):
         SsdConfig(score_threshold=1.5)
     with pytest.raises(InvalidInput):
-        SsdConfig(person_px=10.0)
+        SsdConfig(tile_px=300, tile_overlap_px=200)
     with pytest.raises(InvalidInput, match="ONNX"):
         SsdPeopleDetector(b"not a model")
     # The installed model, given as bytes, is the same detector as by default.
