@@ -586,9 +586,8 @@ def run_tracking(
     if every_frame:
         from core.localization.ssd_people import SsdPeopleDetector
 
-        camera = _network_camera(placement)
         dnn = SsdPeopleDetector()
-        posted = [dnn.detect_boxes(image, camera) for image in read_frames(clip, frames)]
+        posted = [dnn.detect_boxes(image) for image in read_frames(clip, frames)]
     run = track_through_service(clip, placement, workdir, posted)
     return score_tracking(run, truth, frames), run, placement
 

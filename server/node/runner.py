@@ -395,9 +395,7 @@ class Node:
             if isinstance(run.people, SsdPeopleDetector):
                 # The boxes go to the service whole: it measures their feet on the body's
                 # axis with the camera's geometry and floor plan, as for any detector's boxes.
-                kept += box_observations(
-                    run.camera_id, t, run.people.detect_boxes(image, run.network)
-                )
+                kept += box_observations(run.camera_id, t, run.people.detect_boxes(image))
             if kept:
                 self.uploader.push(kept)
                 run.detections += len(kept)
