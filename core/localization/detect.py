@@ -5,41 +5,12 @@ saturation and value above their floors) and the connected blobs are tried from 
 the smallest: the first whose area, position, fill (no hole), solidity and elliptic outline are
 those of a disc's image is the marker, so a larger red thing (a signpost's rings on a wall, a
 ring being no disc) cannot hide it. Its centre is the centroid of a *soft* membership weight
-over a window around the blob: each pixel's colour is projected on the axis from its
-background colour bg to the marker colour (median of the blob's core),
-w = clip(<c - bg, fg - bg> / |fg - bg|^2, 0, 1). On an anti-aliased edge a pixel's colour is
-the area-weighted mix of disc and what lies right behind it, so w is the covered fraction and
-the weighted centroid is the area centroid to sub-pixel accuracy, where a binary mask would
-quantise it to the pixel grid. What lies behind an edge pixel is what lies just outside it: bg
-is the colour of a band 1.5-3.5 px outside the blob, smoothed along it and carried inwards
-from its nearest point (`_local_background`). The robot's disc is seen half against the floor
-and half against its own dark base; one colour for the whole surround (its median, as before)
-took the edge over the base for less covered than it is, and moved the centroid of the mast's
-8 cm disc 0.08-0.17 px (RMS over the images of 300 px or more of three drives; 0.04-0.05 px
-so, measured against the twin's area centroid). Blobs under `_LOCAL_BACKGROUND_AREA` keep the
-surround's median. That centroid is the area centroid of the disc's *distorted* image,
-which is neither the image of the disc's centre nor the distorted centre of its ideal ellipse
-(perspective and the lens's curvature, 0.1-0.6 px apart for that disc):
-core.calibration.network's `disc_centre_offset` predicts it.
-
-Partly hidden discs. A disc cut by a table's edge, a counter or the mast's own rod across it
-passes the shape tests (it is convex and elliptic enough) while its centroid is that of what
-shows, up to a radius off. Its outline says so: the half-coverage outline of the weights of a
-whole disc is an ellipse to the weights' noise, a cut one has a chord or a notch that no
-ellipse follows. The outline is traced (4x upsampled), an ellipse fitted to it
-(cv2.fitEllipseDirect), and its largest mean distance from it over twelve 30-degree sectors is
-`MarkerDetection.outline_residual`; past `max_outline_residual` (0.2 px) a blob of
-`_LOCAL_BACKGROUND_AREA` px or more is refused. Smaller blobs are not judged by it: their edge
-takes the surround's median for background, and a whole top disc of a few pixels across then
-strays as far (one of 20 px was refused in tests/core/localization/test_target_detection.py);
-the network calibration's area test still drops the small ones cut by much.
-Measured on three calibration drives of the twin (seeds 11-13, 523 detections scored against
-the area centroid of the disc's image): those within 3 standard deviations of it 0.07 px
-median, 95th percentile 0.21-0.26 px (42 of 455 refused, 9 %); those more than 5 off (58,
-partly hidden by furniture or the mast's rod) 0.13-1.9 px, 56 of them refused (figures for
-the test on every blob; below, the floor on the blob's area). With the floor, 29 of the 523
-are refused, and 36 of the 494 kept are more than 5 standard deviations off (small top discs
-cut by the mast's rod, left to the calibration's area test), where 83 of 523 were.
+over a window around the blob: each pixel's colour is projected on the axis from the local
+background colour (median of a ring around the blob) to the marker colour (median of the blob's
+core), w = clip(<c - bg, fg - bg> / |fg - bg|^2, 0, 1). On an anti-aliased edge a pixel's
+colour is the area-weighted mix of disc and background, so w is the covered fraction and the
+weighted centroid is the area centroid to sub-pixel accuracy, where a binary mask would quantise
+it to the pixel grid.
 
 Given the camera's `background` (its view of the empty home, as the person detector learns it),
 pixels already of the marker's colour there (a signpost's rings, a red cushion), grown by two
@@ -135,12 +106,6 @@ class MarkerDetectorConfig:
     median of whole discs of its area is taken as partly hidden and its covariance grown by
     the bias (module docstring; 0, the default, turns it off). With 3: 2-4 % of whole blobs,
     and 92 % of the cut blobs 0.2 px or more off (99 in six drives).
-    max_outline_residual: pixels; a blob whose half-coverage outline strays further than this
-    from an ellipse (`MarkerDetection.outline_residual`) is taken as partly hidden and refused
-    (module docstring, "Partly hidden discs"; None turns the test off; blobs under 60 px are
-    not judged). On every blob, 0.2 px refuses 9 % of the twin's detections within 3 standard
-    deviations of the truth (image noise 2 grey levels) and 97 % of those more than 5 off; a
-    noisier camera's whole discs stray further, and may need more.
     radius: the marker disc's radius (m), when known; with the camera and the marker's height
     given to `detect_marker`, a blob must then have the size and shape of the disc's image at
     its place: along each axis of the predicted ellipse, its semi-axis b and the predicted a
@@ -176,7 +141,6 @@ class MarkerDetectorConfig:
     pixel_sigma: float | None = None
     min_sigma: float = 0.04
     asymmetry_margin: float = 0.0
-    max_outline_residual: float | None = 0.2
     radius: float | None = None
     size_factor: float = 1.25
     size_margin: float = 1.0
@@ -194,10 +158,6 @@ class MarkerDetectorConfig:
             raise InvalidInput("size_factor must be >= 1")
         if not (math.isfinite(self.size_margin) and self.size_margin >= 0):
             raise InvalidInput("size_margin must be >= 0 pixels")
-        if self.max_outline_residual is not None and not (
-            math.isfinite(self.max_outline_residual) and self.max_outline_residual > 0
-        ):
-            raise InvalidInput("max_outline_residual must be > 0 pixels, or None (off)")
         if not (math.isfinite(self.asymmetry_margin) and self.asymmetry_margin >= 0):
             raise InvalidInput("asymmetry_margin must be >= 0 (0: off)")
         if not 0 < self.min_area <= self.max_area:
@@ -213,10 +173,9 @@ class MarkerDetection:
 
     pixel (2,): sub-pixel centre (distorted image pixels); cov (2, 2) px^2: its covariance;
     area: covered area in pixels (sum of the soft weights); contrast: |fg - bg| in grey levels
-    (colour distance, median over the blob's surround); weight_sigma: the per-pixel noise of
-    the weights the covariance used; asymmetry: the blob's largest skewness (module docstring;
-    0 for a whole disc's image, but for its pixels' noise); outline_residual: pixels, how far
-    the blob's outline strays from an ellipse (module docstring, "Partly hidden discs").
+    (colour distance); weight_sigma: the per-pixel noise of the weights the covariance used;
+    asymmetry: the blob's largest skewness (module docstring; 0 for a whole disc's image, but
+    for its pixels' noise).
     """
 
     pixel: Array
@@ -225,7 +184,6 @@ class MarkerDetection:
     contrast: float
     weight_sigma: float
     asymmetry: float = 0.0
-    outline_residual: float = 0.0
 
     @property
     def std(self) -> Array:
@@ -475,23 +433,17 @@ def _marker_at(
     if not np.any(ring):
         return None
     fg = np.median(win[inner if np.count_nonzero(inner) >= 3 else core_m.astype(bool)], axis=0)
-    if area >= _LOCAL_BACKGROUND_AREA:
-        # The background right behind the edge is what lies just outside the soft edge.
-        band = cv2.dilate(core_m, _BAND_OUT).astype(bool)
-        bg = _local_background(win, band & ~cv2.dilate(core_m, _BAND_IN).astype(bool))
-    else:
-        bg = np.broadcast_to(np.median(win[ring], axis=0), win.shape)
+    bg = np.median(win[ring], axis=0)
     axis = fg - bg
-    contrast2 = np.maximum(np.einsum("...c,...c->...", axis, axis), 1e-12)
-    contrast = float(np.median(np.sqrt(contrast2[near])))
+    contrast = float(np.linalg.norm(axis))
     if contrast < 1.0:
         return None
     rel = win - bg
-    proj = np.einsum("...c,...c->...", rel, axis) / contrast2
+    proj = rel @ axis / contrast**2
     # A mix of marker and its background lies on the segment bg-fg in colour space; anything
     # far off it (bright floor beside the robot, another object) is not part of the marker.
     off = np.linalg.norm(rel - proj[..., None] * axis, axis=-1)
-    wts = np.where((off <= _OFF_AXIS * np.sqrt(contrast2)) & near, np.clip(proj, 0.0, 1.0), 0.0)
+    wts = np.where((off <= _OFF_AXIS * contrast) & near, np.clip(proj, 0.0, 1.0), 0.0)
     total = float(wts.sum())
     if total <= 0:
         return None
@@ -500,18 +452,11 @@ def _marker_at(
     skew, spread = _asymmetry(wts, xs - c[0], ys - c[1], total)
     if not math.isfinite(skew):
         return None  # weights on a line: no disc's image
-    outline = _outline_residual(wts)
-    if (
-        cfg.max_outline_residual is not None
-        and area >= _LOCAL_BACKGROUND_AREA
-        and not outline <= cfg.max_outline_residual
-    ):
-        return None  # partly hidden: its centroid is not its centre's image (module docstring)
     if cfg.pixel_sigma is not None:
         cov = cfg.pixel_sigma**2 * np.eye(2)
         s_w = float("nan")
     else:
-        ring_w = proj[ring]
+        ring_w = (win[ring] - bg) @ axis / contrast**2
         s_w = float(1.4826 * np.median(np.abs(ring_w - np.median(ring_w))))
         dx, dy = (xs - c[0])[near], (ys - c[1])[near]
         cov = s_w**2 * np.array([[dx @ dx, dx @ dy], [dx @ dy, dy @ dy]]) / total**2
@@ -524,101 +469,8 @@ def _marker_at(
         # Partly hidden: the centroid is off by about the bias such a cut makes.
         cov = cov + (skew * spread) ** 2 * np.eye(2)
     return MarkerDetection(
-        pixel=c,
-        cov=cov,
-        area=total,
-        contrast=contrast,
-        weight_sigma=s_w,
-        asymmetry=skew,
-        outline_residual=outline,
+        pixel=c, cov=cov, area=total, contrast=contrast, weight_sigma=s_w, asymmetry=skew
     )
-
-
-def _local_background(win: Array, ring: NDArray[np.bool_]) -> Array:
-    """Return the background colour (H, W, 3) behind each pixel of a window (H, W, 3) around a
-    blob: the colour of the ring (H, W) bool outside its soft edge, smoothed along the ring
-    (a Gaussian of `_RING_SMOOTH_PX`, normalised by the ring's own weight, so its pixels'
-    noise averages out) and carried inwards from the ring's nearest pixel.
-
-    A disc on the robot is seen against the floor's tiles on one side and the robot's own dark
-    base on the other: one background colour for the whole edge (the ring's median) takes the
-    edge pixels over the base for less covered than they are, and pulls the centroid off by a
-    few tenths of a pixel on a large disc (measured on the twin's 8 cm mast disc). Each edge
-    pixel is a mix of the disc and what lies right behind it, which is what lies just outside."""
-    m = ring.astype(np.float64)
-    den = cv2.GaussianBlur(m, (0, 0), _RING_SMOOTH_PX)
-    num = cv2.GaussianBlur(win * m[..., None], (0, 0), _RING_SMOOTH_PX)
-    ry, rx = np.nonzero(ring)
-    colours = num[ry, rx] / den[ry, rx, None]
-    # Labels of the nearest ring pixel, numbered in raster order (that of np.nonzero) from 1.
-    _, nearest = cv2.distanceTransformWithLabels(
-        (~ring).astype(np.uint8), cv2.DIST_L2, 5, labelType=cv2.DIST_LABEL_PIXEL
-    )
-    return np.asarray(colours[nearest - 1], dtype=np.float64)
-
-
-# The length (px, Gaussian standard deviation) over which the ring's colour is averaged into a
-# pixel's background: ~15 ring pixels of a 4 px wide ring, so a background of 2 grey levels of
-# noise is known to about half a level, while a floor tile's edge still shows.
-_RING_SMOOTH_PX = 2.0
-# Blobs of fewer pixels take the median of their surround as every edge pixel's background: the
-# robot's top disc seen small sits on a top a few pixels wider than itself, and a band 1.5-3.5 px
-# out reaches past it (the covered area then came out up to 33 % large against the calibrated
-# camera's prediction, where the median's is within 9 %); a small disc's centroid moves little
-# with its edge's background (0.03 px median error either way on one drive's 65 top discs).
-_LOCAL_BACKGROUND_AREA = 60
-_BAND_IN = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (3, 3))
-_BAND_OUT = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (7, 7))
-
-
-# The outline is traced on the weights upsampled by this factor (bilinear): a step of 1/4 px.
-_OUTLINE_UPSAMPLE = 4
-
-
-def _outline_residual(w: Array) -> float:
-    """Return how far (pixels) the half-coverage outline of the soft weights w (H, W) strays
-    from the ellipse fitted to it (cv2.fitEllipseDirect, Fitzgibbon et al. 1999): the largest
-    mean distance over `_OUTLINE_SECTORS` equal sectors of the ellipse's angle; inf when the
-    outline is too short to fit.
-
-    A whole disc's image is an ellipse, and so is its half-coverage outline, to the noise of
-    the weights; a disc partly hidden (a table's edge, the mast's rod across it) has a chord or
-    a notch in its outline, which no ellipse follows: the fit passes between arc and chord, and
-    the sectors along the chord lie inside it together. Per sector, the pixels' noise and the
-    upsampling's steps average out; a cut cannot. The distance of an outline point p from the
-    fitted ellipse (centre c, semi-axes a, b) is taken along its ray from c,
-    |p - c| (1 - 1 / rho), rho its elliptic radius: exact on the axes, close elsewhere."""
-    k = _OUTLINE_UPSAMPLE
-    up = cv2.resize(w.astype(np.float32), None, fx=k, fy=k, interpolation=cv2.INTER_LINEAR)
-    contours, _ = cv2.findContours(
-        (up >= 0.5).astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE
-    )
-    if not contours:
-        return float("inf")
-    outer = max(contours, key=cv2.contourArea)
-    if len(outer) < 2 * _OUTLINE_SECTORS:
-        return float("inf")
-    # Upsampled pixel (i, j) is at ((j + 0.5) / k - 0.5, (i + 0.5) / k - 0.5) in the window.
-    pts = (outer.reshape(-1, 2).astype(np.float64) + 0.5) / k - 0.5
-    (cx, cy), (d1, d2), ang = cv2.fitEllipseDirect(pts.astype(np.float32))
-    if not (d1 > 0 and d2 > 0):
-        return float("inf")
-    t = math.radians(ang)
-    dx, dy = pts[:, 0] - cx, pts[:, 1] - cy
-    u = (math.cos(t) * dx + math.sin(t) * dy) / (0.5 * d1)
-    v = (-math.sin(t) * dx + math.cos(t) * dy) / (0.5 * d2)
-    rho = np.maximum(np.hypot(u, v), 1e-9)
-    dev = np.hypot(dx, dy) * (1.0 - 1.0 / rho)
-    sector = np.floor((np.arctan2(v, u) + np.pi) / (2 * np.pi) * _OUTLINE_SECTORS).astype(int)
-    sector = np.clip(sector, 0, _OUTLINE_SECTORS - 1)
-    n = np.bincount(sector, minlength=_OUTLINE_SECTORS)
-    sums = np.bincount(sector, weights=dev, minlength=_OUTLINE_SECTORS)
-    return float(np.max(np.abs(sums[n > 0] / n[n > 0])))
-
-
-# The outline's sectors: 30 degrees each, so that a cut of a tenth of a disc (a chord spanning
-# 74 degrees) fills at least one.
-_OUTLINE_SECTORS = 12
 
 
 _SKEW_DIRECTIONS = np.linspace(0.0, np.pi, 24, endpoint=False)

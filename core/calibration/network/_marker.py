@@ -71,6 +71,7 @@ from core.calibration.zhang import CameraCalibration
 from core.errors import ConvergenceError, DegenerateConfiguration, InvalidInput, NotEnoughPoints
 from core.geometry.camera import (
     DISTORTION_NAMES,
+    distort_normalized,
     intrinsics_to_matrix,
     left_jacobian_so3,
     project_points,
@@ -174,55 +175,36 @@ def floor_gauge_projector(centres: ArrayLike) -> Array:
     return np.eye(6 * C) - G @ np.linalg.pinv(B @ G) @ B
 
 
-def _disc_rim_image(
-    X: Array, rvec: Array, t: Array, K: Array, dist: Array, radius: Array, n: int
-) -> Array:
-    """Return the distorted images (M, n, 2) of n points evenly spread on the rim of each
-    horizontal disc of `radius` (M,) metres centred at X (M, 3)."""
-    phi = np.linspace(0.0, 2.0 * np.pi, n, endpoint=False)
-    rim = np.stack([np.cos(phi), np.sin(phi), np.zeros(n)], axis=1)
-    pts = X[:, None, :] + radius[:, None, None] * rim[None]  # (M, n, 3)
-    return project_points(pts.reshape(-1, 3), rvec, t, K, dist).points.reshape(len(X), n, 2)
-
-
-def _polygon_moments(uv: Array) -> tuple[Array, Array]:
-    """Return the areas (M,) and area centroids (M, 2) of closed polygons (M, n, 2) (the
-    shoelace formula and its first moments)."""
-    x, y = uv[..., 0], uv[..., 1]
-    x1, y1 = np.roll(x, -1, axis=1), np.roll(y, -1, axis=1)
-    cross = x * y1 - x1 * y
-    a = 0.5 * cross.sum(axis=1)
-    safe = np.where(a == 0.0, 1.0, a)
-    c = np.stack([((x + x1) * cross).sum(axis=1), ((y + y1) * cross).sum(axis=1)], axis=1)
-    return np.abs(a), c / (6.0 * safe[:, None])
-
-
 def disc_centre_offset(
-    X: Array, rvec: Array, t: Array, K: Array, dist: Array, radius: ArrayLike, n: int = 48
+    X: Array, rvec: Array, t: Array, K: Array, dist: Array, radius: ArrayLike
 ) -> Array:
-    """Return the pixel offset (M, 2) of the area centroid of a horizontal disc's image from
-    the image of its centre, for discs of `radius` metres (one value, or (M,)) centred at
-    X (M, 3): what a blob detector's centroid measures (core.localization.detect).
+    """Return the pixel offset (M, 2) of the centre of a horizontal disc's image from the
+    image of its centre, for discs of `radius` metres (one value, or (M,)) centred at X (M, 3).
 
-    Two effects move it, both second order in the disc's size. Perspective: the disc's ideal
-    image is an ellipse whose centre is not the image of the disc's centre (Hartley & Zisserman
-    eq. 2.13; ~0.1 px for the twin's 5 cm marker at 3 m). Lens distortion: the image of that
-    ellipse through a curved map is no ellipse, and its area centroid is not the distorted
-    centre; with the default home's k1 = -0.28 it is c + k1 f x rho^2 off (x the normalised
-    distance from the axis, rho the disc's radius in focal units): 0.2-0.6 px for the mast's
-    8 cm disc at 1.5-2.5 m, off the axis. Both are in the area centroid of the distorted
-    image of the rim, here an inscribed polygon of n points (an affine image of a regular
-    polygon has its ellipse's centre; what the map adds beyond affine is O(n^-2) of the
-    offset)."""
+    A detector's blob centroid is the centre of the disc's image ellipse, which perspective
+    moves off the projected centre (by up to ~0.1 px for the twin's 5 cm marker at 3 m): the
+    disc maps by H = [R e1, R e2, R X + t] (normalised image) to the conic
+    C = H^-T diag(1, 1, -r^2) H^-1 (Hartley & Zisserman eq. 2.13), whose centre is
+    -C[:2, :2]^-1 C[:2, 2]; both centres are then distorted and mapped through K."""
     r = np.broadcast_to(np.asarray(radius, dtype=np.float64), (len(X),))
-    out = np.zeros((len(X), 2))
-    on = r > 0
-    if not np.any(on):
-        return out
-    uv = _disc_rim_image(X[on], rvec, t, K, dist, r[on], n)
-    _, centroid = _polygon_moments(uv)
-    out[on] = centroid - project_points(X[on], rvec, t, K, dist).points
-    return out
+    if not np.any(r > 0):
+        return np.zeros((len(X), 2))
+    R = rotvec_to_matrix(rvec)
+    Xc = X @ R.T + t
+    H = np.empty((len(X), 3, 3))
+    H[:, :, 0] = R[:, 0]
+    H[:, :, 1] = R[:, 1]
+    H[:, :, 2] = Xc
+    Hi = np.linalg.inv(H)
+    disc = np.zeros((len(X), 3, 3))
+    disc[:, 0, 0] = disc[:, 1, 1] = 1.0
+    disc[:, 2, 2] = -(r**2)
+    C = np.swapaxes(Hi, -1, -2) @ disc @ Hi
+    centre = -np.linalg.solve(C[:, :2, :2], C[:, :2, 2:3])[..., 0]
+    point = Xc[:, :2] / Xc[:, 2:3]
+    d = distort_normalized(np.stack([centre, point]), dist)
+    px = d @ K[:2, :2].T
+    return np.where((r > 0)[:, None], px[0] - px[1], 0.0)
 
 
 def disc_image_area(
@@ -233,9 +215,14 @@ def disc_image_area(
     dist): the area of the distorted images of n points on each rim (shoelace formula; the
     inscribed polygon's area, short of the ellipse's by about 2 pi^2 / (3 n^2), 0.3 % for
     n = 48)."""
+    phi = np.linspace(0.0, 2.0 * np.pi, n, endpoint=False)
     r = np.broadcast_to(np.asarray(radius, dtype=np.float64), (len(X),))
-    area, _ = _polygon_moments(_disc_rim_image(X, rvec, t, K, dist, r, n))
-    return area
+    rim = np.stack([np.cos(phi), np.sin(phi), np.zeros(n)], axis=1)
+    pts = X[:, None, :] + r[:, None, None] * rim[None]  # (M, n, 3)
+    uv = project_points(pts.reshape(-1, 3), rvec, t, K, dist).points.reshape(len(X), n, 2)
+    x, y = uv[..., 0], uv[..., 1]
+    cross = x * np.roll(y, -1, axis=1) - y * np.roll(x, -1, axis=1)
+    return np.asarray(0.5 * np.abs(cross.sum(axis=1)))
 
 
 @dataclass(frozen=True)
@@ -449,8 +436,7 @@ def _grow(
     window's problem is solved from the previous window's solution (its new stops placed by
     the odometry from the last corrected pose), and a camera enters when the stops it saw
     within the window first suffice, initialised from the corrected positions of its images
-    of one marker (one height: a plane pose), the first, or the one it saw most when it saw
-    the first at fewer than `min_poses` stops."""
+    of the first marker (one height: a plane pose)."""
     C, M = len(names), len(odometry.increments)
     eps = np.zeros((M, 3))
     state: dict[int, Array] = {}  # camera index -> its global parameters
@@ -463,24 +449,18 @@ def _grow(
         n = len(lay.stop)
         poses = compose_increments(sub.start, sub.increments + eps[:end])
         X, _ = lay.points(poses)
-        which = np.arange(n) % lay.markers
+        first = lay.first
         for k in range(C):
             if k in cams:
                 continue
-            # One marker's images (one height: a plane pose): the first marker's, or, when it
-            # was seen at too few stops (the detector refuses a disc partly hidden, and the top
-            # disc is the one the mast's rod crosses), the marker seen most.
-            counts = np.bincount(which[vis[k, :n]], minlength=lay.markers)
-            m = 0 if counts[0] >= min_poses else int(np.argmax(counts))
-            sel = which == m
             r = _init_camera(
                 names[k],
                 k,
                 intrinsics[k],
-                X[sel, :2],
-                uv[k, :n][sel],
-                vis[k, :n][sel],
-                float(lay.height[m]),
+                X[first, :2],
+                uv[k, :n][first],
+                vis[k, :n][first],
+                float(lay.height[0]),
                 min_poses,
                 min_spread,
             )

@@ -90,10 +90,7 @@ def test_a_half_hidden_signpost_is_not_the_marker() -> None:
     visitor = tuple((1e4, 1e4) if p.name != "visitor" else (5.3, 2.5) for p in scene.people)
     image = render.render("cam_kitchen_sw", WorldState(0.0, None, visitor), rng=1).image
     # The case under test: without the background the fragment is taken for the disc.
-    # (The outline test refuses this fragment as well, as partly hidden: off here, so that
-    # what is shown is the background's part.)
-    blind = MarkerDetectorConfig(colour=scene.robot.marker.colour, max_outline_residual=None)
-    fragment = detect_marker(image, blind)
+    fragment = detect_marker(image, cfg)
     assert fragment is not None
     assert detect_marker(image, cfg, background=render.empty("cam_kitchen_sw")) is None
     # The same through the pipeline's entry point, with the background the person detector

@@ -111,10 +111,8 @@ def test_a_red_walker_is_no_robot(home) -> None:
     walker = scene.people[0].model_copy(update={"colour": RED})
     red = scene.model_copy(update={"people": [walker], "robot": None})
     red_home = Renderer(red)
-    # The outline test (MarkerDetectorConfig.max_outline_residual) refuses the walker's red
-    # fragments too; off, so that the size check is what is shown.
-    plain = MarkerDetectorConfig(colour=RED, max_outline_residual=None)
-    sized = MarkerDetectorConfig(colour=RED, radius=0.05, max_outline_residual=None)
+    plain = MarkerDetectorConfig(colour=RED)
+    sized = MarkerDetectorConfig(colour=RED, radius=0.05)
     before = after = 0
     for k, t in enumerate(np.arange(0.0, 40.0, 2.0)):
         state = world_state(red, float(t))
