@@ -197,6 +197,23 @@ def _cylinder_boxes(camera: NetworkCamera, theta: Array) -> tuple[Array, NDArray
     return np.concatenate([px.min(axis=1), px.max(axis=1)], axis=1), front
 
 
+def _solve_each(a: Array, b: Array) -> Array:
+    """Return x (M, n, k) solving a[i] x[i] = b[i] for each of a (M, n, n), b (M, n, k); NaN for
+    a system that is singular or not finite (a fit gone off the lens's model: its box then
+    fails its test, and the box is not measured)."""
+    out = np.full(b.shape, np.nan)
+    fine = np.all(np.isfinite(a), axis=(1, 2)) & np.all(np.isfinite(b), axis=(1, 2))
+    try:
+        out[fine] = np.linalg.solve(a[fine], b[fine])
+    except np.linalg.LinAlgError:
+        for i in np.flatnonzero(fine):
+            try:
+                out[i] = np.linalg.solve(a[i], b[i])
+            except np.linalg.LinAlgError:
+                continue
+    return out
+
+
 def _fit_cylinders(
     camera: NetworkCamera,
     boxes: Array,
@@ -228,19 +245,22 @@ def _fit_cylinders(
         r, _front = residual(theta)
         J = jacobian(theta, r)
         JT = J.transpose(0, 2, 1)
-        step = np.linalg.solve(JT @ J + 1e-9 * eye, JT @ r[..., None])[..., 0]
+        step = _solve_each(JT @ J + 1e-9 * eye, JT @ r[..., None])[..., 0]
         theta = theta - step
         # A radius must stay a body's: a box too narrow or too wide for one says so by its chi2.
         theta[:, 3] = np.clip(theta[:, 3], 0.25 * body.radius, 4.0 * body.radius)
         theta[:, 2] = np.clip(theta[:, 2], 0.05, None)
-        if float(np.max(np.abs(step[:, :2]), initial=0.0)) < 1e-5:
+        moved = np.abs(step[:, :2])
+        if float(np.max(moved[np.isfinite(moved)], initial=0.0)) < 1e-5:
             break
     r, front = residual(theta)
     J = jacobian(theta, r)
     JT = J.transpose(0, 2, 1)
-    cov = np.asarray(np.linalg.inv(JT @ J + 1e-12 * eye), dtype=np.float64)
+    cov = _solve_each(JT @ J + 1e-12 * eye, np.broadcast_to(eye, J.shape[:1] + eye.shape))
     chi2: Array = np.sum(r**2, axis=1)
-    ok: NDArray[np.bool_] = front & np.all(np.isfinite(theta), axis=1)
+    ok: NDArray[np.bool_] = (
+        front & np.all(np.isfinite(theta), axis=1) & np.all(np.isfinite(cov), axis=(1, 2))
+    )
     return theta, cov, chi2, ok
 
 

@@ -166,3 +166,35 @@ def test_a_walking_persons_box_is_measured_with_the_detector_box_body():
     # Within 0.2 m: the drawn feet are the trunk's near edge (0.2 m from the axis), the fit
     # puts them a fitted radius (~0.3 m) from it, 0.15 m farther here.
     assert np.all(np.linalg.norm(_floor(camera, fit) - where, axis=1) < 0.2)
+
+
+def test_a_box_whose_fit_leaves_the_lens_model_is_not_measured_and_raises_nothing():
+    # A 640 x 480 ceiling camera with a strong barrel lens (k1 = -0.28): the box at the image's
+    # left edge (its left side cut) starts fits whose cylinders fall where the lens's
+    # polynomial no longer holds; their normal equations overflow (1e40) or are singular.
+    # Such a fit says nothing of the box: it is refused, not raised (the box came from a
+    # detector or an API client and must never crash the service).
+    cam = NetworkCamera(
+        K=np.array([[331.085861, 0.0, 319.814627], [0.0, 330.529733, 241.135733], [0, 0, 1]]),
+        dist=np.array([-0.280678, 0.070224, -0.000439, 0.000202, -0.001963]),
+        R=np.array(
+            [
+                [0.664754, -0.747061, 0.001443],
+                [-0.55918, -0.498852, -0.662166],
+                [0.495398, 0.439371, -0.749356],
+            ]
+        ),
+        t=np.array([-2.973063, 4.633093, -0.357088]),
+        image_size=(640, 480),
+    )
+    box = np.array([[2.0, 406.0, 98.0, 476.0], [300.0, 200.0, 340.0, 330.0]])
+    cut = np.array([[False, False, True, False], [False, False, False, False]])
+    foot = box_foot(box, cut)
+    out = foot_on_axis(box, foot, cam, cut=cut)
+    assert np.all(np.isfinite(out.pixel))
+    # The box in the middle of the image is measured as before: the other row's failure does
+    # not spread to it.
+    assert out.measured[1]
+    alone = foot_on_axis(box[1:], box_foot(box[1:], cut[1:]), cam, cut=cut[1:])
+    np.testing.assert_allclose(out.pixel[1], alone.pixel[0])
+    np.testing.assert_allclose(out.cov[1], alone.cov[0])
