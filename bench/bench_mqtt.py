@@ -2,7 +2,7 @@
 capture-to-MQTT latency, and a long run faster than real time that must not pile anything up.
 
 Run from the repository root (Debian's mosquitto is started on a free port):
-    python -m bench.bench_mqtt [--seconds 120] [--soak-minutes 30]
+    python -m bench.bench_mqtt [--seconds 120] [--soak-minutes 30] [--skip-frigate-soak]
 
 Twin (real time, in process, as `intspace serve` runs it with INTSPACE_SIMULATION and
 INTSPACE_MQTT_URL): the default home, its walker going from room to room, its rooms published
@@ -16,13 +16,16 @@ event and target message; the anchor is spec 09's p95 <= 1 s.
 
 Soak (faster than real time): the same service parts (tracking, zones, the MQTT publisher on a
 real broker, live targets on a SQLite file) on a simulated clock, fed 30 simulated minutes of
-the default home's five cameras (2 frames a second each by default: the tracker's arithmetic,
-not the clock, sets the pace) seeing three walkers who come and go (each present 90 s of every
-120 s), projected with 0.7 px noise (no rendering: the frames' detections). Every simulated
-minute it records what could pile up: the MQTT queue and its drops, the targets followed by the
-zones, the publisher's per-target rate entries, the live targets and the tracker's tracks, and
-the Python heap (tracemalloc). Nothing may grow with time: the last ten minutes' maxima must
-not exceed the first ten's by more than the noise of three walkers (printed).
+the default home's five cameras seeing three walkers who come and go (each present 90 s of
+every 120 s, standing still 20 s of it): first their feet projected with 0.7 px noise (2 frames
+a second a camera by default: the tracker's arithmetic, not the clock, sets the pace), then
+Frigate's events of the same walkers (tests/server/frigate_replay: `new`, an `update` per path
+step, stationary change or snapshot, `end`) through the Frigate source as the service runs it.
+Every simulated minute it records what could pile up: the MQTT queue and its drops, the targets
+followed by the zones, the publisher's per-target rate entries, the live targets and the
+tracker's tracks, the Frigate objects held and its inbox, and the Python heap (tracemalloc).
+Nothing may grow with time: the last third's maxima must not exceed the first third's by more
+than the noise of three walkers (printed).
 """
 
 from __future__ import annotations
@@ -35,6 +38,7 @@ import tempfile
 import threading
 import time
 import tracemalloc
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -295,56 +299,163 @@ class _Clock:
         return self.t
 
 
-def run_soak(
-    broker: Broker, minutes: float, rate_hz: float = 5.0, seed: int = 0, top: int = 0
-) -> None:
-    """Feed `minutes` of simulated time through the service's parts as fast as they go."""
-    from core.sim import default_scene
-    from server.db.session import make_engine, make_session_factory
-    from server.services.home import HomePublisher
-    from server.services.mqtt import BrokerUrl, MqttLink
-    from server.services.targets import LiveTargets
-    from server.services.tracking import DetectionIn, TrackingService
-    from server.services.twin import bootstrap_space, registry_cameras
-    from server.services.zones import ZoneService
+class _SoakService:
+    """The service's parts a soak runs (tracking, zones, the MQTT publisher on a real broker,
+    live targets on a SQLite file) on a simulated clock, and what it records of them."""
 
-    folder = Path(tempfile.mkdtemp(prefix="bench-mqtt-soak-"))
-    factory = make_session_factory(make_engine(_migrated_sqlite(folder)))
-    scene = default_scene()
-    with factory() as session:
-        space_id, camera_ids = bootstrap_space(session, scene)
-        cams, _ = registry_cameras(session, list(camera_ids.values()))
-    clock = _Clock(time.time())
-    live = LiveTargets(factory, track_retention_s=120.0, detection_retention_s=60.0)
-    tracking = TrackingService(factory, live, latency=0.5, clock=clock)
-    zones = ZoneService(factory, owns=tracking.owns)
-    tracking.target_listeners.append(zones.on_targets)
-    link = MqttLink(BrokerUrl.parse(broker.url), queue_limit=10_000)
-    home = HomePublisher(link, factory=factory, target_hz=2.0)
-    zones.sinks.append(home)
-    home.start()
-    zones.reload()
-    sub, rec = subscribe(broker, ["intspace/#"])
+    def __init__(self, broker: Broker, top: int) -> None:
+        from core.sim import default_scene
+        from server.db.session import make_engine, make_session_factory
+        from server.services.home import HomePublisher
+        from server.services.mqtt import BrokerUrl, MqttLink
+        from server.services.targets import LiveTargets
+        from server.services.tracking import TrackingService
+        from server.services.twin import bootstrap_space, registry_cameras
+        from server.services.zones import ZoneService
 
+        self.folder = Path(tempfile.mkdtemp(prefix="bench-mqtt-soak-"))
+        self.factory = make_session_factory(make_engine(_migrated_sqlite(self.folder)))
+        with self.factory() as session:
+            self.space_id, self.camera_ids = bootstrap_space(session, default_scene())
+            self.cams, _ = registry_cameras(session, list(self.camera_ids.values()))
+        self.clock = _Clock(time.time())
+        self.live = LiveTargets(self.factory, track_retention_s=120.0, detection_retention_s=60.0)
+        self.tracking = TrackingService(self.factory, self.live, latency=0.5, clock=self.clock)
+        self.zones = ZoneService(self.factory, owns=self.tracking.owns)
+        self.tracking.target_listeners.append(self.zones.on_targets)
+        self.link = MqttLink(BrokerUrl.parse(broker.url), queue_limit=10_000)
+        self.home = HomePublisher(self.link, factory=self.factory, target_hz=2.0)
+        self.zones.sinks.append(self.home)
+        self.home.start()
+        self.zones.reload()
+        self.sub, self.rec = subscribe(broker, ["intspace/#"])
+        self.top = top
+        self.rows: list[dict[str, float]] = []
+        self.extra: Callable[[], dict[str, float]] = dict
+        self._early = self._last = None
+        tracemalloc.start()
+        self._wall0 = time.perf_counter()
+
+    def sample(self, minute: float) -> None:
+        """Record, once a simulated minute, what could pile up."""
+        self.live.flush()
+        self.live.apply_retention(self.clock.t)
+        status = self.link.status()
+        # The service's heap: this bench's own subscriber (it keeps every message it received)
+        # is left out; the tracker's record of its frames' delays (bounded at 20,000 frames) is
+        # shown on its own.
+        snap = tracemalloc.take_snapshot().filter_traces(
+            [tracemalloc.Filter(False, "*mqtt_broker.py"), tracemalloc.Filter(False, "*paho*")]
+        )
+        heap = sum(st.size for st in snap.statistics("filename")) / 2**20
+        if len(self.rows) == 2:
+            self._early = snap
+        if self.top and len(self.rows) >= 2:
+            self._last = snap
+        delays = sum(
+            st.size
+            for st in snap.filter_traces([tracemalloc.Filter(True, "*node/clock.py")]).statistics(
+                "filename"
+            )
+        )
+        if len(self.rows) == 1:
+            print("  " + "  ".join(f"{k:>12}" for k in self.rows[0]), flush=True)
+        if self.rows:
+            print("  " + "  ".join(f"{v:>12.1f}" for v in self.rows[-1].values()), flush=True)
+        self.rows.append(
+            {
+                "minute": minute,
+                "queued": status["queued"],
+                "dropped": status["dropped"],
+                "zone targets": self.zones.followed(),
+                "rate entries": self.home.rate_entries(),
+                "live targets": len(self.live),
+                "tracks": len(self.tracking.tracks(self.space_id)),
+                "heap MiB": heap,
+                "delays MiB": delays / 2**20,
+                **self.extra(),
+            }
+        )
+
+    def report(self, title: str, minutes: float) -> None:
+        """Stop the parts and print the rows and the first and last thirds' maxima."""
+        wall = time.perf_counter() - self._wall0
+        rows = self.rows
+        if self.top and self._last is not None and self._early is not None:
+            print("  heap growth since minute 2, by line:")
+            for stat in self._last.compare_to(self._early, "lineno")[: self.top]:
+                print(f"    {stat}")
+        time.sleep(2.0)
+        final = self.link.status()
+        self.home.stop()
+        self.sub.loop_stop()
+        self.sub.disconnect()
+        tracemalloc.stop()
+        shutil.rmtree(self.folder, ignore_errors=True)
+        print(
+            f"{title}: {minutes:g} simulated minutes in {wall:.0f} s of wall time "
+            f"({minutes * 60 / wall:.1f}x real time), {len(self.cams)} cameras"
+        )
+        keys = list(rows[0])
+        print("  " + "  ".join(f"{k:>12}" for k in keys))
+        for r in rows:
+            print("  " + "  ".join(f"{r[k]:>12.1f}" for k in keys))
+        first = rows[1 : 1 + max(1, len(rows) // 3)] or rows
+        last = rows[-max(1, len(rows) // 3) :]
+        for key in keys[1:]:
+            if key == "dropped":
+                continue
+            a = max(r[key] for r in first)
+            b = max(r[key] for r in last)
+            print(f"  {key:<14} first third max {a:8.1f}   last third max {b:8.1f}")
+        events = sum(1 for _, t, _, _ in self.rec.messages if t.endswith("/events"))
+        print(
+            f"  MQTT: published {final['published']}, dropped {final['dropped']}, received by "
+            f"the subscriber {len(self.rec.messages)} ({events} events)"
+        )
+
+
+def _walkers(seed: int) -> Callable[[float], np.ndarray]:
+    """Three walkers in the default home who come and go (each present 90 s of every 120 s)
+    and stand still 20 s of every 120 s; positions(s) is (3, 2), NaN for those absent."""
     rng = np.random.default_rng(seed)
     centre = np.array([[2.2, 3.0], [6.2, 1.5], [6.2, 4.5]])
     amp = np.array([[1.5, 2.0], [1.2, 1.0], [1.2, 1.0]])
     omega = rng.uniform(0.15, 0.3, (3, 2))
     phase = rng.uniform(0, 2 * np.pi, (3, 2))
-    t0 = clock.t
+    offset = 40.0 * np.arange(3)
+
+    def positions(s: float) -> np.ndarray:
+        cycle = (s + offset) % 120.0
+        walked = (s + offset) // 120.0 * 100.0 + np.minimum(cycle, 30.0)
+        walked += np.maximum(cycle - 50.0, 0.0)
+        xy = centre + amp * np.sin(omega * walked[:, None] + phase)
+        xy[cycle >= 90.0] = np.nan
+        return xy
+
+    return positions
+
+
+def run_soak(
+    broker: Broker, minutes: float, rate_hz: float = 5.0, seed: int = 0, top: int = 0
+) -> None:
+    """Feed `minutes` of simulated time of the walkers' projected feet as fast as it goes."""
+    from server.services.tracking import DetectionIn
+
+    svc = _SoakService(broker, top)
+    positions = _walkers(seed)
+    rng = np.random.default_rng(seed + 1)
+    t0 = svc.clock.t
     dt = 1.0 / rate_hz
     steps = int(minutes * 60 * rate_hz)
-    tracemalloc.start()
-    rows = []
-    wall0 = time.perf_counter()
     for k in range(steps):
         s = k * dt
-        clock.t = t0 + s
-        xy = centre + amp * np.sin(omega * s + phase)
-        present = ((s + 40.0 * np.arange(3)) % 120.0) < 90.0
-        P = np.column_stack([xy[present], np.full(int(present.sum()), 1.0)])
+        svc.clock.t = t0 + s
+        xy = positions(s)
+        xy = xy[~np.isnan(xy[:, 0])]
+        P = np.column_stack([xy, np.full(len(xy), 1.0)])
         detections, empty = [], []
-        for cid, cam in cams.items():
+        for cid, cam in svc.cams.items():
             seen = cam.in_view(P) if len(P) else np.zeros(0, bool)
             px = (
                 cam.project(P[seen]) + rng.normal(0, 0.7, (int(seen.sum()), 2))
@@ -355,7 +466,7 @@ def run_soak(
                 detections.append(
                     DetectionIn(
                         cid,
-                        clock.t,
+                        svc.clock.t,
                         (float(p[0]), float(p[1])),
                         ((0.49, 0.0), (0.0, 0.49)),
                         "person",
@@ -363,93 +474,63 @@ def run_soak(
                     )
                 )
             if not len(px):
-                empty.append((cid, clock.t))
-        with factory() as session:
-            tracking.ingest(session, detections, dict.fromkeys(cams, space_id), empty=empty)
-        tracking.process(clock.t + 0.01)
+                empty.append((cid, svc.clock.t))
+        with svc.factory() as session:
+            svc.tracking.ingest(
+                session, detections, dict.fromkeys(svc.cams, svc.space_id), empty=empty
+            )
+        svc.tracking.process(svc.clock.t + 0.01)
         if k % int(60 * rate_hz) == 0:
-            live.flush()
-            live.apply_retention(clock.t)
-            status = link.status()
-            # The service's heap: this bench's own subscriber (it keeps every message it
-            # received) is left out; the tracker's record of its frames' delays (bounded at
-            # 20,000 frames) is shown on its own.
-            snap = tracemalloc.take_snapshot().filter_traces(
-                [tracemalloc.Filter(False, "*mqtt_broker.py"), tracemalloc.Filter(False, "*paho*")]
-            )
-            heap = sum(st.size for st in snap.statistics("filename")) / 2**20
-            if len(rows) == 2:
-                early = snap
-            if top and len(rows) >= 2:
-                last_snap = snap
-            delays = sum(
-                st.size
-                for st in snap.filter_traces(
-                    [tracemalloc.Filter(True, "*node/clock.py")]
-                ).statistics("filename")
-            )
-            if len(rows) == 1:
-                print("  " + "  ".join(f"{k:>12}" for k in rows[0]), flush=True)
-            if rows:
-                r = rows[-1]
-                print("  " + "  ".join(f"{v:>12.1f}" for v in r.values()), flush=True)
-            rows.append(
-                {
-                    "minute": s / 60.0,
-                    "queued": status["queued"],
-                    "dropped": status["dropped"],
-                    "zone targets": zones.followed(),
-                    "rate entries": home.rate_entries(),
-                    "live targets": len(live),
-                    "tracks": len(tracking.tracks(space_id)),
-                    "heap MiB": heap,
-                    "delays MiB": delays / 2**20,
-                }
-            )
-    wall = time.perf_counter() - wall0
-    if top and len(rows) > 2:
-        print("  heap growth since minute 2, by line:")
-        for stat in last_snap.compare_to(early, "lineno")[:top]:
-            print(f"    {stat}")
-    time.sleep(2.0)
-    final = link.status()
-    home.stop()
-    sub.loop_stop()
-    sub.disconnect()
-    tracemalloc.stop()
-    shutil.rmtree(folder, ignore_errors=True)
-    print(
-        f"Soak: {minutes:g} simulated minutes in {wall:.0f} s of wall time "
-        f"({minutes * 60 / wall:.1f}x real time), {rate_hz:g} Hz x {len(cams)} cameras"
-    )
-    keys = list(rows[0])
-    print("  " + "  ".join(f"{k:>12}" for k in keys))
-    for r in rows:
-        print(
-            "  "
-            + "  ".join(
-                f"{r[k]:>12.1f}" if isinstance(r[k], float) else f"{r[k]:>12}" for k in keys
-            )
+            svc.sample(s / 60.0)
+    svc.report(f"Soak ({rate_hz:g} Hz a camera)", minutes)
+
+
+def run_frigate_soak(broker: Broker, minutes: float, seed: int = 0, top: int = 0) -> None:
+    """Feed `minutes` of simulated time of Frigate's events for the same walkers, seen by the
+    home's cameras (Frigate's detect resolution half theirs), through the Frigate source as
+    the service runs it, as fast as it goes. The source's thread is not started: its loop's
+    work (every message due, then the hold) runs here at its tick on the simulated clock."""
+    from server.services.frigate import FrigateSource
+    from server.services.mqtt import Message
+    from server.settings import FrigateCamera
+    from tests.server.frigate_replay import frigate_messages
+
+    svc = _SoakService(broker, top)
+    names = {cid: name for name, cid in svc.camera_ids.items() if cid in svc.cams}
+    mapping = {
+        name: FrigateCamera(
+            camera=name,
+            detect=(svc.cams[cid].image_size[0] // 2, svc.cams[cid].image_size[1] // 2),
         )
-    first = rows[1 : 1 + max(1, len(rows) // 3)] or rows
-    last = rows[-max(1, len(rows) // 3) :]
-    for key in (
-        "queued",
-        "zone targets",
-        "rate entries",
-        "live targets",
-        "tracks",
-        "heap MiB",
-        "delays MiB",
-    ):
-        a = max(r[key] for r in first)
-        b = max(r[key] for r in last)
-        print(f"  {key:<14} first third max {a:8.1f}   last third max {b:8.1f}")
-    events = sum(1 for _, t, _, _ in rec.messages if t.endswith("/events"))
-    print(
-        f"  MQTT: published {final['published']}, dropped {final['dropped']}, received by the "
-        f"subscriber {len(rec.messages)} ({events} events)"
+        for cid, name in names.items()
+    }
+    source = FrigateSource(svc.factory, svc.tracking, mapping, clock=svc.clock)
+    t0 = svc.clock.t
+    frig_cams = {name: svc.cams[cid] for cid, name in names.items()}
+    messages = frigate_messages(
+        frig_cams, 0.5, _walkers(seed), minutes * 60.0, t0, np.random.default_rng(seed + 1)
     )
+    print(f"  {len(messages)} Frigate events for {len(frig_cams)} cameras", flush=True)
+
+    def extra() -> dict[str, float]:
+        st = source.status()
+        return {"held": st["held"], "inbox": st["inbox"], "late": st["late"]}
+
+    svc.extra = extra
+    delay, tick = 0.1, 0.05  # Frigate's processing and MQTT delay; the source's loop tick (s)
+    i, k = 0, 0
+    while svc.clock.t < t0 + minutes * 60.0:
+        svc.clock.t = t0 + k * tick
+        while i < len(messages) and messages[i][0] + delay <= svc.clock.t:
+            source.handle(Message("frigate/events", messages[i][1].encode()))
+            i += 1
+        source.hold()
+        svc.tracking.process(svc.clock.t + 0.01)
+        if k % int(60 / tick) == 0:
+            svc.sample(k * tick / 60.0)
+        k += 1
+    print(f"  Frigate source: {source.status()}")
+    svc.report("Frigate soak", minutes)
 
 
 def main() -> None:
@@ -462,6 +543,7 @@ def main() -> None:
     parser.add_argument("--light-seconds", type=float, default=90.0)
     parser.add_argument("--skip-light", action="store_true")
     parser.add_argument("--skip-soak", action="store_true")
+    parser.add_argument("--skip-frigate-soak", action="store_true")
     args = parser.parse_args()
     folder = Path(tempfile.mkdtemp(prefix="bench-mqtt-broker-"))
     broker = Broker(folder)
@@ -473,6 +555,8 @@ def main() -> None:
             run_twin(broker, args.seconds)
         if not args.skip_soak:
             run_soak(broker, args.soak_minutes, rate_hz=args.soak_rate, top=args.heap_top)
+        if not args.skip_frigate_soak:
+            run_frigate_soak(broker, args.soak_minutes, top=args.heap_top)
     finally:
         broker.kill()
         shutil.rmtree(folder, ignore_errors=True)

@@ -40,20 +40,34 @@ SNAPSHOT_PERIOD_S = 5.0
 BODY_RADIUS, BODY_HEIGHT = 0.25, 1.7
 
 
+def body_boxes(cam: NetworkCamera, xy: np.ndarray, scale: float) -> np.ndarray:
+    """Return the boxes (..., 4) in detect pixels (camera pixels * scale) of people standing at
+    xy (..., 2); NaN rows where the feet are out of the image or xy is NaN."""
+    xy = np.asarray(xy, dtype=np.float64)
+    flat = xy.reshape(-1, 2)
+    out = np.full((flat.shape[0], 4), np.nan)
+    feet = np.c_[flat, np.zeros(len(flat))]
+    valid = ~np.isnan(flat).any(axis=1)
+    valid[valid] = cam.in_view(feet[valid])
+    if valid.any():
+        ang = np.linspace(0, 2 * np.pi, 12, endpoint=False)
+        rim = BODY_RADIUS * np.c_[np.cos(ang), np.sin(ang)]
+        n = int(valid.sum())
+        pts = np.empty((n, 24, 3))
+        pts[:, :, :2] = flat[valid][:, None, :] + np.vstack([rim, rim])[None]
+        pts[:, :12, 2], pts[:, 12:, 2] = 0.0, BODY_HEIGHT
+        px = cam.project(pts.reshape(-1, 3)).reshape(n, 24, 2)
+        w, h = cam.image_size
+        box = np.concatenate([px.min(axis=1), px.max(axis=1)], axis=1)
+        out[valid] = np.clip(box, 0, [w - 1, h - 1, w - 1, h - 1]) * scale
+    return out.reshape(*xy.shape[:-1], 4)
+
+
 def body_box(cam: NetworkCamera, xy: np.ndarray, scale: float) -> np.ndarray | None:
     """Return a person's box in detect pixels (camera pixels * scale), None when the feet are
     out of the image."""
-    ang = np.linspace(0, 2 * np.pi, 12, endpoint=False)
-    ring = np.c_[xy[0] + BODY_RADIUS * np.cos(ang), xy[1] + BODY_RADIUS * np.sin(ang)]
-    pts = np.vstack([np.c_[ring, np.zeros(12)], np.c_[ring, np.full(12, BODY_HEIGHT)]])
-    foot = np.array([[xy[0], xy[1], 0.0]])
-    if not cam.in_view(foot)[0]:
-        return None
-    px = cam.project(pts)
-    w, h = cam.image_size
-    box = np.array([px[:, 0].min(), px[:, 1].min(), px[:, 0].max(), px[:, 1].max()])
-    box = np.clip(box, [0, 0, 0, 0], [w - 1, h - 1, w - 1, h - 1])
-    return box * scale
+    box = body_boxes(cam, np.asarray(xy, dtype=np.float64)[None], scale)[0]
+    return None if np.isnan(box).any() else box
 
 
 def iou(a: np.ndarray, b: np.ndarray) -> float:
@@ -102,14 +116,15 @@ def frigate_messages(
     for name, cam in cams.items():
         objects: dict[int, _Object] = {}
         phase = rng.uniform(0, 1 / DETECT_FPS)
-        for t in np.arange(phase, duration, 1 / DETECT_FPS):
+        times = np.arange(phase, duration, 1 / DETECT_FPS)
+        every = body_boxes(cam, np.stack([positions(float(t)) for t in times]), scale)
+        for t, boxes in zip(times, every, strict=True):
             frame_time = t0 + float(t)
-            xy = positions(float(t))
             seen: list[np.ndarray] = []
             if frames is not None:
                 frames.append((frame_time, name, seen))
-            for w in range(xy.shape[0]):
-                box = None if np.any(np.isnan(xy[w])) else body_box(cam, xy[w], scale)
+            for w in range(boxes.shape[0]):
+                box = None if np.isnan(boxes[w]).any() else boxes[w]
                 obj = objects.get(w)
                 if box is None:
                     if obj is not None:
