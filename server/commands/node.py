@@ -14,7 +14,8 @@ SRC: a USB index, a video file, an RTSP or HTTP(S) MJPEG URL (the service's own
 flag: command lines are visible to every user of the machine).
 
 Exit codes, each failure said in one line on stderr: 0 when every source ended (video files)
-or the node was stopped (Ctrl-C, SIGTERM); 2 for a bad command line or configuration file, no
+or the node was stopped (Ctrl-C, SIGTERM); 1 when a camera's detection failed (its detector
+raised) or a fast replay fell behind its clip; 2 for a bad command line or configuration file, no
 token, or a camera the registry does not know or has not calibrated; 3 for a source that cannot
 be opened at start (no such file, connection refused, ...). A stream that drops later is
 reopened with back-off, never an exit.

@@ -260,7 +260,7 @@ class Node:
 
     def run(self) -> int:
         """Run until `stop_event` is set or every source ended; return the exit code (0, or 1
-        when a fast replay fell behind its clip)."""
+        when a fast replay fell behind its clip or a camera's detection failed)."""
         self._announce_replays()
         for run in self.cameras:
             log.info("camera %s: people by the %s detector", run.config.name, run.detector)
@@ -334,6 +334,22 @@ class Node:
         return 0
 
     def _detect_loop(self, run: CameraRun) -> None:
+        """Detect in `run`'s frames until stopped or its source ends. An exception stops the
+        node (exit code 1, said in one line): a camera whose frames nobody detects in would be
+        read on and reported healthy while it posts nothing."""
+        try:
+            self._detect_frames(run)
+        except Exception as exc:
+            log.debug("camera %s: detection failed", run.config.name, exc_info=True)
+            if self.failure is None:
+                self.failure = (
+                    f"camera {run.config.name}: detecting in its frames failed "
+                    f"({run.detector} detector, after {run.detected} frame(s)): "
+                    f"{type(exc).__name__}: {exc}"
+                )
+            self.stop_event.set()
+
+    def _detect_frames(self, run: CameraRun) -> None:
         period = 1.0 / run.config.fps if run.config.fps else 0.0
         next_time = time.monotonic()
         height = self.config.marker.height
