@@ -32,10 +32,10 @@ from pathlib import Path
 from pydantic import ValidationError
 
 from core.errors import InvalidInput
+from server.node.client import DEFAULT_API, api_url
 
 EXIT_USAGE = 2
 EXIT_SOURCE = 3
-DEFAULT_API = "http://127.0.0.1:8000/api/v1"
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -122,11 +122,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def _fail(message: str, code: int = EXIT_USAGE) -> int:
     print(f"intspace node: error: {' '.join(message.split())}", file=sys.stderr, flush=True)
     return code
-
-
-def _api_url(url: str) -> str:
-    url = url.rstrip("/")
-    return url if url.endswith("/api/v1") else url + "/api/v1"
 
 
 def _polygon(text: str) -> list[list[float]]:
@@ -218,14 +213,12 @@ def run_node(args: argparse.Namespace) -> int:
         return _fail(str(exc))
     if not 0 <= args.summary <= 86_400:
         return _fail("--summary must lie in [0, 86400] seconds")
-    api = _api_url(args.api or config.api or DEFAULT_API)
+    api = api_url(args.api or config.api or DEFAULT_API)
     node = Node(config, api, token, summary_s=args.summary)
     try:
         node.prepare()
         if args.record is not None:
-            from server.node.record import Recorder
-
-            node.recorder = Recorder.create(args.record, node)
+            node.record(args.record)
     except SourceUnavailable as exc:
         node.client.close()
         return _fail(str(exc), EXIT_SOURCE)

@@ -31,6 +31,7 @@ from server.node.clock import StageDelays
 from server.node.config import CameraConfig, NodeConfig
 from server.node.frame_upload import FrameUploads
 from server.node.masks import apply_mask, polygon_mask
+from server.node.record import Recorder, RecordingSource, is_recording, recording_cameras
 from server.node.sources import (
     TIMEOUT_S,
     MjpegHttpSource,
@@ -63,8 +64,6 @@ def make_source(
     `clock` is the service's (a file replayed fast is stamped from it). Raises InvalidInput
     for a live camera asked to play fast (realtime false): only a file or a recording can."""
     src = camera.source
-    from server.node.record import RecordingSource, is_recording
-
     if is_recording(src):  # a folder written by `intspace node --record`
         return RecordingSource(camera.name, str(src), realtime=camera.realtime)
     is_file = isinstance(src, str) and "://" not in src
@@ -101,8 +100,6 @@ def detector_kind(camera: CameraConfig, api: str) -> Literal["dnn", "background"
     detector for every other source (a real camera)."""
     if camera.detector != "auto":
         return camera.detector
-    from server.node.record import is_recording, recording_cameras
-
     if is_recording(camera.source):
         # A replay runs the detector the recording was made with, so it posts what the live
         # node did; recordings that do not say were made with the background model.
@@ -200,8 +197,8 @@ class Node:
         self.cameras: list[CameraRun] = []
         self.stop_event = threading.Event()
         self._threads: list[threading.Thread] = []
-        # A server.node.record.Recorder (--record DIR): keeps each processed frame.
-        self.recorder: Any = None
+        # --record DIR: keeps each processed frame.
+        self.recorder: Recorder | None = None
         # Why the node stopped before its sources ended (a fast replay fell behind), if so;
         # the late frames already said.
         self.failure: str | None = None
@@ -228,6 +225,23 @@ class Node:
             for run in self.cameras:
                 run.source.stop()
             raise
+
+    def record(self, root: Path) -> None:
+        """Keep each frame the prepared cameras' detectors process, with its capture time and
+        detections, in the new folder `root` (a recording). Raises InvalidInput when `root`
+        exists and is not empty, or cannot be written."""
+        cameras = [
+            {
+                "name": run.config.name,
+                "camera_id": run.camera_id,
+                "width": run.size[0],
+                "height": run.size[1],
+                "detector": run.detector,
+            }
+            for run in self.cameras
+        ]
+        self.recorder = Recorder(root, cameras)
+        log.info("recording %d camera(s) into %s", len(cameras), root)
 
     def _service_time(self) -> float:
         return time.time() + self.client.offset
