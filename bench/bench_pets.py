@@ -246,11 +246,13 @@ def measure_detectors(frames: list[NDArray[np.uint8]], truth: Truth) -> list[Det
             detect(image)
         return len(images) / (time.thread_time() - start)
 
-    # dnn: the node's default (300 px tiles at the camera's resolution, 64 px overlap), and two
-    # cheaper candidates measured beside it: the whole frame in one pass (the model shrinks it
-    # to 300 x 300) and 2 rows of tiles at 768 x 576 (24 px overlap, seams joined).
+    # dnn: the node's default (300 px tiles at the camera's resolution, 64 px overlap), a
+    # costlier candidate (each tile detected in its mirror image too, the two views merged),
+    # and two cheaper ones: the whole frame in one pass (the model shrinks it to 300 x 300) and
+    # 2 rows of tiles at 768 x 576 (24 px overlap, seams joined).
     candidates = [
         ("dnn (SSDLite-MobileNetV2, tiles)", SsdConfig()),
+        ("dnn, tiles and their mirror images", SsdConfig(flip=True)),
         ("dnn, whole frame", SsdConfig(tile_px=max(SIZE))),
         ("dnn, tiles with 24 px overlap", SsdConfig(tile_overlap_px=24)),
     ]

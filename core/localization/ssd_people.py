@@ -68,8 +68,10 @@ class SsdConfig:
     tiles' side (px; the model's input, so a person is seen at the camera's own resolution);
     tile_overlap_px: the least overlap between neighbouring tiles (px; a person narrower and
     shorter than this is whole in some tile); nms_iou: the IoU above which two boxes are one
-    person (0.5, PASCAL's match criterion); threads: onnxruntime's threads (1: a camera per
-    core).
+    person (0.5, PASCAL's match criterion); flip: also detect in each tile mirrored left to
+    right and merge both by the same suppression (test-time augmentation: a person is a
+    person in a mirror, the network's misses are not, at twice the cost); threads:
+    onnxruntime's threads (1: a camera per core).
     """
 
     score_threshold: float = 0.5
@@ -77,6 +79,7 @@ class SsdConfig:
     tile_px: int = MODEL_INPUT_PX
     tile_overlap_px: int = 64
     nms_iou: float = 0.5
+    flip: bool = False
     threads: int = 1
 
     def __post_init__(self) -> None:
@@ -225,6 +228,23 @@ class SsdPeopleDetector:
         b = boxes[0, :n][keep][:, [1, 0, 3, 2]].astype(np.float64) * [w, h, w, h]
         return b, scores[0, :n][keep].astype(np.float64)
 
+    def _tile_boxes(
+        self, rgb: NDArray[np.uint8], x0: int, y0: int, x1: int, y1: int
+    ) -> tuple[Array, Array]:
+        """Return the person boxes (M, 4) px, in the image's pixels, that the model finds in
+        the tile [x0, x1) x [y0, y1) of the RGB image, and their scores (M,); with `flip`, also
+        those it finds in the tile mirrored left to right, mirrored back."""
+        tile = rgb[y0:y1, x0:x1]
+        b, s = self._detect_tile(tile)
+        if self.config.flip:
+            fb, fs = self._detect_tile(tile[:, ::-1])
+            w = x1 - x0
+            fb = np.column_stack([w - fb[:, 2], fb[:, 1], w - fb[:, 0], fb[:, 3]])
+            # Both views go to the suppression below: it keeps the better of a person's two
+            # boxes, and the person that one view missed.
+            b, s = np.concatenate([b, fb]), np.concatenate([s, fs])
+        return b + np.array([x0, y0, x0, y0], dtype=np.float64), s
+
     def detect_boxes(self, image: NDArray[np.uint8]) -> PersonBoxes:
         """Return the people in a BGR image (H, W, 3) as boxes, scores and cut sides."""
         img = np.asarray(image)
@@ -237,8 +257,7 @@ class SsdPeopleDetector:
         for y0 in tile_origins(height, cfg.tile_px, cfg.tile_overlap_px):
             for x0 in tile_origins(width, cfg.tile_px, cfg.tile_overlap_px):
                 x1, y1 = min(width, x0 + cfg.tile_px), min(height, y0 + cfg.tile_px)
-                b, s = self._detect_tile(rgb[y0:y1, x0:x1])
-                b += [x0, y0, x0, y0]
+                b, s = self._tile_boxes(rgb, x0, y0, x1, y1)
                 # The sides that stop at this tile's inner edges (not the image's).
                 seam = np.zeros((b.shape[0], len(BOX_SIDES)), dtype=bool)
                 seam[:, 0] = (y1 < height) & (b[:, 3] >= y1 - 1 - EDGE_PX)

@@ -2,7 +2,7 @@
 detections to the service (spec 08).
 
     intspace node --source SRC --camera NAME [--space ID] [--api URL] [--fps N]
-        [--detector dnn|background] [--score-threshold S] [--min-person-px PX]
+        [--detector dnn|background] [--score-threshold S] [--min-person-px PX] [--[no-]flip]
         [--mask "X,Y X,Y X,Y" ...] [--source-fps N]
     intspace node --config cameras.yaml [--api URL]
     intspace node ... --record DIR          (keep frames, detections, capture times)
@@ -93,6 +93,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="dnn: the least height of a person's box in pixels (default 20)",
     )
     p.add_argument(
+        "--flip",
+        action=argparse.BooleanOptionalAction,
+        help="dnn: also detect in each tile's mirror image (more people found, twice the cost)",
+    )
+    p.add_argument(
         "--mask",
         action="append",
         metavar='"X,Y X,Y X,Y"',
@@ -139,7 +144,7 @@ def _config(args: argparse.Namespace):
     from server.node.config import CameraConfig, NodeConfig, load_config, parse_source
 
     if args.config is not None:
-        per_camera = ("detector", "score_threshold", "min_person_px", "source_fps", "mask")
+        per_camera = ("detector", "score_threshold", "min_person_px", "flip", "source_fps", "mask")
         if args.source or args.camera or any(getattr(args, n) is not None for n in per_camera):
             raise InvalidInput(
                 "give --config, or --source and --camera (with their camera's flags), not both"
@@ -162,7 +167,7 @@ def _config(args: argparse.Namespace):
             "realtime": not args.fast,
             "masks": [_polygon(text) for text in args.mask or []],
         }
-        for name in ("detector", "score_threshold", "min_person_px", "source_fps"):
+        for name in ("detector", "score_threshold", "min_person_px", "flip", "source_fps"):
             if getattr(args, name) is not None:
                 fields[name] = getattr(args, name)
         try:

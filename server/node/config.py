@@ -13,6 +13,7 @@ cameras:
     detector: dnn                     # people: dnn (neural, photographs) or background
     score_threshold: 0.5              # dnn: the least score of a person's box
     min_person_px: 20                 # dnn: the least height of a person's box (px)
+    flip: false                       # dnn: also detect in each tile's mirror image
   - name: cam_recorded
     source: /data/entrance.avi
     source_fps: 7                     # a file's true frame rate (its container may say another)
@@ -45,6 +46,7 @@ DEFAULT_MARKER_RADIUS = 0.05
 
 DEFAULT_SCORE_THRESHOLD = SsdConfig.score_threshold
 DEFAULT_MIN_PERSON_PX = SsdConfig.min_person_px
+DEFAULT_FLIP = SsdConfig.flip
 
 Vertex = Annotated[list[float], Field(min_length=2, max_length=2)]
 
@@ -76,6 +78,7 @@ class CameraConfig(_Model):
     detector: Literal["auto", "dnn", "background"] = "auto"
     score_threshold: Annotated[float, Field(ge=0, le=1)] = DEFAULT_SCORE_THRESHOLD
     min_person_px: Annotated[float, Field(ge=0, le=10_000)] = DEFAULT_MIN_PERSON_PX
+    flip: bool = DEFAULT_FLIP
     source_fps: Annotated[float, Field(gt=0, le=240)] | None = Field(
         default=None,
         description="A video file's frame rate: frame k is captured at t0 + k / source_fps "

@@ -117,7 +117,11 @@ def people_detector(
     """Return a new people detector of `kind` for `camera` (its settings and its mask)."""
     if kind == "background":
         return PersonDetector()
-    config = SsdConfig(score_threshold=camera.score_threshold, min_person_px=camera.min_person_px)
+    config = SsdConfig(
+        score_threshold=camera.score_threshold,
+        min_person_px=camera.min_person_px,
+        flip=camera.flip,
+    )
     return SsdPeopleDetector(config=config, mask=mask)
 
 

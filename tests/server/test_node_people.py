@@ -39,6 +39,9 @@ def test_real_sources_get_the_neural_detector_and_the_twin_streams_the_backgroun
     dnn = people_detector(camera, "dnn", None)
     assert isinstance(dnn, SsdPeopleDetector)
     assert dnn.config.score_threshold == 0.7 and dnn.config.min_person_px == 40
+    assert not dnn.config.flip  # twice the cost: asked for, never by default
+    flipped = people_detector(camera.model_copy(update={"flip": True}), "dnn", None)
+    assert isinstance(flipped, SsdPeopleDetector) and flipped.config.flip
     assert isinstance(people_detector(camera, "background", None), PersonDetector)
 
 
