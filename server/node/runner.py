@@ -28,7 +28,12 @@ from core.localization.detections import FrameDetection, PeopleDetector, detect_
 from core.localization.ssd_people import PersonBoxes, SsdConfig, SsdPeopleDetector
 from server.node.client import NodeError, ServiceClient, Uploader
 from server.node.clock import StageDelays
-from server.node.config import CameraConfig, NodeConfig
+from server.node.config import (
+    DEFAULT_FLIP_SCORE_THRESHOLD,
+    DEFAULT_SCORE_THRESHOLD,
+    CameraConfig,
+    NodeConfig,
+)
 from server.node.frame_upload import FrameUploads
 from server.node.masks import apply_mask, polygon_mask
 from server.node.record import Recorder, RecordingSource, is_recording, recording_cameras
@@ -117,8 +122,11 @@ def people_detector(
     """Return a new people detector of `kind` for `camera` (its settings and its mask)."""
     if kind == "background":
         return PersonDetector()
+    threshold = camera.score_threshold
+    if threshold is None:
+        threshold = DEFAULT_FLIP_SCORE_THRESHOLD if camera.flip else DEFAULT_SCORE_THRESHOLD
     config = SsdConfig(
-        score_threshold=camera.score_threshold,
+        score_threshold=threshold,
         min_person_px=camera.min_person_px,
         flip=camera.flip,
     )
