@@ -246,11 +246,13 @@ def measure_detectors(frames: list[NDArray[np.uint8]], truth: Truth) -> list[Det
             detect(image)
         return len(images) / (time.thread_time() - start)
 
-    # dnn: the node's default (300 px tiles at the camera's resolution, 64 px overlap), and two
-    # cheaper candidates measured beside it: the whole frame in one pass (the model shrinks it
-    # to 300 x 300) and 2 rows of tiles at 768 x 576 (24 px overlap, seams joined).
+    # dnn: the node's default (300 px tiles at the camera's resolution, 64 px overlap), a
+    # costlier candidate (each tile detected in its mirror image too, the two views merged),
+    # and two cheaper ones: the whole frame in one pass (the model shrinks it to 300 x 300) and
+    # 2 rows of tiles at 768 x 576 (24 px overlap, seams joined).
     candidates = [
         ("dnn (SSDLite-MobileNetV2, tiles)", SsdConfig()),
+        ("dnn, tiles and their mirror images", SsdConfig(flip=True, score_threshold=0.6)),
         ("dnn, whole frame", SsdConfig(tile_px=max(SIZE))),
         ("dnn, tiles with 24 px overlap", SsdConfig(tile_overlap_px=24)),
     ]
@@ -329,7 +331,11 @@ def clip_video(source: Path, frames: int, out: Path) -> Path:
 
 
 def track_through_service(
-    video: Path, placement: Placement, workdir: Path, posted: list[Any] | None = None
+    video: Path,
+    placement: Placement,
+    workdir: Path,
+    posted: list[Any] | None = None,
+    node_args: tuple[str, ...] = (),
 ) -> TrackingRun:
     """Start `intspace serve`, register and place the camera, play `video` through
     `intspace node --source VIDEO --camera NAME --source-fps 7` with an ingest token, and
@@ -390,7 +396,7 @@ def track_through_service(
         assert token.status_code == 201, token.text
         ingest = token.json()["token"]
         if posted is None:
-            t0, text = _play_node(video, api, ingest, workdir)
+            t0, text = _play_node(video, api, ingest, workdir, node_args)
         else:
             t0, text = _post_frames(posted, api, ingest, camera_id)
         # The tracker releases the posted frames after its reorder window (1 s) and writes
@@ -415,9 +421,11 @@ def track_through_service(
         serve_log.close()
 
 
-def _play_node(video: Path, api: str, token: str, workdir: Path) -> tuple[float, str]:
-    """Run `intspace node` on `video` to its end; return the capture time of the file's frame
-    0 (what the node said) and the node's log."""
+def _play_node(
+    video: Path, api: str, token: str, workdir: Path, node_args: tuple[str, ...] = ()
+) -> tuple[float, str]:
+    """Run `intspace node` on `video` (with `node_args`) to its end; return the capture time
+    of the file's frame 0 (what the node said) and the node's log."""
     node_env = _env()
     node_env["INTSPACE_TOKEN"] = token
     node_log = workdir / "node.log"
@@ -436,6 +444,7 @@ def _play_node(video: Path, api: str, token: str, workdir: Path) -> tuple[float,
                 f"{SOURCE_FPS:g}",
                 "--api",
                 api,
+                *node_args,
             ],
             cwd=REPO,
             env=node_env,
@@ -574,21 +583,27 @@ def score_tracking(
 
 
 def run_tracking(
-    frames: int, workdir: Path, every_frame: bool = False
+    frames: int, workdir: Path, every_frame: bool = False, flip: bool = False
 ) -> tuple[TrackScore, TrackingRun, Placement]:
     """Place the camera, play the first `frames` frames of the clip through serve + node (or,
-    `every_frame`, post every frame's boxes detected beforehand) and score the tracks on
-    ground-truth frames 1..frames."""
+    `every_frame`, post every frame's boxes detected beforehand; `flip`, the detector's tiles
+    and their mirror images) and score the tracks on ground-truth frames 1..frames."""
     truth = load_truth()
     placement = place_camera(truth)
     clip = clip_video(video_path(), frames, workdir / "clip.mkv")
     posted = None
     if every_frame:
-        from core.localization.ssd_people import SsdPeopleDetector
+        from core.localization.ssd_people import (
+            FLIP_SCORE_THRESHOLD,
+            SsdConfig,
+            SsdPeopleDetector,
+        )
 
-        dnn = SsdPeopleDetector()
+        config = SsdConfig(flip=True, score_threshold=FLIP_SCORE_THRESHOLD) if flip else SsdConfig()
+        dnn = SsdPeopleDetector(config=config)
         posted = [dnn.detect_boxes(image) for image in read_frames(clip, frames)]
-    run = track_through_service(clip, placement, workdir, posted)
+    node_args = ("--flip",) if flip else ()
+    run = track_through_service(clip, placement, workdir, posted, node_args)
     return score_tracking(run, truth, frames), run, placement
 
 
@@ -602,6 +617,11 @@ def main() -> None:
         "--every-frame",
         action="store_true",
         help="post every frame's boxes (detected beforehand) at 7 Hz instead of running the node",
+    )
+    parser.add_argument(
+        "--flip",
+        action="store_true",
+        help="track with the detector's tiles and their mirror images (the node's --flip)",
     )
     args = parser.parse_args()
     frames = min(max(args.frames, 1), 400)
@@ -629,10 +649,10 @@ def main() -> None:
     if not args.skip_tracking:
         if args.workdir is not None:
             args.workdir.mkdir(parents=True, exist_ok=True)
-            score, run, _ = run_tracking(frames, args.workdir, args.every_frame)
+            score, run, _ = run_tracking(frames, args.workdir, args.every_frame, args.flip)
         else:
             with tempfile.TemporaryDirectory(prefix="bench-pets-") as tmp:
-                score, run, _ = run_tracking(frames, Path(tmp), args.every_frame)
+                score, run, _ = run_tracking(frames, Path(tmp), args.every_frame, args.flip)
         posted = re.search(r"posted (\d+) detection\(s\) and (\d+) empty frame", run.node_log)
         how = "every frame's boxes posted at 7 Hz" if args.every_frame else "intspace node"
         print(f"\nintspace serve + {how} on frames 1-{frames} (floor, 1 m)")

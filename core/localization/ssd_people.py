@@ -45,6 +45,14 @@ Array = NDArray[np.float64]
 DEFAULT_MODEL = "ssdlite_mobilenet_v2_coco.onnx"
 # The model's input side (px): its graph resizes every image to this square.
 MODEL_INPUT_PX = 300
+# The least score of a kept box: the model zoo's own threshold for showing a detection.
+SCORE_THRESHOLD = 0.5
+# The same with `flip`: a box gets two chances (a view and its mirror image), so a wrong box
+# passes more often; at 0.6 the two views' boxes are as precise as one view's at 0.5, measured
+# on PETS 2009 frames 1-200 (precision 0.877 one view, 0.878 both views; 0.864 at 0.55, 0.889
+# at 0.65) and confirmed on frames 201-400 (0.955 and 0.960), with recall 0.743 to 0.766 and
+# 0.859 to 0.879.
+FLIP_SCORE_THRESHOLD = 0.6
 # The COCO label of a person in the TensorFlow model zoo's numbering (1-based, 1 = person).
 COCO_PERSON = 1
 # A box cut by a tile's inner edge is a part of someone another tile sees whole when at least
@@ -63,20 +71,23 @@ _OUTPUTS = ["num_detections:0", "detection_scores:0", "detection_boxes:0", "dete
 class SsdConfig:
     """The neural person detector's settings.
 
-    score_threshold: the least score of a kept box (0.5, the model zoo's own threshold for
-    showing a detection); min_person_px: the least box height (px) of a person; tile_px: the
+    score_threshold: the least score of a kept box (SCORE_THRESHOLD; FLIP_SCORE_THRESHOLD
+    suits `flip`); min_person_px: the least box height (px) of a person; tile_px: the
     tiles' side (px; the model's input, so a person is seen at the camera's own resolution);
     tile_overlap_px: the least overlap between neighbouring tiles (px; a person narrower and
     shorter than this is whole in some tile); nms_iou: the IoU above which two boxes are one
-    person (0.5, PASCAL's match criterion); threads: onnxruntime's threads (1: a camera per
-    core).
+    person (0.5, PASCAL's match criterion); flip: also detect in each tile mirrored left to
+    right and merge both by the same suppression (test-time augmentation: a person is a
+    person in a mirror, the network's misses are not, at twice the cost); threads:
+    onnxruntime's threads (1: a camera per core).
     """
 
-    score_threshold: float = 0.5
+    score_threshold: float = SCORE_THRESHOLD
     min_person_px: float = 20.0
     tile_px: int = MODEL_INPUT_PX
     tile_overlap_px: int = 64
     nms_iou: float = 0.5
+    flip: bool = False
     threads: int = 1
 
     def __post_init__(self) -> None:
@@ -225,6 +236,23 @@ class SsdPeopleDetector:
         b = boxes[0, :n][keep][:, [1, 0, 3, 2]].astype(np.float64) * [w, h, w, h]
         return b, scores[0, :n][keep].astype(np.float64)
 
+    def _tile_boxes(
+        self, rgb: NDArray[np.uint8], x0: int, y0: int, x1: int, y1: int
+    ) -> tuple[Array, Array]:
+        """Return the person boxes (M, 4) px, in the image's pixels, that the model finds in
+        the tile [x0, x1) x [y0, y1) of the RGB image, and their scores (M,); with `flip`, also
+        those it finds in the tile mirrored left to right, mirrored back."""
+        tile = rgb[y0:y1, x0:x1]
+        b, s = self._detect_tile(tile)
+        if self.config.flip:
+            fb, fs = self._detect_tile(tile[:, ::-1])
+            w = x1 - x0
+            fb = np.column_stack([w - fb[:, 2], fb[:, 1], w - fb[:, 0], fb[:, 3]])
+            # Both views go to the suppression below: it keeps the better of a person's two
+            # boxes, and the person that one view missed.
+            b, s = np.concatenate([b, fb]), np.concatenate([s, fs])
+        return b + np.array([x0, y0, x0, y0], dtype=np.float64), s
+
     def detect_boxes(self, image: NDArray[np.uint8]) -> PersonBoxes:
         """Return the people in a BGR image (H, W, 3) as boxes, scores and cut sides."""
         img = np.asarray(image)
@@ -237,8 +265,7 @@ class SsdPeopleDetector:
         for y0 in tile_origins(height, cfg.tile_px, cfg.tile_overlap_px):
             for x0 in tile_origins(width, cfg.tile_px, cfg.tile_overlap_px):
                 x1, y1 = min(width, x0 + cfg.tile_px), min(height, y0 + cfg.tile_px)
-                b, s = self._detect_tile(rgb[y0:y1, x0:x1])
-                b += [x0, y0, x0, y0]
+                b, s = self._tile_boxes(rgb, x0, y0, x1, y1)
                 # The sides that stop at this tile's inner edges (not the image's).
                 seam = np.zeros((b.shape[0], len(BOX_SIDES)), dtype=bool)
                 seam[:, 0] = (y1 < height) & (b[:, 3] >= y1 - 1 - EDGE_PX)

@@ -2,7 +2,7 @@
 detections to the service (spec 08).
 
     intspace node --source SRC --camera NAME [--space ID] [--api URL] [--fps N]
-        [--detector dnn|background] [--score-threshold S] [--min-person-px PX]
+        [--detector dnn|background] [--score-threshold S] [--min-person-px PX] [--[no-]flip]
         [--mask "X,Y X,Y X,Y" ...] [--source-fps N]
     intspace node --config cameras.yaml [--api URL]
     intspace node ... --record DIR          (keep frames, detections, capture times)
@@ -14,7 +14,8 @@ SRC: a USB index, a video file, an RTSP or HTTP(S) MJPEG URL (the service's own
 flag: command lines are visible to every user of the machine).
 
 Exit codes, each failure said in one line on stderr: 0 when every source ended (video files)
-or the node was stopped (Ctrl-C, SIGTERM); 2 for a bad command line or configuration file, no
+or the node was stopped (Ctrl-C, SIGTERM); 1 when a camera's detection failed (its detector
+raised) or a fast replay fell behind its clip; 2 for a bad command line or configuration file, no
 token, or a camera the registry does not know or has not calibrated; 3 for a source that cannot
 be opened at start (no such file, connection refused, ...). A stream that drops later is
 reopened with back-off, never an exit.
@@ -31,10 +32,10 @@ from pathlib import Path
 from pydantic import ValidationError
 
 from core.errors import InvalidInput
+from server.node.client import DEFAULT_API, api_url
 
 EXIT_USAGE = 2
 EXIT_SOURCE = 3
-DEFAULT_API = "http://127.0.0.1:8000/api/v1"
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -92,6 +93,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="dnn: the least height of a person's box in pixels (default 20)",
     )
     p.add_argument(
+        "--flip",
+        action=argparse.BooleanOptionalAction,
+        help="dnn: also detect in each tile's mirror image (more people found, twice the cost)",
+    )
+    p.add_argument(
         "--mask",
         action="append",
         metavar='"X,Y X,Y X,Y"',
@@ -123,11 +129,6 @@ def _fail(message: str, code: int = EXIT_USAGE) -> int:
     return code
 
 
-def _api_url(url: str) -> str:
-    url = url.rstrip("/")
-    return url if url.endswith("/api/v1") else url + "/api/v1"
-
-
 def _polygon(text: str) -> list[list[float]]:
     """Return the vertices of a --mask polygon "X,Y X,Y X,Y"."""
     try:
@@ -143,7 +144,7 @@ def _config(args: argparse.Namespace):
     from server.node.config import CameraConfig, NodeConfig, load_config, parse_source
 
     if args.config is not None:
-        per_camera = ("detector", "score_threshold", "min_person_px", "source_fps", "mask")
+        per_camera = ("detector", "score_threshold", "min_person_px", "flip", "source_fps", "mask")
         if args.source or args.camera or any(getattr(args, n) is not None for n in per_camera):
             raise InvalidInput(
                 "give --config, or --source and --camera (with their camera's flags), not both"
@@ -166,7 +167,7 @@ def _config(args: argparse.Namespace):
             "realtime": not args.fast,
             "masks": [_polygon(text) for text in args.mask or []],
         }
-        for name in ("detector", "score_threshold", "min_person_px", "source_fps"):
+        for name in ("detector", "score_threshold", "min_person_px", "flip", "source_fps"):
             if getattr(args, name) is not None:
                 fields[name] = getattr(args, name)
         try:
@@ -217,14 +218,12 @@ def run_node(args: argparse.Namespace) -> int:
         return _fail(str(exc))
     if not 0 <= args.summary <= 86_400:
         return _fail("--summary must lie in [0, 86400] seconds")
-    api = _api_url(args.api or config.api or DEFAULT_API)
+    api = api_url(args.api or config.api or DEFAULT_API)
     node = Node(config, api, token, summary_s=args.summary)
     try:
         node.prepare()
         if args.record is not None:
-            from server.node.record import Recorder
-
-            node.recorder = Recorder.create(args.record, node)
+            node.record(args.record)
     except SourceUnavailable as exc:
         node.client.close()
         return _fail(str(exc), EXIT_SOURCE)

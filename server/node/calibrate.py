@@ -309,8 +309,7 @@ def _say(text: str) -> None:
 
 
 def _calibrate(args: argparse.Namespace, input_fn: Callable[[str], str]) -> int:
-    from server.commands.node import DEFAULT_API, _api_url
-    from server.node.client import NodeError, ServiceClient
+    from server.node.client import DEFAULT_API, NodeError, ServiceClient, api_url
     from server.node.config import CameraConfig, parse_source
     from server.node.runner import make_source
     from server.node.sources import SourceUnavailable, quiet_video_libraries
@@ -329,7 +328,7 @@ def _calibrate(args: argparse.Namespace, input_fn: Callable[[str], str]) -> int:
             f"be at least {MIN_VIEWS_TO_SUBMIT}",
             EXIT_USAGE,
         )
-    api = _api_url(args.api or DEFAULT_API)
+    api = api_url(args.api or DEFAULT_API)
     client = ServiceClient(api, token, timeout=30.0)
     try:
         try:

@@ -17,6 +17,8 @@ from server.node.clock import ClockOffset, StageDelays
 
 log = logging.getLogger("intspace.node")
 
+# The service a node posts to unless told otherwise.
+DEFAULT_API = "http://127.0.0.1:8000/api/v1"
 # Detections posted at once, at most (the endpoint takes far more; small batches keep latency).
 _BATCH = 500
 # How long (s) an upload waits after the service failed before it tries again, at most.
@@ -32,6 +34,12 @@ def _seconds(text: str | None) -> float | None:
     except ValueError:
         return None
     return value if value is not None and math.isfinite(value) else None
+
+
+def api_url(url: str) -> str:
+    """Return the service's API root for a URL a user gave (with or without /api/v1)."""
+    url = url.rstrip("/")
+    return url if url.endswith("/api/v1") else url + "/api/v1"
 
 
 class NodeError(Exception):

@@ -11,8 +11,9 @@ cameras:
     fps: 10                           # detections per second at most (default: every frame)
     masks: [[[0, 0], [120, 0], [120, 80], [0, 80]]]   # pixel polygons to ignore
     detector: dnn                     # people: dnn (neural, photographs) or background
-    score_threshold: 0.5              # dnn: the least score of a person's box
+    score_threshold: 0.5              # dnn: the least score of a person's box (0.6 with flip)
     min_person_px: 20                 # dnn: the least height of a person's box (px)
+    flip: false                       # dnn: also detect in each tile's mirror image
   - name: cam_recorded
     source: /data/entrance.avi
     source_fps: 7                     # a file's true frame rate (its container may say another)
@@ -35,7 +36,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from core.errors import InvalidInput
-from core.localization.ssd_people import SsdConfig
+from core.localization.ssd_people import FLIP_SCORE_THRESHOLD, SCORE_THRESHOLD, SsdConfig
 
 # The intspace robot's top marker (a red disc 0.36 m above the floor): what the product's robot
 # carries; a robot with another marker is configured in the file or by flags.
@@ -43,8 +44,10 @@ DEFAULT_MARKER_COLOUR = (220, 20, 30)
 DEFAULT_MARKER_HEIGHT = 0.36
 DEFAULT_MARKER_RADIUS = 0.05
 
-DEFAULT_SCORE_THRESHOLD = SsdConfig.score_threshold
+DEFAULT_SCORE_THRESHOLD = SCORE_THRESHOLD
+DEFAULT_FLIP_SCORE_THRESHOLD = FLIP_SCORE_THRESHOLD
 DEFAULT_MIN_PERSON_PX = SsdConfig.min_person_px
+DEFAULT_FLIP = SsdConfig.flip
 
 Vertex = Annotated[list[float], Field(min_length=2, max_length=2)]
 
@@ -74,8 +77,13 @@ class CameraConfig(_Model):
     reader: Literal["auto", "mjpeg", "opencv"] = "auto"
     realtime: bool = Field(True, description="A video file plays at its own rate, else fast.")
     detector: Literal["auto", "dnn", "background"] = "auto"
-    score_threshold: Annotated[float, Field(ge=0, le=1)] = DEFAULT_SCORE_THRESHOLD
+    score_threshold: Annotated[float, Field(ge=0, le=1)] | None = Field(
+        default=None,
+        description="The least score of a person's box; None: 0.5, or 0.6 with flip (two views "
+        "give a wrong box two chances).",
+    )
     min_person_px: Annotated[float, Field(ge=0, le=10_000)] = DEFAULT_MIN_PERSON_PX
+    flip: bool = DEFAULT_FLIP
     source_fps: Annotated[float, Field(gt=0, le=240)] | None = Field(
         default=None,
         description="A video file's frame rate: frame k is captured at t0 + k / source_fps "

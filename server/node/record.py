@@ -37,16 +37,13 @@ import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, ClassVar, Literal
+from typing import Any, ClassVar, Literal
 
 import cv2
 
 from core.errors import InvalidInput
 from server.node.frames import Frame, HandOver
 from server.node.sources import Source
-
-if TYPE_CHECKING:
-    from server.node.runner import Node
 
 log = logging.getLogger("intspace.node")
 
@@ -121,23 +118,6 @@ class Recorder:
             raise InvalidInput(f"cannot record into {root}: {exc.strerror or exc}") from None
         self.root = root
         self.failed: str | None = None
-
-    @classmethod
-    def create(cls, root: Path, node: Node) -> Recorder:
-        """Return a recorder of the prepared `node`'s cameras into the new folder `root`."""
-        cameras = [
-            {
-                "name": run.config.name,
-                "camera_id": run.camera_id,
-                "width": run.size[0],
-                "height": run.size[1],
-                "detector": run.detector,
-            }
-            for run in node.cameras
-        ]
-        recorder = cls(root, cameras)
-        log.info("recording %d camera(s) into %s", len(cameras), root)
-        return recorder
 
     def write(
         self, camera: str, frame: Frame, t: float, observations: list[dict[str, Any]]

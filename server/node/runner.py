@@ -28,9 +28,15 @@ from core.localization.detections import FrameDetection, PeopleDetector, detect_
 from core.localization.ssd_people import PersonBoxes, SsdConfig, SsdPeopleDetector
 from server.node.client import NodeError, ServiceClient, Uploader
 from server.node.clock import StageDelays
-from server.node.config import CameraConfig, NodeConfig
+from server.node.config import (
+    DEFAULT_FLIP_SCORE_THRESHOLD,
+    DEFAULT_SCORE_THRESHOLD,
+    CameraConfig,
+    NodeConfig,
+)
 from server.node.frame_upload import FrameUploads
 from server.node.masks import apply_mask, polygon_mask
+from server.node.record import Recorder, RecordingSource, is_recording, recording_cameras
 from server.node.sources import (
     TIMEOUT_S,
     MjpegHttpSource,
@@ -63,8 +69,6 @@ def make_source(
     `clock` is the service's (a file replayed fast is stamped from it). Raises InvalidInput
     for a live camera asked to play fast (realtime false): only a file or a recording can."""
     src = camera.source
-    from server.node.record import RecordingSource, is_recording
-
     if is_recording(src):  # a folder written by `intspace node --record`
         return RecordingSource(camera.name, str(src), realtime=camera.realtime)
     is_file = isinstance(src, str) and "://" not in src
@@ -101,8 +105,6 @@ def detector_kind(camera: CameraConfig, api: str) -> Literal["dnn", "background"
     detector for every other source (a real camera)."""
     if camera.detector != "auto":
         return camera.detector
-    from server.node.record import is_recording, recording_cameras
-
     if is_recording(camera.source):
         # A replay runs the detector the recording was made with, so it posts what the live
         # node did; recordings that do not say were made with the background model.
@@ -120,7 +122,14 @@ def people_detector(
     """Return a new people detector of `kind` for `camera` (its settings and its mask)."""
     if kind == "background":
         return PersonDetector()
-    config = SsdConfig(score_threshold=camera.score_threshold, min_person_px=camera.min_person_px)
+    threshold = camera.score_threshold
+    if threshold is None:
+        threshold = DEFAULT_FLIP_SCORE_THRESHOLD if camera.flip else DEFAULT_SCORE_THRESHOLD
+    config = SsdConfig(
+        score_threshold=threshold,
+        min_person_px=camera.min_person_px,
+        flip=camera.flip,
+    )
     return SsdPeopleDetector(config=config, mask=mask)
 
 
@@ -200,8 +209,8 @@ class Node:
         self.cameras: list[CameraRun] = []
         self.stop_event = threading.Event()
         self._threads: list[threading.Thread] = []
-        # A server.node.record.Recorder (--record DIR): keeps each processed frame.
-        self.recorder: Any = None
+        # --record DIR: keeps each processed frame.
+        self.recorder: Recorder | None = None
         # Why the node stopped before its sources ended (a fast replay fell behind), if so;
         # the late frames already said.
         self.failure: str | None = None
@@ -228,6 +237,23 @@ class Node:
             for run in self.cameras:
                 run.source.stop()
             raise
+
+    def record(self, root: Path) -> None:
+        """Keep each frame the prepared cameras' detectors process, with its capture time and
+        detections, in the new folder `root` (a recording). Raises InvalidInput when `root`
+        exists and is not empty, or cannot be written."""
+        cameras = [
+            {
+                "name": run.config.name,
+                "camera_id": run.camera_id,
+                "width": run.size[0],
+                "height": run.size[1],
+                "detector": run.detector,
+            }
+            for run in self.cameras
+        ]
+        self.recorder = Recorder(root, cameras)
+        log.info("recording %d camera(s) into %s", len(cameras), root)
 
     def _service_time(self) -> float:
         return time.time() + self.client.offset
@@ -260,7 +286,7 @@ class Node:
 
     def run(self) -> int:
         """Run until `stop_event` is set or every source ended; return the exit code (0, or 1
-        when a fast replay fell behind its clip)."""
+        when a fast replay fell behind its clip or a camera's detection failed)."""
         self._announce_replays()
         for run in self.cameras:
             log.info("camera %s: people by the %s detector", run.config.name, run.detector)
@@ -334,6 +360,22 @@ class Node:
         return 0
 
     def _detect_loop(self, run: CameraRun) -> None:
+        """Detect in `run`'s frames until stopped or its source ends. An exception stops the
+        node (exit code 1, said in one line): a camera whose frames nobody detects in would be
+        read on and reported healthy while it posts nothing."""
+        try:
+            self._detect_frames(run)
+        except Exception as exc:
+            log.debug("camera %s: detection failed", run.config.name, exc_info=True)
+            if self.failure is None:
+                self.failure = (
+                    f"camera {run.config.name}: detecting in its frames failed "
+                    f"({run.detector} detector, after {run.detected} frame(s)): "
+                    f"{type(exc).__name__}: {exc}"
+                )
+            self.stop_event.set()
+
+    def _detect_frames(self, run: CameraRun) -> None:
         period = 1.0 / run.config.fps if run.config.fps else 0.0
         next_time = time.monotonic()
         height = self.config.marker.height

@@ -111,3 +111,14 @@ def test_no_router_imports_another_and_no_service_imports_a_router():
     assert [(a, b) for a in routers for b in graph[a] if b in routers] == []
     services = [m for m in graph if m.startswith("server.services")]
     assert [(a, b) for a in services for b in graph[a] if b.startswith("server.api")] == []
+
+
+def test_the_camera_node_and_its_commands_form_no_circle():
+    # The node's modules once imported each other both ways (the recorder and the runner; the
+    # chessboard calibration and the node command, for the service's address): a module of a
+    # circle cannot be loaded, read or tested without the others.
+    graph = import_graph()
+    mine = {m: e for m, e in graph.items() if m.startswith(("server.node", "server.commands"))}
+    assert {"server.node.runner", "server.node.record", "server.commands.node"} <= set(mine)
+    inside = {m: {t for t in e if t in mine} for m, e in mine.items()}
+    assert circles(inside) == []

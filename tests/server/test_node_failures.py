@@ -213,3 +213,53 @@ def test_a_file_replayed_fast_is_processed_frame_by_frame_with_the_clips_timing(
         assert max(errors) < 0.05, errors
     finally:
         http.close()
+
+
+class _BrokenPeople:
+    """A people detector that fails on its third frame, as a corrupt model or a library
+    mismatch would (onnxruntime raises on the first run, not when the model loads)."""
+
+    def __init__(self) -> None:
+        self.frames = 0
+
+    def detect_people(self, image, *, camera=None, robot_pixels=()):
+        self.frames += 1
+        if self.frames == 3:
+            raise RuntimeError("the model's output has 0 columns, expected 7")
+        return []
+
+
+def test_a_detector_that_fails_stops_the_node_with_one_line_and_exit_code_1(
+    tmp_path, service, caplog, monkeypatch
+):
+    """A camera whose detector raises is not read on while nothing is posted: the node stops,
+    says why in one line (which camera, its detector, the error; no traceback), exit code 1."""
+    from server.node.config import CameraConfig, NodeConfig
+    from server.node.runner import Node
+
+    frames, fps = 40, 10.0  # 4 s of clip, played in real time
+    clip = tmp_path / "clip.avi"
+    writer = cv2.VideoWriter(str(clip), cv2.VideoWriter_fourcc(*"MJPG"), fps, (640, 480))
+    for k in range(frames):
+        writer.write(np.full((480, 640, 3), 4 * k, np.uint8))
+    writer.release()
+    uncaught: list = []
+    monkeypatch.setattr("threading.excepthook", uncaught.append)
+    camera = CameraConfig(name=CAMERA, source=str(clip), detector="background")
+    config = NodeConfig(space=service.space, background_frames=0, cameras=[camera])
+    node = Node(config, service.api, TOKEN, summary_s=0)
+    node.prepare()
+    run = node.cameras[0]
+    run.people = _BrokenPeople()
+    with caplog.at_level("INFO", logger="intspace.node"):
+        code = node.run()
+    errors = [r.getMessage() for r in caplog.records if r.levelname == "ERROR"]
+    print(code, errors)
+    assert code == 1
+    assert errors == [
+        f"stopped: camera {CAMERA}: detecting in its frames failed (background detector, after "
+        "2 frame(s)): RuntimeError: the model's output has 0 columns, expected 7"
+    ]
+    assert uncaught == [] and not any(r.exc_info for r in caplog.records if r.levelno > 10)
+    # It stopped there, not at the clip's end: a live camera would have been read for ever.
+    assert run.detected == 2 and run.source.stats.frames < frames

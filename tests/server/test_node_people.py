@@ -39,6 +39,15 @@ def test_real_sources_get_the_neural_detector_and_the_twin_streams_the_backgroun
     dnn = people_detector(camera, "dnn", None)
     assert isinstance(dnn, SsdPeopleDetector)
     assert dnn.config.score_threshold == 0.7 and dnn.config.min_person_px == 40
+    assert not dnn.config.flip  # twice the cost: asked for, never by default
+    flipped = people_detector(camera.model_copy(update={"flip": True}), "dnn", None)
+    assert isinstance(flipped, SsdPeopleDetector) and flipped.config.flip
+    assert flipped.config.score_threshold == 0.7  # the user's threshold wins
+    # Unset, the threshold is the one at which the detector's views are as precise as one.
+    plain = CameraConfig(name="c", source=0)
+    for flip, threshold in ((False, 0.5), (True, 0.6)):
+        made = people_detector(plain.model_copy(update={"flip": flip}), "dnn", None)
+        assert isinstance(made, SsdPeopleDetector) and made.config.score_threshold == threshold
     assert isinstance(people_detector(camera, "background", None), PersonDetector)
 
 
