@@ -213,31 +213,39 @@ def detect_landmarks(
             fc = None
         if fc is not None:
             frame_curves.append(fc)
-    found: list[_FrameEdges | _RingEdges] = [e for e in _frame_sides(frame_curves) if e is not None]
+    frame_edges = [e for e in _frame_sides(frame_curves) if e is not None]
+    rings: list[_RingCurves] = []
     for outer, _hole in _holed_components(red):
         try:
             edges = _ring_edges(red, outer)
         except skip:
             edges = None
-        if edges is not None:
-            found.append(edges)
-    ideals = _undistort_each(ctx, [e.points for e in found])
-    frames = [
-        (e, p)
-        for e, p in zip(found, ideals, strict=True)
-        if isinstance(e, _FrameEdges) and p is not None
-    ]
+        rc = None if edges is None else _ring_curves(edges)
+        if rc is not None and rc.matched:  # (else no ring edge to fit)
+            rings.append(rc)
+    # One undistortion for the frames' edge points and the curves each signpost's pose tries
+    # first (its outer and innermost edges: about half its points); the others on demand.
+    ideals = _undistort_each(
+        ctx,
+        [e.points for e in frame_edges]
+        + [np.concatenate([rc.distorted[k] for k in rc.first_choices()]) for rc in rings],
+    )
+    frames = [(e, p) for e, p in zip(frame_edges, ideals, strict=False) if p is not None]
     out = _frames(ctx, [e for e, _ in frames], [p for _, p in frames], frame_size)
-    rings = [
-        _ring_curves(e, p)
-        for e, p in zip(found, ideals, strict=True)
-        if isinstance(e, _RingEdges) and p is not None
-    ]
+    usable = []
+    for rc, p in zip(rings, ideals[len(frame_edges) :], strict=True):
+        if p is None:
+            continue
+        ks = rc.first_choices()
+        cuts = np.cumsum([len(rc.distorted[k]) for k in ks])[:-1]
+        rc.ideal.update(zip(ks, np.split(p, cuts), strict=True))
+        usable.append(rc)
+    rings = usable
     # The outer and innermost edges' ellipses of all signposts in one batch (the ones the pose
     # needs, when they fit; _rings fits the others it falls back to).
     wanted = [(i, k) for i, rc in enumerate(rings) for k in rc.first_choices()]
     try:
-        batch = fit_ellipses([rings[i].curves[k] for i, k in wanted])
+        batch = fit_ellipses([rings[i].ideal[k] for i, k in wanted])
     except skip:
         batch = []  # (LAPACK failed on one of them: each ring fits its own below)
     for (i, k), fit in zip(wanted, batch, strict=False):
@@ -929,13 +937,14 @@ def _ring_edges(score: Image, outer: Image) -> _RingEdges | None:
 
 @dataclass(frozen=True)
 class _RingCurves:
-    """A signpost's edge curves (ideal pixels), the ring edge each one matches ((curve, edge
-    index in RING_RADII), largest curve first), the outer curve's size, and the ellipses fitted
-    so far (None: not an ellipse)."""
+    """A signpost's edge curves (distorted pixels), the ring edge each one matches ((curve,
+    edge index in RING_RADII), largest curve first), the outer curve's size, the curves' ideal
+    pixels undistorted so far, and the ellipses fitted so far (None: not an ellipse)."""
 
-    curves: list[Array]
+    distorted: list[Array]
     matched: list[tuple[int, int]]
     ref: float
+    ideal: dict[int, Array] = field(default_factory=dict)
     fits: dict[int, ConicFit | None] = field(default_factory=dict)
 
     def first_choices(self) -> list[int]:
@@ -945,18 +954,20 @@ class _RingCurves:
         ks = [self.matched[0][0], self.matched[-1][0]]
         return ks[:1] if ks[0] == ks[1] else ks
 
-    def fit(self, k: int) -> ConicFit | None:
+    def fit(self, ctx: _Context, k: int) -> ConicFit | None:
         if k not in self.fits:
             try:
-                self.fits[k] = fit_ellipse(self.curves[k])
-            except DegenerateConfiguration:
+                if k not in self.ideal:
+                    self.ideal[k] = ctx.undistort(self.distorted[k])
+                self.fits[k] = fit_ellipse(self.ideal[k])
+            except (DegenerateConfiguration, ConvergenceError):
                 self.fits[k] = None
         return self.fits[k]
 
 
-def _ring_curves(edges: _RingEdges, ideal_points: Array) -> _RingCurves:
-    """Return a signpost's edge curves from their ideal pixels, matched to the ring edges."""
-    ideal = np.split(ideal_points, np.cumsum(edges.lengths)[:-1])
+def _ring_curves(edges: _RingEdges) -> _RingCurves:
+    """Return a signpost's edge curves matched to the ring edges."""
+    curves = np.split(edges.points, np.cumsum(edges.lengths)[:-1])
     sizes = edges.sizes
     order = np.argsort(-sizes)
     ref = sizes[order[0]]
@@ -967,7 +978,7 @@ def _ring_curves(edges: _RingEdges, ideal_points: Array) -> _RingCurves:
         j = int(np.argmin([abs(ratio - r / RING_RADII[0]) for r in RING_RADII]))
         if abs(ratio - RING_RADII[j] / RING_RADII[0]) <= 0.045 and all(j != i for _, i in matched):
             matched.append((int(k), j))
-    return _RingCurves(ideal, matched, float(ref))
+    return _RingCurves(curves, matched, float(ref))
 
 
 def _rings(ctx: _Context, rc: _RingCurves, size: float) -> LandmarkDetection | None:
@@ -979,7 +990,7 @@ def _rings(ctx: _Context, rc: _RingCurves, size: float) -> LandmarkDetection | N
     fits: list[ConicFit] = []
     radii: list[float] = []
     for n, (k, j) in enumerate(matched):
-        fit = rc.fit(k)
+        fit = rc.fit(ctx, k)
         if fit is None:
             continue
         if j != 0:
@@ -992,7 +1003,7 @@ def _rings(ctx: _Context, rc: _RingCurves, size: float) -> LandmarkDetection | N
         return None
     centre0 = fits[0].centre
     for k, j in matched[::-1]:
-        fit = rc.fit(k)
+        fit = rc.fit(ctx, k)
         if fit is None:
             continue
         if np.linalg.norm(fit.centre - centre0) <= 0.2 * ref:
