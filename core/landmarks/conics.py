@@ -212,7 +212,8 @@ def fit_ellipses(points: list[Array], *, iterations: int = 10) -> list[ConicFit 
     # orthogonal subspaces, so (P A P + c c^T)^-1 = (P A P)^+ + c c^T.
     cc = c[:, :, None] * c[:, None, :]
     Pt = np.eye(6) - cc
-    JJ = J @ np.swapaxes(J, 1, 2)
+    # (J is the last iteration's: its normal matrix is A's)
+    JJ = A if iterations > 0 else J @ np.swapaxes(J, 1, 2)
     N = Pt @ JJ @ Pt + cc
     bad = ~(np.abs(np.linalg.det(N)) > 1e-300)
     N[bad] = np.eye(6)
