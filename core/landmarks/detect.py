@@ -1264,12 +1264,18 @@ def _rvec_cov(R: Array, cov_theta: Array) -> Array:
     J_l(rvec)^-1 d theta, with the closed form J_l^-1 = I - [v]x / 2 + b [v]x^2,
     b = 1 / t^2 - cot(t / 2) / (2 t), t = |v| (Barfoot, "State Estimation for Robotics",
     eq. 7.79; the inverse of core.geometry.camera.left_jacobian_so3)."""
-    v = cv2.Rodrigues(R)[0].ravel()
-    t = float(np.linalg.norm(v))
-    b = 1 / 12 + t * t / 720 if t < 1e-3 else 1 / t**2 - 1 / (2 * t * np.tan(t / 2))
-    k = np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+    # (in plain floats: numpy's per-call cost is most of the time on 3 x 3 matrices)
+    v0, v1, v2 = cv2.Rodrigues(R)[0].ravel().tolist()
+    t = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
+    b = 1 / 12 + t * t / 720 if t < 1e-3 else 1 / t**2 - 1 / (2 * t * math.tan(t / 2))
+    # I - [v]x / 2 + b [v]x^2, with [v]x^2 = v v^T - |v|^2 I.
+    s2 = v0 * v0 + v1 * v1 + v2 * v2
     M = np.eye(6)
-    M[:3, :3] += -0.5 * k + b * (k @ k)
+    M[:3, :3] = [
+        [1 + b * (v0 * v0 - s2), 0.5 * v2 + b * v0 * v1, -0.5 * v1 + b * v0 * v2],
+        [-0.5 * v2 + b * v1 * v0, 1 + b * (v1 * v1 - s2), 0.5 * v0 + b * v1 * v2],
+        [0.5 * v1 + b * v2 * v0, -0.5 * v0 + b * v2 * v1, 1 + b * (v2 * v2 - s2)],
+    ]
     return M @ cov_theta @ M.T
 
 
@@ -1443,6 +1449,26 @@ _ANGLE_OUTSIDE = (
 )
 
 
+def _corner_blocks(px: int) -> NDArray[np.intp]:
+    """Return the flat indices (4, (px // 4)^2) into a px x px patch of its four corner blocks,
+    block k turned by k quarter turns (np.rot90) so that every block's corner is its first
+    pixel: top-left, top-right, bottom-right, bottom-left."""
+    b = px // 4
+    idx = np.arange(px * px).reshape(px, px)
+    blocks = [
+        idx[:b, :b],
+        np.rot90(idx[:b, -b:], 1),
+        np.rot90(idx[-b:, -b:], 2),
+        np.rot90(idx[-b:, :b], 3),
+    ]
+    return np.array(blocks).reshape(4, -1)
+
+
+# The corner blocks are compared on a patch of this many pixels.
+_BLOCKS_PATCH_PX = 96
+_CORNER_BLOCKS = _corner_blocks(_BLOCKS_PATCH_PX)
+
+
 def _symbol_angle(ctx: _Context, R: Array, t: Array, qr_side: float, *, free: bool) -> float | None:
     """Return the rotation psi about the normal that puts x along the symbol's rows, from the
     three finder patterns (no decoding): the symbol's axes from the dark modules' minimum-area
@@ -1470,25 +1496,20 @@ def _symbol_angle(ctx: _Context, R: Array, t: Array, qr_side: float, *, free: bo
         # Patch angles run clockwise (y down); the mark plane's counter-clockwise.
         psi0 = -np.radians(ang)
     Rs = R @ _rz(psi0)
-    px = 96
+    px = _BLOCKS_PATCH_PX
     grey = cv2.cvtColor(_rectify(ctx, Rs, t, qr_side / 2, px), cv2.COLOR_BGR2GRAY).astype(
         np.float64
     )
-    b = px // 4
-    blocks = [
-        grey[:b, :b],
-        np.rot90(grey[:b, -b:], 1),
-        np.rot90(grey[-b:, -b:], 2),
-        np.rot90(grey[-b:, :b], 3),
-    ]
-    z = np.array(blocks, dtype=np.float64).reshape(4, -1)
+    # The four corner blocks, each turned so that its corner is the top-left: one gather.
+    z = grey.ravel().take(_CORNER_BLOCKS)
     z -= z.mean(1, keepdims=True)
-    z /= z.std(1, keepdims=True) + 1e-9
+    # (np.std's own steps, without its wrapper's calls)
+    z /= np.sqrt(np.mean(np.square(z - z.mean(1, keepdims=True)), 1, keepdims=True)) + 1e-9
     C = z @ z.T / z.shape[1]  # the blocks' correlation coefficients
     score = (C.sum(1) - 1) / 3
     k = int(np.argmin(score))
-    others = np.delete(score, k)
-    if others.min() - score[k] < 0.15:
+    lowest, second = np.sort(score)[:2]
+    if second - lowest < 0.15:
         return None
     # Block k (0 TL, 1 TR, 2 BR, 3 BL in the patch) is the symbol's bottom-right corner.
     return float(psi0 + (2 - k) * np.pi / 2)
@@ -1547,7 +1568,7 @@ def _result(
     text = read.text if read is not None else None
     if text is not None:
         try:
-            record = decode_payload(text)
+            record = _decode_record(text)
         except PayloadError as exc:
             reason = "foreign payload" if exc.reason in ("foreign", "version") else "damaged"
         if record is not None and record.kind != kind:
@@ -1567,6 +1588,10 @@ def _result(
         rms=rms,
         hypotheses=hypotheses,
     )
+
+
+# A camera sees the same landmarks frame after frame: their texts' records (immutable) are kept.
+_decode_record = functools.lru_cache(maxsize=256)(decode_payload)
 
 
 def _why_unread(ctx: _Context, R: Array, t: Array, qr_side: float) -> str:
