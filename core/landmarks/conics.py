@@ -19,23 +19,27 @@ from core.errors import DegenerateConfiguration, InvalidInput
 Array = NDArray[np.float64]
 
 
+# The conics of the six unit coefficient vectors (conic_matrix is linear in them), as the rows
+# of a (6, 9) matrix.
+_BASIS9 = np.array(
+    [
+        [1.0, 0, 0, 0, 0, 0, 0, 0, 0],
+        [0, 0.5, 0, 0.5, 0, 0, 0, 0, 0],
+        [0, 0, 0, 0, 1.0, 0, 0, 0, 0],
+        [0, 0, 0.5, 0, 0, 0, 0.5, 0, 0],
+        [0, 0, 0, 0, 0, 0.5, 0, 0.5, 0],
+        [0, 0, 0, 0, 0, 0, 0, 0, 1.0],
+    ]
+)
+_BASIS = _BASIS9.reshape(6, 3, 3)
+
+
 def conic_matrix(c: ArrayLike) -> Array:
     """Return the symmetric conic matrices (..., 3, 3) of coefficients (..., 6) of
     a x^2 + b x y + c y^2 + d x + e y + f = 0."""
     p = np.asarray(c, dtype=np.float64)
-    a, b, cc, d, e, f = (p[..., i] for i in range(6))
-    return np.stack(
-        [
-            np.stack([a, b / 2, d / 2], -1),
-            np.stack([b / 2, cc, e / 2], -1),
-            np.stack([d / 2, e / 2, f], -1),
-        ],
-        -2,
-    )
-
-
-# The conics of the six unit coefficient vectors (conic_matrix is linear in them).
-_BASIS = conic_matrix(np.eye(6))
+    # (one product: each entry is one coefficient, or half of one, exactly)
+    return np.asarray((p @ _BASIS9).reshape(*p.shape[:-1], 3, 3), dtype=np.float64)
 
 
 @dataclass(frozen=True)
@@ -224,7 +228,7 @@ def fit_ellipses(points: list[Array], *, iterations: int = 10) -> list[ConicFit 
     A[:, :2, 2] = -mu / s[:, None]
     A[:, 2, 2] = 1.0
     At = np.swapaxes(A, 1, 2)
-    Cn = (c @ _BASIS.reshape(6, 9)).reshape(F, 3, 3)
+    Cn = (c @ _BASIS9).reshape(F, 3, 3)
     Cp = At @ Cn @ A
     # The linear map of coefficients c_n -> c_pix, for the covariance (before normalisation).
     E = At[:, None] @ _BASIS @ A[:, None]  # (F, 6, 3, 3) the six basis conics, mapped
