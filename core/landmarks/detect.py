@@ -87,7 +87,7 @@ MIN_READ_MODULE_PX = 1.2
 # Below this module size (pixels) a read is not tried: none succeeded in 336 tries of rendered
 # views under 1.2 px (bench_landmarks' camera, 0.9-2 m), where it costs a resampling and a
 # decoder pass each.
-MIN_TRY_MODULE_PX = 1.0
+MIN_TRY_MODULE_PX = 1.2
 # A nominal symbol (version 4, 33 modules) for the "too small" diagnosis before decoding.
 _NOMINAL_MODULES = 33
 _PATCH_MIN, _PATCH_MAX = 120, 256
