@@ -457,46 +457,44 @@ def _iso_points(score: Image, roi: tuple[int, int, int, int], inside: Image) -> 
     # Exact integer gradients (|Sobel| <= 4 * 255), as the floating-point ones were.
     gxi = cv2.Sobel(roi_score, cv2.CV_16S, 1, 0, ksize=3)
     gyi = cv2.Sobel(roi_score, cv2.CV_16S, 0, 1, ksize=3)
-    xs, ys, keys = [], [], []
     width = roi_score.shape[1]
+    # Each crossing's first pixel (flat index into the ROI; numpy's two-dimensional nonzero is
+    # several times slower), between horizontal neighbours then vertical ones; both axes'
+    # crossings are then placed and labelled together.
+    h_rows, h_cols = np.divmod(np.flatnonzero(above[:, :-1] != above[:, 1:]), width - 1)
+    k_v = np.flatnonzero(above[:-1, :] != above[1:, :])
+    n_h = len(h_rows)
+    if n_h + len(k_v) == 0:
+        return []
+    ka = np.concatenate([h_rows * width + h_cols, k_v])
+    kb = ka + width  # the neighbour along the axis
+    kb[:n_h] -= width - 1
+    yy, xx = np.divmod(ka, width)
     # Gathers by flat index into the raveled (contiguous) ROI arrays: numpy's two-dimensional
     # fancy indexing recomputes the flat index at every gather.
     flat_patch, flat_above, flat_lb = roi_score.ravel(), above.ravel().view(bool), lb.ravel()
-    flat_gx, flat_gy = gxi.ravel(), gyi.ravel()
-    for axis in (1, 0):
-        ia = above[:, :-1] if axis == 1 else above[:-1, :]
-        ib = above[:, 1:] if axis == 1 else above[1:, :]
-        # (flat indices: numpy's two-dimensional nonzero is several times slower)
-        yy, xx = np.divmod(np.flatnonzero(ia != ib), ia.shape[1])
-        if len(yy) == 0:
-            continue
-        ka = yy * width + xx  # the crossing's first pixel, then its neighbour along the axis
-        kb = ka + (1 if axis == 1 else width)
-        va = flat_patch.take(ka).astype(np.float32)
-        vb = flat_patch.take(kb).astype(np.float32)
-        f = (level - va) / (vb - va)
-        lab_b = flat_lb.take(np.where(flat_above.take(ka), kb, ka))  # the pixel below the level
-        if axis == 1:
-            px, py = xx + f, yy.astype(np.float64)
-        else:
-            px, py = xx.astype(np.float64), yy + f
-        # The score's gradient (toward the pattern) against the direction from the centre: an
-        # outer edge has the pattern on its inner side. (Two Sobel values sum exactly in int16.)
-        gx = (flat_gx.take(ka) + flat_gx.take(kb)).astype(np.float32)
-        gy = (flat_gy.take(ka) + flat_gy.take(kb)).astype(np.float32)
-        outer_edge = gx * (px - cx) + gy * (py - cy) < 0
-        xs.append(px)
-        ys.append(py)
-        keys.append(lab_b * 2 + outer_edge)
-    if not keys:
-        return []
-    key = np.concatenate(keys)
+    va = flat_patch.take(ka).astype(np.float32)
+    vb = flat_patch.take(kb).astype(np.float32)
+    f = (level - va) / (vb - va)
+    lab_b = flat_lb.take(np.where(flat_above.take(ka), kb, ka))  # the pixel below the level
+    # (the offset along each crossing's own axis; exact: x + 0 is x)
+    fx = np.zeros_like(f)
+    fx[:n_h] = f[:n_h]
+    fy = f - fx
+    fy[:n_h] = 0
+    px, py = xx + fx, yy + fy
+    # The score's gradient (toward the pattern) against the direction from the centre: an outer
+    # edge has the pattern on its inner side. (Two Sobel values sum exactly in int16.)
+    gx = (gxi.ravel().take(ka) + gxi.ravel().take(kb)).astype(np.float32)
+    gy = (gyi.ravel().take(ka) + gyi.ravel().take(kb)).astype(np.float32)
+    outer_edge = gx * (px - cx) + gy * (py - cy) < 0
+    key = lab_b * 2 + outer_edge
     # (numpy's stable sort of 16-bit keys, as few labels give, is a radix sort)
     order = np.argsort(key.astype(np.int16) if n_labels < 16000 else key, kind="stable")
     key = key[order]
     xy = np.empty((len(key), 2))
-    np.add(np.concatenate(xs)[order], x0, out=xy[:, 0])
-    np.add(np.concatenate(ys)[order], y0, out=xy[:, 1])
+    np.add(px[order], x0, out=xy[:, 0])
+    np.add(py[order], y0, out=xy[:, 1])
     cuts = [0, *(np.flatnonzero(key[1:] != key[:-1]) + 1).tolist(), len(key)]
     return [xy[a:b] for a, b in pairwise(cuts) if b - a >= 8]
 
@@ -968,17 +966,19 @@ class _RingCurves:
 
 def _ring_curves(edges: _RingEdges) -> _RingCurves:
     """Return a signpost's edge curves matched to the ring edges."""
-    curves = np.split(edges.points, np.cumsum(edges.lengths)[:-1])
+    ends = np.cumsum(edges.lengths).tolist()
+    curves = [edges.points[a:b] for a, b in zip([0, *ends[:-1]], ends, strict=True)]
     sizes = edges.sizes
     order = np.argsort(-sizes)
     ref = sizes[order[0]]
     # Each ring edge's curve (the largest one whose size ratio to the outer edge matches it).
+    ratios = (sizes[order] / ref).tolist()
     matched: list[tuple[int, int]] = []
-    for k in order:
-        ratio = sizes[k] / ref
-        j = int(np.argmin([abs(ratio - r / RING_RADII[0]) for r in RING_RADII]))
-        if abs(ratio - RING_RADII[j] / RING_RADII[0]) <= 0.045 and all(j != i for _, i in matched):
-            matched.append((int(k), j))
+    for k, ratio in zip(order.tolist(), ratios, strict=True):
+        miss = [abs(ratio - r / RING_RADII[0]) for r in RING_RADII]
+        j = miss.index(min(miss))
+        if miss[j] <= 0.045 and all(j != i for _, i in matched):
+            matched.append((k, j))
     return _RingCurves(curves, matched, float(ref))
 
 
