@@ -84,10 +84,10 @@ MAX_CORNER_RMS_PX = 0.6
 # (pixels) a rectified read can use.
 MAX_READ_OBLIQUITY = 75.0
 MIN_READ_MODULE_PX = 1.2
-# Below this module size (pixels) a read is not tried: none succeeded in 336 tries of rendered
-# views under 1.2 px (bench_landmarks' camera, 0.9-2 m), where it costs a resampling and a
-# decoder pass each.
-MIN_TRY_MODULE_PX = 1.2
+# Below this module size (pixels) a read is not tried, and the symbol is reported too small:
+# none succeeded in 336 tries of rendered views under 1.2 px (bench_landmarks' camera,
+# 0.9-2 m), where each costs a resampling and a failed decoder pass.
+MIN_TRY_MODULE_PX = MIN_READ_MODULE_PX
 # A nominal symbol (version 4, 33 modules) for the "too small" diagnosis before decoding.
 _NOMINAL_MODULES = 33
 _PATCH_MIN, _PATCH_MAX = 120, 256
