@@ -1497,11 +1497,9 @@ def _symbol_angle(ctx: _Context, R: Array, t: Array, qr_side: float, *, free: bo
         psi0 = -np.radians(ang)
     Rs = R @ _rz(psi0)
     px = _BLOCKS_PATCH_PX
-    grey = cv2.cvtColor(_rectify(ctx, Rs, t, qr_side / 2, px), cv2.COLOR_BGR2GRAY).astype(
-        np.float64
-    )
+    grey = cv2.cvtColor(_rectify(ctx, Rs, t, qr_side / 2, px), cv2.COLOR_BGR2GRAY)
     # The four corner blocks, each turned so that its corner is the top-left: one gather.
-    z = grey.ravel().take(_CORNER_BLOCKS)
+    z = grey.ravel().take(_CORNER_BLOCKS).astype(np.float64)
     z -= z.mean(1, keepdims=True)
     # (np.std's own steps, without its wrapper's calls)
     z /= np.sqrt(np.mean(np.square(z - z.mean(1, keepdims=True)), 1, keepdims=True)) + 1e-9
