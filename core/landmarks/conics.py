@@ -19,23 +19,27 @@ from core.errors import DegenerateConfiguration, InvalidInput
 Array = NDArray[np.float64]
 
 
+# The conics of the six unit coefficient vectors (conic_matrix is linear in them), as the rows
+# of a (6, 9) matrix.
+_BASIS9 = np.array(
+    [
+        [1.0, 0, 0, 0, 0, 0, 0, 0, 0],
+        [0, 0.5, 0, 0.5, 0, 0, 0, 0, 0],
+        [0, 0, 0, 0, 1.0, 0, 0, 0, 0],
+        [0, 0, 0.5, 0, 0, 0, 0.5, 0, 0],
+        [0, 0, 0, 0, 0, 0.5, 0, 0.5, 0],
+        [0, 0, 0, 0, 0, 0, 0, 0, 1.0],
+    ]
+)
+_BASIS = _BASIS9.reshape(6, 3, 3)
+
+
 def conic_matrix(c: ArrayLike) -> Array:
     """Return the symmetric conic matrices (..., 3, 3) of coefficients (..., 6) of
     a x^2 + b x y + c y^2 + d x + e y + f = 0."""
     p = np.asarray(c, dtype=np.float64)
-    a, b, cc, d, e, f = (p[..., i] for i in range(6))
-    return np.stack(
-        [
-            np.stack([a, b / 2, d / 2], -1),
-            np.stack([b / 2, cc, e / 2], -1),
-            np.stack([d / 2, e / 2, f], -1),
-        ],
-        -2,
-    )
-
-
-# The conics of the six unit coefficient vectors (conic_matrix is linear in them).
-_BASIS = conic_matrix(np.eye(6))
+    # (one product: each entry is one coefficient, or half of one, exactly)
+    return np.asarray((p @ _BASIS9).reshape(*p.shape[:-1], 3, 3), dtype=np.float64)
 
 
 @dataclass(frozen=True)
@@ -57,8 +61,7 @@ class ConicFit:
     @property
     def centre(self) -> Array:
         """Return the ellipse's centre (2,) pixels: the pole of the line at infinity."""
-        c = np.asarray(np.linalg.solve(self.C[:2, :2], -self.C[:2, 2]), dtype=np.float64)
-        return c
+        return _centre(self.C)
 
 
 def fit_ellipse(points: ArrayLike, *, iterations: int = 10) -> ConicFit:
@@ -212,7 +215,8 @@ def fit_ellipses(points: list[Array], *, iterations: int = 10) -> list[ConicFit 
     # orthogonal subspaces, so (P A P + c c^T)^-1 = (P A P)^+ + c c^T.
     cc = c[:, :, None] * c[:, None, :]
     Pt = np.eye(6) - cc
-    JJ = J @ np.swapaxes(J, 1, 2)
+    # (J is the last iteration's: its normal matrix is A's)
+    JJ = A if iterations > 0 else J @ np.swapaxes(J, 1, 2)
     N = Pt @ JJ @ Pt + cc
     bad = ~(np.abs(np.linalg.det(N)) > 1e-300)
     N[bad] = np.eye(6)
@@ -223,7 +227,7 @@ def fit_ellipses(points: list[Array], *, iterations: int = 10) -> list[ConicFit 
     A[:, :2, 2] = -mu / s[:, None]
     A[:, 2, 2] = 1.0
     At = np.swapaxes(A, 1, 2)
-    Cn = (c @ _BASIS.reshape(6, 9)).reshape(F, 3, 3)
+    Cn = (c @ _BASIS9).reshape(F, 3, 3)
     Cp = At @ Cn @ A
     # The linear map of coefficients c_n -> c_pix, for the covariance (before normalisation).
     E = At[:, None] @ _BASIS @ A[:, None]  # (F, 6, 3, 3) the six basis conics, mapped
@@ -248,7 +252,7 @@ def fit_ellipses(points: list[Array], *, iterations: int = 10) -> list[ConicFit 
             out.append(reason[f] or "the fitted conic is not an ellipse")
             continue
         Cf, Lf = Cp[f], L[f]
-        if np.linalg.det(Cf[:2, :2]) <= 0:
+        if Cf[0, 0] * Cf[1, 1] - Cf[0, 1] * Cf[1, 0] <= 0:
             out.append("the fitted conic is not an ellipse")
             continue
         if _conic_at_centre(Cf) > 0:
@@ -257,9 +261,16 @@ def fit_ellipses(points: list[Array], *, iterations: int = 10) -> list[ConicFit 
     return out
 
 
+def _centre(C: Array) -> Array:
+    """Return the centre (2,) of the conic C: the solution of C[:2, :2] c = -C[:2, 2] (Cramer's
+    rule in plain floats: numpy's solve costs tens of calls on a 2 x 2 system)."""
+    (a, b, d), (_, c, e), _ = C.tolist()
+    det = a * c - b * b
+    return np.array([(b * e - c * d) / det, (b * d - a * e) / det])
+
+
 def _conic_at_centre(C: Array) -> float:
-    c = np.linalg.solve(C[:2, :2], -C[:2, 2])
-    x = np.array([c[0], c[1], 1.0])
+    x = np.array([*_centre(C), 1.0])
     return float(x @ C @ x)
 
 

@@ -64,6 +64,7 @@ from core.landmarks.conics import (
     circle_distance,
     circle_normals,
     concentric_centre,
+    conic_matrix,
     fit_ellipse,
     fit_ellipses,
 )
@@ -83,10 +84,10 @@ MAX_CORNER_RMS_PX = 0.6
 # (pixels) a rectified read can use.
 MAX_READ_OBLIQUITY = 75.0
 MIN_READ_MODULE_PX = 1.2
-# Below this module size (pixels) a read is not tried: none succeeded in 336 tries of rendered
-# views under 1.2 px (bench_landmarks' camera, 0.9-2 m), where it costs a resampling and a
-# decoder pass each.
-MIN_TRY_MODULE_PX = 1.0
+# Below this module size (pixels) a read is not tried, and the symbol is reported too small:
+# none succeeded in 336 tries of rendered views under 1.2 px (bench_landmarks' camera,
+# 0.9-2 m), where each costs a resampling and a failed decoder pass.
+MIN_TRY_MODULE_PX = MIN_READ_MODULE_PX
 # A nominal symbol (version 4, 33 modules) for the "too small" diagnosis before decoding.
 _NOMINAL_MODULES = 33
 _PATCH_MIN, _PATCH_MAX = 120, 256
@@ -213,31 +214,39 @@ def detect_landmarks(
             fc = None
         if fc is not None:
             frame_curves.append(fc)
-    found: list[_FrameEdges | _RingEdges] = [e for e in _frame_sides(frame_curves) if e is not None]
+    frame_edges = [e for e in _frame_sides(frame_curves) if e is not None]
+    rings: list[_RingCurves] = []
     for outer, _hole in _holed_components(red):
         try:
             edges = _ring_edges(red, outer)
         except skip:
             edges = None
-        if edges is not None:
-            found.append(edges)
-    ideals = _undistort_each(ctx, [e.points for e in found])
-    frames = [
-        (e, p)
-        for e, p in zip(found, ideals, strict=True)
-        if isinstance(e, _FrameEdges) and p is not None
-    ]
+        rc = None if edges is None else _ring_curves(edges)
+        if rc is not None and rc.matched:  # (else no ring edge to fit)
+            rings.append(rc)
+    # One undistortion for the frames' edge points and the curves each signpost's pose tries
+    # first (its outer and innermost edges: about half its points); the others on demand.
+    ideals = _undistort_each(
+        ctx,
+        [e.points for e in frame_edges]
+        + [np.concatenate([rc.distorted[k] for k in rc.first_choices()]) for rc in rings],
+    )
+    frames = [(e, p) for e, p in zip(frame_edges, ideals, strict=False) if p is not None]
     out = _frames(ctx, [e for e, _ in frames], [p for _, p in frames], frame_size)
-    rings = [
-        _ring_curves(e, p)
-        for e, p in zip(found, ideals, strict=True)
-        if isinstance(e, _RingEdges) and p is not None
-    ]
+    usable = []
+    for rc, p in zip(rings, ideals[len(frame_edges) :], strict=True):
+        if p is None:
+            continue
+        ks = rc.first_choices()
+        cuts = np.cumsum([len(rc.distorted[k]) for k in ks])[:-1]
+        rc.ideal.update(zip(ks, np.split(p, cuts), strict=True))
+        usable.append(rc)
+    rings = usable
     # The outer and innermost edges' ellipses of all signposts in one batch (the ones the pose
     # needs, when they fit; _rings fits the others it falls back to).
     wanted = [(i, k) for i, rc in enumerate(rings) for k in rc.first_choices()]
     try:
-        batch = fit_ellipses([rings[i].curves[k] for i, k in wanted])
+        batch = fit_ellipses([rings[i].ideal[k] for i, k in wanted])
     except skip:
         batch = []  # (LAPACK failed on one of them: each ring fits its own below)
     for (i, k), fit in zip(wanted, batch, strict=False):
@@ -448,46 +457,44 @@ def _iso_points(score: Image, roi: tuple[int, int, int, int], inside: Image) -> 
     # Exact integer gradients (|Sobel| <= 4 * 255), as the floating-point ones were.
     gxi = cv2.Sobel(roi_score, cv2.CV_16S, 1, 0, ksize=3)
     gyi = cv2.Sobel(roi_score, cv2.CV_16S, 0, 1, ksize=3)
-    xs, ys, keys = [], [], []
     width = roi_score.shape[1]
+    # Each crossing's first pixel (flat index into the ROI; numpy's two-dimensional nonzero is
+    # several times slower), between horizontal neighbours then vertical ones; both axes'
+    # crossings are then placed and labelled together.
+    h_rows, h_cols = np.divmod(np.flatnonzero(above[:, :-1] != above[:, 1:]), width - 1)
+    k_v = np.flatnonzero(above[:-1, :] != above[1:, :])
+    n_h = len(h_rows)
+    if n_h + len(k_v) == 0:
+        return []
+    ka = np.concatenate([h_rows * width + h_cols, k_v])
+    kb = ka + width  # the neighbour along the axis
+    kb[:n_h] -= width - 1
+    yy, xx = np.divmod(ka, width)
     # Gathers by flat index into the raveled (contiguous) ROI arrays: numpy's two-dimensional
     # fancy indexing recomputes the flat index at every gather.
     flat_patch, flat_above, flat_lb = roi_score.ravel(), above.ravel().view(bool), lb.ravel()
-    flat_gx, flat_gy = gxi.ravel(), gyi.ravel()
-    for axis in (1, 0):
-        ia = above[:, :-1] if axis == 1 else above[:-1, :]
-        ib = above[:, 1:] if axis == 1 else above[1:, :]
-        # (flat indices: numpy's two-dimensional nonzero is several times slower)
-        yy, xx = np.divmod(np.flatnonzero(ia != ib), ia.shape[1])
-        if len(yy) == 0:
-            continue
-        ka = yy * width + xx  # the crossing's first pixel, then its neighbour along the axis
-        kb = ka + (1 if axis == 1 else width)
-        va = flat_patch.take(ka).astype(np.float32)
-        vb = flat_patch.take(kb).astype(np.float32)
-        f = (level - va) / (vb - va)
-        lab_b = flat_lb.take(np.where(flat_above.take(ka), kb, ka))  # the pixel below the level
-        if axis == 1:
-            px, py = xx + f, yy.astype(np.float64)
-        else:
-            px, py = xx.astype(np.float64), yy + f
-        # The score's gradient (toward the pattern) against the direction from the centre: an
-        # outer edge has the pattern on its inner side. (Two Sobel values sum exactly in int16.)
-        gx = (flat_gx.take(ka) + flat_gx.take(kb)).astype(np.float32)
-        gy = (flat_gy.take(ka) + flat_gy.take(kb)).astype(np.float32)
-        outer_edge = gx * (px - cx) + gy * (py - cy) < 0
-        xs.append(px)
-        ys.append(py)
-        keys.append(lab_b * 2 + outer_edge)
-    if not keys:
-        return []
-    key = np.concatenate(keys)
+    va = flat_patch.take(ka).astype(np.float32)
+    vb = flat_patch.take(kb).astype(np.float32)
+    f = (level - va) / (vb - va)
+    lab_b = flat_lb.take(np.where(flat_above.take(ka), kb, ka))  # the pixel below the level
+    # (the offset along each crossing's own axis; exact: x + 0 is x)
+    fx = np.zeros_like(f)
+    fx[:n_h] = f[:n_h]
+    fy = f - fx
+    fy[:n_h] = 0
+    px, py = xx + fx, yy + fy
+    # The score's gradient (toward the pattern) against the direction from the centre: an outer
+    # edge has the pattern on its inner side. (Two Sobel values sum exactly in int16.)
+    gx = (gxi.ravel().take(ka) + gxi.ravel().take(kb)).astype(np.float32)
+    gy = (gyi.ravel().take(ka) + gyi.ravel().take(kb)).astype(np.float32)
+    outer_edge = gx * (px - cx) + gy * (py - cy) < 0
+    key = lab_b * 2 + outer_edge
     # (numpy's stable sort of 16-bit keys, as few labels give, is a radix sort)
     order = np.argsort(key.astype(np.int16) if n_labels < 16000 else key, kind="stable")
     key = key[order]
     xy = np.empty((len(key), 2))
-    np.add(np.concatenate(xs)[order], x0, out=xy[:, 0])
-    np.add(np.concatenate(ys)[order], y0, out=xy[:, 1])
+    np.add(px[order], x0, out=xy[:, 0])
+    np.add(py[order], y0, out=xy[:, 1])
     cuts = [0, *(np.flatnonzero(key[1:] != key[:-1]) + 1).tolist(), len(key)]
     return [xy[a:b] for a, b in pairwise(cuts) if b - a >= 8]
 
@@ -929,13 +936,14 @@ def _ring_edges(score: Image, outer: Image) -> _RingEdges | None:
 
 @dataclass(frozen=True)
 class _RingCurves:
-    """A signpost's edge curves (ideal pixels), the ring edge each one matches ((curve, edge
-    index in RING_RADII), largest curve first), the outer curve's size, and the ellipses fitted
-    so far (None: not an ellipse)."""
+    """A signpost's edge curves (distorted pixels), the ring edge each one matches ((curve,
+    edge index in RING_RADII), largest curve first), the outer curve's size, the curves' ideal
+    pixels undistorted so far, and the ellipses fitted so far (None: not an ellipse)."""
 
-    curves: list[Array]
+    distorted: list[Array]
     matched: list[tuple[int, int]]
     ref: float
+    ideal: dict[int, Array] = field(default_factory=dict)
     fits: dict[int, ConicFit | None] = field(default_factory=dict)
 
     def first_choices(self) -> list[int]:
@@ -945,29 +953,33 @@ class _RingCurves:
         ks = [self.matched[0][0], self.matched[-1][0]]
         return ks[:1] if ks[0] == ks[1] else ks
 
-    def fit(self, k: int) -> ConicFit | None:
+    def fit(self, ctx: _Context, k: int) -> ConicFit | None:
         if k not in self.fits:
             try:
-                self.fits[k] = fit_ellipse(self.curves[k])
-            except DegenerateConfiguration:
+                if k not in self.ideal:
+                    self.ideal[k] = ctx.undistort(self.distorted[k])
+                self.fits[k] = fit_ellipse(self.ideal[k])
+            except (DegenerateConfiguration, ConvergenceError):
                 self.fits[k] = None
         return self.fits[k]
 
 
-def _ring_curves(edges: _RingEdges, ideal_points: Array) -> _RingCurves:
-    """Return a signpost's edge curves from their ideal pixels, matched to the ring edges."""
-    ideal = np.split(ideal_points, np.cumsum(edges.lengths)[:-1])
+def _ring_curves(edges: _RingEdges) -> _RingCurves:
+    """Return a signpost's edge curves matched to the ring edges."""
+    ends = np.cumsum(edges.lengths).tolist()
+    curves = [edges.points[a:b] for a, b in zip([0, *ends[:-1]], ends, strict=True)]
     sizes = edges.sizes
     order = np.argsort(-sizes)
     ref = sizes[order[0]]
     # Each ring edge's curve (the largest one whose size ratio to the outer edge matches it).
+    ratios = (sizes[order] / ref).tolist()
     matched: list[tuple[int, int]] = []
-    for k in order:
-        ratio = sizes[k] / ref
-        j = int(np.argmin([abs(ratio - r / RING_RADII[0]) for r in RING_RADII]))
-        if abs(ratio - RING_RADII[j] / RING_RADII[0]) <= 0.045 and all(j != i for _, i in matched):
-            matched.append((int(k), j))
-    return _RingCurves(ideal, matched, float(ref))
+    for k, ratio in zip(order.tolist(), ratios, strict=True):
+        miss = [abs(ratio - r / RING_RADII[0]) for r in RING_RADII]
+        j = miss.index(min(miss))
+        if miss[j] <= 0.045 and all(j != i for _, i in matched):
+            matched.append((k, j))
+    return _RingCurves(curves, matched, float(ref))
 
 
 def _rings(ctx: _Context, rc: _RingCurves, size: float) -> LandmarkDetection | None:
@@ -979,7 +991,7 @@ def _rings(ctx: _Context, rc: _RingCurves, size: float) -> LandmarkDetection | N
     fits: list[ConicFit] = []
     radii: list[float] = []
     for n, (k, j) in enumerate(matched):
-        fit = rc.fit(k)
+        fit = rc.fit(ctx, k)
         if fit is None:
             continue
         if j != 0:
@@ -992,7 +1004,7 @@ def _rings(ctx: _Context, rc: _RingCurves, size: float) -> LandmarkDetection | N
         return None
     centre0 = fits[0].centre
     for k, j in matched[::-1]:
-        fit = rc.fit(k)
+        fit = rc.fit(ctx, k)
         if fit is None:
             continue
         if np.linalg.norm(fit.centre - centre0) <= 0.2 * ref:
@@ -1057,21 +1069,19 @@ def _ring_candidates(rf: _RingFit, K: Array) -> _Candidates:
     # The pose, then the first-order propagation of both conics' covariances (sigma points
     # along their principal axes), ignoring the rotation about the normal (added later from
     # the symbol): the nominal pair first, then each perturbed one, in one batch.
-    outer, inner = [Q0], [Qn]
-    points = [0.0]  # the points of the fit each sigma point perturbs
-    for k, f in enumerate((rf.fits[0], rf.fits[-1])):
-        w, U = np.linalg.eigh(f.cov)
-        base = _coeffs6(f.C)
-        for s2, u in zip(w, U.T, strict=True):
-            # The conic's scale direction has no variance (numerically ~0): skipped.
-            if s2 <= 1e-9 * w[-1]:
-                continue
-            Qp = K.T @ _conic6(base + np.sqrt(s2) * u) @ K
-            outer.append(Qp if k == 0 else Q0)
-            inner.append(Qp if k == 1 else Qn)
-            points.append(float(f.n))
-    Q0s, Qns = np.array(outer), np.array(inner)
-    n_pts = np.array(points)
+    pair = (rf.fits[0], rf.fits[-1])
+    w, U = np.linalg.eigh(np.array([f.cov for f in pair]))
+    sigma: list[Array] = []
+    for k, f in enumerate(pair):
+        # The conic's scale direction has no variance (numerically ~0): skipped.
+        keep = w[k] > 1e-9 * w[k, -1]
+        coeffs = _coeffs6(f.C) + np.sqrt(w[k, keep])[:, None] * U[k].T[keep]
+        sigma.append(K.T @ conic_matrix(coeffs) @ K)
+    n0, n1 = len(sigma[0]), len(sigma[1])
+    Q0s = np.concatenate([Q0[None], sigma[0], np.broadcast_to(Q0, (n1, 3, 3))])
+    Qns = np.concatenate([Qn[None], np.broadcast_to(Qn, (n0, 3, 3)), sigma[1]])
+    # the points of the fit each sigma point perturbs
+    n_pts = np.repeat([0.0, float(pair[0].n), float(pair[1].n)], [1, n0, n1])
     skip = (DegenerateConfiguration, np.linalg.LinAlgError)
     try:
         ms, (pa, pb), dps = _ring_pose(Q0s, Qns, r0)
@@ -1092,32 +1102,34 @@ def _ring_candidates(rf: _RingFit, K: Array) -> _Candidates:
     # What the conics' covariances leave out: a deformation of an edge curve moves its conic's
     # centre by about the fit's RMS residual in any direction (pixels, to normalised units).
     floor = np.eye(2) * (rf.fits[0].rms ** 2 + rf.fits[-1].rms ** 2) / (K[0, 0] * K[1, 1])
-    covs = []
-    maha = np.empty(2)
-    logdet = np.empty(2)
-    for j in range(2):
-        # Match each perturbed candidate to candidate j by its normal; one-sided difference of
-        # (rotation of the normal, centre).
-        first = (pa @ normals[j] >= pb @ normals[j])[:, None]
-        n_p = np.where(first, pa, pb)
-        n_p[0] = normals[j]
-        d_p = np.where(first[:, 0], dps[:, 0], dps[:, 1])
-        dv = np.concatenate(
-            [np.cross(normals[j], n_p[1:]), d_p[1:, None] * ms[1:] - depths[j] * m], 1
-        )
-        covs.append(dv.T @ dv)
-        # The centre's evidence: r = pencil centre - pole of the vanishing line n (normalised
-        # coordinates), nominal and at each sigma point (its covariance, first order). The
-        # edge points' errors are taken as fully correlated along each curve (what limits
-        # them is systematic: the blur of bands a pixel or two wide, the pixel grid's phase,
-        # the lens model), so each fit's covariance is scaled by its number of points: its
-        # conic is then as uncertain as its own RMS residual, not that over sqrt(points).
-        pole = np.linalg.solve(Q0s, n_p[..., None])[..., 0]
-        r = ms[:, :2] - pole[:, :2] / pole[:, 2:3]
-        dr = (r[1:] - r[0]) * np.sqrt(n_pts[1:])[:, None]
-        S = dr.T @ dr + floor
-        logdet[j] = np.linalg.slogdet(S)[1]
-        maha[j] = float(r[0] @ np.linalg.solve(S, r[0]))
+    # Both candidates j at once (leading axis). Match each perturbed candidate to candidate j
+    # by its normal; one-sided difference of (rotation of the normal, centre).
+    nj = np.array(normals)  # (2, 3)
+    first = nj @ pa.T >= nj @ pb.T  # (2, sigma points)
+    n_p = np.where(first[..., None], pa, pb)
+    n_p[:, 0] = nj
+    d_p = np.where(first, dps[:, 0], dps[:, 1])
+    a, b = nj[:, None, :], n_p[:, 1:]
+    dv = np.empty((2, len(ms) - 1, 6))
+    # (the cross product nj x n_p written out: numpy's costs tens of microseconds)
+    dv[..., 0] = a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1]
+    dv[..., 1] = a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2]
+    dv[..., 2] = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+    dv[..., 3:] = d_p[:, 1:, None] * ms[1:] - depths[:, None, None] * m
+    covs = np.swapaxes(dv, 1, 2) @ dv
+    # The centre's evidence: r = pencil centre - pole of the vanishing line n (normalised
+    # coordinates), nominal and at each sigma point (its covariance, first order). The edge
+    # points' errors are taken as fully correlated along each curve (what limits them is
+    # systematic: the blur of bands a pixel or two wide, the pixel grid's phase, the lens
+    # model), so each fit's covariance is scaled by its number of points: its conic is then as
+    # uncertain as its own RMS residual, not that over sqrt(points).
+    pole = np.linalg.solve(Q0s, n_p[..., None])[..., 0]
+    r = ms[:, :2] - pole[..., :2] / pole[..., 2:3]  # (2, sigma points, 2)
+    dr = (r[:, 1:] - r[:, :1]) * np.sqrt(n_pts[1:])[:, None]
+    S = np.swapaxes(dr, 1, 2) @ dr + floor
+    logdet = np.linalg.slogdet(S)[1]
+    rn = r[:, 0]
+    maha = np.sum(rn * np.linalg.solve(S, rn[..., None])[..., 0], 1)
     # When even the better candidate misses the centre by more than its noise (chi-square of
     # 2 degrees of freedom above its mean), the noise is larger than modelled (an edge curve
     # that is two merged edges, a band the blur has deformed): the scale is estimated from
@@ -1130,11 +1142,6 @@ def _ring_candidates(rf: _RingFit, K: Array) -> _Candidates:
 
 def _coeffs6(C: Array) -> Array:
     return np.array([C[0, 0], 2 * C[0, 1], C[1, 1], 2 * C[0, 2], 2 * C[1, 2], C[2, 2]])
-
-
-def _conic6(c: Array) -> Array:
-    a, b, cc, d, e, f = c
-    return np.array([[a, b / 2, d / 2], [b / 2, cc, e / 2], [d / 2, e / 2, f]])
 
 
 def _rotation(n: Array, psi: float) -> Array:
@@ -1257,12 +1264,18 @@ def _rvec_cov(R: Array, cov_theta: Array) -> Array:
     J_l(rvec)^-1 d theta, with the closed form J_l^-1 = I - [v]x / 2 + b [v]x^2,
     b = 1 / t^2 - cot(t / 2) / (2 t), t = |v| (Barfoot, "State Estimation for Robotics",
     eq. 7.79; the inverse of core.geometry.camera.left_jacobian_so3)."""
-    v = cv2.Rodrigues(R)[0].ravel()
-    t = float(np.linalg.norm(v))
-    b = 1 / 12 + t * t / 720 if t < 1e-3 else 1 / t**2 - 1 / (2 * t * np.tan(t / 2))
-    k = np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+    # (in plain floats: numpy's per-call cost is most of the time on 3 x 3 matrices)
+    v0, v1, v2 = cv2.Rodrigues(R)[0].ravel().tolist()
+    t = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
+    b = 1 / 12 + t * t / 720 if t < 1e-3 else 1 / t**2 - 1 / (2 * t * math.tan(t / 2))
+    # I - [v]x / 2 + b [v]x^2, with [v]x^2 = v v^T - |v|^2 I.
+    s2 = v0 * v0 + v1 * v1 + v2 * v2
     M = np.eye(6)
-    M[:3, :3] += -0.5 * k + b * (k @ k)
+    M[:3, :3] = [
+        [1 + b * (v0 * v0 - s2), 0.5 * v2 + b * v0 * v1, -0.5 * v1 + b * v0 * v2],
+        [-0.5 * v2 + b * v1 * v0, 1 + b * (v1 * v1 - s2), 0.5 * v0 + b * v1 * v2],
+        [0.5 * v1 + b * v2 * v0, -0.5 * v0 + b * v2 * v1, 1 + b * (v2 * v2 - s2)],
+    ]
     return M @ cov_theta @ M.T
 
 
@@ -1436,6 +1449,26 @@ _ANGLE_OUTSIDE = (
 )
 
 
+def _corner_blocks(px: int) -> NDArray[np.intp]:
+    """Return the flat indices (4, (px // 4)^2) into a px x px patch of its four corner blocks,
+    block k turned by k quarter turns (np.rot90) so that every block's corner is its first
+    pixel: top-left, top-right, bottom-right, bottom-left."""
+    b = px // 4
+    idx = np.arange(px * px).reshape(px, px)
+    blocks = [
+        idx[:b, :b],
+        np.rot90(idx[:b, -b:], 1),
+        np.rot90(idx[-b:, -b:], 2),
+        np.rot90(idx[-b:, :b], 3),
+    ]
+    return np.array(blocks).reshape(4, -1)
+
+
+# The corner blocks are compared on a patch of this many pixels.
+_BLOCKS_PATCH_PX = 96
+_CORNER_BLOCKS = _corner_blocks(_BLOCKS_PATCH_PX)
+
+
 def _symbol_angle(ctx: _Context, R: Array, t: Array, qr_side: float, *, free: bool) -> float | None:
     """Return the rotation psi about the normal that puts x along the symbol's rows, from the
     three finder patterns (no decoding): the symbol's axes from the dark modules' minimum-area
@@ -1463,25 +1496,18 @@ def _symbol_angle(ctx: _Context, R: Array, t: Array, qr_side: float, *, free: bo
         # Patch angles run clockwise (y down); the mark plane's counter-clockwise.
         psi0 = -np.radians(ang)
     Rs = R @ _rz(psi0)
-    px = 96
-    grey = cv2.cvtColor(_rectify(ctx, Rs, t, qr_side / 2, px), cv2.COLOR_BGR2GRAY).astype(
-        np.float64
-    )
-    b = px // 4
-    blocks = [
-        grey[:b, :b],
-        np.rot90(grey[:b, -b:], 1),
-        np.rot90(grey[-b:, -b:], 2),
-        np.rot90(grey[-b:, :b], 3),
-    ]
-    z = np.array(blocks, dtype=np.float64).reshape(4, -1)
+    px = _BLOCKS_PATCH_PX
+    grey = cv2.cvtColor(_rectify(ctx, Rs, t, qr_side / 2, px), cv2.COLOR_BGR2GRAY)
+    # The four corner blocks, each turned so that its corner is the top-left: one gather.
+    z = grey.ravel().take(_CORNER_BLOCKS).astype(np.float64)
     z -= z.mean(1, keepdims=True)
-    z /= z.std(1, keepdims=True) + 1e-9
+    # (np.std's own steps, without its wrapper's calls)
+    z /= np.sqrt(np.mean(np.square(z - z.mean(1, keepdims=True)), 1, keepdims=True)) + 1e-9
     C = z @ z.T / z.shape[1]  # the blocks' correlation coefficients
     score = (C.sum(1) - 1) / 3
     k = int(np.argmin(score))
-    others = np.delete(score, k)
-    if others.min() - score[k] < 0.15:
+    lowest, second = np.sort(score)[:2]
+    if second - lowest < 0.15:
         return None
     # Block k (0 TL, 1 TR, 2 BR, 3 BL in the patch) is the symbol's bottom-right corner.
     return float(psi0 + (2 - k) * np.pi / 2)
@@ -1540,7 +1566,7 @@ def _result(
     text = read.text if read is not None else None
     if text is not None:
         try:
-            record = decode_payload(text)
+            record = _decode_record(text)
         except PayloadError as exc:
             reason = "foreign payload" if exc.reason in ("foreign", "version") else "damaged"
         if record is not None and record.kind != kind:
@@ -1560,6 +1586,10 @@ def _result(
         rms=rms,
         hypotheses=hypotheses,
     )
+
+
+# A camera sees the same landmarks frame after frame: their texts' records (immutable) are kept.
+_decode_record = functools.lru_cache(maxsize=256)(decode_payload)
 
 
 def _why_unread(ctx: _Context, R: Array, t: Array, qr_side: float) -> str:
