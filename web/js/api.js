@@ -221,6 +221,15 @@ export function leavePage() {
   for (const handle of [...polls]) handle.stop();
 }
 
+/** Settle `promise`: {value} when it resolves, {error} when it rejects, so a page can show
+ * what it read beside what failed. */
+export function settled(promise) {
+  return promise.then(
+    (value) => ({ value }),
+    (error) => ({ error }),
+  );
+}
+
 /** Return a list endpoint's items and total, whatever the page envelope looks like. */
 export async function list(path, { limit = 200, offset = 0 } = {}) {
   const sep = path.includes("?") ? "&" : "?";

@@ -2,7 +2,8 @@
 // again every second, and its ground truth (robot pose, people) drawn dashed on the plan. In
 // another space than the twin's home it only says where the twin runs.
 
-import { api, busy, poll, spaceById } from "../../api.js";
+import { api, poll, spaceById } from "../../api.js";
+import { busy } from "../../forms.js";
 import { drawTruth } from "../../plan.js";
 import { fmt, h, infoBox, mount, toastError } from "../../ui.js";
 

@@ -4,7 +4,8 @@
 // .../apply), which gives the projector its new mount for the paths planned next and in the 3D
 // scene.
 
-import { api, busy, list, poll } from "../../api.js";
+import { api, list, poll } from "../../api.js";
+import { busy } from "../../forms.js";
 import { fmt, h, mount, resultsTable, statusBadge, toast, toastError } from "../../ui.js";
 
 const POLL_MS = 500; // GET a calibration run while it runs
