@@ -5,7 +5,7 @@
 import { lineChart } from "../../chart.js";
 import { barChart } from "../../plot.js";
 import { fmt, h, matrixTable, mount, panel } from "../../ui.js";
-import { intrinsicsFacts } from "../cameras.js";
+import { intrinsicsFacts } from "../cameras/intrinsics.js";
 
 // The targets the twin's errors are marked against.
 const NETWORK_TARGETS = { focal_pct: 1, position_cm: 2, rotation_deg: 0.3 };
