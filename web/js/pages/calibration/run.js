@@ -172,72 +172,82 @@ function runFacts(run, cameraName) {
   );
 }
 
-export async function renderRun(main, [id], _query, setTitle) {
-  setTitle(`Calibration run #${id}`);
-  let applied = false;
-  const header = h("div");
-  const body = h("div", { class: "grid" });
-  const notice = h("div", { "aria-live": "assertive" });
-  mount(main, header, notice, body);
-
-  const applyButton = (run) =>
-    h(
-      "button",
-      {
-        class: "btn primary",
-        type: "button",
-        testid: "run-apply",
-        disabled: applied,
-        onClick: async (ev) => {
-          const btn = ev.currentTarget;
-          btn.disabled = true;
-          mount(notice);
-          try {
-            const answer = await api(`/calibration-runs/${run.id}/apply`, { method: "POST" });
-            applied = true;
-            btn.textContent = "Applied";
-            mount(notice, appliedNotice(run, answer));
-          } catch (err) {
-            btn.disabled = false;
-            mount(notice, errorBox(err, "run-apply-error"));
-          }
-        },
+/** The button that applies a succeeded run; the answer (or the refusal) goes to `notice`, and
+ * `state.applied` keeps it applied across redraws. */
+function applyButton(run, notice, state) {
+  return h(
+    "button",
+    {
+      class: "btn primary",
+      type: "button",
+      testid: "run-apply",
+      disabled: state.applied,
+      onClick: async (ev) => {
+        const btn = ev.currentTarget;
+        btn.disabled = true;
+        mount(notice);
+        try {
+          const answer = await api(`/calibration-runs/${run.id}/apply`, { method: "POST" });
+          state.applied = true;
+          btn.textContent = "Applied";
+          mount(notice, appliedNotice(run, answer));
+        } catch (err) {
+          btn.disabled = false;
+          mount(notice, errorBox(err, "run-apply-error"));
+        }
       },
-      applied ? "Applied" : applyLabel(run),
-    );
+    },
+    state.applied ? "Applied" : applyLabel(run),
+  );
+}
 
-  const draw = (run) => {
-    const facts = runFacts(run, cameraName);
+/** Draw the run: its facts and actions in `header`; its results, its failure or its progress
+ * in `body`. */
+function drawRun({ header, body, notice }, run, cameraName, state) {
+  const actions = h(
+    "div",
+    { class: "form-actions", style: { marginTop: 0 } },
+    run.status === "succeeded" && run.result && applicable(run)
+      ? applyButton(run, notice, state)
+      : null,
+    h("a", { class: "btn", href: "#/calibration" }, "All runs"),
+  );
+  mount(
+    header,
+    panel(
+      null,
+      null,
+      h(
+        "div",
+        { class: "panel-head", style: { marginBottom: 0 } },
+        runFacts(run, cameraName),
+        actions,
+      ),
+    ),
+  );
+  const results = run.status === "succeeded" && run.result ? resultViews(run) : null;
+  if (results) mount(body, ...results);
+  else if (run.status === "failed" || run.status === "interrupted")
     mount(
-      header,
-      panel(
-        null,
-        null,
-        h(
-          "div",
-          { class: "panel-head", style: { marginBottom: 0 } },
-          facts,
-          h(
-            "div",
-            { class: "form-actions", style: { marginTop: 0 } },
-            run.status === "succeeded" && run.result && applicable(run) ? applyButton(run) : null,
-            h("a", { class: "btn", href: "#/calibration" }, "All runs"),
-          ),
-        ),
+      body,
+      errorBox(
+        { title: `The run ${run.status}`, detail: run.error || "No reason was recorded." },
+        "run-error",
       ),
     );
-    const results = run.status === "succeeded" && run.result ? resultViews(run) : null;
-    if (results) mount(body, ...results);
-    else if (run.status === "failed" || run.status === "interrupted")
-      mount(
-        body,
-        errorBox(
-          { title: `The run ${run.status}`, detail: run.error || "No reason was recorded." },
-          "run-error",
-        ),
-      );
-    else mount(body, progressView(run));
+  else mount(body, progressView(run));
+}
+
+export async function renderRun(main, [id], _query, setTitle) {
+  setTitle(`Calibration run #${id}`);
+  const state = { applied: false };
+  const boxes = {
+    header: h("div"),
+    body: h("div", { class: "grid" }),
+    notice: h("div", { "aria-live": "assertive" }),
   };
+  const { header, body, notice } = boxes;
+  mount(main, header, notice, body);
 
   let cameraName = null;
   const nameCamera = async (run) => {
@@ -259,7 +269,7 @@ export async function renderRun(main, [id], _query, setTitle) {
     stopOn4xx: true,
     onValue: async (run) => {
       await nameCamera(run);
-      draw(run);
+      drawRun(boxes, run, cameraName, state);
       firstDrawn();
       return !TERMINAL.has(run.status);
     },
