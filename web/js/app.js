@@ -11,6 +11,7 @@ import {
   signIn,
   signOut,
 } from "./api.js";
+import { choice } from "./forms.js";
 import { errorBox, h, mount } from "./ui.js";
 import { renderOverview } from "./pages/overview.js";
 import { renderCameras } from "./pages/cameras.js";
@@ -122,8 +123,7 @@ function renderSpacePicker({ spaces, space }) {
     mount(box);
     return;
   }
-  const select = h(
-    "select",
+  const select = choice(
     {
       id: "space-select",
       testid: "space-picker",
@@ -131,9 +131,8 @@ function renderSpacePicker({ spaces, space }) {
       title: spaces.length < 2 ? "The only space" : "Show another space",
       onChange: (ev) => chooseSpace(ev.currentTarget.value),
     },
-    spaces.map((sp) =>
-      h("option", { value: String(sp.id), selected: sp.id === space?.id }, sp.name),
-    ),
+    spaces.map((sp) => [sp.id, sp.name]),
+    space?.id,
   );
   mount(box, h("label", { for: "space-select", class: "small muted" }, "Space"), select);
 }
