@@ -188,6 +188,13 @@ export function table(attrs, columns, rows) {
   );
 }
 
+/** A list of facts (dl.facts) with `attrs`: one [label, value, the value's attributes] a row
+ * (null rows left out). */
+export function facts(attrs, rows) {
+  const fact = ([label, value, valueAttrs]) => [h("dt", null, label), h("dd", valueAttrs, value)];
+  return h("dl", { class: "facts", ...attrs }, rows.filter(Boolean).map(fact));
+}
+
 /** A table row (tr) that opens `href` when clicked anywhere but on its own links. */
 export function linkRow(href, attrs, ...cells) {
   const open = (ev) => {

@@ -3,7 +3,19 @@
 
 import { api, currentSpace, inSpace, list, settled } from "../api.js";
 import { drawCameras, drawRooms, drawScaleBar, planSvg, planTransform } from "../plan.js";
-import { badge, errorBox, fmt, h, mount, panel, s, statusBadge, table, when } from "../ui.js";
+import {
+  badge,
+  errorBox,
+  facts,
+  fmt,
+  h,
+  mount,
+  panel,
+  s,
+  statusBadge,
+  table,
+  when,
+} from "../ui.js";
 import { cameraCounts } from "./cameras.js";
 
 // [registry path, label, link, whether devices of no space count too]: the Cameras and
@@ -102,26 +114,20 @@ function deviceStats(counts) {
 /** The service's health: API, database, storage, schema, reads, twin and 3D scene. */
 function servicePanel(health) {
   const hv = health.value || {};
-  const facts = [
-    ["Status", null, badge(hv.status, hv.status === "ok" ? "ok" : "bad")],
-    ["Version", { class: "mono", testid: "health-version" }, hv.version || "–"],
-    ["Database", { testid: "health-database" }, describeDatabase(hv.database)],
-    ["Storage", { testid: "health-storage" }, hv.storage === "ok" ? "working" : hv.storage || "–"],
-    ["Schema", { class: "mono" }, hv.schema_revision ? `revision ${hv.schema_revision}` : "–"],
-    ["Reads", null, hv.public_reads ? "open to anyone" : "need a token"],
-    ["Digital twin", null, hv.simulation ? "running in this service" : "off"],
-    ["3D scene", { testid: "health-scene" }, hv.scene ? "served by this process" : "not here"],
+  const rows = [
+    ["Status", badge(hv.status, hv.status === "ok" ? "ok" : "bad")],
+    ["Version", hv.version || "–", { class: "mono", testid: "health-version" }],
+    ["Database", describeDatabase(hv.database), { testid: "health-database" }],
+    ["Storage", hv.storage === "ok" ? "working" : hv.storage || "–", { testid: "health-storage" }],
+    ["Schema", hv.schema_revision ? `revision ${hv.schema_revision}` : "–", { class: "mono" }],
+    ["Reads", hv.public_reads ? "open to anyone" : "need a token"],
+    ["Digital twin", hv.simulation ? "running in this service" : "off"],
+    ["3D scene", hv.scene ? "served by this process" : "not here", { testid: "health-scene" }],
   ];
   return panel(
     "Service",
     "Health of the API and its database",
-    health.error
-      ? errorBox(health.error, "health-error")
-      : h(
-          "dl",
-          { class: "facts", testid: "health" },
-          facts.map(([label, attrs, value]) => [h("dt", null, label), h("dd", attrs, value)]),
-        ),
+    health.error ? errorBox(health.error, "health-error") : facts({ testid: "health" }, rows),
   );
 }
 

@@ -4,11 +4,14 @@
 
 import { lineChart } from "../../chart.js";
 import { barChart } from "../../plot.js";
-import { fmt, h, matrixTable, mount, panel, table } from "../../ui.js";
+import { facts, fmt, h, matrixTable, mount, panel, table } from "../../ui.js";
 import { intrinsicsFacts } from "../cameras/intrinsics.js";
 
 // The targets the twin's errors are marked against.
 const NETWORK_TARGETS = { focal_pct: 1, position_cm: 2, rotation_deg: 0.3 };
+
+/** A row of a list of facts: `value` (a number) under `label`. */
+const fact = (label, value, testid) => [label, value, { class: "num", testid }];
 
 /** A per-camera error against the twin's truth, marked when it misses the target. */
 function errorCell(value, target, digits, testid) {
@@ -290,20 +293,11 @@ function placementResultView(run) {
         (r.rejected.length ? `; left out: ${r.rejected.map((k) => `#${k + 1}`).join(", ")}` : ""),
       poseTable(r.T_world_camera, "placement-T"),
       matrixTable(r.K, 2, "placement-K"),
-      h(
-        "dl",
-        { class: "facts" },
-        h("dt", null, "Position std"),
-        h(
-          "dd",
-          { class: "num" },
-          `${(std.position_m || []).map((v) => fmt(v * 100, 2)).join(", ")} cm`,
-        ),
-        h("dt", null, "Rotation std"),
-        h("dd", { class: "num" }, `${(std.rotation_deg || []).map((v) => fmt(v, 3)).join(", ")}°`),
-        h("dt", null, "Focal length std"),
-        h("dd", { class: "num" }, std.f_px != null ? `${fmt(std.f_px, 2)} px` : "K known"),
-      ),
+      facts(null, [
+        fact("Position std", `${(std.position_m || []).map((v) => fmt(v * 100, 2)).join(", ")} cm`),
+        fact("Rotation std", `${(std.rotation_deg || []).map((v) => fmt(v, 3)).join(", ")}°`),
+        fact("Focal length std", std.f_px != null ? `${fmt(std.f_px, 2)} px` : "K known"),
+      ]),
     ),
     panel(
       "Residual per pair",
@@ -317,10 +311,6 @@ function placementResultView(run) {
 function projectorResultView(run) {
   const r = run.result;
   const e = r.twin_errors || {};
-  const fact = (label, value, testid) => [
-    h("dt", null, label),
-    h("dd", { class: "num", testid }, value),
-  ];
   return h(
     "div",
     { class: "grid two", testid: "projector-result" },
@@ -329,23 +319,19 @@ function projectorResultView(run) {
       `T_world_projector from ${r.spots} spots (${r.spots_from}), located by ` +
         `${(r.cameras || []).join(", ") || "–"}; ± one standard deviation`,
       poseTable(r.T_world_projector, "projector-T"),
-      h(
-        "dl",
-        { class: "facts" },
+      facts(null, [
         fact("Spots", String(r.spots), "projector-spots"),
         fact("Floor RMS", `${fmt(r.rms_m * 1000, 2)} mm`, "projector-rms"),
         fact("Position std", `${fmt(r.position_std_m * 1000, 2)} mm`, "projector-position-std"),
         fact("Rotation std", `${fmt(r.rotation_std_deg, 3)}°`, "projector-rotation-std"),
         fact("Tilt offset", `${fmt((r.tilt_offset_rad * 180) / Math.PI, 3)}°`, "projector-tilt"),
-      ),
+      ]),
     ),
     panel(
       "Against the digital twin",
       "The mount's errors against the twin's true projector (aligned: after removing the frame " +
         "error of the cameras' own calibration); targets: position < 1 cm, rotation < 0.2°.",
-      h(
-        "dl",
-        { class: "facts", testid: "projector-twin-errors" },
+      facts({ testid: "projector-twin-errors" }, [
         fact("Position error", `${fmt(e.position_m * 1000, 2)} mm`, "projector-position-error"),
         fact("Rotation error", `${fmt(e.rotation_deg, 3)}°`, "projector-rotation-error"),
         fact(
@@ -355,7 +341,7 @@ function projectorResultView(run) {
         ),
         fact("Tilt offset error", `${fmt((e.tilt_offset_rad * 180) / Math.PI, 3)}°`),
         fact("Located spots", `${fmt(r.spot_error_rms_m * 1000, 2)} mm RMS per axis`),
-      ),
+      ]),
     ),
   );
 }
@@ -364,10 +350,6 @@ function projectorResultView(run) {
  * the twin, every method's errors against the truth. */
 function handEyeResultView(run) {
   const r = run.result;
-  const fact = (label, value, testid) => [
-    h("dt", null, label),
-    h("dd", { class: "num", testid }, value),
-  ];
   const methods = r.methods || [];
   const row = (m, testid) =>
     h(
@@ -387,9 +369,7 @@ function handEyeResultView(run) {
       `X = T_ee_camera (${r.method}) from ${r.views} views, ${r.motions} motions; ` +
         "± one standard deviation",
       poseTable(r.X, "run-hand-eye-X"),
-      h(
-        "dl",
-        { class: "facts" },
+      facts(null, [
         fact("Rotation std", `${fmt(r.rotation_std_deg, 4)}°`, "run-hand-eye-rotation-std"),
         fact(
           "Translation std",
@@ -402,7 +382,7 @@ function handEyeResultView(run) {
           "run-hand-eye-refined",
         ),
         r.sigma_px != null ? fact("Pixel noise (twin)", `${fmt(r.sigma_px, 2)} px`) : null,
-      ),
+      ]),
     ),
     (r.rotation_residuals_deg || []).length
       ? panel(

@@ -6,6 +6,7 @@ import { barChart } from "../../plot.js";
 import {
   badge,
   errorBox,
+  facts,
   fmt,
   h,
   matrixTable,
@@ -79,30 +80,20 @@ function cameraActions(cam) {
 
 /** What the camera is: status, space, image size, the run that calibrated it, dates. */
 function detailsPanel(cam) {
-  const facts = [
-    ["Status", null, badge(cameraStatus(cam))],
-    ["Space", { testid: "camera-space" }, spaceName(cam.space_id)],
-    ["Image size", { class: "num" }, `${cam.width} × ${cam.height} px`],
+  const rows = [
+    ["Status", badge(cameraStatus(cam))],
+    ["Space", spaceName(cam.space_id), { testid: "camera-space" }],
+    ["Image size", `${cam.width} × ${cam.height} px`, { class: "num" }],
     [
       "Calibrated by",
-      null,
       cam.calibration_run_id
         ? runLink(cam.calibration_run_id, `run #${cam.calibration_run_id}`)
         : "–",
     ],
-    ["Created", null, when(cam.created_at)],
-    ["Updated", null, when(cam.updated_at)],
+    ["Created", when(cam.created_at)],
+    ["Updated", when(cam.updated_at)],
   ];
-  return panel(
-    "Camera",
-    null,
-    h(
-      "dl",
-      { class: "facts", testid: "camera-facts" },
-      facts.map(([label, attrs, value]) => [h("dt", null, label), h("dd", attrs, value)]),
-    ),
-    cameraActions(cam),
-  );
+  return panel("Camera", null, facts({ testid: "camera-facts" }, rows), cameraActions(cam));
 }
 
 /** K and the distortion with the standard deviations of the run that set them (`runRead`:

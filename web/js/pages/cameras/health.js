@@ -2,7 +2,7 @@
 // of the camera page, read again while the page is shown.
 
 import { api, poll } from "../../api.js";
-import { fmt, h, mount, panel } from "../../ui.js";
+import { facts, fmt, h, mount, panel } from "../../ui.js";
 
 const HEALTH_MS = 2000; // the camera's health is read again this often
 
@@ -33,15 +33,13 @@ function clockTime(t) {
 function healthFacts(health) {
   const hl = health || { status: "offline" };
   const row = (label, testid, value) => [
-    h("dt", null, label),
-    h("dd", { class: "num", testid: `camera-health-${testid}` }, value),
+    label,
+    value,
+    { class: "num", testid: `camera-health-${testid}` },
   ];
   const count = (v) => (v === null || v === undefined ? "–" : String(v));
-  return h(
-    "dl",
-    { class: "facts", testid: "camera-health" },
-    h("dt", null, "Status"),
-    h("dd", null, healthBadge(hl, "camera-health-status")),
+  return facts({ testid: "camera-health" }, [
+    ["Status", healthBadge(hl, "camera-health-status")],
     row(
       "Since",
       "since",
@@ -64,7 +62,7 @@ function healthFacts(health) {
         : `${fmt(hl.clock_offset_s * 1000, 1)} ms`,
     ),
     row("Newest frame", "last-frame", hl.last_frame_t ? ago(hl.last_frame_t) : "–"),
-  );
+  ]);
 }
 
 /** The camera's health, read again every HEALTH_MS. Returns {panel, stop}. */

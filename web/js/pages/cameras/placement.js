@@ -5,7 +5,7 @@
 import { api, list } from "../../api.js";
 import { sending } from "../../forms.js";
 import { drawRooms, eventToWorld, planSvg, planTransform } from "../../plan.js";
-import { errorBox, fmt, h, mount, panel, s, table, toast } from "../../ui.js";
+import { errorBox, facts, fmt, h, mount, panel, s, table, toast } from "../../ui.js";
 
 const PLAN_W = 560;
 // Residual arrows are drawn this many times longer than they are, so a pixel shows.
@@ -173,30 +173,25 @@ function pairsTable({ pairs, fit }, onRemove) {
 /** The fit's position (± its standard deviations), focal length, RMS and the pairs left out. */
 function fitFacts(fit) {
   const { std, T_world_camera: T } = fit;
-  const facts = [
+  return facts({ testid: "place-facts" }, [
     [
       "Position",
-      { class: "num" },
       `${fmt(T[0][3], 3)}, ${fmt(T[1][3], 3)}, ${fmt(T[2][3], 3)} m ` +
         `(± ${std.position_m.map((v) => fmt(v, 3)).join(", ")})`,
+      { class: "num" },
     ],
     [
       "Focal length",
-      { class: "num", testid: "place-focal" },
       `${fmt(fit.K[0][0], 1)} px` + (std.f_px != null ? ` ± ${fmt(std.f_px, 1)}` : " (known)"),
+      { class: "num", testid: "place-focal" },
     ],
-    ["RMS", { class: "num", testid: "place-rms" }, `${fmt(fit.rms, 2)} px`],
+    ["RMS", `${fmt(fit.rms, 2)} px`, { class: "num", testid: "place-rms" }],
     [
       "Left out",
-      { testid: "place-rejected" },
       fit.rejected.length ? fit.rejected.map((k) => k + 1).join(", ") : "none",
+      { testid: "place-rejected" },
     ],
-  ];
-  return h(
-    "dl",
-    { class: "facts", testid: "place-facts" },
-    facts.map(([label, attrs, value]) => [h("dt", null, label), h("dd", attrs, value)]),
-  );
+  ]);
 }
 
 export async function placePanel(cam, onApplied) {

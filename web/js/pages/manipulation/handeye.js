@@ -6,6 +6,7 @@ import { api } from "../../api.js";
 import { actionButton, formRow, sending } from "../../forms.js";
 import {
   errorBox,
+  facts,
   fmt,
   h,
   matrixTable,
@@ -32,11 +33,7 @@ function handEyeFacts(r) {
     rows.push(["Error vs the twin: rotation", `${sig(r.truth.rotation_error_deg, 3)}°`]);
     rows.push(["Error vs the twin: translation", `${sig(r.truth.translation_error_mm, 3)} mm`]);
   }
-  return h(
-    "dl",
-    { class: "facts" },
-    rows.map(([k, v]) => [h("dt", null, k), h("dd", null, v)]),
-  );
+  return facts(null, rows);
 }
 
 /** The linear methods' errors on the same views, or null when the run gave none. */

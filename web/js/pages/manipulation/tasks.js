@@ -2,7 +2,7 @@
 
 import { api } from "../../api.js";
 import { formRow, sending } from "../../forms.js";
-import { errorBox, fmt, h, mount, panel, sig, statusBadge, table } from "../../ui.js";
+import { errorBox, facts, fmt, h, mount, panel, sig, statusBadge, table } from "../../ui.js";
 import { armSelect } from "./arms.js";
 import { follow, progressLine, TERMINAL } from "./follow.js";
 
@@ -24,7 +24,7 @@ function phaseChips(episode) {
 /** The task's figures: episodes, success rate, final error, time, and the hand-eye transform
  * it used against the twin's. */
 function taskFacts(r) {
-  const facts = [
+  return facts({ testid: "task-metrics" }, [
     ["Episodes", `${r.episodes} of ${r.planned}`],
     ["Success rate", r.success_rate === null ? "–" : `${fmt(100 * r.success_rate, 0)} %`],
     [
@@ -40,12 +40,7 @@ function taskFacts(r) {
         `${sig(r.hand_eye.rotation_error_deg, 2)}°, ` +
         `${sig(r.hand_eye.translation_error_mm, 2)} mm from the twin's`,
     ],
-  ];
-  return h(
-    "dl",
-    { class: "facts", testid: "task-metrics" },
-    facts.map(([k, v]) => [h("dt", null, k), h("dd", null, v)]),
-  );
+  ]);
 }
 
 /** One row an episode: its phases, errors, looks, where the gripper closed and the outcome. */
