@@ -28,7 +28,10 @@ export function currentSession() {
 }
 
 function setSession(next, notify = true) {
-  session = next && next.authenticated ? next : { authenticated: false, public_reads: !!next?.public_reads };
+  session =
+    next && next.authenticated
+      ? next
+      : { authenticated: false, public_reads: !!next?.public_reads };
   if (notify) window.dispatchEvent(new CustomEvent("auth-changed"));
 }
 
@@ -133,17 +136,6 @@ export function formData(fields) {
   return body;
 }
 
-/** Run `action()` with `button` disabled, so a second click cannot send the request again;
- * the button is enabled again whatever happened. Returns what `action` returns (or throws). */
-export async function busy(button, action) {
-  button.disabled = true;
-  try {
-    return await action();
-  } finally {
-    button.disabled = false;
-  }
-}
-
 // -- polling -------------------------------------------------------------------------------------
 // Every page that follows something live asks the service again and again. One loop does it for
 // all of them: one request at a time, slower after failures, and stopped when the page is left.
@@ -161,7 +153,15 @@ const polls = new Set();
  */
 export function poll(
   request,
-  { interval, maxInterval = 8 * interval, onValue, onError, stopOn4xx = false, delay = false, keep = false },
+  {
+    interval,
+    maxInterval = 8 * interval,
+    onValue,
+    onError,
+    stopOn4xx = false,
+    delay = false,
+    keep = false,
+  },
 ) {
   let stopped = false;
   let timer = null;
@@ -219,6 +219,15 @@ export function poll(
 /** Stop every poll the page started: called by the router when the page is left. */
 export function leavePage() {
   for (const handle of [...polls]) handle.stop();
+}
+
+/** Settle `promise`: {value} when it resolves, {error} when it rejects, so a page can show
+ * what it read beside what failed. */
+export function settled(promise) {
+  return promise.then(
+    (value) => ({ value }),
+    (error) => ({ error }),
+  );
 }
 
 /** Return a list endpoint's items and total, whatever the page envelope looks like. */

@@ -11,9 +11,11 @@ import {
   signIn,
   signOut,
 } from "./api.js";
+import { choice } from "./forms.js";
 import { errorBox, h, mount } from "./ui.js";
 import { renderOverview } from "./pages/overview.js";
-import { renderCameras, renderCamera } from "./pages/cameras.js";
+import { renderCameras } from "./pages/cameras.js";
+import { renderCamera } from "./pages/cameras/camera.js";
 import { renderCalibration } from "./pages/calibration.js";
 import { renderRun } from "./pages/calibration/run.js";
 import { renderScene } from "./pages/scene.js";
@@ -121,8 +123,7 @@ function renderSpacePicker({ spaces, space }) {
     mount(box);
     return;
   }
-  const select = h(
-    "select",
+  const select = choice(
     {
       id: "space-select",
       testid: "space-picker",
@@ -130,7 +131,8 @@ function renderSpacePicker({ spaces, space }) {
       title: spaces.length < 2 ? "The only space" : "Show another space",
       onChange: (ev) => chooseSpace(ev.currentTarget.value),
     },
-    spaces.map((sp) => h("option", { value: String(sp.id), selected: sp.id === space?.id }, sp.name)),
+    spaces.map((sp) => [sp.id, sp.name]),
+    space?.id,
   );
   mount(box, h("label", { for: "space-select", class: "small muted" }, "Space"), select);
 }

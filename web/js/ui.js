@@ -176,7 +176,33 @@ export function matrixTable(M, digits = 3, testid) {
   );
 }
 
-/** Replace a container's children. */
+/** A table: a header row of `columns` (each a name, or [name, the th's attributes]) above
+ * `rows` (tr elements). */
+export function table(attrs, columns, rows) {
+  const th = (c) => (Array.isArray(c) ? h("th", c[1], c[0]) : h("th", null, c));
+  return h(
+    "table",
+    attrs,
+    h("thead", null, h("tr", null, columns.map(th))),
+    h("tbody", null, rows),
+  );
+}
+
+/** A list of facts (dl.facts) with `attrs`: one [label, value, the value's attributes] a row
+ * (null rows left out). */
+export function facts(attrs, rows) {
+  const fact = ([label, value, valueAttrs]) => [h("dt", null, label), h("dd", valueAttrs, value)];
+  return h("dl", { class: "facts", ...attrs }, rows.filter(Boolean).map(fact));
+}
+
+/** A table row (tr) that opens `href` when clicked anywhere but on its own links. */
+export function linkRow(href, attrs, ...cells) {
+  const open = (ev) => {
+    if (ev.target.tagName !== "A") location.hash = href;
+  };
+  return h("tr", { class: "link-row", ...attrs, onClick: open }, ...cells);
+}
+
 /** A table of results, one row per [label, value, testid?] (null rows left out); the values
  * in monospace. */
 export function resultsTable(testid, rows) {
@@ -195,6 +221,7 @@ export function resultsTable(testid, rows) {
   );
 }
 
+/** Replace a container's children. */
 export function mount(container, ...children) {
   container.replaceChildren();
   append(container, children);

@@ -1,9 +1,10 @@
 // Landmarks: the registry's landmarks with their printable artwork, detection on an uploaded
 // photo (outlines and labels drawn over it), and the semantic and navigation maps read so far.
 
-import { api, busy, currentSpace, inSpace, list } from "../api.js";
+import { api, currentSpace, inSpace, list } from "../api.js";
+import { choice, field, sending } from "../forms.js";
 import { drawRooms, planSvg, planTransform } from "../plan.js";
-import { errorBox, fmt, h, mount, panel, s, sig, toastError } from "../ui.js";
+import { fmt, h, mount, panel, s, sig, table } from "../ui.js";
 
 const BASE = "/api/v1";
 
@@ -50,32 +51,19 @@ function landmarkTable(items) {
   return h(
     "div",
     { class: "table-wrap" },
-    h(
-      "table",
+    table(
       { testid: "landmark-table" },
-      h(
-        "thead",
-        null,
+      ["Id", "Kind", "Mark", "Size", "Payload", "Print"],
+      items.map((l) =>
         h(
           "tr",
-          null,
-          ["Id", "Kind", "Mark", "Size", "Payload", "Print"].map((t) => h("th", null, t)),
-        ),
-      ),
-      h(
-        "tbody",
-        null,
-        items.map((l) =>
-          h(
-            "tr",
-            { testid: `landmark-row-${l.id}` },
-            h("td", { class: "num" }, String(l.id)),
-            h("td", null, l.kind),
-            h("td", { testid: `landmark-mark-${l.id}` }, markOf(l.payload)),
-            h("td", { class: "num" }, `${fmt(l.size_m * 100, 1)} cm`),
-            h("td", { class: "mono payload", title: l.payload }, l.payload),
-            h("td", null, printLinks(l)),
-          ),
+          { testid: `landmark-row-${l.id}` },
+          h("td", { class: "num" }, String(l.id)),
+          h("td", null, l.kind),
+          h("td", { testid: `landmark-mark-${l.id}` }, markOf(l.payload)),
+          h("td", { class: "num" }, `${fmt(l.size_m * 100, 1)} cm`),
+          h("td", { class: "mono payload", title: l.payload }, l.payload),
+          h("td", null, printLinks(l)),
         ),
       ),
     ),
@@ -138,36 +126,21 @@ function detectionTable(result) {
   return h(
     "div",
     { class: "table-wrap" },
-    h(
-      "table",
+    table(
       { testid: "detection-table" },
-      h(
-        "thead",
-        null,
-        h(
+      ["Kind", "Read", "Distance", "Position (camera)", "σ position"],
+      result.detections.map((d) => {
+        const sd = [3, 4, 5].map((k) => Math.sqrt(d.cov[k][k]) * 1000);
+        return h(
           "tr",
           null,
-          ["Kind", "Read", "Distance", "Position (camera)", "σ position"].map((t) =>
-            h("th", null, t),
-          ),
-        ),
-      ),
-      h(
-        "tbody",
-        null,
-        result.detections.map((d) => {
-          const sd = [3, 4, 5].map((k) => Math.sqrt(d.cov[k][k]) * 1000);
-          return h(
-            "tr",
-            null,
-            h("td", null, d.kind),
-            h("td", { testid: "detection-read" }, label(d)),
-            h("td", { class: "num" }, `${fmt(d.distance_m, 3)} m`),
-            h("td", { class: "num mono" }, d.position.map((v) => fmt(v, 3)).join(", ")),
-            h("td", { class: "num" }, `${sd.map((v) => sig(v, 2)).join(" / ")} mm`),
-          );
-        }),
-      ),
+          h("td", null, d.kind),
+          h("td", { testid: "detection-read" }, label(d)),
+          h("td", { class: "num" }, `${fmt(d.distance_m, 3)} m`),
+          h("td", { class: "num mono" }, d.position.map((v) => fmt(v, 3)).join(", ")),
+          h("td", { class: "num" }, `${sd.map((v) => sig(v, 2)).join(" / ")} mm`),
+        );
+      }),
     ),
   );
 }
@@ -181,10 +154,9 @@ function detectForm(cameras, out) {
     id: "landmark-photo",
     testid: "landmark-photo",
   });
-  const camera = h(
-    "select",
+  const camera = choice(
     { id: "detect-camera", testid: "detect-camera", required: true },
-    usable.map((c) => h("option", { value: String(c.id) }, `${c.name} (${c.width}x${c.height})`)),
+    usable.map((c) => [c.id, `${c.name} (${c.width}x${c.height})`]),
   );
   const submit = h(
     "button",
@@ -192,33 +164,31 @@ function detectForm(cameras, out) {
     "Find landmarks",
   );
   let shown = null;
+  const detect = async () => {
+    if (!file.files.length) return;
+    mount(out, h("p", { class: "muted" }, "Detecting…"));
+    const result = await api("/landmarks/detect", {
+      method: "POST",
+      form: { image: file.files[0], camera_id: camera.value },
+    });
+    if (shown) URL.revokeObjectURL(shown);
+    shown = URL.createObjectURL(file.files[0]);
+    mount(out, overlay(shown, result), detectionTable(result));
+  };
   const form = h(
     "form",
     {
       class: "form-grid wide detect-form",
       testid: "detect-form",
-      onSubmit: async (event) => {
-        event.preventDefault();
-        if (!file.files.length) return;
-        mount(out, h("p", { class: "muted" }, "Detecting…"));
-        try {
-          await busy(submit, async () => {
-            const result = await api("/landmarks/detect", {
-              method: "POST",
-              form: { image: file.files[0], camera_id: camera.value },
-            });
-            if (shown) URL.revokeObjectURL(shown);
-            shown = URL.createObjectURL(file.files[0]);
-            mount(out, overlay(shown, result), detectionTable(result));
-          });
-        } catch (err) {
-          mount(out, errorBox(err, "detect-error"));
-          toastError(err);
-        }
-      },
+      onSubmit: sending(submit, detect, {
+        errors: out,
+        testid: "detect-error",
+        keep: true,
+        toast: true,
+      }),
     },
-    h("label", { for: "landmark-photo" }, "Photo", file),
-    h("label", { for: "detect-camera" }, "Camera", camera),
+    field("landmark-photo", "Photo", file),
+    field("detect-camera", "Camera", camera),
     h("div", { class: "form-actions", style: { marginTop: 0 } }, submit),
   );
   return [
@@ -234,21 +204,15 @@ function detectForm(cameras, out) {
 }
 
 function mapTable(testid, head, rows) {
-  if (!rows.length) return h("p", { class: "empty", testid: `${testid}-empty` }, "Nothing read yet.");
-  return h(
-    "div",
-    { class: "table-wrap" },
+  if (!rows.length)
+    return h("p", { class: "empty", testid: `${testid}-empty` }, "Nothing read yet.");
+  const row = (r) =>
     h(
-      "table",
-      { testid },
-      h("thead", null, h("tr", null, head.map((t) => h("th", null, t)))),
-      h(
-        "tbody",
-        null,
-        rows.map((r) => h("tr", null, r.map((c) => h("td", null, c)))),
-      ),
-    ),
-  );
+      "tr",
+      null,
+      r.map((c) => h("td", null, c)),
+    );
+  return h("div", { class: "table-wrap" }, table({ testid }, head, rows.map(row)));
 }
 
 /** The maps on the floor plan, drawn as the Floor and Navigation pages draw theirs: rooms,

@@ -1,9 +1,21 @@
 // Overview: the chosen space, its device counts, service health and a floor plan with the
 // cameras.
 
-import { api, currentSpace, inSpace, list } from "../api.js";
+import { api, currentSpace, inSpace, list, settled } from "../api.js";
 import { drawCameras, drawRooms, drawScaleBar, planSvg, planTransform } from "../plan.js";
-import { badge, errorBox, fmt, h, mount, panel, s, statusBadge, when } from "../ui.js";
+import {
+  badge,
+  errorBox,
+  facts,
+  fmt,
+  h,
+  mount,
+  panel,
+  s,
+  statusBadge,
+  table,
+  when,
+} from "../ui.js";
 import { cameraCounts } from "./cameras.js";
 
 // [registry path, label, link, whether devices of no space count too]: the Cameras and
@@ -33,37 +45,51 @@ function floorPlan(rooms, cameras) {
   drawRooms(gRooms, rooms, tf);
   drawScaleBar(gRooms, tf, { minPx: 50 });
   drawCameras(gCams, posed, tf, { view: "wedge" });
-  return planSvg(tf, { className: "plot floorplan", label: "Floor plan with cameras", testid: "floorplan" }, gRooms, gCams);
-}
-
-/** Settle every promise; failures come back as {error}. */
-function settle(promises) {
-  return Promise.all(
-    promises.map((p) =>
-      p.then(
-        (value) => ({ value }),
-        (error) => ({ error }),
-      ),
-    ),
+  return planSvg(
+    tf,
+    { className: "plot floorplan", label: "Floor plan with cameras", testid: "floorplan" },
+    gRooms,
+    gCams,
   );
 }
 
 export async function renderOverview(main) {
-  const [health, home, spaces, runs, ...counts] = await settle([
-    api("/health"),
-    api("/home/status"),
-    list("/spaces", { limit: 20 }),
-    list("/calibration-runs", { limit: 20 }),
-    ...DEVICES.map(([path, , , unassigned]) =>
-      list(inSpace(`/${path}`, { unassigned }), { limit: 200 }),
-    ),
-  ]);
-  const space = currentSpace();
+  const [health, home, spaces, runs, ...counts] = await Promise.all(
+    [
+      api("/health"),
+      api("/home/status"),
+      list("/spaces", { limit: 20 }),
+      list("/calibration-runs", { limit: 20 }),
+      ...DEVICES.map(([path, , , unassigned]) =>
+        list(inSpace(`/${path}`, { unassigned }), { limit: 200 }),
+      ),
+    ].map(settled),
+  );
   // One error box for the whole page when every registry read was refused (not signed in).
   const refused = [spaces, ...counts].every((r) => r.error && r.error.status === 401);
   if (refused) throw spaces.error;
+  const rooms = counts[DEVICES.findIndex(([k]) => k === "rooms")].value?.items || [];
+  const cameras = counts[0].value?.items || [];
+  mount(
+    main,
+    deviceStats(counts),
+    h(
+      "div",
+      { class: "grid wide-left" },
+      panel(
+        "Floor plan",
+        "Rooms and the cameras with a calibrated pose, seen from above",
+        floorPlan(rooms, cameras),
+      ),
+      h("div", { class: "grid" }, servicePanel(health), homePanel(home), spacePanel(spaces)),
+    ),
+    recentRunsPanel(runs, cameras),
+  );
+}
 
-  const stats = h(
+/** The count of each kind of device in the space (`counts`: one read per DEVICES entry). */
+function deviceStats(counts) {
+  return h(
     "div",
     { class: "stats", testid: "device-counts" },
     DEVICES.map(([key, label, href], i) => {
@@ -83,138 +109,92 @@ export async function renderOverview(main) {
       );
     }),
   );
+}
 
+/** The service's health: API, database, storage, schema, reads, twin and 3D scene. */
+function servicePanel(health) {
   const hv = health.value || {};
-  const healthPanel = panel(
+  const rows = [
+    ["Status", badge(hv.status, hv.status === "ok" ? "ok" : "bad")],
+    ["Version", hv.version || "–", { class: "mono", testid: "health-version" }],
+    ["Database", describeDatabase(hv.database), { testid: "health-database" }],
+    ["Storage", hv.storage === "ok" ? "working" : hv.storage || "–", { testid: "health-storage" }],
+    ["Schema", hv.schema_revision ? `revision ${hv.schema_revision}` : "–", { class: "mono" }],
+    ["Reads", hv.public_reads ? "open to anyone" : "need a token"],
+    ["Digital twin", hv.simulation ? "running in this service" : "off"],
+    ["3D scene", hv.scene ? "served by this process" : "not here", { testid: "health-scene" }],
+  ];
+  return panel(
     "Service",
     "Health of the API and its database",
-    health.error
-      ? errorBox(health.error, "health-error")
-      : h(
-          "dl",
-          { class: "facts", testid: "health" },
-          h("dt", null, "Status"),
-          h("dd", null, badge(hv.status, hv.status === "ok" ? "ok" : "bad")),
-          h("dt", null, "Version"),
-          h("dd", { class: "mono", testid: "health-version" }, hv.version || "–"),
-          h("dt", null, "Database"),
-          h("dd", { testid: "health-database" }, describeDatabase(hv.database)),
-          h("dt", null, "Storage"),
-          h("dd", { testid: "health-storage" }, hv.storage === "ok" ? "working" : hv.storage || "–"),
-          h("dt", null, "Schema"),
-          h("dd", { class: "mono" }, hv.schema_revision ? `revision ${hv.schema_revision}` : "–"),
-          h("dt", null, "Reads"),
-          h("dd", null, hv.public_reads ? "open to anyone" : "need a token"),
-          h("dt", null, "Digital twin"),
-          h("dd", null, hv.simulation ? "running in this service" : "off"),
-          h("dt", null, "3D scene"),
-          h("dd", { testid: "health-scene" }, hv.scene ? "served by this process" : "not here"),
-        ),
+    health.error ? errorBox(health.error, "health-error") : facts({ testid: "health" }, rows),
   );
+}
 
-  const spaceList = spaces.value ? spaces.value.items : [];
-  const others = spaceList.filter((sp) => sp.id !== space?.id);
-  const spacePanel = panel(
-    "Space",
-    null,
-    spaces.error
-      ? errorBox(spaces.error)
-      : space
+/** The space shown, and the others registered. */
+function spacePanel(spaces) {
+  const space = currentSpace();
+  const others = (spaces.value ? spaces.value.items : []).filter((sp) => sp.id !== space?.id);
+  let body;
+  if (spaces.error) body = errorBox(spaces.error);
+  else if (!space) body = h("p", { class: "empty", testid: "space" }, "No space defined yet.");
+  else {
+    body = h(
+      "div",
+      { testid: "space" },
+      h("h3", { style: { fontSize: "1.05rem", color: "var(--ink)" } }, space.name),
+      space.description ? h("p", { class: "muted small" }, space.description) : null,
+      others.length
         ? h(
-            "div",
-            { testid: "space" },
-            h("h3", { style: { fontSize: "1.05rem", color: "var(--ink)" } }, space.name),
-            space.description ? h("p", { class: "muted small" }, space.description) : null,
-            others.length
-              ? h(
-                  "p",
-                  { class: "small muted", testid: "other-spaces" },
-                  `Also registered: ${others.map((sp) => sp.name).join(", ")}. ` +
-                    "Pick the space to show in the header; every page shows only its devices.",
-                )
-              : null,
+            "p",
+            { class: "small muted", testid: "other-spaces" },
+            `Also registered: ${others.map((sp) => sp.name).join(", ")}. ` +
+              "Pick the space to show in the header; every page shows only its devices.",
           )
-        : h("p", { class: "empty", testid: "space" }, "No space defined yet."),
-  );
+        : null,
+    );
+  }
+  return panel("Space", null, body);
+}
 
-  const rooms = counts[DEVICES.findIndex(([k]) => k === "rooms")].value?.items || [];
-  const cameras = counts[0].value?.items || [];
-  // The space's runs: those of its cameras, and those of no camera (network, projector, arm).
+/** The space's newest runs: those of its cameras, and those of no camera (network, projector,
+ * arm). */
+function recentRunsPanel(runs, cameras) {
   const cameraIds = new Set(cameras.map((c) => c.id));
   const spaceRuns = (runs.value?.items || [])
     .filter((r) => !r.camera_id || cameraIds.has(r.camera_id))
     .slice(0, 6);
-  const planPanel = panel(
-    "Floor plan",
-    "Rooms and the cameras with a calibrated pose, seen from above",
-    floorPlan(rooms, cameras),
-  );
+  let body;
+  if (runs.error) body = errorBox(runs.error);
+  else if (!spaceRuns.length) body = h("p", { class: "empty" }, "No calibration runs yet.");
+  else body = h("div", { class: "table-wrap" }, recentRunsTable(spaceRuns, cameras));
+  return panel("Recent calibration runs", null, body);
+}
 
-  const runsPanel = panel(
-    "Recent calibration runs",
-    null,
-    runs.error
-      ? errorBox(runs.error)
-      : spaceRuns.length
-        ? h(
-            "div",
-            { class: "table-wrap" },
-            h(
-              "table",
-              { testid: "recent-runs" },
-              h(
-                "thead",
-                null,
-                h(
-                  "tr",
-                  null,
-                  ["Run", "Camera", "Status", "RMS (px)", "fx (px)", "Created"].map((t, i) =>
-                    h("th", { class: i === 3 || i === 4 ? "num" : null, scope: "col" }, t),
-                  ),
-                ),
-              ),
-              h(
-                "tbody",
-                null,
-                spaceRuns.map((r) =>
-                  h(
-                    "tr",
-                    null,
-                    h("td", null, h("a", { href: `#/calibration/runs/${r.id}` }, `#${r.id}`)),
-                    h(
-                      "td",
-                      null,
-                      r.camera_id
-                        ? h(
-                            "a",
-                            { href: `#/cameras/${r.camera_id}` },
-                            cameraName(cameras, r.camera_id),
-                          )
-                        : "–",
-                    ),
-                    h("td", null, statusBadge(r.status)),
-                    h("td", { class: "num" }, fmt(r.result?.rms, 4)),
-                    h("td", { class: "num" }, r.result?.K ? fmt(r.result.K[0][0], 2) : "–"),
-                    h("td", { class: "small muted" }, when(r.created_at)),
-                  ),
-                ),
-              ),
-            ),
-          )
-        : h("p", { class: "empty" }, "No calibration runs yet."),
-  );
-
-  mount(
-    main,
-    stats,
+function recentRunsTable(runs, cameras) {
+  const head = ["Run", "Camera", "Status", "RMS (px)", "fx (px)", "Created"];
+  const row = (r) =>
     h(
-      "div",
-      { class: "grid wide-left" },
-      planPanel,
-      h("div", { class: "grid" }, healthPanel, homePanel(home), spacePanel),
-    ),
-    runsPanel,
-  );
+      "tr",
+      null,
+      h("td", null, h("a", { href: `#/calibration/runs/${r.id}` }, `#${r.id}`)),
+      h(
+        "td",
+        null,
+        r.camera_id
+          ? h("a", { href: `#/cameras/${r.camera_id}` }, cameraName(cameras, r.camera_id))
+          : "–",
+      ),
+      h("td", null, statusBadge(r.status)),
+      h("td", { class: "num" }, fmt(r.result?.rms, 4)),
+      h("td", { class: "num" }, r.result?.K ? fmt(r.result.K[0][0], 2) : "–"),
+      h("td", { class: "small muted" }, when(r.created_at)),
+    );
+  const columns = head.map((t, i) => [
+    t,
+    { class: i === 3 || i === 4 ? "num" : null, scope: "col" },
+  ]);
+  return table({ testid: "recent-runs" }, columns, runs.map(row));
 }
 
 /** The home integration's panel: the MQTT broker's connection and Frigate's (spec 09). */
@@ -222,9 +202,17 @@ function homePanel(home) {
   const broker = (b, id) =>
     b
       ? [
-          h("dd", { testid: `${id}-state` }, badge(b.connected ? "connected" : "disconnected", b.connected ? "ok" : "bad")),
+          h(
+            "dd",
+            { testid: `${id}-state` },
+            badge(b.connected ? "connected" : "disconnected", b.connected ? "ok" : "bad"),
+          ),
           h("dt", null, "Since"),
-          h("dd", { class: "small", testid: `${id}-since` }, b.since ? new Date(b.since * 1000).toLocaleString() : "–"),
+          h(
+            "dd",
+            { class: "small", testid: `${id}-since` },
+            b.since ? new Date(b.since * 1000).toLocaleString() : "–",
+          ),
           h("dt", null, "Broker"),
           h("dd", { class: "mono small", testid: `${id}-url` }, b.url),
           h("dt", null, "Dropped"),
@@ -247,7 +235,11 @@ function homePanel(home) {
             ? [
                 ...broker(v.frigate.broker, "frigate"),
                 h("dt", null, "Objects held"),
-                h("dd", { testid: "frigate-held" }, `${v.frigate.held} (${v.frigate.fed} reports fed)`),
+                h(
+                  "dd",
+                  { testid: "frigate-held" },
+                  `${v.frigate.held} (${v.frigate.fed} reports fed)`,
+                ),
               ]
             : [h("dd", { testid: "frigate-state" }, "off")]),
         ),

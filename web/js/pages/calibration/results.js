@@ -4,11 +4,14 @@
 
 import { lineChart } from "../../chart.js";
 import { barChart } from "../../plot.js";
-import { fmt, h, matrixTable, mount, panel } from "../../ui.js";
-import { intrinsicsFacts } from "../cameras.js";
+import { facts, fmt, h, matrixTable, mount, panel, table } from "../../ui.js";
+import { intrinsicsFacts } from "../cameras/intrinsics.js";
 
 // The targets the twin's errors are marked against.
 const NETWORK_TARGETS = { focal_pct: 1, position_cm: 2, rotation_deg: 0.3 };
+
+/** A row of a list of facts: `value` (a number) under `label`. */
+const fact = (label, value, testid) => [label, value, { class: "num", testid }];
 
 /** A per-camera error against the twin's truth, marked when it misses the target. */
 function errorCell(value, target, digits, testid) {
@@ -113,56 +116,59 @@ function accuracyView(r) {
   );
 }
 
-function networkResultView(run) {
-  const r = run.result;
-  const cams = r.cameras || [];
-  const rows = cams.map((c, i) => {
-    const e = c.errors || {};
-    const f = c.K ? (c.K[0][0] + c.K[1][1]) / 2 : null;
-    const pos = c.T_world_camera ? c.T_world_camera.slice(0, 3).map((row) => row[3]) : null;
-    return h(
-      "tr",
-      { testid: `network-row-${i}`, "data-camera": c.name },
-      h("td", null, c.camera_id ? h("a", { href: `#/cameras/${c.camera_id}` }, c.name) : c.name),
-      h("td", { class: "num" }, c.poses_seen ?? "–"),
-      h("td", { class: "num" }, fmt(f, 2)),
-      h("td", { class: "num" }, pos ? pos.map((v) => fmt(v, 3)).join(", ") : "–"),
-      h("td", { class: "num" }, fmt(c.rms, 3)),
-      e.focal_pct !== undefined
-        ? errorCell(e.focal_pct, NETWORK_TARGETS.focal_pct, 3, `network-focal-${i}`)
-        : h("td", { class: "num" }, "–"),
-      e.position_m !== undefined
-        ? errorCell(e.position_m * 100, NETWORK_TARGETS.position_cm, 2, `network-position-${i}`)
-        : h("td", { class: "num" }, "–"),
-      e.rotation_deg !== undefined
-        ? errorCell(e.rotation_deg, NETWORK_TARGETS.rotation_deg, 3, `network-rotation-${i}`)
-        : h("td", { class: "num" }, "–"),
-      h(
-        "td",
-        { class: "num", testid: `network-start-frame-${i}` },
-        e.start_frame_position_m != null
-          ? `${fmt(e.start_frame_position_m * 100, 2)} cm, ${fmt(e.start_frame_rotation_deg, 3)}°`
-          : "–",
-      ),
-      h(
-        "td",
-        { class: "num", testid: `network-aligned-${i}` },
-        e.aligned_position_m != null
-          ? `${fmt(e.aligned_position_m * 100, 2)} cm, ${fmt(e.aligned_rotation_deg, 3)}°`
-          : "–",
-      ),
-      h(
-        "td",
-        { class: "num", testid: `network-bound-${i}` },
-        c.bound
-          ? `${fmt(c.bound.position_m * 100, 2)} cm, ${fmt(c.bound.rotation_deg, 3)}° ` +
-              `(aligned ${fmt(c.bound.aligned_position_m * 100, 2)} cm, ` +
-              `${fmt(c.bound.aligned_rotation_deg, 3)}°)`
-          : "–",
-      ),
-    );
-  });
-  const rejected = r.rejected || [];
+/** One camera of a network run: what was fitted, its errors against the twin's truth and its
+ * bound. */
+function networkRow(c, i) {
+  const e = c.errors || {};
+  const f = c.K ? (c.K[0][0] + c.K[1][1]) / 2 : null;
+  const pos = c.T_world_camera ? c.T_world_camera.slice(0, 3).map((row) => row[3]) : null;
+  const error = (value, target, digits, name) =>
+    value !== undefined
+      ? errorCell(value, target, digits, `network-${name}-${i}`)
+      : h("td", { class: "num" }, "–");
+  const pair = (position, rotation) => `${fmt(position * 100, 2)} cm, ${fmt(rotation, 3)}°`;
+  return h(
+    "tr",
+    { testid: `network-row-${i}`, "data-camera": c.name },
+    h("td", null, c.camera_id ? h("a", { href: `#/cameras/${c.camera_id}` }, c.name) : c.name),
+    h("td", { class: "num" }, c.poses_seen ?? "–"),
+    h("td", { class: "num" }, fmt(f, 2)),
+    h("td", { class: "num" }, pos ? pos.map((v) => fmt(v, 3)).join(", ") : "–"),
+    h("td", { class: "num" }, fmt(c.rms, 3)),
+    error(e.focal_pct, NETWORK_TARGETS.focal_pct, 3, "focal"),
+    error(
+      e.position_m !== undefined ? e.position_m * 100 : undefined,
+      NETWORK_TARGETS.position_cm,
+      2,
+      "position",
+    ),
+    error(e.rotation_deg, NETWORK_TARGETS.rotation_deg, 3, "rotation"),
+    h(
+      "td",
+      { class: "num", testid: `network-start-frame-${i}` },
+      e.start_frame_position_m != null
+        ? pair(e.start_frame_position_m, e.start_frame_rotation_deg)
+        : "–",
+    ),
+    h(
+      "td",
+      { class: "num", testid: `network-aligned-${i}` },
+      e.aligned_position_m != null ? pair(e.aligned_position_m, e.aligned_rotation_deg) : "–",
+    ),
+    h(
+      "td",
+      { class: "num", testid: `network-bound-${i}` },
+      c.bound
+        ? `${pair(c.bound.position_m, c.bound.rotation_deg)} ` +
+            `(aligned ${pair(c.bound.aligned_position_m, c.bound.aligned_rotation_deg)})`
+        : "–",
+    ),
+  );
+}
+
+/** What a network run did: cameras, marker positions, drive, noise, RMS, where the intrinsics
+ * came from and how the result was registered to the world. */
+function networkSummary(r) {
   const reg = r.registration;
   const registration = reg
     ? reg.theta_deg != null
@@ -171,50 +177,51 @@ function networkResultView(run) {
         `${reg.t_m.map((v) => fmt(v * 100, 1)).join(", ")} cm from the start pose's frame.`
       : ` Not registered to the world: ${reg.reason}.`
     : "";
+  return (
+    `${(r.cameras || []).length} cameras from ${r.poses ?? "–"} marker positions` +
+    (r.drive_s != null ? ` over a ${fmt(r.drive_s, 0)} s drive` : "") +
+    (r.sigma_px != null ? `, detections within ${fmt(r.sigma_px, 3)} px RMS of the truth` : "") +
+    (r.rms_px != null
+      ? `; reprojection RMS ${fmt(r.rms_px, 3)} px over all detections ` +
+        `(${fmt(r.rms_whitened, 2)} standard deviations)`
+      : "") +
+    (r.intrinsics_from ? `. Intrinsics: ${r.intrinsics_from}` : "") +
+    "." +
+    registration +
+    " Errors against the digital twin's truth (absolute: in the world, registered by the " +
+    "signposts when it was; start frame: in the frame of the robot's start pose; aligned: " +
+    "after the best floor alignment), beside their Cramer-Rao bound (in the start pose's " +
+    "frame); targets: focal < 1 %, position < 2 cm, rotation < 0.3°."
+  );
+}
+
+const NETWORK_COLUMNS = [
+  "Camera",
+  "Poses seen",
+  "f (px)",
+  "Position (m)",
+  "RMS (px)",
+  "Focal error (%)",
+  "Position error (cm)",
+  "Rotation error (°)",
+  "Start frame error",
+  "Aligned error",
+  "Bound",
+];
+
+function networkResultView(run) {
+  const r = run.result;
+  const rejected = r.rejected || [];
   return panel(
     "Cameras calibrated",
-    `${cams.length} cameras from ${r.poses ?? "–"} marker positions` +
-      (r.drive_s != null ? ` over a ${fmt(r.drive_s, 0)} s drive` : "") +
-      (r.sigma_px != null ? `, detections within ${fmt(r.sigma_px, 3)} px RMS of the truth` : "") +
-      (r.rms_px != null
-        ? `; reprojection RMS ${fmt(r.rms_px, 3)} px over all detections ` +
-          `(${fmt(r.rms_whitened, 2)} standard deviations)`
-        : "") +
-      (r.intrinsics_from ? `. Intrinsics: ${r.intrinsics_from}` : "") +
-      "." +
-      registration +
-      " Errors against the digital twin's truth (absolute: in the world, registered by the " +
-      "signposts when it was; start frame: in the frame of the robot's start pose; aligned: " +
-      "after the best floor alignment), beside their Cramer-Rao bound (in the start pose's " +
-      "frame); targets: focal < 1 %, position < 2 cm, rotation < 0.3°.",
+    networkSummary(r),
     h(
       "div",
       { class: "table-wrap" },
-      h(
-        "table",
+      table(
         { testid: "network-results" },
-        h(
-          "thead",
-          null,
-          h(
-            "tr",
-            null,
-            [
-              "Camera",
-              "Poses seen",
-              "f (px)",
-              "Position (m)",
-              "RMS (px)",
-              "Focal error (%)",
-              "Position error (cm)",
-              "Rotation error (°)",
-              "Start frame error",
-              "Aligned error",
-              "Bound",
-            ].map((t, i) => h("th", { class: i ? "num" : null }, t)),
-          ),
-        ),
-        h("tbody", null, rows),
+        NETWORK_COLUMNS.map((t, i) => [t, { class: i ? "num" : null }]),
+        (r.cameras || []).map(networkRow),
       ),
     ),
     rejected.length
@@ -286,20 +293,11 @@ function placementResultView(run) {
         (r.rejected.length ? `; left out: ${r.rejected.map((k) => `#${k + 1}`).join(", ")}` : ""),
       poseTable(r.T_world_camera, "placement-T"),
       matrixTable(r.K, 2, "placement-K"),
-      h(
-        "dl",
-        { class: "facts" },
-        h("dt", null, "Position std"),
-        h(
-          "dd",
-          { class: "num" },
-          `${(std.position_m || []).map((v) => fmt(v * 100, 2)).join(", ")} cm`,
-        ),
-        h("dt", null, "Rotation std"),
-        h("dd", { class: "num" }, `${(std.rotation_deg || []).map((v) => fmt(v, 3)).join(", ")}°`),
-        h("dt", null, "Focal length std"),
-        h("dd", { class: "num" }, std.f_px != null ? `${fmt(std.f_px, 2)} px` : "K known"),
-      ),
+      facts(null, [
+        fact("Position std", `${(std.position_m || []).map((v) => fmt(v * 100, 2)).join(", ")} cm`),
+        fact("Rotation std", `${(std.rotation_deg || []).map((v) => fmt(v, 3)).join(", ")}°`),
+        fact("Focal length std", std.f_px != null ? `${fmt(std.f_px, 2)} px` : "K known"),
+      ]),
     ),
     panel(
       "Residual per pair",
@@ -313,10 +311,6 @@ function placementResultView(run) {
 function projectorResultView(run) {
   const r = run.result;
   const e = r.twin_errors || {};
-  const fact = (label, value, testid) => [
-    h("dt", null, label),
-    h("dd", { class: "num", testid }, value),
-  ];
   return h(
     "div",
     { class: "grid two", testid: "projector-result" },
@@ -325,23 +319,19 @@ function projectorResultView(run) {
       `T_world_projector from ${r.spots} spots (${r.spots_from}), located by ` +
         `${(r.cameras || []).join(", ") || "–"}; ± one standard deviation`,
       poseTable(r.T_world_projector, "projector-T"),
-      h(
-        "dl",
-        { class: "facts" },
+      facts(null, [
         fact("Spots", String(r.spots), "projector-spots"),
         fact("Floor RMS", `${fmt(r.rms_m * 1000, 2)} mm`, "projector-rms"),
         fact("Position std", `${fmt(r.position_std_m * 1000, 2)} mm`, "projector-position-std"),
         fact("Rotation std", `${fmt(r.rotation_std_deg, 3)}°`, "projector-rotation-std"),
         fact("Tilt offset", `${fmt((r.tilt_offset_rad * 180) / Math.PI, 3)}°`, "projector-tilt"),
-      ),
+      ]),
     ),
     panel(
       "Against the digital twin",
       "The mount's errors against the twin's true projector (aligned: after removing the frame " +
         "error of the cameras' own calibration); targets: position < 1 cm, rotation < 0.2°.",
-      h(
-        "dl",
-        { class: "facts", testid: "projector-twin-errors" },
+      facts({ testid: "projector-twin-errors" }, [
         fact("Position error", `${fmt(e.position_m * 1000, 2)} mm`, "projector-position-error"),
         fact("Rotation error", `${fmt(e.rotation_deg, 3)}°`, "projector-rotation-error"),
         fact(
@@ -351,7 +341,7 @@ function projectorResultView(run) {
         ),
         fact("Tilt offset error", `${fmt((e.tilt_offset_rad * 180) / Math.PI, 3)}°`),
         fact("Located spots", `${fmt(r.spot_error_rms_m * 1000, 2)} mm RMS per axis`),
-      ),
+      ]),
     ),
   );
 }
@@ -360,10 +350,6 @@ function projectorResultView(run) {
  * the twin, every method's errors against the truth. */
 function handEyeResultView(run) {
   const r = run.result;
-  const fact = (label, value, testid) => [
-    h("dt", null, label),
-    h("dd", { class: "num", testid }, value),
-  ];
   const methods = r.methods || [];
   const row = (m, testid) =>
     h(
@@ -383,9 +369,7 @@ function handEyeResultView(run) {
       `X = T_ee_camera (${r.method}) from ${r.views} views, ${r.motions} motions; ` +
         "± one standard deviation",
       poseTable(r.X, "run-hand-eye-X"),
-      h(
-        "dl",
-        { class: "facts" },
+      facts(null, [
         fact("Rotation std", `${fmt(r.rotation_std_deg, 4)}°`, "run-hand-eye-rotation-std"),
         fact(
           "Translation std",
@@ -398,7 +382,7 @@ function handEyeResultView(run) {
           "run-hand-eye-refined",
         ),
         r.sigma_px != null ? fact("Pixel noise (twin)", `${fmt(r.sigma_px, 2)} px`) : null,
-      ),
+      ]),
     ),
     (r.rotation_residuals_deg || []).length
       ? panel(
@@ -418,30 +402,19 @@ function handEyeResultView(run) {
           h(
             "div",
             { class: "table-wrap" },
-            h(
-              "table",
+            table(
               { testid: "run-hand-eye-methods" },
-              h(
-                "thead",
-                null,
-                h(
-                  "tr",
-                  null,
-                  [
-                    "Method",
-                    "Rotation error (°)",
-                    "Translation error (mm)",
-                    "Rotation std (°)",
-                    "Translation std (mm)",
-                  ].map((t, i) => h("th", { class: i ? "num" : null }, t)),
-                ),
-              ),
-              h(
-                "tbody",
-                null,
+              [
+                "Method",
+                "Rotation error (°)",
+                "Translation error (mm)",
+                "Rotation std (°)",
+                "Translation std (mm)",
+              ].map((t, i) => [t, { class: i ? "num" : null }]),
+              [
                 row(r.truth, "run-hand-eye-truth"),
                 methods.map((m, i) => row(m, `run-hand-eye-method-${i}`)),
-              ),
+              ],
             ),
           ),
         )

@@ -2,7 +2,18 @@
 // its results once it succeeded (calibration/results.js) and the button that applies them.
 
 import { api, poll } from "../../api.js";
-import { duration, errorBox, fmt, h, mount, panel, statusBadge, toast, when } from "../../ui.js";
+import {
+  duration,
+  errorBox,
+  facts,
+  fmt,
+  h,
+  mount,
+  panel,
+  statusBadge,
+  toast,
+  when,
+} from "../../ui.js";
 import { resultViews } from "./results.js";
 
 const TERMINAL = new Set(["succeeded", "failed", "interrupted"]);
@@ -88,156 +99,135 @@ function progressView(run) {
   );
 }
 
+/** What the run's camera is: a link to it, or what a run of no camera looked through. */
+function runCamera(run, cameraName) {
+  if (run.camera_id)
+    return h("a", { href: `#/cameras/${run.camera_id}` }, cameraName || `#${run.camera_id}`);
+  if (run.kind === "network") return "every camera of the digital twin's home";
+  if (run.kind === "projector" && run.result)
+    return `locating the spots: ${(run.result.cameras || []).join(", ")}`;
+  return "–";
+}
+
+/** The run's error measure, [label, value], by its kind; null before it has a result. */
+function runError(run) {
+  const r = run.result;
+  if (!r) return null;
+  if (run.kind === "projector")
+    return ["RMS error", `${fmt(r.rms_m * 1000, 2)} mm over ${r.spots} spots`];
+  if (run.kind === "hand-eye")
+    return [
+      "Uncertainty",
+      `${fmt(r.rotation_std_deg, 4)}°, ${fmt(r.translation_std_m * 1000, 3)} mm (one std)`,
+    ];
+  const over = r.per_view_rms
+    ? ` over ${r.per_view_rms.length} views`
+    : r.cameras
+      ? ` over ${r.cameras.length} cameras`
+      : "";
+  return ["RMS error", `${fmt(r.rms ?? r.rms_px, 4)} px${over}`];
+}
+
 /** The run's facts: status, camera (named `cameraName`), arm or projector, kind, options,
  * when, how long, and its error measure. */
 function runFacts(run, cameraName) {
-  return h(
-    "dl",
-    { class: "facts", testid: "run-facts" },
-    h("dt", null, "Status"),
-    h("dd", null, statusBadge(run.status, "run-status")),
-    h("dt", null, "Camera"),
-    h(
-      "dd",
-      null,
-      run.camera_id
-        ? h("a", { href: `#/cameras/${run.camera_id}` }, cameraName || `#${run.camera_id}`)
-        : run.kind === "network"
-          ? "every camera of the digital twin's home"
-          : run.kind === "projector" && run.result
-            ? `locating the spots: ${(run.result.cameras || []).join(", ")}`
-            : "–",
-    ),
-    run.kind === "hand-eye" && run.arm_id
-      ? [h("dt", null, "Arm"), h("dd", { testid: "run-arm" }, `#${run.arm_id}`)]
-      : null,
+  const options = run.options
+    ? Object.entries(run.options)
+        .map(([k, v]) => `${k}=${v}`)
+        .join(", ")
+    : "–";
+  const error = runError(run);
+  return facts({ testid: "run-facts" }, [
+    ["Status", statusBadge(run.status, "run-status")],
+    ["Camera", runCamera(run, cameraName)],
+    run.kind === "hand-eye" && run.arm_id ? ["Arm", `#${run.arm_id}`, { testid: "run-arm" }] : null,
     run.kind === "projector" && run.result
-      ? [
-          h("dt", null, "Projector"),
-          h("dd", { testid: "run-projector" }, `#${run.result.projector_id}`),
-        ]
+      ? ["Projector", `#${run.result.projector_id}`, { testid: "run-projector" }]
       : null,
-    h("dt", null, "Kind"),
-    h("dd", null, [run.kind, run.source ? ` · ${run.source}` : ""]),
-    h("dt", null, "Options"),
-    h(
-      "dd",
-      { class: "mono small" },
-      run.options
-        ? Object.entries(run.options)
-            .map(([k, v]) => `${k}=${v}`)
-            .join(", ")
-        : "–",
-    ),
-    h("dt", null, "Created"),
-    h("dd", null, when(run.created_at)),
-    h("dt", null, "Ran for"),
-    h("dd", null, duration(run.started_at, run.finished_at)),
-    run.result && run.kind === "projector"
-      ? [
-          h("dt", null, "RMS error"),
-          h(
-            "dd",
-            { class: "num", testid: "run-rms" },
-            `${fmt(run.result.rms_m * 1000, 2)} mm over ${run.result.spots} spots`,
-          ),
-        ]
-      : null,
-    run.result && run.kind === "hand-eye"
-      ? [
-          h("dt", null, "Uncertainty"),
-          h(
-            "dd",
-            { class: "num", testid: "run-rms" },
-            `${fmt(run.result.rotation_std_deg, 4)}°, ` +
-              `${fmt(run.result.translation_std_m * 1000, 3)} mm (one std)`,
-          ),
-        ]
-      : null,
-    run.result && run.kind !== "projector" && run.kind !== "hand-eye"
-      ? [
-          h("dt", null, "RMS error"),
-          h(
-            "dd",
-            { class: "num", testid: "run-rms" },
-            `${fmt(run.result.rms ?? run.result.rms_px, 4)} px` +
-              (run.result.per_view_rms
-                ? ` over ${run.result.per_view_rms.length} views`
-                : run.result.cameras
-                  ? ` over ${run.result.cameras.length} cameras`
-                  : ""),
-          ),
-        ]
-      : null,
+    ["Kind", [run.kind, run.source ? ` · ${run.source}` : ""]],
+    ["Options", options, { class: "mono small" }],
+    ["Created", when(run.created_at)],
+    ["Ran for", duration(run.started_at, run.finished_at)],
+    error ? [...error, { class: "num", testid: "run-rms" }] : null,
+  ]);
+}
+
+/** The button that applies a succeeded run; the answer (or the refusal) goes to `notice`, and
+ * `state.applied` keeps it applied across redraws. */
+function applyButton(run, notice, state) {
+  return h(
+    "button",
+    {
+      class: "btn primary",
+      type: "button",
+      testid: "run-apply",
+      disabled: state.applied,
+      onClick: async (ev) => {
+        const btn = ev.currentTarget;
+        btn.disabled = true;
+        mount(notice);
+        try {
+          const answer = await api(`/calibration-runs/${run.id}/apply`, { method: "POST" });
+          state.applied = true;
+          btn.textContent = "Applied";
+          mount(notice, appliedNotice(run, answer));
+        } catch (err) {
+          btn.disabled = false;
+          mount(notice, errorBox(err, "run-apply-error"));
+        }
+      },
+    },
+    state.applied ? "Applied" : applyLabel(run),
   );
+}
+
+/** Draw the run: its facts and actions in `header`; its results, its failure or its progress
+ * in `body`. */
+function drawRun({ header, body, notice }, run, cameraName, state) {
+  const actions = h(
+    "div",
+    { class: "form-actions", style: { marginTop: 0 } },
+    run.status === "succeeded" && run.result && applicable(run)
+      ? applyButton(run, notice, state)
+      : null,
+    h("a", { class: "btn", href: "#/calibration" }, "All runs"),
+  );
+  mount(
+    header,
+    panel(
+      null,
+      null,
+      h(
+        "div",
+        { class: "panel-head", style: { marginBottom: 0 } },
+        runFacts(run, cameraName),
+        actions,
+      ),
+    ),
+  );
+  const results = run.status === "succeeded" && run.result ? resultViews(run) : null;
+  if (results) mount(body, ...results);
+  else if (run.status === "failed" || run.status === "interrupted")
+    mount(
+      body,
+      errorBox(
+        { title: `The run ${run.status}`, detail: run.error || "No reason was recorded." },
+        "run-error",
+      ),
+    );
+  else mount(body, progressView(run));
 }
 
 export async function renderRun(main, [id], _query, setTitle) {
   setTitle(`Calibration run #${id}`);
-  let applied = false;
-  const header = h("div");
-  const body = h("div", { class: "grid" });
-  const notice = h("div", { "aria-live": "assertive" });
-  mount(main, header, notice, body);
-
-  const applyButton = (run) =>
-    h(
-      "button",
-      {
-        class: "btn primary",
-        type: "button",
-        testid: "run-apply",
-        disabled: applied,
-        onClick: async (ev) => {
-          const btn = ev.currentTarget;
-          btn.disabled = true;
-          mount(notice);
-          try {
-            const answer = await api(`/calibration-runs/${run.id}/apply`, { method: "POST" });
-            applied = true;
-            btn.textContent = "Applied";
-            mount(notice, appliedNotice(run, answer));
-          } catch (err) {
-            btn.disabled = false;
-            mount(notice, errorBox(err, "run-apply-error"));
-          }
-        },
-      },
-      applied ? "Applied" : applyLabel(run),
-    );
-
-  const draw = (run) => {
-    const facts = runFacts(run, cameraName);
-    mount(
-      header,
-      panel(
-        null,
-        null,
-        h(
-          "div",
-          { class: "panel-head", style: { marginBottom: 0 } },
-          facts,
-          h(
-            "div",
-            { class: "form-actions", style: { marginTop: 0 } },
-            run.status === "succeeded" && run.result && applicable(run) ? applyButton(run) : null,
-            h("a", { class: "btn", href: "#/calibration" }, "All runs"),
-          ),
-        ),
-      ),
-    );
-    const results = run.status === "succeeded" && run.result ? resultViews(run) : null;
-    if (results) mount(body, ...results);
-    else if (run.status === "failed" || run.status === "interrupted")
-      mount(
-        body,
-        errorBox(
-          { title: `The run ${run.status}`, detail: run.error || "No reason was recorded." },
-          "run-error",
-        ),
-      );
-    else mount(body, progressView(run));
+  const state = { applied: false };
+  const boxes = {
+    header: h("div"),
+    body: h("div", { class: "grid" }),
+    notice: h("div", { "aria-live": "assertive" }),
   };
+  const { header, body, notice } = boxes;
+  mount(main, header, notice, body);
 
   let cameraName = null;
   const nameCamera = async (run) => {
@@ -259,7 +249,7 @@ export async function renderRun(main, [id], _query, setTitle) {
     stopOn4xx: true,
     onValue: async (run) => {
       await nameCamera(run);
-      draw(run);
+      drawRun(boxes, run, cameraName, state);
       firstDrawn();
       return !TERMINAL.has(run.status);
     },

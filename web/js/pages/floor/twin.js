@@ -2,9 +2,10 @@
 // again every second, and its ground truth (robot pose, people) drawn dashed on the plan. In
 // another space than the twin's home it only says where the twin runs.
 
-import { api, busy, poll, spaceById } from "../../api.js";
+import { api, poll, spaceById } from "../../api.js";
+import { actionButton } from "../../forms.js";
 import { drawTruth } from "../../plan.js";
-import { fmt, h, infoBox, mount, toastError } from "../../ui.js";
+import { fmt, h, infoBox, mount } from "../../ui.js";
 
 const TWIN_MS = 1000;
 
@@ -74,21 +75,11 @@ export function twinPanel(space, twin0, { gTruth, tf, onReset }) {
   }
   let reads = null;
   const control = (action, label) =>
-    h(
-      "button",
-      {
-        class: "btn small",
-        type: "button",
-        testid: `twin-${action}`,
-        onClick: (ev) =>
-          busy(ev.currentTarget, async () => {
-            await api(`/twin/${action}`, { method: "POST" });
-            if (action === "reset") onReset();
-            reads?.now();
-          }).catch(toastError),
-      },
-      label,
-    );
+    actionButton({ class: "btn small", testid: `twin-${action}` }, label, async () => {
+      await api(`/twin/${action}`, { method: "POST" });
+      if (action === "reset") onReset();
+      reads?.now();
+    });
   const off = (err) => {
     drawTruth(gTruth, null, tf);
     mount(box, twinOffNote(err));

@@ -2,7 +2,8 @@
 // planned path (POST /paths/{id}/follow); its status, metrics and tracking error over time
 // (uPlot) are shown live from the series GET /paths/{id} returns, and drawn on the plan.
 
-import { api, busy, poll } from "../../api.js";
+import { api, poll } from "../../api.js";
+import { busy } from "../../forms.js";
 import { lineChart } from "../../chart.js";
 import { fmt, h, mount, resultsTable, statusBadge, toastError } from "../../ui.js";
 

@@ -4,7 +4,8 @@
 // .../apply), which gives the projector its new mount for the paths planned next and in the 3D
 // scene.
 
-import { api, busy, list, poll } from "../../api.js";
+import { api, list, poll } from "../../api.js";
+import { busy } from "../../forms.js";
 import { fmt, h, mount, resultsTable, statusBadge, toast, toastError } from "../../ui.js";
 
 const POLL_MS = 500; // GET a calibration run while it runs
@@ -116,44 +117,11 @@ function fillSelects({ planSelect, calSelect, start, why }, items, space) {
       "projector in its home when the service runs with INTSPACE_SIMULATION=true.";
 }
 
-/**
- * The projectors of `space` (the one picked in the header): `planSelect` picks the one paths
- * are planned with; `calibration` ({toolbar, why, box}) calibrates any of them. fill(items)
- * gives them the space's projectors. Returns {planSelect, calibration, fill, stop}.
- */
-export function projectorViews(space) {
-  let projectors = [];
+/** Start a projector's calibration with `start` (the projector of `calSelect`, with rendered
+ * `images` or not) and show the run with `showRun` until it ends; `start` stays disabled
+ * meanwhile. Returns {stop}. */
+function calibrationRuns({ start, calSelect, images, box }, showRun) {
   let reads = null;
-  const planSelect = h("select", { testid: "nav-projector", "aria-label": "Projector" });
-  const calSelect = h("select", {
-    testid: "calib-projector",
-    "aria-label": "Projector to calibrate",
-  });
-  const images = h("input", { type: "checkbox", testid: "calib-images", checked: true });
-  const start = h(
-    "button",
-    { class: "btn", type: "button", testid: "calib-start", disabled: true },
-    "Calibrate projector",
-  );
-  const box = h("div", { testid: "calib-box", "aria-live": "polite" });
-  // Why the calibration cannot start, when it cannot.
-  const why = h("p", { class: "small muted", testid: "calib-why", hidden: true });
-
-  const fill = (items) => {
-    projectors = items;
-    fillSelects({ planSelect, calSelect, start, why }, items, space);
-  };
-
-  const apply = async (run) => {
-    const applied = await api(`/calibration-runs/${run.id}/apply`, { method: "POST" });
-    toast(`Calibration applied to projector ${applied.name}`);
-    fill((await list(`/projectors?space_id=${space.id}`, { limit: 200 })).items);
-    if (!planSelect.value) planSelect.value = String(applied.id);
-    box.dataset.applied = String(run.id);
-  };
-  const nameOf = (id) => projectors.find((p) => p.id === id)?.name ?? `projector #${id}`;
-  const showRun = (run) => showCalibrationRun(box, run, { nameOf, apply });
-
   // GET /calibration-runs/{id} until the run ends.
   const follow = (id) => {
     reads?.stop();
@@ -193,6 +161,47 @@ export function projectorViews(space) {
       );
     }
   });
+  return { stop: () => reads?.stop() };
+}
+
+/**
+ * The projectors of `space` (the one picked in the header): `planSelect` picks the one paths
+ * are planned with; `calibration` ({toolbar, why, box}) calibrates any of them. fill(items)
+ * gives them the space's projectors. Returns {planSelect, calibration, fill, stop}.
+ */
+export function projectorViews(space) {
+  let projectors = [];
+  const planSelect = h("select", { testid: "nav-projector", "aria-label": "Projector" });
+  const calSelect = h("select", {
+    testid: "calib-projector",
+    "aria-label": "Projector to calibrate",
+  });
+  const images = h("input", { type: "checkbox", testid: "calib-images", checked: true });
+  const start = h(
+    "button",
+    { class: "btn", type: "button", testid: "calib-start", disabled: true },
+    "Calibrate projector",
+  );
+  const box = h("div", { testid: "calib-box", "aria-live": "polite" });
+  // Why the calibration cannot start, when it cannot.
+  const why = h("p", { class: "small muted", testid: "calib-why", hidden: true });
+
+  const fill = (items) => {
+    projectors = items;
+    fillSelects({ planSelect, calSelect, start, why }, items, space);
+  };
+
+  const apply = async (run) => {
+    const applied = await api(`/calibration-runs/${run.id}/apply`, { method: "POST" });
+    toast(`Calibration applied to projector ${applied.name}`);
+    fill((await list(`/projectors?space_id=${space.id}`, { limit: 200 })).items);
+    if (!planSelect.value) planSelect.value = String(applied.id);
+    box.dataset.applied = String(run.id);
+  };
+  const nameOf = (id) => projectors.find((p) => p.id === id)?.name ?? `projector #${id}`;
+  const showRun = (run) => showCalibrationRun(box, run, { nameOf, apply });
+
+  const runs = calibrationRuns({ start, calSelect, images, box }, showRun);
 
   return {
     planSelect,
@@ -214,6 +223,6 @@ export function projectorViews(space) {
       if (usable) planSelect.value = String(usable.id);
       if (projectors.length) calSelect.value = String((usable || projectors[0]).id);
     },
-    stop: () => reads?.stop(),
+    stop: () => runs.stop(),
   };
 }
