@@ -375,6 +375,29 @@ FOLLOWS = JobTable(
 FOLLOW_LEASES = LeasePolicy(lease_s=_STALE_S, heartbeat_s=_LEASE_HEARTBEAT_S, max_attempts=1)
 
 
+def claim_follow(
+    session: Session, path_id: int, owner: str, policy: LeasePolicy, law: str, seed: int
+) -> bool:
+    """Start a follow task of path `path_id` with `law` and `seed` under a lease held by
+    `owner`, unless one runs (its lease not expired); return whether it did. Of two services
+    starting the same path at once, one wins (server.services.jobs.claim)."""
+    return claim(
+        session,
+        FOLLOWS,
+        path_id,
+        owner,
+        policy,
+        or_(PlannedPath.follow_status != "running", FOLLOWS.expired()),
+        follow_law=law,
+        follow_seed=seed,
+        follow_progress=0.0,
+        follow_result=None,
+        follow_series=None,
+        follow_error=None,
+        follow_finished_at=None,
+    )
+
+
 def follow_view(row: PlannedPath, now: datetime | None = None) -> dict[str, Any]:
     """Return the follow task's state as the API shows it; a running task whose lease has
     expired (its service stopped) reads as interrupted."""
@@ -450,24 +473,7 @@ class FollowTasks(JobEngine):
                     f"{len(alive)} follow tasks are running (paths "
                     f"{', '.join(map(str, alive))}); start this one when one has ended",
                 )
-            # Of two services starting the same path at once, one wins the claim.
-            claimable = or_(PlannedPath.follow_status != "running", FOLLOWS.expired())
-            claimed = claim(
-                session,
-                FOLLOWS,
-                row.id,
-                self.owner,
-                self.policy,
-                claimable,
-                follow_law=law,
-                follow_seed=seed,
-                follow_progress=0.0,
-                follow_result=None,
-                follow_series=None,
-                follow_error=None,
-                follow_finished_at=None,
-            )
-            if not claimed:
+            if not claim_follow(session, row.id, self.owner, self.policy, law, seed):
                 raise PathProblem(409, "path_id", f"path {row.id} is being followed already")
             self._scenes[row.id] = scene
             self.hold(row.id)
