@@ -12,6 +12,7 @@ columns calibration runs have (lease_owner, lease_expires_at, attempts) and all 
 
 from collections.abc import Sequence
 from datetime import UTC, datetime, timedelta
+from typing import Any
 
 import sqlalchemy as sa
 from alembic import op
@@ -36,7 +37,7 @@ def _lease_columns() -> list[sa.Column]:
 
 
 def _job_table(name: str, status: str, heartbeat: str, owner: str | None) -> sa.TableClause:
-    columns = [
+    columns: list[sa.ColumnClause[Any]] = [
         sa.column("id", sa.Integer()),
         sa.column(status, sa.String()),
         sa.column(heartbeat, sa.Float()),

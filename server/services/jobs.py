@@ -29,6 +29,7 @@ from sqlalchemy import and_, or_, select, update
 from sqlalchemy.engine import CursorResult, Result
 from sqlalchemy.orm import Session, sessionmaker
 
+from core.errors import IntspaceError
 from server.db.base import utcnow
 
 if TYPE_CHECKING:
@@ -47,6 +48,16 @@ def rows_changed(result: Result[Any]) -> int:
     """Return how many rows the UPDATE whose result this is changed (a claim, a renewal or a
     write conditional on holding one is taken when it changed exactly the row it meant)."""
     return int(cast(CursorResult[Any], result).rowcount or 0)
+
+
+def failure(exc: Exception, job: str) -> str:
+    """Return the error a job that raised `exc` ends with: a typed error's name and message
+    (IntspaceError: the inputs were refused), else "internal error" with the exception, whose
+    traceback is logged (called in the handler, naming the `job`)."""
+    if isinstance(exc, IntspaceError):
+        return f"{type(exc).__name__}: {exc}"
+    log.exception("%s crashed", job)
+    return f"internal error: {exc!r}"
 
 
 class JobCancelled(Exception):

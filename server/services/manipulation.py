@@ -42,7 +42,14 @@ from core.sim.scene import default_scene
 from server.db.base import utcnow
 from server.db.models import Arm, SemanticObject, Task
 from server.schemas.manipulation import ArmRead
-from server.services.jobs import JobCancelled, JobEngine, JobTable, Lease, LeasePolicy
+from server.services.jobs import (
+    JobCancelled,
+    JobEngine,
+    JobTable,
+    Lease,
+    LeasePolicy,
+    failure,
+)
 
 if TYPE_CHECKING:
     from server.services.scene_sync import SceneSync
@@ -418,11 +425,8 @@ class TaskRunner(JobEngine):
                 outcome["progress"] = 1.0
             except JobCancelled:
                 raise
-            except IntspaceError as exc:
-                outcome = {"status": "failed", "error": f"{type(exc).__name__}: {exc}"}
             except Exception as exc:
-                log.exception("task %d crashed", task_id)
-                outcome = {"status": "failed", "error": f"internal error: {exc!r}"}
+                outcome = {"status": "failed", "error": failure(exc, f"task {task_id}")}
             with self.factory() as session:
                 return str(outcome["status"]) if lease.finish(session, **outcome) else None
         except JobCancelled:  # stopping: the runner marks it interrupted

@@ -18,7 +18,6 @@ from typing import Any
 
 from sqlalchemy.orm import Session, sessionmaker
 
-from core.errors import IntspaceError
 from server.db.models import (
     RUN_FAILED,
     RUN_INTERRUPTED,
@@ -34,6 +33,7 @@ from server.services.jobs import (
     JobTable,
     Lease,
     LeasePolicy,
+    failure,
     given_up_after,
 )
 
@@ -126,11 +126,8 @@ def execute_claimed_run(
         except JobCancelled:
             log.info("run %d: attempt abandoned (%s)", run_id, "claim lost or worker stopping")
             return None
-        except IntspaceError as exc:
-            outcome = {"status": RUN_FAILED, "error": f"{type(exc).__name__}: {exc}"}
         except Exception as exc:
-            log.exception("calibration run %s crashed", run_id)
-            outcome = {"status": RUN_FAILED, "error": f"internal error: {exc!r}"}
+            outcome = {"status": RUN_FAILED, "error": failure(exc, f"calibration run {run_id}")}
         session.rollback()  # the run was only read; its row is written by the conditional UPDATE
         if not attempt.finish(session, **outcome):
             log.warning("run %d: finished after its claim was lost; outcome discarded", run_id)
