@@ -18,7 +18,6 @@ import logging
 import os
 import socket
 import threading
-import time
 import uuid
 from collections.abc import Callable, Collection, Mapping
 from dataclasses import dataclass, field
@@ -451,21 +450,6 @@ class JobEngine:
         """Return the ids of the jobs this engine holds now, started or waiting."""
         with self._lock:
             return list(self._held)
-
-    def wait(self, job_id: int, timeout: float | None = None) -> None:
-        """Wait for job `job_id` in this engine to end, or `timeout` seconds (tests)."""
-        deadline = None if timeout is None else time.monotonic() + timeout
-        while True:
-            with self._lock:
-                thread = self._threads.get(job_id)
-                waiting = thread is None and job_id in self._held
-            left = None if deadline is None else max(0.0, deadline - time.monotonic())
-            if thread is not None:
-                thread.join(left)
-                return
-            if not waiting or left == 0.0:
-                return
-            time.sleep(0.01 if left is None else min(0.01, left))  # not started yet
 
     def _dispatch(self) -> None:
         first = True

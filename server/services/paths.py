@@ -434,14 +434,9 @@ class FollowTasks(JobEngine):
         max_running: int = MAX_FOLLOWS,
         policy: LeasePolicy = FOLLOW_LEASES,
     ) -> None:
-        self._factory = factory
         self._starting = threading.Lock()
         self._scenes: dict[int, Scene] = {}
         super().__init__(factory, FOLLOWS, self._run, max_running, policy, name="follow-path")
-
-    def running(self) -> list[int]:
-        """Return the ids of the paths whose task runs in this process."""
-        return self.held()
 
     def start(self, session: Session, row: PlannedPath, scene: Scene | None, law: str, seed: int):
         """Start following `row` with `law` on the twin; the row says it runs when this
