@@ -53,10 +53,11 @@ from server.services.camera_health import CameraHealthBook
 from server.services.frames import LatestFrames
 from server.services.frigate import FrigateSource
 from server.services.home import HomePublisher
+from server.services.jobs import LeasePolicy
 from server.services.mqtt import BrokerUrl, MqttLink
 from server.services.ownership import SpaceLocks
 from server.services.paths import FollowTasks
-from server.services.runs import LeasePolicy, RunExecutor
+from server.services.runs import RunExecutor
 from server.services.scene_sync import SceneSync
 from server.services.survey import TwinTaskRunner
 from server.services.targets import LiveTargets
@@ -268,6 +269,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         app.state.task_runner = await run_in_threadpool(
             TwinTaskRunner, factory, scene=app.state.scene_sync, twin=twin
         )
+        app.state.follow_tasks = FollowTasks(factory)
         with factory() as session:
             app.state.scene_sync.load(session)
         live.start()
@@ -291,6 +293,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             if twin is not None:
                 await run_in_threadpool(twin.stop)
             await run_in_threadpool(app.state.task_runner.shutdown)
+            await run_in_threadpool(app.state.follow_tasks.shutdown)
             if frigate_link is not None:
                 await run_in_threadpool(frigate_link.stop)
             if frigate is not None:
@@ -326,7 +329,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.executor = None
     app.state.twin = None
     app.state.task_runner = None
-    app.state.follow_tasks = FollowTasks(factory)
+    app.state.follow_tasks = None
     app.state.targets = LiveTargets(factory)
     app.state.tracking = None
     app.state.zones = None

@@ -5,7 +5,6 @@ are stored as it goes and read back by id."""
 from __future__ import annotations
 
 import secrets
-import time
 from typing import Annotated
 
 from fastapi import APIRouter, Body, Depends, HTTPException, Path, Query, status
@@ -28,7 +27,6 @@ from server.services.manipulation import (
     FetchRefused,
     arm_values,
     closed_form,
-    expire_stale_tasks,
     fetch_target,
 )
 from server.services.survey import AnyTaskRead, SurveyTaskCreate, survey_task
@@ -40,7 +38,7 @@ TaskId = Annotated[int, Path(ge=1, le=MAX_ID)]
 def settle_stale_tasks(session: SessionDep, runner: TaskRunnerDep) -> None:
     """Mark interrupted the tasks of processes that stopped, so that a read never shows a task
     running that nothing runs (the runner's heartbeat does it too, every few seconds)."""
-    expire_stale_tasks(session, runner.stale_s)
+    runner.settle(session)
 
 
 Settled = Depends(settle_stale_tasks)
@@ -65,7 +63,7 @@ def create_task(body: TaskCreate, session: SessionDep, twin: TwinDep, runner: Ta
             "INTSPACE_SIMULATION=true",
         )
     if isinstance(body, SurveyTaskCreate):
-        task = survey_task(session, body, runner.owner)
+        task = survey_task(session, body, runner.lease())
         runner.submit(task.id)
         return task
     check_references(session, {"arm_id": (Arm, body.arm_id)})
@@ -95,8 +93,7 @@ def create_task(body: TaskCreate, session: SessionDep, twin: TwinDep, runner: Ta
         inputs=inputs,
         phase="queued",
         progress=0.0,
-        owner=runner.owner,
-        heartbeat=time.time(),
+        **runner.lease(),
     )
     session.add(task)
     session.commit()

@@ -107,7 +107,8 @@ def run_worker(args: argparse.Namespace) -> int:
     to the queue; return the exit code. A worker killed outright (SIGKILL) stops renewing its
     leases, and another worker re-queues its runs once they have expired."""
     from server.db.session import make_engine, make_session_factory
-    from server.services.runs import LeasePolicy, RunExecutor
+    from server.services.jobs import LeasePolicy
+    from server.services.runs import RunExecutor
 
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(message)s")
     log = logging.getLogger("intspace.worker")

@@ -20,7 +20,7 @@ from sqlalchemy import (
 )
 from sqlalchemy.orm import Mapped, mapped_column, relationship
 
-from server.db.base import Base, Timestamped
+from server.db.base import Base, Leased, Timestamped
 
 # Status values of a calibration run.
 RUN_QUEUED = "queued"
@@ -127,7 +127,7 @@ class Landmark(Timestamped, Base):
     T_world_landmark: Mapped[list[list[float]] | None] = mapped_column(JSON)
 
 
-class CalibrationRun(Timestamped, Base):
+class CalibrationRun(Leased, Timestamped, Base):
     """One calibration job: its inputs, status, result or error, and timings."""
 
     __tablename__ = "calibration_runs"
@@ -149,11 +149,7 @@ class CalibrationRun(Timestamped, Base):
     error: Mapped[str | None] = mapped_column(Text)
     started_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True))
     finished_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True))
-    # The claim: how many times a worker took the run, which one holds it and until when
-    # (renewed by its heartbeat), and how far the current attempt has come.
-    attempts: Mapped[int] = mapped_column(Integer, default=0, server_default="0")
-    lease_owner: Mapped[str | None] = mapped_column(String(120))
-    lease_expires_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True))
+    # How far the current attempt has come (its claim: the Leased columns).
     progress_stage: Mapped[str | None] = mapped_column(String(80))
     progress_fraction: Mapped[float | None] = mapped_column(Float)
 
@@ -353,12 +349,13 @@ class NavigationEdge(Timestamped, Base):
 FOLLOW_STATUSES = ("idle", "running", "succeeded", "failed", "interrupted")
 
 
-class PlannedPath(Timestamped, Base):
+class PlannedPath(Leased, Timestamped, Base):
     """A path planned on a space's floor plan (spec 03): start and goal (x, y) m, the planned
     poly-line `points` and its `length_m`, the planning inputs (robot radius, grid resolution,
     which floor plan), and when a projector draws it: the projector model used and the joint
     trajectory (`trajectory`: t s, q rad, spot m). The follow task on the twin keeps its status,
-    law, progress, metrics and tracking-error series (t s, error m) on the row."""
+    law, progress, metrics and tracking-error series (t s, error m) on the row, with its lease
+    (Leased)."""
 
     __tablename__ = "paths"
 
@@ -381,7 +378,6 @@ class PlannedPath(Timestamped, Base):
     follow_law: Mapped[str | None] = mapped_column(String(40))
     follow_seed: Mapped[int | None] = mapped_column(Integer)
     follow_progress: Mapped[float | None] = mapped_column(Float)
-    follow_heartbeat: Mapped[float | None] = mapped_column(Float)
     follow_result: Mapped[dict[str, Any] | None] = mapped_column(JSON)
     follow_series: Mapped[dict[str, Any] | None] = mapped_column(JSON)
     follow_error: Mapped[str | None] = mapped_column(Text)
@@ -437,10 +433,10 @@ class HandEyeCalibration(Timestamped, Base):
 TASK_STATUSES = ("queued", "running", "succeeded", "failed", "interrupted")
 
 
-class Task(Timestamped, Base):
+class Task(Leased, Timestamped, Base):
     """A robot task run on the twin (kind "fetch": grasp episodes with an arm): its inputs,
-    status, current phase and progress (0-1), result (filled episode by episode) or error, the
-    process running it (`owner`) and its last sign of life (`heartbeat`, Unix s)."""
+    status, current phase and progress (0-1), result (filled episode by episode) or error, and
+    the lease of the process running it (Leased)."""
 
     __tablename__ = "tasks"
 
@@ -455,8 +451,6 @@ class Task(Timestamped, Base):
     progress: Mapped[float | None] = mapped_column(Float)
     result: Mapped[dict[str, Any] | None] = mapped_column(JSON)
     error: Mapped[str | None] = mapped_column(Text)
-    owner: Mapped[str | None] = mapped_column(String(120))
-    heartbeat: Mapped[float | None] = mapped_column(Float)
     started_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True))
     finished_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True))
 

@@ -11,15 +11,13 @@ from __future__ import annotations
 
 import logging
 import math
-import threading
 import time
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from sqlalchemy import and_, or_, select, update
+from sqlalchemy import select
 from sqlalchemy.orm import Session, sessionmaker
 
 from core.errors import IntspaceError, InvalidInput
@@ -44,7 +42,14 @@ from core.sim.scene import default_scene
 from server.db.base import utcnow
 from server.db.models import Arm, SemanticObject, Task
 from server.schemas.manipulation import ArmRead
-from server.services.jobs import rows_changed, worker_id
+from server.services.jobs import (
+    JobCancelled,
+    JobEngine,
+    JobTable,
+    Lease,
+    LeasePolicy,
+    failure,
+)
 
 if TYPE_CHECKING:
     from server.services.scene_sync import SceneSync
@@ -252,10 +257,6 @@ def fetch_target(
     }
 
 
-class TaskCancelled(Exception):
-    """The task's process is stopping: it ends at the next safe point as interrupted."""
-
-
 def run_fetch(
     inputs: dict[str, Any],
     report: Callable[[str, float, dict[str, Any] | None], None],
@@ -346,32 +347,17 @@ def run_fetch(
     return fetch_summary(records, planned, hand_eye, seed)
 
 
-_LIVE = ("queued", "running")
-
-
-def expire_stale_tasks(session: Session, stale_s: float) -> int:
-    """Mark interrupted the queued or running tasks whose process has shown no sign of life
-    for `stale_s` seconds (it stopped or died); return how many. Reads first, so that a call
-    that finds none (nearly every one: reading tasks calls it) writes nothing."""
-    stale = and_(
-        Task.status.in_(_LIVE),
-        or_(Task.heartbeat.is_(None), Task.heartbeat < time.time() - stale_s),
-    )
-    if session.scalar(select(Task.id).where(stale).limit(1)) is None:
-        session.rollback()  # ends the read's transaction, as the write's commit would
-        return 0
-    result = session.execute(
-        update(Task)
-        .where(stale)
-        .values(
-            status="interrupted",
-            error="the process running it stopped before it finished",
-            finished_at=utcnow(),
-        )
-        .execution_options(synchronize_session=False)
-    )
-    session.commit()
-    return rows_changed(result)
+# A task is held by the process that accepted it from then on, queued until one of its
+# workers is free; a task whose process stopped is interrupted, never run again elsewhere.
+TASKS = JobTable(
+    model=Task,
+    status=Task.status,
+    running="running",
+    held=("queued", "running"),
+    expired_reason="the process running it stopped before it finished",
+    expired_status="interrupted",
+)
+TASK_LEASES = LeasePolicy(lease_s=60.0, heartbeat_s=5.0, max_attempts=1)
 
 
 @dataclass(frozen=True)
@@ -384,58 +370,35 @@ class ArmMotion:
     box: Callable[[np.ndarray], None] | None = None
 
 
-class TaskRunner:
+class TaskRunner(JobEngine):
     """Runs tasks in background threads of the API process (`workers` at a time; the others
-    wait queued). A heartbeat thread renews the `heartbeat` of the tasks it holds every
-    `heartbeat_s` and marks interrupted those of any process silent for `stale_s`. With the
-    live 3D scene (`scene`), a task's arm is drawn on the robot the scene shows, with the box
-    it fetches."""
+    wait queued), each held under a lease from the moment it is accepted (`lease()`): a task
+    whose process stopped renewing it reads as interrupted. With the live 3D scene (`scene`),
+    a task's arm is drawn on the robot the scene shows, with the box it fetches."""
 
     def __init__(
         self,
         factory: sessionmaker[Session],
         workers: int = 1,
         *,
-        heartbeat_s: float = 5.0,
-        stale_s: float = 60.0,
+        policy: LeasePolicy = TASK_LEASES,
         scene: SceneSync | None = None,
     ) -> None:
         self.factory = factory
         self.scene = scene
-        self.owner = worker_id()
-        self.stale_s = stale_s
-        self._heartbeat_s = heartbeat_s
-        self._pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="task")
-        self._held: dict[int, threading.Event] = {}
-        self._lock = threading.Lock()
-        self._stop = threading.Event()
-        with factory() as session:
-            expire_stale_tasks(session, stale_s)
-        self._beat = threading.Thread(target=self._heartbeat, name="tasks-heartbeat", daemon=True)
-        self._beat.start()
+        super().__init__(factory, TASKS, self._run, workers, policy, name="task")
+
+    def lease(self) -> dict[str, Any]:
+        """Return the lease columns of a task this runner accepts now (then `submit` it)."""
+        return self.policy.lease(self.owner)
 
     def submit(self, task_id: int) -> None:
-        """Run committed task `task_id` when a worker thread is free."""
-        cancel = threading.Event()
-        with self._lock:
-            self._held[task_id] = cancel
-        self._pool.submit(self._run, task_id, cancel)
+        """Run committed task `task_id`, stored with this runner's `lease()`, when a worker
+        thread is free."""
+        self.hold(task_id)
 
-    def _mine(self, task_id: int) -> Any:
-        return and_(Task.id == task_id, Task.owner == self.owner, Task.status.in_(_LIVE))
-
-    def _write(self, task_id: int, **values: Any) -> bool:
-        with self.factory() as session:
-            result = session.execute(
-                update(Task)
-                .where(self._mine(task_id))
-                .values(heartbeat=time.time(), updated_at=utcnow(), **values)
-                .execution_options(synchronize_session=False)
-            )
-            session.commit()
-        return rows_changed(result) == 1
-
-    def _run(self, task_id: int, cancel: threading.Event) -> None:
+    def _run(self, lease: Lease) -> str | None:
+        task_id = lease.job_id
         arm: Arm | None = None
         try:
             with self.factory() as session:
@@ -445,42 +408,34 @@ class TaskRunner:
                 arm = None if task is None or task.arm_id is None else session.get(Arm, task.arm_id)
                 if arm is not None and self.scene is not None:
                     self.scene.arm_changed(arm)  # at home, as the task starts
-            if inputs is None or cancel.is_set():
-                return
-            if not self._write(task_id, status="running", started_at=utcnow(), progress=0.0):
-                return
+            if inputs is None:
+                return None
+            lease.write(status="running", started_at=utcnow(), progress=0.0)
 
             def report(phase: str, fraction: float, partial: dict[str, Any] | None) -> None:
-                if cancel.is_set():
-                    raise TaskCancelled
                 values: dict[str, Any] = {"phase": phase[:80], "progress": fraction}
                 if partial is not None:
                     values["result"] = partial
-                if not self._write(task_id, **values):
-                    raise TaskCancelled
+                lease.write(**values)
 
             outcome: dict[str, Any]
             try:
                 result = self._execute(str(kind), inputs, report, arm)
                 outcome = {"status": "succeeded", "result": result, "phase": "done"}
                 outcome["progress"] = 1.0
-            except TaskCancelled:
-                outcome = {"status": "interrupted", "error": "the service stopped during it"}
-            except IntspaceError as exc:
-                outcome = {"status": "failed", "error": f"{type(exc).__name__}: {exc}"}
+            except JobCancelled:
+                raise
             except Exception as exc:
-                log.exception("task %d crashed", task_id)
-                outcome = {"status": "failed", "error": f"internal error: {exc!r}"}
-            self._write(task_id, finished_at=utcnow(), **outcome)
-        except Exception:
-            log.exception("task %d could not be run", task_id)
+                outcome = {"status": "failed", "error": failure(exc, f"task {task_id}")}
+            with self.factory() as session:
+                return str(outcome["status"]) if lease.finish(session, **outcome) else None
+        except JobCancelled:  # stopping: the runner marks it interrupted
+            return None
         finally:
             if arm is not None and self.scene is not None:
                 # However it ended, the arm is idle: the box it fetched gone, back at home.
                 self.scene.arm_box_removed(arm.id)
                 self.scene.arm_changed(arm)
-            with self._lock:
-                self._held.pop(task_id, None)
 
     def _execute(
         self, kind: str, inputs: dict[str, Any], report: Callable[..., None], arm: Arm | None
@@ -522,49 +477,7 @@ class TaskRunner:
 
         return ArmMotion(joints=show, gripper=grip, box=hold)
 
-    def _heartbeat(self) -> None:
-        while not self._stop.wait(self._heartbeat_s):
-            try:
-                with self._lock:
-                    held = list(self._held)
-                with self.factory() as session:
-                    if held:
-                        session.execute(
-                            update(Task)
-                            .where(
-                                Task.id.in_(held), Task.owner == self.owner, Task.status.in_(_LIVE)
-                            )
-                            .values(heartbeat=time.time())
-                            .execution_options(synchronize_session=False)
-                        )
-                        session.commit()
-                    expire_stale_tasks(session, self.stale_s)
-            except Exception:  # the database may be away for a while: retry at the next beat
-                log.exception("renewing task heartbeats failed")
-
-    def shutdown(self) -> int:
+    def shutdown(self, reason: str = "the service stopped during it") -> int:
         """Stop: the running tasks end at their next phase, and every task this process held
-        is marked interrupted; return how many."""
-        self._stop.set()
-        with self._lock:
-            held = dict(self._held)
-        for cancel in held.values():
-            cancel.set()
-        self._pool.shutdown(wait=False, cancel_futures=True)
-        # A beat in progress ends before the service closes its database under it.
-        self._beat.join(timeout=5.0)
-        if not held:
-            return 0
-        with self.factory() as session:
-            result = session.execute(
-                update(Task)
-                .where(Task.id.in_(list(held)), Task.owner == self.owner, Task.status.in_(_LIVE))
-                .values(
-                    status="interrupted",
-                    error="the service stopped during it",
-                    finished_at=utcnow(),
-                )
-                .execution_options(synchronize_session=False)
-            )
-            session.commit()
-        return rows_changed(result)
+        is marked interrupted with `reason`; return how many."""
+        return super().shutdown(reason)

@@ -17,9 +17,10 @@ the commanded angles, the robot's floor camera sees it at 15 Hz with 100 ms late
 frame rendered from the robot's true pose and the spot detected in it), and the
 error is the distance between the robot's control point and the true spot (scored against the
 twin). The row carries the status, the progress and the series so far while it runs (written
-with the heartbeat, every `_HEARTBEAT_S`: the tracking error, the robot's true pose and the
-true spot, 5 Hz), then the metrics and the whole series. A task whose heartbeat stopped (the
-service was stopped) reads as interrupted.
+every `_HEARTBEAT_S`: the tracking error, the robot's true pose and the true spot, 5 Hz), then
+the metrics and the whole series. The task is a job of server.services.jobs, held under a
+lease its process renews: a task whose lease expired (the service was stopped) reads as
+interrupted.
 
 Projector calibration runs, which set the registered pose this module reads, are
 server.services.calibration.projector.
@@ -33,11 +34,11 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any, cast
+from datetime import datetime
+from typing import Any
 
 import numpy as np
-from sqlalchemy import or_, select, update
-from sqlalchemy.engine import CursorResult
+from sqlalchemy import or_, select
 from sqlalchemy.orm import Session, sessionmaker
 
 from core.errors import IntspaceError
@@ -54,7 +55,6 @@ from core.projector import JointTrajectory, PanTiltProjector, project_path
 from core.sim import Scene
 from core.sim import navigation_scenarios as nav
 from core.sim.render import Renderer
-from server.db.base import utcnow
 from server.db.models import (
     PlannedPath,
     Projector,
@@ -62,6 +62,15 @@ from server.db.models import (
     Room,
 )
 from server.services.calibration.projector import latest_calibration
+from server.services.jobs import (
+    JobCancelled,
+    JobEngine,
+    JobTable,
+    Lease,
+    LeasePolicy,
+    claim,
+    lease_expired,
+)
 
 log = logging.getLogger(__name__)
 
@@ -72,8 +81,9 @@ MAX_GRID_CELLS = 250_000
 TRAJECTORY_DT = 0.05  # s between the stored trajectory's samples
 SERIES_DT = 0.2  # s between the stored error series' samples
 MAX_FOLLOWS = 2  # follow tasks running at once in one service process
-_HEARTBEAT_S = 0.5
-_STALE_S = 30.0
+_HEARTBEAT_S = 0.5  # s between the writes of a running follow's progress and series
+_STALE_S = 30.0  # s a follow task's lease lasts unless renewed
+_LEASE_HEARTBEAT_S = 5.0
 
 LAWS = ("state_feedback", "adaptive", "proportional")
 
@@ -349,12 +359,50 @@ def plan(
 # Follow tasks
 
 
-def follow_view(row: PlannedPath, now: float | None = None) -> dict[str, Any]:
-    """Return the follow task's state as the API shows it; a running task whose heartbeat is
-    older than _STALE_S (its service stopped) reads as interrupted."""
+# A follow task is claimed by the process that starts it (a path is followed by one task at a
+# time) and given up as interrupted when that process stops renewing its lease.
+FOLLOWS = JobTable(
+    model=PlannedPath,
+    status=PlannedPath.follow_status,
+    running="running",
+    held=("running",),
+    expired_reason="the service running it stopped before it finished",
+    expired_status="interrupted",
+    error="follow_error",
+    started="follow_started_at",
+    finished="follow_finished_at",
+)
+FOLLOW_LEASES = LeasePolicy(lease_s=_STALE_S, heartbeat_s=_LEASE_HEARTBEAT_S, max_attempts=1)
+
+
+def claim_follow(
+    session: Session, path_id: int, owner: str, policy: LeasePolicy, law: str, seed: int
+) -> bool:
+    """Start a follow task of path `path_id` with `law` and `seed` under a lease held by
+    `owner`, unless one runs (its lease not expired); return whether it did. Of two services
+    starting the same path at once, one wins (server.services.jobs.claim)."""
+    return claim(
+        session,
+        FOLLOWS,
+        path_id,
+        owner,
+        policy,
+        or_(PlannedPath.follow_status != "running", FOLLOWS.expired()),
+        follow_law=law,
+        follow_seed=seed,
+        follow_progress=0.0,
+        follow_result=None,
+        follow_series=None,
+        follow_error=None,
+        follow_finished_at=None,
+    )
+
+
+def follow_view(row: PlannedPath, now: datetime | None = None) -> dict[str, Any]:
+    """Return the follow task's state as the API shows it; a running task whose lease has
+    expired (its service stopped) reads as interrupted."""
     status = row.follow_status
-    now = time.time() if now is None else now
-    if status == "running" and (row.follow_heartbeat or 0.0) < now - _STALE_S:
+    if status == "running" and lease_expired(row, now):
         status = "interrupted"
     return {
         "status": status,
@@ -376,19 +424,19 @@ def _law(name: str, limits: Limits) -> nav.SpotFollower:
     raise PathProblem(422, "law", f"unknown law {name!r}; one of {', '.join(LAWS)}")
 
 
-class FollowTasks:
-    """The follow tasks this service process runs, each in its own thread."""
+class FollowTasks(JobEngine):
+    """The follow tasks this service process runs, each in its own thread, under a lease
+    (server.services.jobs): at most `max_running` at once."""
 
-    def __init__(self, factory: sessionmaker[Session], max_running: int = MAX_FOLLOWS) -> None:
-        self._factory = factory
-        self._max = max_running
-        self._lock = threading.Lock()
-        self._threads: dict[int, threading.Thread] = {}
-
-    def running(self) -> list[int]:
-        """Return the ids of the paths whose task runs in this process."""
-        with self._lock:
-            return [k for k, t in self._threads.items() if t.is_alive()]
+    def __init__(
+        self,
+        factory: sessionmaker[Session],
+        max_running: int = MAX_FOLLOWS,
+        policy: LeasePolicy = FOLLOW_LEASES,
+    ) -> None:
+        self._starting = threading.Lock()
+        self._scenes: dict[int, Scene] = {}
+        super().__init__(factory, FOLLOWS, self._run, max_running, policy, name="follow-path")
 
     def start(self, session: Session, row: PlannedPath, scene: Scene | None, law: str, seed: int):
         """Start following `row` with `law` on the twin; the row says it runs when this
@@ -411,105 +459,51 @@ class FollowTasks:
             raise PathProblem(409, "path_id", f"the twin scene {scene.name!r} has no robot")
         if follow_view(row)["status"] == "running":
             raise PathProblem(409, "path_id", f"path {row.id} is being followed already")
-        with self._lock:
-            alive = [k for k, t in self._threads.items() if t.is_alive()]
-            if len(alive) >= self._max:
+        with self._starting:
+            alive = self.held()
+            if len(alive) >= self.workers:
                 raise PathProblem(
                     409,
                     "path_id",
                     f"{len(alive)} follow tasks are running (paths "
                     f"{', '.join(map(str, alive))}); start this one when one has ended",
                 )
-            # Claimed by a conditional UPDATE, atomic on SQLite and PostgreSQL: of two
-            # services starting the same path at once, one wins.
-            now = time.time()
-            claimed = session.execute(  # an UPDATE: a CursorResult with its rowcount
-                update(PlannedPath)
-                .where(
-                    PlannedPath.id == row.id,
-                    or_(
-                        PlannedPath.follow_status != "running",
-                        PlannedPath.follow_heartbeat.is_(None),
-                        PlannedPath.follow_heartbeat < now - _STALE_S,
-                    ),
-                )
-                .values(
-                    follow_status="running",
-                    follow_law=law,
-                    follow_seed=seed,
-                    follow_progress=0.0,
-                    follow_heartbeat=now,
-                    follow_result=None,
-                    follow_series=None,
-                    follow_error=None,
-                    follow_started_at=utcnow(),
-                    follow_finished_at=None,
-                )
-            )
-            session.commit()
-            if cast(CursorResult[Any], claimed).rowcount != 1:
+            if not claim_follow(session, row.id, self.owner, self.policy, law, seed):
                 raise PathProblem(409, "path_id", f"path {row.id} is being followed already")
-            thread = threading.Thread(
-                target=self._run,
-                args=(row.id, scene, law, seed),
-                name=f"follow-path-{row.id}",
-                daemon=True,
-            )
-            self._threads = {k: t for k, t in self._threads.items() if t.is_alive()}
-            self._threads[row.id] = thread
-        thread.start()
+            self._scenes[row.id] = scene
+            self.hold(row.id)
 
-    def wait(self, path_id: int, timeout: float | None = None) -> None:
-        """Wait for the task of `path_id` in this process to end (tests, shutdown)."""
-        with self._lock:
-            thread = self._threads.get(path_id)
-        if thread is not None:
-            thread.join(timeout)
-
-    def _update(self, path_id: int, **values: Any) -> None:
-        with self._factory() as session:
-            row = session.get(PlannedPath, path_id)
-            if row is None:  # deleted while it ran
-                return
-            for k, v in values.items():
-                setattr(row, k, v)
-            session.commit()
-
-    def _run(self, path_id: int, scene: Scene, law_name: str, seed: int) -> None:
+    def _run(self, lease: Lease) -> str | None:
+        path_id = lease.job_id
+        scene = self._scenes.pop(path_id)
+        outcome: dict[str, Any]
         try:
-            result, series = self._simulate(path_id, scene, law_name, seed)
+            result, series = self._simulate(lease, scene)
+            outcome = {
+                "follow_status": "succeeded",
+                "follow_progress": 1.0,
+                "follow_result": result,
+                "follow_series": series,
+            }
+        except JobCancelled:  # deleted while it ran, or its service is stopping
+            return None
         except Exception as exc:  # the task's own failure, reported on its row
             log.exception("follow task of path %d failed", path_id)
-            try:
-                self._update(
-                    path_id,
-                    follow_status="failed",
-                    follow_error=f"{type(exc).__name__}: {exc}",
-                    follow_finished_at=utcnow(),
-                )
-            except Exception:  # the database went away (service stopping)
-                log.exception("could not record the failure of path %d's follow task", path_id)
-            return
-        self._update(
-            path_id,
-            follow_status="succeeded",
-            follow_progress=1.0,
-            follow_heartbeat=time.time(),
-            follow_result=result,
-            follow_series=series,
-            follow_finished_at=utcnow(),
-        )
+            outcome = {"follow_status": "failed", "follow_error": f"{type(exc).__name__}: {exc}"}
+        with self._factory() as session:
+            return str(outcome["follow_status"]) if lease.finish(session, **outcome) else None
 
     def _simulate(
-        self, path_id: int, scene: Scene, law_name: str, seed: int
+        self, lease: Lease, scene: Scene
     ) -> tuple[dict[str, Any], dict[str, list[float]]]:
         with self._factory() as session:
-            row = session.get(PlannedPath, path_id)
+            row = session.get(PlannedPath, lease.job_id)
             if row is None or row.projector_model is None or row.spot_speed_mps is None:
-                raise LookupError(f"path {path_id} has no projector trajectory any more")
+                raise LookupError(f"path {lease.job_id} has no projector trajectory any more")
             model = _model_from(row.projector_model)
             points = np.asarray(row.points, dtype=np.float64)
             speed = float(row.spot_speed_mps)
+            law_name, seed = str(row.follow_law), int(row.follow_seed or 0)
         robot = scene.robot
         assert robot is not None  # checked by start()
         traj = draw(model, points, speed)
@@ -517,7 +511,11 @@ class FollowTasks:
         renderer = Renderer(scene, supersample=1)
         plane = nav.calibrate_floor_camera(np.random.default_rng([seed, 7]), renderer)
         law = _law(law_name, Limits(robot.limits.max_speed, robot.limits.max_turn_rate))
-        live = LiveSeries(traj.duration, lambda p, series: self._beat(path_id, p, series))
+
+        def report(progress: float, series: dict[str, list[float]]) -> None:
+            lease.write(follow_progress=progress, follow_series=series)
+
+        live = LiveSeries(traj.duration, report)
         run = nav.simulate_following(
             law,
             traj,
@@ -544,13 +542,10 @@ class FollowTasks:
         }
         return result, series_of(run.time, run.error, run.pose, run.spot)
 
-    def _beat(self, path_id: int, progress: float, series: dict[str, list[float]]) -> None:
-        self._update(
-            path_id,
-            follow_progress=progress,
-            follow_heartbeat=time.time(),
-            follow_series=series,
-        )
+    def shutdown(self, reason: str = "the service stopped during it") -> int:
+        """Stop: the running follows end at their next report, and every one this process
+        held is marked interrupted with `reason`; return how many."""
+        return super().shutdown(reason)
 
 
 SERIES_STEP = max(1, round(SERIES_DT / nav.CONTROL_DT))  # control steps between samples

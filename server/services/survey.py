@@ -193,12 +193,12 @@ def run_survey(
 
 class TwinTaskRunner(TaskRunner):
     """The task runner of the service: fetch tasks as TaskRunner runs them, and survey tasks
-    (run_survey) on the twin given at construction, with the same status, phase, heartbeat
-    and interruption handling."""
+    (run_survey) on the twin given at construction, with the same status, phase, lease and
+    interruption handling."""
 
     def __init__(self, factory: Any, *args: Any, twin: Any = None, **kwargs: Any) -> None:
-        super().__init__(factory, *args, **kwargs)
         self.twin = twin
+        super().__init__(factory, *args, **kwargs)
 
     def _execute(
         self, kind: str, inputs: dict[str, Any], report: Callable[..., None], arm: Any
@@ -215,8 +215,9 @@ class TwinTaskRunner(TaskRunner):
         return result
 
 
-def survey_task(session: Any, body: SurveyTaskCreate, owner: str) -> Task:
-    """Return the queued survey task stored for `body` (the seed drawn when absent)."""
+def survey_task(session: Any, body: SurveyTaskCreate, lease: dict[str, Any]) -> Task:
+    """Return the queued survey task stored for `body` (the seed drawn when absent) under
+    `lease` (its runner's, TaskRunner.lease)."""
     inputs = body.model_dump()
     if inputs["seed"] is None:
         inputs["seed"] = secrets.randbelow(2**31)
@@ -226,8 +227,7 @@ def survey_task(session: Any, body: SurveyTaskCreate, owner: str) -> Task:
         inputs=inputs,
         phase="queued",
         progress=0.0,
-        owner=owner,
-        heartbeat=time.time(),
+        **lease,
     )
     session.add(task)
     session.commit()

@@ -81,7 +81,8 @@ def test_runs_left_running_before_leases_are_requeued(empty_database_url):
     from sqlalchemy import text
 
     from server.db.session import make_session_factory
-    from server.services.runs import LeasePolicy, release_expired_runs
+    from server.services.jobs import LeasePolicy, release_expired
+    from server.services.runs import RUNS
 
     config = alembic_config(empty_database_url)
     engine = make_engine(empty_database_url, pool_size=1)
@@ -111,7 +112,82 @@ def test_runs_left_running_before_leases_are_requeued(empty_database_url):
         # Without a lease, the run left running counts as expired: back to the queue.
         command.upgrade(config, "head")
         with make_session_factory(engine)() as session:
-            released = release_expired_runs(session, LeasePolicy())
+            released = release_expired(session, RUNS, LeasePolicy())
         assert (released.requeued, released.given_up) == (1, 0)
+    finally:
+        engine.dispose()
+
+
+def test_task_and_follow_heartbeats_become_leases_and_back(empty_database_url):
+    # Before 0011 a task kept its process and last sign of life (Unix s, stale after 60 s) and
+    # a path's follow task its heartbeat (stale after 30 s); after it both hold a lease that
+    # expires when that heartbeat went stale, and the downgrade gives the heartbeats back.
+    from datetime import UTC, datetime, timedelta
+
+    from sqlalchemy import text
+
+    config = alembic_config(empty_database_url)
+    engine = make_engine(empty_database_url, pool_size=1)
+    beat = 1_790_000_000.25  # a Unix time with a fraction: the conversion keeps it
+    try:
+        command.upgrade(config, "0010_zones")
+        with engine.begin() as connection:
+            connection.execute(
+                text("INSERT INTO spaces (id, name, description) VALUES (1, 'h', '')")
+            )
+            for status in ("running", "succeeded"):
+                connection.execute(
+                    text(
+                        "INSERT INTO tasks (kind, status, inputs, owner, heartbeat) "
+                        "VALUES ('fetch', :status, '{}', 'host:1:ab', :beat)"
+                    ),
+                    {"status": status, "beat": beat},
+                )
+            for status in ("running", "idle"):
+                connection.execute(
+                    text(
+                        "INSERT INTO paths (space_id, start, goal, points, length_m, "
+                        "robot_radius_m, resolution_m, floor_plan, follow_status, "
+                        "follow_heartbeat) VALUES (1, '[0, 0]', '[1, 1]', '[]', 1.4, 0.2, "
+                        "0.05, 'rooms', :status, :beat)"
+                    ),
+                    {"status": status, "beat": beat if status == "running" else None},
+                )
+        command.upgrade(config, "head")
+        engine.dispose()
+
+        def leases(table: str, status: str) -> list[tuple]:
+            with engine.connect() as connection:
+                rows = connection.execute(
+                    text(
+                        f"SELECT {status}, lease_owner, lease_expires_at, heartbeat_at, attempts "
+                        f"FROM {table} ORDER BY id"
+                    )
+                ).all()
+
+            def aware(t):  # SQLite keeps UTC without its zone
+                if isinstance(t, str):
+                    t = datetime.fromisoformat(t)
+                return t if t is None or t.tzinfo else t.replace(tzinfo=UTC)
+
+            return [(r[0], r[1], aware(r[2]), aware(r[3]), r[4]) for r in rows]
+
+        at = datetime.fromtimestamp(beat, UTC)
+        assert leases("tasks", "status") == [
+            ("running", "host:1:ab", at + timedelta(seconds=60), at, 1),
+            ("succeeded", None, None, at, 1),
+        ]
+        assert leases("paths", "follow_status") == [
+            ("running", None, at + timedelta(seconds=30), at, 1),
+            ("idle", None, None, None, 0),
+        ]
+
+        command.downgrade(config, "0010_zones")
+        engine.dispose()
+        with engine.connect() as connection:
+            tasks = connection.execute(text("SELECT owner, heartbeat FROM tasks ORDER BY id")).all()
+            paths = connection.execute(text("SELECT follow_heartbeat FROM paths ORDER BY id")).all()
+        assert [tuple(r) for r in tasks] == [("host:1:ab", beat), (None, beat)]
+        assert [tuple(r) for r in paths] == [(beat,), (None,)]
     finally:
         engine.dispose()

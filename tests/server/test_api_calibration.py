@@ -406,7 +406,7 @@ def test_restart_keeps_queued_runs_and_requeues_only_expired_claims(
     from datetime import timedelta
 
     from server.db.base import utcnow
-    from server.services.runs import LeasePolicy
+    from server.services.jobs import LeasePolicy
 
     object_points, image_points = _zhang_views(shared_data_dir / "zhang1998")
     body = {
@@ -452,7 +452,8 @@ def test_restart_keeps_queued_runs_and_requeues_only_expired_claims(
 
 def test_worker_claims_queued_runs(make_settings, admin, shared_data_dir):
     from server.db.session import make_engine, make_session_factory
-    from server.services.runs import LeasePolicy, claim_next_run, execute_claimed_run
+    from server.services.jobs import LeasePolicy, claim_next
+    from server.services.runs import RUNS, execute_claimed_run
 
     settings = make_settings(run_executor="external")
     object_points, image_points = _zhang_views(shared_data_dir / "zhang1998")
@@ -471,9 +472,9 @@ def test_worker_claims_queued_runs(make_settings, admin, shared_data_dir):
         factory = make_session_factory(engine)
         policy = LeasePolicy()
         with factory() as session:
-            assert claim_next_run(session, "w1", policy) == run_id
+            assert claim_next(session, RUNS, "w1", policy) == run_id
         with factory() as session:
-            assert claim_next_run(session, "w2", policy) is None  # nothing else is queued
+            assert claim_next(session, RUNS, "w2", policy) is None  # nothing else is queued
         assert execute_claimed_run(factory, run_id, "w2") is None  # not its claim: no write
         assert execute_claimed_run(factory, run_id, "w1") == "succeeded"
         engine.dispose()

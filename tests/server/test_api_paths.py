@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 import time
+from datetime import UTC, datetime, timedelta
 
 import numpy as np
 import pytest
@@ -18,7 +19,7 @@ from core.sim import Renderer, default_scene
 from core.sim import navigation_scenarios as nav
 from server.db.models import PlannedPath
 from server.services import paths as paths_service
-from server.services.paths import follow_view
+from server.services.paths import FOLLOW_LEASES, follow_view
 from server.services.twin import bootstrap_space
 
 SCENE = default_scene()
@@ -342,13 +343,14 @@ def test_follow_on_the_twin(client, admin, monkeypatch):
 
 
 def test_a_task_whose_heartbeat_stopped_reads_as_interrupted():
-    # A follow task renews its heartbeat every 0.5 s while it runs; one silent for longer than
-    # 30 s belonged to a service that stopped.
-    row = PlannedPath(follow_status="running", follow_heartbeat=1000.0)
-    assert follow_view(row, now=1029.0)["status"] == "running"
-    assert follow_view(row, now=1031.0)["status"] == "interrupted"
+    # A follow task's service renews its 30 s lease every 5 s while it runs; one not renewed
+    # for longer than 30 s belonged to a service that stopped.
+    beat = datetime(2026, 1, 1, tzinfo=UTC)
+    row = PlannedPath(follow_status="running", **FOLLOW_LEASES.lease("s:1:0", beat))
+    assert follow_view(row, now=beat + timedelta(seconds=29))["status"] == "running"
+    assert follow_view(row, now=beat + timedelta(seconds=31))["status"] == "interrupted"
     row.follow_status = "succeeded"
-    assert follow_view(row, now=5000.0)["status"] == "succeeded"
+    assert follow_view(row, now=beat + timedelta(hours=1))["status"] == "succeeded"
 
 
 def test_projector_calibration_run_on_the_twin(client, admin, run_waiter):

@@ -5,7 +5,7 @@ by name."""
 
 from __future__ import annotations
 
-import time
+from datetime import timedelta
 
 import numpy as np
 import pytest
@@ -26,7 +26,9 @@ from core.sim.manipulation_scenarios import (
 from core.sim.render.landmarks import scene_landmarks
 from core.sim.scene import default_scene
 from server.app import create_app
+from server.db.base import utcnow
 from server.db.models import Task
+from server.services.jobs import LeasePolicy
 from server.services.manipulation import PHASES, episode_phases
 from tests.support.waiting import wait_for_task
 
@@ -205,7 +207,8 @@ def test_a_task_whose_process_stopped_reads_interrupted(client, admin):
             status="running",
             inputs={},
             phase="episode 2 of 5",
-            heartbeat=time.time() - 3600,
+            # Its lease (60 s) ran out an hour after its process's last heartbeat.
+            **LeasePolicy(lease_s=60.0).lease("gone:1:0", utcnow() - timedelta(hours=1)),
         )
         session.add(task)
         session.commit()

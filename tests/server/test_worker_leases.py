@@ -22,14 +22,8 @@ from server.app import create_app
 from server.db.base import utcnow
 from server.db.models import CalibrationRun
 from server.db.session import make_engine, make_session_factory
-from server.services.runs import (
-    Attempt,
-    LeasePolicy,
-    RunCancelled,
-    claim_next_run,
-    release_expired_runs,
-    renew_leases,
-)
+from server.services.jobs import JobCancelled, LeasePolicy, claim_next, release_expired, renew
+from server.services.runs import RUNS, Attempt
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 PHOTOS = 16
@@ -75,40 +69,40 @@ def test_expired_claims_are_requeued_then_failed_with_the_reason(make_settings, 
     (run_id,) = _queue_runs(make_settings, admin, 1)
     policy = LeasePolicy(lease_s=60, heartbeat_s=1, max_attempts=2)
     with factory() as session:
-        assert claim_next_run(session, "a", policy) == run_id
+        assert claim_next(session, RUNS, "a", policy) == run_id
         # A live lease is not released, and its holder renews it.
-        assert release_expired_runs(session, policy).total == 0
-        assert renew_leases(session, "a", [run_id], policy) == set()
+        assert release_expired(session, RUNS, policy).total == 0
+        assert renew(session, RUNS, "a", [run_id], policy) == set()
     _expire(factory, run_id)
     with factory() as session:
-        released = release_expired_runs(session, policy)
+        released = release_expired(session, RUNS, policy)
         assert (released.requeued, released.given_up) == (1, 0)
-        assert renew_leases(session, "a", [run_id], policy) == {run_id}  # "a" lost it
-        assert claim_next_run(session, "b", policy) == run_id
+        assert renew(session, RUNS, "a", [run_id], policy) == {run_id}  # "a" lost it
+        assert claim_next(session, RUNS, "b", policy) == run_id
     _expire(factory, run_id)
     with factory() as session:
-        released = release_expired_runs(session, policy)
+        released = release_expired(session, RUNS, policy)
         assert (released.requeued, released.given_up) == (0, 1)
         run = session.get(CalibrationRun, run_id)
         assert run is not None and run.status == "failed" and run.attempts == 2
         assert run.error == "its worker stopped before finishing it, 2 time(s): given up"
         assert run.lease_owner is None and run.finished_at is not None
-        assert claim_next_run(session, "c", policy) is None
+        assert claim_next(session, RUNS, "c", policy) is None
 
 
 def test_an_attempt_that_lost_its_claim_writes_nothing(make_settings, admin, factory):
     (run_id,) = _queue_runs(make_settings, admin, 1)
     policy = LeasePolicy(lease_s=60, heartbeat_s=1, max_attempts=3)
     with factory() as session:
-        claim_next_run(session, "slow", policy)
+        claim_next(session, RUNS, "slow", policy)
     slow = Attempt(factory, run_id, "slow", min_interval_s=0)
     slow.progress("stage one", 0.5)
     _expire(factory, run_id)
     with factory() as session:
-        release_expired_runs(session, policy)
-        assert claim_next_run(session, "other", policy) == run_id
+        release_expired(session, RUNS, policy)
+        assert claim_next(session, RUNS, "other", policy) == run_id
     # The first worker wakes up: its report stops it, and its outcome is not written.
-    with pytest.raises(RunCancelled):
+    with pytest.raises(JobCancelled):
         slow.progress("stage two", 0.9)
     assert slow.cancel.is_set()
     with factory() as session:
