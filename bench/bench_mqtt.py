@@ -385,7 +385,7 @@ def run_soak(
             delays = sum(
                 st.size
                 for st in snap.filter_traces(
-                    [tracemalloc.Filter(True, "*node/clock.py")]
+                    [tracemalloc.Filter(True, "*server/delays.py")]
                 ).statistics("filename")
             )
             if len(rows) == 1:

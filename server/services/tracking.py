@@ -64,7 +64,7 @@ from core.localization.tracking import (
     TrackState,
 )
 from server.db.models import Camera, Detection, Target
-from server.node.clock import StageDelays
+from server.delays import StageDelays
 from server.services.fanout import PAYLOAD_LIMIT, Fanout
 from server.services.ownership import SpaceLocks
 from server.services.targets import LIVE, LiveTarget, LiveTargets
