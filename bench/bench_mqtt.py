@@ -188,8 +188,8 @@ def run_light(broker: Broker, seconds: float, rate_hz: float = 5.0, seed: int = 
     from core.sim import default_scene
     from core.sim.motion import world_state
     from server.db.session import make_engine, make_session_factory
-    from server.services.home import HomePublisher
-    from server.services.mqtt import BrokerUrl, MqttLink
+    from server.services.comms.home import HomePublisher
+    from server.services.comms.mqtt import BrokerUrl, MqttLink
     from server.services.targets import LiveTargets
     from server.services.tracking import DetectionIn, TrackingService
     from server.services.twin import bootstrap_space, registry_cameras
@@ -301,8 +301,8 @@ def run_soak(
     """Feed `minutes` of simulated time through the service's parts as fast as they go."""
     from core.sim import default_scene
     from server.db.session import make_engine, make_session_factory
-    from server.services.home import HomePublisher
-    from server.services.mqtt import BrokerUrl, MqttLink
+    from server.services.comms.home import HomePublisher
+    from server.services.comms.mqtt import BrokerUrl, MqttLink
     from server.services.targets import LiveTargets
     from server.services.tracking import DetectionIn, TrackingService
     from server.services.twin import bootstrap_space, registry_cameras

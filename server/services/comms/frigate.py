@@ -70,7 +70,7 @@ from core.localization import NetworkCamera
 from core.localization.boxes import BOX_SIDES, FootMeasurement, box_foot, foot_on_axis
 from core.localization.floor_spread import floor_spread_cov
 from server.db.models import Camera
-from server.services.mqtt import Message
+from server.services.comms.mqtt import Message
 from server.services.tracking import DetectionIn, TrackingService
 from server.settings import FrigateCamera
 
