@@ -37,6 +37,7 @@ from core.sim.occluders import scene_occluders
 from core.sim.render import camera_model, renderer_for
 from server.db.models import Camera, CameraCalibration, Landmark, Projector, Robot, Room, Space
 from server.schemas.registry import CameraHeartbeat
+from server.services.cameras import CameraNotPlaced, network_camera
 from server.services.tracking import DetectionIn
 
 if TYPE_CHECKING:
@@ -179,18 +180,11 @@ def registry_cameras(
         camera = found.get(camera_id)
         if camera is None:
             refused[camera_id] = f"no camera with id {camera_id}"
-        elif camera.K is None:
-            refused[camera_id] = f"camera {camera_id} ({camera.name}) has no intrinsics K"
-        elif camera.T_world_camera is None:
-            refused[camera_id] = f"camera {camera_id} ({camera.name}) has no pose T_world_camera"
-        else:
-            usable[camera_id] = NetworkCamera.from_pose(
-                camera.K,
-                camera.dist,
-                camera.T_world_camera,
-                (camera.width, camera.height),
-                camera.name,
-            )
+            continue
+        try:
+            usable[camera_id] = network_camera(camera)
+        except CameraNotPlaced as exc:
+            refused[camera_id] = f"camera {camera_id} ({camera.name}) has no {exc.missing}"
     return usable, refused
 
 
