@@ -31,6 +31,7 @@ from server.services.tracking.ingest import (
 )
 from server.services.tracking.process import TrackerProcessError
 from server.services.tracking.sharing import OWNERSHIP_POLL_S, SharedTrackers
+from server.services.tracking.space import SpaceTracker
 from server.services.tracking.wire import CONTROL_CHANNEL, DETECTIONS_CHANNEL, TARGETS_CHANNEL
 
 log = logging.getLogger("server.services.tracking")
@@ -134,10 +135,8 @@ class TrackingService(SharedTrackers):
     def hold(self, space_id: int | None) -> None:
         """Hold a space's tracks still: its world is paused (the twin), so no frame comes and
         its tracks must neither coast nor end until `release`."""
-        with self._lock:
-            space = self._space(space_id)
+        space = self._here_or_forward(space_id, "hold")
         if space is None:
-            self._forward(space_id, "hold")
             return
         with space.lock:
             if space.held_since is None:
@@ -145,15 +144,22 @@ class TrackingService(SharedTrackers):
 
     def release(self, space_id: int | None) -> None:
         """Let a held space's tracks go on: their clock moves on by the time held."""
-        with self._lock:
-            space = self._space(space_id)
+        space = self._here_or_forward(space_id, "release")
         if space is None:
-            self._forward(space_id, "release")
             return
         with space.lock:
             if space.held_since is not None:
                 space.tracker.shift(max(0.0, self._clock() - space.held_since))
                 space.held_since = None
+
+    def _here_or_forward(self, space_id: int | None, op: str) -> SpaceTracker | None:
+        """Return the tracker of a space tracked here (made on first use); else ask the process
+        that tracks it to do `op`, and return None."""
+        with self._lock:
+            space = self._space(space_id)
+        if space is None:
+            self._forward(space_id, op)
+        return space
 
     def reset(self, space_id: int | None) -> None:
         """Forget the tracks of a space (its targets end) and start its tracker afresh."""
