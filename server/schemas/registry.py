@@ -219,17 +219,8 @@ def camera_model_problem(
     try:
         # Through the adapter the localisation reads cameras with (at any pose): refuse here
         # what it could not use later.
-        pose = np.eye(4)
-        network_camera(
-            {
-                "name": "",
-                "K": K,
-                "dist": dist,
-                "T_world_camera": pose,
-                "width": width,
-                "height": height,
-            }
-        )
+        fields = {"K": K, "dist": dist, "T_world_camera": np.eye(4)}
+        network_camera({"name": "", "width": width, "height": height, **fields})
     except (IntspaceError, ArithmeticError, ValueError) as exc:
         return ("dist" if "dist" in str(exc) else "K"), str(exc)
     return None
