@@ -27,14 +27,15 @@ from fastapi.responses import JSONResponse
 from sqlalchemy import select
 
 from core.localization import (
+    DuplicateView,
     FootMeasurement,
     NetworkCamera,
     PointStatus,
     box_foot,
     cut_mask,
     foot_on_axis,
+    locate_groups,
 )
-from core.localization.groups import DuplicateView, locate_groups
 from server.api.deps import SessionDep, require_write
 from server.api.errors import PROBLEM_RESPONSES, FieldProblem
 from server.api.server_time import SERVER_TIME_HEADER
