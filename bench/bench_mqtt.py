@@ -192,8 +192,8 @@ def run_light(broker: Broker, seconds: float, rate_hz: float = 5.0, seed: int = 
     from core.sim import default_scene
     from core.sim.motion import world_state
     from server.db.session import make_engine, make_session_factory
-    from server.services.home import HomePublisher
-    from server.services.mqtt import BrokerUrl, MqttLink
+    from server.services.comms.home import HomePublisher
+    from server.services.comms.mqtt import BrokerUrl, MqttLink
     from server.services.targets import LiveTargets
     from server.services.tracking import DetectionIn, TrackingService
     from server.services.twin import bootstrap_space, registry_cameras
@@ -306,8 +306,8 @@ class _SoakService:
     def __init__(self, broker: Broker, top: int) -> None:
         from core.sim import default_scene
         from server.db.session import make_engine, make_session_factory
-        from server.services.home import HomePublisher
-        from server.services.mqtt import BrokerUrl, MqttLink
+        from server.services.comms.home import HomePublisher
+        from server.services.comms.mqtt import BrokerUrl, MqttLink
         from server.services.targets import LiveTargets
         from server.services.tracking import TrackingService
         from server.services.twin import bootstrap_space, registry_cameras
@@ -354,9 +354,9 @@ class _SoakService:
             self._last = snap
         delays = sum(
             st.size
-            for st in snap.filter_traces([tracemalloc.Filter(True, "*node/clock.py")]).statistics(
-                "filename"
-            )
+            for st in snap.filter_traces(
+                [tracemalloc.Filter(True, "*server/delays.py")]
+            ).statistics("filename")
         )
         if len(self.rows) == 1:
             print("  " + "  ".join(f"{k:>12}" for k in self.rows[0]), flush=True)
@@ -490,8 +490,8 @@ def run_frigate_soak(broker: Broker, minutes: float, seed: int = 0, top: int = 0
     home's cameras (Frigate's detect resolution half theirs), through the Frigate source as
     the service runs it, as fast as it goes. The source's thread is not started: its loop's
     work (every message due, then the hold) runs here at its tick on the simulated clock."""
-    from server.services.frigate import FrigateSource
-    from server.services.mqtt import Message
+    from server.services.comms.frigate import FrigateSource
+    from server.services.comms.mqtt import Message
     from server.settings import FrigateCamera
     from tests.server.frigate_replay import frigate_messages
 

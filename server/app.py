@@ -50,11 +50,11 @@ from server.security import AuthFailureLimiter, SecurityHeaders, install_log_red
 from server.services.auth import TokenCache
 from server.services.calibration import RunRefused
 from server.services.camera_health import CameraHealthBook
+from server.services.comms.frigate import FrigateSource
+from server.services.comms.home import HomePublisher
+from server.services.comms.mqtt import BrokerUrl, MqttLink
 from server.services.frames import LatestFrames
-from server.services.frigate import FrigateSource
-from server.services.home import HomePublisher
 from server.services.jobs import LeasePolicy
-from server.services.mqtt import BrokerUrl, MqttLink
 from server.services.ownership import SpaceLocks
 from server.services.paths import FollowTasks
 from server.services.runs import RunExecutor

@@ -182,7 +182,7 @@ class Settings(BaseSettings):
     @classmethod
     def _broker_url(cls, value: SecretStr | None) -> SecretStr | None:
         if value is not None:
-            from server.services.mqtt import BrokerUrl
+            from server.services.comms.mqtt import BrokerUrl
 
             BrokerUrl.parse(value.get_secret_value())  # its errors never quote the password
         return value
@@ -213,7 +213,7 @@ class Settings(BaseSettings):
             values[name] = value
         url = make_url(self.resolved_database_url)
         values["database_url"] = url.render_as_string(hide_password=True)
-        from server.services.mqtt import BrokerUrl
+        from server.services.comms.mqtt import BrokerUrl
 
         for name in ("mqtt_url", "frigate_mqtt"):
             secret = getattr(self, name)

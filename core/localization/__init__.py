@@ -2,7 +2,8 @@
 
 Cameras are described by `NetworkCamera`. The estimators (`locate_monocular`,
 `triangulate_linear`, `triangulate_on_plane`, `locate_ml`) take pixels (C, B, 2) from C cameras
-for B targets and return a `FloorEstimate` with covariances; `cramer_rao_bound` gives the best
+for B targets and return a `FloorEstimate` with covariances (`locate_groups` locates groups of
+single detections, each group on its own plane); `cramer_rao_bound` gives the best
 covariance any unbiased estimator can reach; `coverage_map` maps camera count and that bound
 over a floor grid, counting only cameras with a clear line of sight past walls and furniture
 (`Occluders`); `detect_frame` turns one camera image into the robot's and the people's
@@ -41,6 +42,7 @@ from core.localization.ground import (
     triangulate_linear,
     triangulate_on_plane,
 )
+from core.localization.groups import DuplicateView, GroupPositions, locate_groups
 from core.localization.occluders import Box, DoorGap, Occluders, Wall, line_of_sight
 from core.localization.tracking import (
     FrameResult,
@@ -66,10 +68,12 @@ __all__ = [
     "CoverageMap",
     "CramerRaoBound",
     "DoorGap",
+    "DuplicateView",
     "FloorEstimate",
     "FootMeasurement",
     "FrameDetection",
     "FrameResult",
+    "GroupPositions",
     "NetworkCamera",
     "Occluders",
     "PeopleDetector",
@@ -90,6 +94,7 @@ __all__ = [
     "foot_on_axis",
     "line_of_sight",
     "locate_body_axis",
+    "locate_groups",
     "locate_ml",
     "locate_monocular",
     "triangulate_linear",

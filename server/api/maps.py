@@ -25,6 +25,7 @@ from server.api.deps import ReadAccess, SessionDep
 from server.api.errors import PROBLEM_RESPONSES
 from server.db.models import Camera, Room, Space
 from server.schemas.common import MAX_ID
+from server.services.cameras import CameraNotPlaced, network_camera
 from server.services.floor_plan import twin_scene_of
 
 # Caps that keep one map's memory well under 150 MB (measured on `intspace serve`: the
@@ -55,22 +56,13 @@ def usable_cameras(
     rows = session.scalars(select(Camera).where(Camera.space_id == space_id).order_by(Camera.id))
     (x0, x1), (y0, y1) = bounds
     for camera in rows:
-        if camera.K is None:
-            refused[camera.id] = "no intrinsics K"
-            continue
-        if camera.T_world_camera is None:
-            refused[camera.id] = "no pose T_world_camera"
-            continue
         try:
-            network = NetworkCamera.from_pose(
-                camera.K,
-                camera.dist,
-                camera.T_world_camera,
-                (camera.width, camera.height),
-                camera.name,
-            )
+            network = network_camera(camera)
             with np.errstate(over="raise", invalid="raise", divide="raise"):
                 coverage_map([network], (x0, x1), (y0, y1), spacing=max(x1 - x0, y1 - y0) / 2)
+        except CameraNotPlaced as exc:
+            refused[camera.id] = f"no {exc.missing}"
+            continue
         except (IntspaceError, ArithmeticError, ValueError, TypeError) as exc:
             refused[camera.id] = f"unusable camera model: {type(exc).__name__}: {exc}"
             continue

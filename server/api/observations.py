@@ -27,13 +27,14 @@ from fastapi.responses import JSONResponse
 from sqlalchemy import select
 
 from core.localization import (
+    DuplicateView,
     FootMeasurement,
     NetworkCamera,
     PointStatus,
     box_foot,
     cut_mask,
     foot_on_axis,
-    locate_ml,
+    locate_groups,
 )
 from server.api.deps import SessionDep, require_write
 from server.api.errors import PROBLEM_RESPONSES, FieldProblem
@@ -336,69 +337,41 @@ def _robotless(session, space_of: dict[int, int | None]) -> set[int]:
 
 def _locate_labelled(every, index: list[int], cameras, measured: _Measured) -> list[dict]:
     """Return the ML floor position of each labelled (target, t, height) group of the
-    observations `every[i]` for i in `index`."""
+    observations `every[i]` for i in `index` (core.localization.locate_groups)."""
     obs = [every[i] for i in index]
     camera_ids = sorted({o.camera_id for o in obs})
     column = {cid: k for k, cid in enumerate(camera_ids)}
     groups: dict[tuple[str | None, float, float], int] = {}
-    n = len(obs)
-    cam = np.empty(n, dtype=np.intp)
-    group = np.empty(n, dtype=np.intp)
-    pix = np.empty((n, 2))
-    cov = np.empty((n, 2, 2))
-    for i, o in enumerate(obs):
-        key = (o.target, o.t, o.height)
-        g = groups.get(key)
-        if g is None:
-            g = groups[key] = len(groups)
-        cam[i], group[i] = column[o.camera_id], g
-        pix[i] = measured.pixel[index[i]]
-        cov[i] = measured.cov[index[i]]
-    C, B = len(camera_ids), len(groups)
-    pair = cam * B + group
-    _, first, counts = np.unique(pair, return_index=True, return_counts=True)
-    if np.any(counts > 1):
-        i = int(first[np.argmax(counts > 1)])
+    group = [groups.setdefault((o.target, o.t, o.height), len(groups)) for o in obs]
+    try:
+        found = locate_groups(
+            [cameras[cid] for cid in camera_ids],
+            [column[o.camera_id] for o in obs],
+            group,
+            [key[2] for key in groups],
+            measured.pixel[index],
+            measured.cov[index],
+        )
+    except DuplicateView as exc:
+        o = obs[exc.index]
         raise FieldProblem(
             422,
-            f"observations.{index[i]}",
-            f"camera {obs[i].camera_id} has more than one detection of target "
-            f"{obs[i].target!r} at t = {obs[i].t}; send one per camera, target and time",
-        )
-    keys = list(groups)
-    heights = np.array([k[2] for k in keys])
-    xy = np.full((B, 2), np.nan)
-    xy_cov = np.full((B, 2, 2), np.nan)
-    status = np.zeros(B, dtype=np.int8)
-    n_cam = np.zeros(B, dtype=np.int64)
-    order = [cameras[cid] for cid in camera_ids]
-    for h in np.unique(heights):
-        sel = np.flatnonzero(heights == h)
-        remap = np.full(B, -1)
-        remap[sel] = np.arange(sel.size)
-        mine = remap[group] >= 0
-        pixels = np.zeros((C, sel.size, 2))
-        pixel_cov = np.tile(np.eye(2), (C, sel.size, 1, 1))
-        visible = np.zeros((C, sel.size), dtype=bool)
-        idx = (cam[mine], remap[group[mine]])
-        pixels[idx], pixel_cov[idx], visible[idx] = pix[mine], cov[mine], True
-        est = locate_ml(order, pixels, float(h), visible=visible, pixel_cov=pixel_cov)
-        xy[sel], xy_cov[sel] = est.xy, est.cov
-        status[sel], n_cam[sel] = est.status, est.n_cameras
+            f"observations.{index[exc.index]}",
+            f"camera {o.camera_id} has more than one detection of target "
+            f"{o.target!r} at t = {o.t}; send one per camera, target and time",
+        ) from exc
     positions = []
-    for b, (target, t, _) in enumerate(keys):
-        ok = status[b] == PointStatus.OK
-        p_xy = xy[b].tolist() if ok else None
-        p_cov = xy_cov[b].tolist() if ok else None
+    for b, (target, t, _) in enumerate(groups):
+        ok = found.status[b] == PointStatus.OK
         positions.append(
             {
                 "target": target,
                 "t": t,
-                "xy": p_xy,
-                "cov": p_cov,
-                "n_cameras": int(n_cam[b]),
+                "xy": found.xy[b].tolist() if ok else None,
+                "cov": found.cov[b].tolist() if ok else None,
+                "n_cameras": int(found.n_cameras[b]),
                 "estimator": "ml",
-                "status": _STATUS[PointStatus(int(status[b]))],
+                "status": _STATUS[PointStatus(int(found.status[b]))],
             }
         )
     return positions

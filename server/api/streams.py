@@ -23,7 +23,7 @@ from starlette.concurrency import run_in_threadpool
 from server.api.deps import ReadAccess
 from server.api.errors import PROBLEM_RESPONSES
 from server.schemas.common import MAX_ID
-from server.services.twin import CameraFrame, Twin
+from server.services.twin import Twin, TwinFrame
 
 router = APIRouter(tags=["cameras"], responses=PROBLEM_RESPONSES)
 
@@ -52,7 +52,7 @@ class _EncodedFrames:
         self._lock = threading.Lock()
         self._jpeg: dict[int, tuple[float, bytes]] = {}
 
-    def jpeg(self, frame: CameraFrame) -> bytes:
+    def jpeg(self, frame: TwinFrame) -> bytes:
         """Return the JPEG bytes of `frame` (encoded on first request)."""
         with self._lock:
             cached = self._jpeg.get(frame.camera_id)

@@ -13,7 +13,8 @@ from typing import Any
 
 import httpx
 
-from server.node.clock import ClockOffset, StageDelays
+from server.delays import StageDelays
+from server.node.clock import ClockOffset
 
 log = logging.getLogger("intspace.node")
 

@@ -26,8 +26,8 @@ from core.localization.boxes import BOX_SIDES
 from core.localization.detect import MarkerDetectorConfig, PersonDetector
 from core.localization.detections import FrameDetection, PeopleDetector, detect_frame
 from core.localization.ssd_people import PersonBoxes, SsdConfig, SsdPeopleDetector
+from server.delays import StageDelays
 from server.node.client import NodeError, ServiceClient, Uploader
-from server.node.clock import StageDelays
 from server.node.config import (
     DEFAULT_FLIP_SCORE_THRESHOLD,
     DEFAULT_SCORE_THRESHOLD,

@@ -11,7 +11,6 @@ from shapely import Polygon as ShapelyPolygon
 from shapely.validation import explain_validity
 
 from core.errors import IntspaceError
-from core.localization.cameras import NetworkCamera
 from server.schemas.common import (
     Distortion,
     Finite,
@@ -28,6 +27,7 @@ from server.schemas.common import (
     Vec3,
     Vec4,
 )
+from server.services.cameras import network_camera
 from server.services.poses import pose_from_position_quaternion
 
 
@@ -217,14 +217,10 @@ def camera_model_problem(
     if abs(K[0][1]) > MAX_SKEW_RATIO * K[0][0]:
         return "K.0.1", f"skew {K[0][1]:g} px exceeds {MAX_SKEW_RATIO:g} fx"
     try:
-        # What the localisation reads: refuse here what it could not use later.
-        NetworkCamera(
-            K=np.asarray(K, dtype=float),
-            dist=None if dist is None else np.asarray(dist, dtype=float),
-            R=np.eye(3),
-            t=np.zeros(3),
-            image_size=(width, height),
-        )
+        # Through the adapter the localisation reads cameras with (at any pose): refuse here
+        # what it could not use later.
+        fields = {"K": K, "dist": dist, "T_world_camera": np.eye(4)}
+        network_camera({"name": "", "width": width, "height": height, **fields})
     except (IntspaceError, ArithmeticError, ValueError) as exc:
         return ("dist" if "dist" in str(exc) else "K"), str(exc)
     return None

@@ -37,6 +37,7 @@ from core.sim.occluders import scene_occluders
 from core.sim.render import camera_model, renderer_for
 from server.db.models import Camera, CameraCalibration, Landmark, Projector, Robot, Room, Space
 from server.schemas.registry import CameraHeartbeat
+from server.services.cameras import CameraNotPlaced, network_camera
 from server.services.tracking import DetectionIn
 
 if TYPE_CHECKING:
@@ -179,18 +180,11 @@ def registry_cameras(
         camera = found.get(camera_id)
         if camera is None:
             refused[camera_id] = f"no camera with id {camera_id}"
-        elif camera.K is None:
-            refused[camera_id] = f"camera {camera_id} ({camera.name}) has no intrinsics K"
-        elif camera.T_world_camera is None:
-            refused[camera_id] = f"camera {camera_id} ({camera.name}) has no pose T_world_camera"
-        else:
-            usable[camera_id] = NetworkCamera.from_pose(
-                camera.K,
-                camera.dist,
-                camera.T_world_camera,
-                (camera.width, camera.height),
-                camera.name,
-            )
+            continue
+        try:
+            usable[camera_id] = network_camera(camera)
+        except CameraNotPlaced as exc:
+            refused[camera_id] = f"camera {camera_id} ({camera.name}) has no {exc.missing}"
     return usable, refused
 
 
@@ -199,7 +193,7 @@ def registry_cameras(
 
 
 @dataclass
-class CameraFrame:
+class TwinFrame:
     """The latest frame of a twin camera and what was detected in it."""
 
     camera_id: int
@@ -266,7 +260,7 @@ class Twin:
         self._last_step = time.monotonic()
         self._paused = threading.Event()
         self._thread: threading.Thread | None = None
-        self._frames: dict[int, CameraFrame] = {}
+        self._frames: dict[int, TwinFrame] = {}
         self._cameras: dict[int, NetworkCamera] = {}
         self._cameras_loaded = -float("inf")
         self._last_scene = 0.0
@@ -392,7 +386,7 @@ class Twin:
                 "cameras": self.camera_ids,
             }
 
-    def frame(self, camera_id: int) -> CameraFrame | None:
+    def frame(self, camera_id: int) -> TwinFrame | None:
         """Return the latest frame of camera `camera_id`, None when it has none."""
         with self._lock:
             return self._frames.get(camera_id)
@@ -505,7 +499,7 @@ class Twin:
             self._pose = state.robot
             self._epoch = self._clock() - t
             stamp = self._epoch + t
-            frames = {cid: CameraFrame(cid, name, stamp, image) for name, cid, image in rendered}
+            frames = {cid: TwinFrame(cid, name, stamp, image) for name, cid, image in rendered}
             self._frames.update(frames)
             self._frame_times.append(stamp)
             self._last_frame_t = stamp
@@ -517,7 +511,7 @@ class Twin:
         for shown in list(frames.values()):
             camera_id = shown.camera_id
             # Published again with its detections once they are known.
-            cf = CameraFrame(camera_id, shown.name, stamp, shown.image)
+            cf = TwinFrame(camera_id, shown.name, stamp, shown.image)
             found = (
                 detect_frame(
                     cf.image,
@@ -612,7 +606,7 @@ class Twin:
 
     # -- the 3D scene ------------------------------------------------------------------------
 
-    def _push_scene(self, state: WorldState, frames: dict[int, CameraFrame]) -> None:
+    def _push_scene(self, state: WorldState, frames: dict[int, TwinFrame]) -> None:
         """Send the agents (true poses), the tracks (estimates) and the camera images to the
         3D scene, at most `_SCENE_HZ` times a second; the scene only records them and returns,
         its own thread draws."""

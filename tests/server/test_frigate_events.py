@@ -16,8 +16,8 @@ from sqlalchemy.orm import sessionmaker
 from core.localization import NetworkCamera, locate_monocular
 from core.localization.boxes import box_foot, foot_on_axis
 from server.db.models import Camera, Detection, Space
-from server.services.frigate import FrigateSource
-from server.services.mqtt import Message
+from server.services.comms.frigate import FrigateSource
+from server.services.comms.mqtt import Message
 from server.services.targets import LiveTargets
 from server.services.tracking import TrackingService
 from server.settings import FrigateCamera

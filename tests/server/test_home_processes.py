@@ -16,7 +16,7 @@ from fastapi.testclient import TestClient
 from sqlalchemy import create_engine, text
 
 from server.app import create_app
-from server.services.home import AVAILABLE_KEY
+from server.services.comms.home import AVAILABLE_KEY
 from server.services.ownership import APPLICATION_NAME, NAMESPACE
 from tests.server.mqtt_broker import broker, subscribe  # noqa: F401
 from tests.server.test_multiprocess import Serve

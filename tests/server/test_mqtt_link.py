@@ -12,7 +12,7 @@ import time
 
 import pytest
 
-from server.services.mqtt import BrokerUrl, BrokerUrlError, MqttLink
+from server.services.comms.mqtt import BrokerUrl, BrokerUrlError, MqttLink
 from tests.server.mqtt_broker import PASSWORD, broker, subscribe  # noqa: F401
 
 

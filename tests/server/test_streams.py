@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 
 from server.node.mjpeg import MjpegParser, boundary_of
-from server.services.twin import CameraFrame
+from server.services.twin import TwinFrame
 
 
 class _FakeTwin:
@@ -24,14 +24,14 @@ class _FakeTwin:
         self.reads = 0
         self._lock = threading.Lock()
 
-    def frame(self, camera_id: int) -> CameraFrame | None:
+    def frame(self, camera_id: int) -> TwinFrame | None:
         with self._lock:
             self.reads += 1
         if camera_id != self._id:
             return None
         k = int((time.time() - self._start) / self._period)
         image = np.full((48, 64, 3), (10 * k) % 250, dtype=np.uint8)
-        return CameraFrame(camera_id, "cam", self._start + k * self._period, image)
+        return TwinFrame(camera_id, "cam", self._start + k * self._period, image)
 
 
 def test_stream_parts_carry_the_frames_and_their_capture_times(client, admin):

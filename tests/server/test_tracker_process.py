@@ -1,4 +1,4 @@
-"""The core trackers in a process of their own (server.services.tracking._TrackerHost).
+"""The core trackers in a process of their own (server.services.tracking.process.TrackerHost).
 
 On a shared database the service runs its core trackers in a child process, so that their
 arithmetic does not hold the API process's interpreter lock. These tests check that the child
@@ -21,12 +21,8 @@ from test_api_targets import _register
 from core.errors import InvalidInput
 from core.localization import NetworkCamera
 from core.localization.tracking import LIVE_STATES, Tracker, TrackerConfig
-from server.services.tracking import (
-    DetectionIn,
-    TrackingService,
-    _RemoteTracker,
-    _TrackerHost,
-)
+from server.services.tracking import DetectionIn, TrackingService
+from server.services.tracking.process import RemoteTracker, TrackerHost
 
 K = [[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]]
 DIST = [-0.1, 0.01, 0.0005, -0.0003, 0.0]
@@ -85,9 +81,9 @@ def test_the_trackers_process_answers_as_the_tracker_itself():
     cameras = _cameras()
     config = TrackerConfig()
     here = Tracker(config=config, next_id=7)
-    host = _TrackerHost()
+    host = TrackerHost()
     try:
-        there = _RemoteTracker(host, config, 7, None)
+        there = RemoteTracker(host, config, 7, None)
         for k, cam in enumerate(cameras):
             here.set_camera(k, cam)
             there.set_camera(k, cam)
@@ -112,7 +108,7 @@ def test_the_trackers_process_answers_as_the_tracker_itself():
         assert there.time == here.time == 1008.5
         # A restore on a fresh tracker (a takeover) keeps the ids on both sides.
         fresh_here = Tracker(config=config, next_id=20)
-        fresh_there = _RemoteTracker(host, config, 20, None)
+        fresh_there = RemoteTracker(host, config, 20, None)
         t = max(s.t for s in live) + 0.1
         _same_snapshots(fresh_here.restore(t, live), fresh_there.restore(t, live))
         _same_snapshots(fresh_here.tracks(), fresh_there.tracks())

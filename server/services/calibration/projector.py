@@ -14,6 +14,7 @@ from server.db.models import CalibrationRun, Camera, Projector, ProjectorCalibra
 from server.schemas.calibration import ProjectorRunResult
 from server.schemas.paths import ProjectorRunCreate
 from server.services.calibration._shared import Progress, RunContext, RunRefused
+from server.services.cameras import network_camera
 from server.services.floor_plan import twin_scene_of
 from server.services.scene_sync import SceneSync
 
@@ -102,19 +103,13 @@ def calibrate_projector_run(
     `projector-calibration` scenario (core.sim.navigation_scenarios.projector_calibration)
     with the registry's calibrated cameras locating the spots."""
     # Imported here: a worker loads the twin's navigation scenarios only when it needs them.
-    from core.localization import NetworkCamera
     from core.sim import default_scene
     from core.sim import navigation_scenarios as nav
 
     scene = default_scene()
     cams = inputs["cameras"]
     progress("locating the spots", 0.1)
-    cameras = [
-        NetworkCamera.from_pose(
-            c["K"], c["dist"], c["T_world_camera"], (c["width"], c["height"]), c["name"]
-        )
-        for c in cams
-    ]
+    cameras = [network_camera(c) for c in cams]
     fit = nav.projector_calibration(
         scene,
         int(options.get("seed", 0)),

@@ -70,7 +70,8 @@ from core.localization import NetworkCamera
 from core.localization.boxes import BOX_SIDES, FootMeasurement, box_foot, foot_on_axis
 from core.localization.floor_spread import floor_spread_cov
 from server.db.models import Camera
-from server.services.mqtt import Message
+from server.services.cameras import network_camera
+from server.services.comms.mqtt import Message
 from server.services.tracking import DetectionIn, TrackingService
 from server.settings import FrigateCamera
 
@@ -543,14 +544,11 @@ class FrigateSource:
         ref = None
         if len(rows) == 1:
             c = rows[0]
-            cam = None
-            if c.K is not None and c.T_world_camera is not None:
-                try:
-                    cam = NetworkCamera.from_pose(
-                        c.K, c.dist, c.T_world_camera, (c.width, c.height), c.name
-                    )
-                except IntspaceError:
-                    cam = None
+            cam: NetworkCamera | None
+            try:
+                cam = network_camera(c)
+            except IntspaceError:  # not placed yet, or a model it cannot use
+                cam = None
             ref = _CameraRef(c.id, c.space_id, c.width, c.height, cam)
         elif len(rows) > 1:
             log.warning("Frigate: %d cameras are called %r; none is fed", len(rows), name)

@@ -3,7 +3,7 @@ MQTT, with Home Assistant's MQTT discovery.
 
 `HomePublisher` is a sink of the zones service (server.services.zones.HomeSink): it turns
 definitions, occupancy changes, events and target updates into topics and payloads and hands
-them to an `MqttLink` (server.services.mqtt), which never blocks. Topics (slugs of names):
+them to an `MqttLink` (server.services.comms.mqtt), which never blocks. Topics (slugs of names):
 
     <prefix>/available                       online / offline (last will), retained
     <prefix>/<space>/zones/<zone>/occupancy  people counted, retained
@@ -51,7 +51,7 @@ from sqlalchemy.orm import Session, sessionmaker
 from core.localization.tracking import TrackSnapshot
 from core.localization.zones import ZoneEvent
 from server.db.models import Camera
-from server.services.mqtt import Message, MqttLink
+from server.services.comms.mqtt import Message, MqttLink
 from server.services.ownership import APPLICATION_NAME, NAMESPACE
 from server.services.zones import ZoneDef, slugify
 from server.version import VERSION
