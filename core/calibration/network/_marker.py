@@ -71,7 +71,6 @@ from core.calibration.zhang import CameraCalibration
 from core.errors import ConvergenceError, DegenerateConfiguration, InvalidInput, NotEnoughPoints
 from core.geometry.camera import (
     DISTORTION_NAMES,
-    distort_normalized,
     intrinsics_to_matrix,
     left_jacobian_so3,
     project_points,
@@ -175,36 +174,55 @@ def floor_gauge_projector(centres: ArrayLike) -> Array:
     return np.eye(6 * C) - G @ np.linalg.pinv(B @ G) @ B
 
 
-def disc_centre_offset(
-    X: Array, rvec: Array, t: Array, K: Array, dist: Array, radius: ArrayLike
+def _disc_rim_image(
+    X: Array, rvec: Array, t: Array, K: Array, dist: Array, radius: Array, n: int
 ) -> Array:
-    """Return the pixel offset (M, 2) of the centre of a horizontal disc's image from the
-    image of its centre, for discs of `radius` metres (one value, or (M,)) centred at X (M, 3).
+    """Return the distorted images (M, n, 2) of n points evenly spread on the rim of each
+    horizontal disc of `radius` (M,) metres centred at X (M, 3)."""
+    phi = np.linspace(0.0, 2.0 * np.pi, n, endpoint=False)
+    rim = np.stack([np.cos(phi), np.sin(phi), np.zeros(n)], axis=1)
+    pts = X[:, None, :] + radius[:, None, None] * rim[None]  # (M, n, 3)
+    return project_points(pts.reshape(-1, 3), rvec, t, K, dist).points.reshape(len(X), n, 2)
 
-    A detector's blob centroid is the centre of the disc's image ellipse, which perspective
-    moves off the projected centre (by up to ~0.1 px for the twin's 5 cm marker at 3 m): the
-    disc maps by H = [R e1, R e2, R X + t] (normalised image) to the conic
-    C = H^-T diag(1, 1, -r^2) H^-1 (Hartley & Zisserman eq. 2.13), whose centre is
-    -C[:2, :2]^-1 C[:2, 2]; both centres are then distorted and mapped through K."""
+
+def _polygon_moments(uv: Array) -> tuple[Array, Array]:
+    """Return the areas (M,) and area centroids (M, 2) of closed polygons (M, n, 2) (the
+    shoelace formula and its first moments)."""
+    x, y = uv[..., 0], uv[..., 1]
+    x1, y1 = np.roll(x, -1, axis=1), np.roll(y, -1, axis=1)
+    cross = x * y1 - x1 * y
+    a = 0.5 * cross.sum(axis=1)
+    safe = np.where(a == 0.0, 1.0, a)
+    c = np.stack([((x + x1) * cross).sum(axis=1), ((y + y1) * cross).sum(axis=1)], axis=1)
+    return np.abs(a), c / (6.0 * safe[:, None])
+
+
+def disc_centre_offset(
+    X: Array, rvec: Array, t: Array, K: Array, dist: Array, radius: ArrayLike, n: int = 48
+) -> Array:
+    """Return the pixel offset (M, 2) of the area centroid of a horizontal disc's image from
+    the image of its centre, for discs of `radius` metres (one value, or (M,)) centred at
+    X (M, 3): what a blob detector's centroid measures (core.localization.detect).
+
+    Two effects move it, both second order in the disc's size. Perspective: the disc's ideal
+    image is an ellipse whose centre is not the image of the disc's centre (Hartley & Zisserman
+    eq. 2.13; ~0.1 px for the twin's 5 cm marker at 3 m). Lens distortion: the image of that
+    ellipse through a curved map is no ellipse, and its area centroid is not the distorted
+    centre; with the default home's k1 = -0.28 it is c + k1 f x rho^2 off (x the normalised
+    distance from the axis, rho the disc's radius in focal units): 0.2-0.6 px for the mast's
+    8 cm disc at 1.5-2.5 m, off the axis. Both are in the area centroid of the distorted
+    image of the rim, here an inscribed polygon of n points (an affine image of a regular
+    polygon has its ellipse's centre; what the map adds beyond affine is O(n^-2) of the
+    offset)."""
     r = np.broadcast_to(np.asarray(radius, dtype=np.float64), (len(X),))
-    if not np.any(r > 0):
-        return np.zeros((len(X), 2))
-    R = rotvec_to_matrix(rvec)
-    Xc = X @ R.T + t
-    H = np.empty((len(X), 3, 3))
-    H[:, :, 0] = R[:, 0]
-    H[:, :, 1] = R[:, 1]
-    H[:, :, 2] = Xc
-    Hi = np.linalg.inv(H)
-    disc = np.zeros((len(X), 3, 3))
-    disc[:, 0, 0] = disc[:, 1, 1] = 1.0
-    disc[:, 2, 2] = -(r**2)
-    C = np.swapaxes(Hi, -1, -2) @ disc @ Hi
-    centre = -np.linalg.solve(C[:, :2, :2], C[:, :2, 2:3])[..., 0]
-    point = Xc[:, :2] / Xc[:, 2:3]
-    d = distort_normalized(np.stack([centre, point]), dist)
-    px = d @ K[:2, :2].T
-    return np.where((r > 0)[:, None], px[0] - px[1], 0.0)
+    out = np.zeros((len(X), 2))
+    on = r > 0
+    if not np.any(on):
+        return out
+    uv = _disc_rim_image(X[on], rvec, t, K, dist, r[on], n)
+    _, centroid = _polygon_moments(uv)
+    out[on] = centroid - project_points(X[on], rvec, t, K, dist).points
+    return out
 
 
 def disc_image_area(
@@ -215,14 +233,9 @@ def disc_image_area(
     dist): the area of the distorted images of n points on each rim (shoelace formula; the
     inscribed polygon's area, short of the ellipse's by about 2 pi^2 / (3 n^2), 0.3 % for
     n = 48)."""
-    phi = np.linspace(0.0, 2.0 * np.pi, n, endpoint=False)
     r = np.broadcast_to(np.asarray(radius, dtype=np.float64), (len(X),))
-    rim = np.stack([np.cos(phi), np.sin(phi), np.zeros(n)], axis=1)
-    pts = X[:, None, :] + r[:, None, None] * rim[None]  # (M, n, 3)
-    uv = project_points(pts.reshape(-1, 3), rvec, t, K, dist).points.reshape(len(X), n, 2)
-    x, y = uv[..., 0], uv[..., 1]
-    cross = x * np.roll(y, -1, axis=1) - y * np.roll(x, -1, axis=1)
-    return np.asarray(0.5 * np.abs(cross.sum(axis=1)))
+    area, _ = _polygon_moments(_disc_rim_image(X, rvec, t, K, dist, r, n))
+    return area
 
 
 @dataclass(frozen=True)
@@ -348,7 +361,7 @@ class _MarkerProblem:
             assert pr.d_intrinsics is not None and pr.d_distortion is not None
             assert pr.d_pose is not None
             w = self.used[k][:, None, None] * self.W[k]  # (N, 2, 2)
-            # The ellipse-centre offset is second order in the disc's size: it enters the
+            # The area-centroid offset is second order in the disc's size: it enters the
             # prediction, its derivatives are left out of the Jacobian.
             pred = pr.points + disc_centre_offset(X, rv, t, K, d, self.layout.radius)
             res[r : r + 2 * N] = np.einsum("mij,mj->mi", w, pred - self.uv[k]).ravel()
@@ -595,11 +608,11 @@ def calibrate_network_marker(
     bool; odometry: the start pose and the M increments between stops with their covariance
     (`odometry_prior`); height: the marker's Z (metres); offset: the marker's (x, y) in the
     robot frame (metres); radius: the marker disc's radius (metres; 0 for a point-like marker
-    such as an LED): a blob detector measures the centre of the disc's image ellipse, which
-    the model predicts (`disc_centre_offset`). pixel_cov (C, M, 2, 2) px^2 per detection, or
-    pixel_sigma (px) for all. areas (C, M): each detection's covered area in pixels (a blob
-    detector's; NaN where unknown), which with `radius` > 0 drops the images of a partly hidden
-    marker (module docstring, step 2).
+    such as an LED): a blob detector measures the area centroid of the disc's distorted
+    image, which the model predicts (`disc_centre_offset`). pixel_cov (C, M, 2, 2) px^2 per
+    detection, or pixel_sigma (px) for all. areas (C, M): each detection's covered area in
+    pixels (a blob detector's; NaN where unknown), which with `radius` > 0 drops the images of
+    a partly hidden marker (module docstring, step 2).
 
     Several markers at different heights (K of them: `height` (K,), `offset` (K, 2), `radius`
     one or (K,); pixels (C, M, K, 2), visible, areas (C, M, K), pixel_cov (C, M, K, 2, 2)):
