@@ -5,12 +5,12 @@ from __future__ import annotations
 
 from typing import Annotated, Any
 
-from fastapi import APIRouter, Depends, Path, Request, status
+from fastapi import APIRouter, Path, status
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from server.api._crud import apply_changes, get_or_404
-from server.api.deps import ReadAccess, SessionDep, WriteAccess
+from server.api.deps import ReadAccess, SessionDep, WriteAccess, ZonesDep
 from server.api.errors import PROBLEM_RESPONSES, FieldProblem
 from server.db.models import Room, Space, Zone
 from server.schemas.common import MAX_ID
@@ -20,14 +20,6 @@ from server.services.zones import ZoneService, load_zone_defs, slugify, zone_pay
 router = APIRouter(tags=["zones"], responses=PROBLEM_RESPONSES)
 SpaceId = Annotated[int, Path(ge=1, le=MAX_ID)]
 ZoneId = Annotated[int, Path(ge=1, le=MAX_ID)]
-
-
-async def get_zones(request: Request) -> ZoneService | None:
-    """Return the zones service (None before the app has started)."""
-    return getattr(request.app.state, "zones", None)
-
-
-ZonesDep = Annotated[ZoneService | None, Depends(get_zones)]
 
 
 def _slug_of(session: Session, space_id: int, name: str, zone_id: int | None) -> str:

@@ -37,6 +37,7 @@ from core.sim.occluders import scene_occluders
 from core.sim.render import camera_model, renderer_for
 from server.db.models import Camera, CameraCalibration, Landmark, Projector, Robot, Room, Space
 from server.schemas.registry import CameraHeartbeat
+from server.schemas.twin import TwinState
 from server.services.tracking import DetectionIn
 
 if TYPE_CHECKING:
@@ -369,28 +370,28 @@ class Twin:
 
     # -- reads -------------------------------------------------------------------------------
 
-    def state(self) -> dict[str, Any]:
+    def state(self) -> TwinState:
         """Return the twin's state: running, paused, sim time, robot pose, people, rate."""
         with self._lock:
             pose = self._pose  # the published instant's, read with its sim_time
             people = list(world_state(self.scene, self.sim_time).people)
             errors = np.array(list(self.errors)[-200:])
-            return {
-                "enabled": True,
-                "running": self.running,
-                "paused": self._paused.is_set(),
-                "scene": self.scene.name,
-                "space_id": self.space_id,
-                "sim_time": self.sim_time,
-                "steps": self.steps,
-                "rate_hz": self.rate_hz,
-                "stuck": self.stuck,
-                "last_step_age_s": time.monotonic() - self._last_step,
-                "robot": None if pose is None else {"x": pose.x, "y": pose.y, "theta": pose.yaw},
-                "people": [{"x": x, "y": y} for x, y in people],
-                "robot_error_rms_m": float(np.sqrt(np.mean(errors**2))) if errors.size else None,
-                "cameras": self.camera_ids,
-            }
+            return TwinState(
+                enabled=True,
+                running=self.running,
+                paused=self._paused.is_set(),
+                scene=self.scene.name,
+                space_id=self.space_id,
+                sim_time=self.sim_time,
+                steps=self.steps,
+                rate_hz=self.rate_hz,
+                stuck=self.stuck,
+                last_step_age_s=time.monotonic() - self._last_step,
+                robot=None if pose is None else {"x": pose.x, "y": pose.y, "theta": pose.yaw},
+                people=[{"x": x, "y": y} for x, y in people],
+                robot_error_rms_m=float(np.sqrt(np.mean(errors**2))) if errors.size else None,
+                cameras=self.camera_ids,
+            )
 
     def frame(self, camera_id: int) -> CameraFrame | None:
         """Return the latest frame of camera `camera_id`, None when it has none."""
