@@ -3,7 +3,7 @@
 
 from __future__ import annotations
 
-from typing import Annotated, Any
+from typing import Annotated
 
 from fastapi import APIRouter, Path, status
 from sqlalchemy import select
@@ -15,7 +15,7 @@ from server.api.errors import PROBLEM_RESPONSES, FieldProblem
 from server.db.models import Room, Space, Zone
 from server.schemas.common import MAX_ID
 from server.schemas.zones import ZoneCreate, ZoneRead, ZoneUpdate
-from server.services.zones import ZoneService, load_zone_defs, slugify, zone_payload
+from server.services.zones import ZoneService, load_zone_defs, slugify, zone_read
 
 router = APIRouter(tags=["zones"], responses=PROBLEM_RESPONSES)
 SpaceId = Annotated[int, Path(ge=1, le=MAX_ID)]
@@ -39,10 +39,10 @@ def _slug_of(session: Session, space_id: int, name: str, zone_id: int | None) ->
     return slug
 
 
-def _read(session: Session, zones: ZoneService | None, zone: Zone) -> dict[str, Any]:
+def _read(session: Session, zones: ZoneService | None, zone: Zone) -> ZoneRead:
     defs = [d for d in load_zone_defs(session, zone.space_id) if d.key == ("zone", zone.id)]
     occ = zones.occupancy(zone.space_id) if zones is not None else None
-    return zone_payload(defs[0], occ)
+    return zone_read(defs[0], occ)
 
 
 @router.get("/spaces/{space_id}/zones", response_model=list[ZoneRead], dependencies=[ReadAccess])
@@ -50,7 +50,7 @@ def list_zones(space_id: SpaceId, session: SessionDep, zones: ZonesDep):
     """Return the zones of a space, its rooms first (read-only), each with its occupancy."""
     get_or_404(session, Space, space_id, "space")
     occ = zones.occupancy(space_id) if zones is not None else None
-    return [zone_payload(d, occ) for d in load_zone_defs(session, space_id)]
+    return [zone_read(d, occ) for d in load_zone_defs(session, space_id)]
 
 
 @router.post(
