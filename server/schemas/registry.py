@@ -11,8 +11,10 @@ from shapely import Polygon as ShapelyPolygon
 from shapely.validation import explain_validity
 
 from core.errors import IntspaceError
+from core.geometry.camera import as_distortion_model
 from core.localization.cameras import NetworkCamera
 from server.schemas.common import (
+    ABSENT,
     Distortion,
     Finite,
     Id,
@@ -111,8 +113,8 @@ class SpaceCreate(Schema):
 
 
 class SpaceUpdate(Schema):
-    name: Name = None
-    description: Text = None
+    name: Name = ABSENT
+    description: Text = ABSENT
 
 
 class SpaceRead(ReadSchema):
@@ -133,9 +135,9 @@ class RoomCreate(Schema):
 
 
 class RoomUpdate(Schema):
-    space_id: Id = None
-    name: Name = None
-    polygon: Polygon = None
+    space_id: Id = ABSENT
+    name: Name = ABSENT
+    polygon: Polygon = ABSENT
 
 
 class RoomRead(ReadSchema):
@@ -220,7 +222,7 @@ def camera_model_problem(
         # What the localisation reads: refuse here what it could not use later.
         NetworkCamera(
             K=np.asarray(K, dtype=float),
-            dist=None if dist is None else np.asarray(dist, dtype=float),
+            dist=as_distortion_model(dist),
             R=np.eye(3),
             t=np.zeros(3),
             image_size=(width, height),
@@ -253,9 +255,9 @@ class CameraCreate(_PoseInput):
 
 
 class CameraUpdate(_PoseInput):
-    name: Name = None
-    width: PixelCount = None
-    height: PixelCount = None
+    name: Name = ABSENT
+    width: PixelCount = ABSENT
+    height: PixelCount = ABSENT
     space_id: Id | None = None
     K: Matrix3 | None = None
     dist: Distortion | None = None
@@ -354,9 +356,9 @@ class ProjectorCreate(_PoseInput):
 class ProjectorUpdate(_PoseInput):
     pose_field: ClassVar[str] = "T_world_projector"
 
-    name: Name = None
-    width: PixelCount = None
-    height: PixelCount = None
+    name: Name = ABSENT
+    width: PixelCount = ABSENT
+    height: PixelCount = ABSENT
     space_id: Id | None = None
     K: Matrix3 | None = None
     dist: Distortion | None = None
@@ -391,9 +393,9 @@ class RobotCreate(Schema):
 
 
 class RobotUpdate(Schema):
-    name: Name = None
+    name: Name = ABSENT
     space_id: Id | None = None
-    kinematic_model: JsonDocument = None
+    kinematic_model: JsonDocument = ABSENT
     onboard_camera_id: Id | None = None
     hand_camera_id: Id | None = None
     T_hand_camera: RigidTransform | None = None
@@ -427,9 +429,9 @@ class LandmarkCreate(Schema):
 
 
 class LandmarkUpdate(Schema):
-    kind: LandmarkKind = None
-    payload: Payload = None
-    size_m: SizeMetres = None
+    kind: LandmarkKind = ABSENT
+    payload: Payload = ABSENT
+    size_m: SizeMetres = ABSENT
     space_id: Id | None = None
     T_world_landmark: RigidTransform | None = None
 

@@ -560,7 +560,7 @@ class Twin:
             # The instant's frames in one transaction: the tracker takes them together anyway,
             # once the last camera's has come.
             with self._factory() as session:
-                space_of = dict.fromkeys(frames, self.space_id)
+                space_of: dict[int, int | None] = dict.fromkeys(frames, self.space_id)
                 self._tracking.ingest(session, detections, space_of, empty=empty)
         with self._lock:
             self.steps += 1
@@ -582,8 +582,8 @@ class Twin:
         latest = self._targets.latest(robot.name) if robot is not None else None
         if latest is None:
             return
-        state, t, xy = latest
-        if state != "confirmed" or t <= self._scored_until:
+        phase, t, xy = latest
+        if phase != "confirmed" or t <= self._scored_until:
             return
         truth = self.truth_at(np.array([t]))
         # An update the truth's history does not reach yet is scored at the next step.
@@ -617,15 +617,16 @@ class Twin:
         """Send the agents (true poses), the tracks (estimates) and the camera images to the
         3D scene, at most `_SCENE_HZ` times a second; the scene only records them and returns,
         its own thread draws."""
-        scene = self._scene_sync.scene if self._scene_sync is not None else None
-        if scene is None:
+        sync = self._scene_sync
+        scene = sync.scene if sync is not None else None
+        if sync is None or scene is None:
             return
         now = time.monotonic()
         if now - self._last_scene < 1.0 / _SCENE_HZ:
             return
         self._last_scene = now
         try:
-            if not self._scene_sync.shows(self.space_id):
+            if not sync.shows(self.space_id):
                 self._leave_scene(scene)
                 return
             self._in_scene = True
