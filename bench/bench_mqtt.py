@@ -85,7 +85,7 @@ def run_twin(broker: Broker, seconds: float) -> dict[str, float]:
     sub, rec = subscribe(broker, ["intspace/#"])
     stamps: list[float] = []
     with TestClient(create_app(settings)) as client:
-        twin = client.app.state.twin
+        twin = client.app.state.runtime.twin
         scene = twin.scene
         space = client.get(f"/api/v1/spaces/{twin.space_id}", headers=HEADERS).json()
         prefix = f"intspace/{slugify(space['name'])}"
@@ -99,7 +99,7 @@ def run_twin(broker: Broker, seconds: float) -> dict[str, float]:
         sim_times = twin.sim_time_at(np.array(stamps))
         # Where the time goes before MQTT: the tracker's stages (capture to arrival holds the
         # twin's detection; then the reorder wait and the tracker's update).
-        stages = client.app.state.tracking.delays.describe()
+        stages = client.app.state.runtime.tracking.delays.describe()
         steps = twin.steps
     sub.loop_stop()
     sub.disconnect()

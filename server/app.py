@@ -8,6 +8,7 @@ import logging
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from fastapi import APIRouter, FastAPI
 from fastapi.middleware.cors import CORSMiddleware
@@ -44,16 +45,14 @@ from server.api import (
 from server.api.errors import install_api_fallback, install_error_handlers
 from server.api.limits import RequestSizeLimit
 from server.api.server_time import ServerTime
-from server.db.session import make_engine, make_session_factory
+from server.runtime import Runtime
 from server.schemas.registry import CameraHeartbeat
-from server.security import AuthFailureLimiter, SecurityHeaders, install_log_redaction
-from server.services.auth import TokenCache
+from server.security import SecurityHeaders, install_log_redaction
 from server.services.calibration import RunRefused
 from server.services.camera_health import CameraHealthBook
 from server.services.comms.frigate import FrigateSource
 from server.services.comms.home import HomePublisher
 from server.services.comms.mqtt import BrokerUrl, MqttLink
-from server.services.frames import LatestFrames
 from server.services.jobs import LeasePolicy
 from server.services.ownership import SpaceLocks
 from server.services.paths import FollowTasks
@@ -65,6 +64,9 @@ from server.services.tracking import TrackingService
 from server.services.zones import ZoneService
 from server.settings import Settings
 from server.version import VERSION
+
+if TYPE_CHECKING:
+    from server.services.twin import Twin
 
 log = logging.getLogger(__name__)
 
@@ -105,20 +107,21 @@ def api_router() -> APIRouter:
     return router
 
 
-def _start_twin(settings: Settings, factory, live: LiveTargets, app: FastAPI):
+def _start_twin(runtime: Runtime, tracking: TrackingService) -> Twin:
     from core.sim import default_scene
     from server.services.twin import Twin
 
+    settings = runtime.settings
     twin = Twin(
         default_scene(),
-        factory,
-        live,
-        app.state.tracking,
-        app.state.scene_sync,
+        runtime.session_factory,
+        runtime.targets,
+        tracking,
+        runtime.scene_sync,
         rate_hz=settings.twin_rate_hz,
         seed=settings.twin_seed,
         detect=settings.twin_detection == "internal",
-        health=app.state.camera_health,
+        health=runtime.camera_health,
     )
     twin.bootstrap()
     return twin
@@ -189,8 +192,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     """Return the service's app. The database schema must be at head already (`intspace serve`
     and `intspace db upgrade` migrate it)."""
     settings = settings or Settings()
-    engine = make_engine(settings.resolved_database_url)
-    factory = make_session_factory(engine)
+    runtime = Runtime.build(settings)
+    engine = runtime.engine
+    factory = runtime.session_factory
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
@@ -205,15 +209,15 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             executor = RunExecutor(
                 factory, settings.run_workers, LeasePolicy.from_settings(settings)
             )
-        app.state.executor = executor
+        runtime.executor = executor
         scene = None
         if settings.viser_enabled:
             from server.scene import SceneService
 
             # Loopback only: the API proxies the scene behind its credentials.
-            scene = SceneService("127.0.0.1", settings.viser_port)
+            scene = SceneService(runtime.viser_host, settings.viser_port)
             await run_in_threadpool(scene.start)
-            app.state.viser_port = scene.port
+            runtime.viser_port = scene.port
             if scene.port != settings.viser_port:
                 # viser moves to a free port when the configured one is taken; say where it went
                 # so the address printed at start-up is not the last word.
@@ -222,7 +226,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                     f"port {scene.port} instead",
                     flush=True,
                 )
-        app.state.scene_sync = SceneSync(scene)
+        runtime.scene_sync = SceneSync(scene)
         live = LiveTargets(
             factory,
             flush_hz=settings.targets_flush_hz,
@@ -230,7 +234,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             track_retention_s=settings.track_retention_s,
             detection_retention_s=settings.detection_retention_s,
         )
-        app.state.targets = live
+        runtime.targets = live
         # On PostgreSQL several processes share the spaces' trackers (one per space, taken
         # over with its live targets when its process dies): live targets are not stale there.
         shared = settings.database_backend == "postgresql"
@@ -243,7 +247,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             latency=settings.tracker_latency_s,
             shared_database_url=settings.resolved_database_url if shared else None,
         )
-        app.state.tracking = tracking
+        runtime.tracking = tracking
         zone_service = ZoneService(
             factory,
             owns=tracking.owns,
@@ -255,23 +259,24 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         )
         tracking.target_listeners.append(zone_service.on_targets)
         zone_service.attach_tracking(tracking)
-        app.state.zones = zone_service
-        book = app.state.camera_health
+        runtime.zones = zone_service
         publisher, frigate, frigate_link = _start_home(
-            settings, factory, tracking, zone_service, book
+            settings, factory, tracking, zone_service, runtime.camera_health
         )
-        app.state.home = publisher
-        app.state.frigate = frigate
+        runtime.home = publisher
+        runtime.frigate = frigate
         twin = None
         if settings.simulation:
-            twin = await run_in_threadpool(_start_twin, settings, factory, live, app)
-        app.state.twin = twin
-        app.state.task_runner = await run_in_threadpool(
-            TwinTaskRunner, factory, scene=app.state.scene_sync, twin=twin
+            twin = await run_in_threadpool(_start_twin, runtime, tracking)
+        runtime.twin = twin
+        task_runner = await run_in_threadpool(
+            TwinTaskRunner, factory, scene=runtime.scene_sync, twin=twin
         )
-        app.state.follow_tasks = FollowTasks(factory)
+        runtime.task_runner = task_runner
+        follow_tasks = FollowTasks(factory)
+        runtime.follow_tasks = follow_tasks
         with factory() as session:
-            app.state.scene_sync.load(session)
+            runtime.scene_sync.load(session)
         live.start()
         zone_service.start()
         tracking.start()
@@ -292,8 +297,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         finally:
             if twin is not None:
                 await run_in_threadpool(twin.stop)
-            await run_in_threadpool(app.state.task_runner.shutdown)
-            await run_in_threadpool(app.state.follow_tasks.shutdown)
+            await run_in_threadpool(task_runner.shutdown)
+            await run_in_threadpool(follow_tasks.shutdown)
             if frigate_link is not None:
                 await run_in_threadpool(frigate_link.stop)
             if frigate is not None:
@@ -323,25 +328,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         docs_url=None,  # served from the package by server.api.system
         redoc_url=None,
     )
-    app.state.settings = settings
-    app.state.engine = engine
-    app.state.session_factory = factory
-    app.state.executor = None
-    app.state.twin = None
-    app.state.task_runner = None
-    app.state.follow_tasks = None
-    app.state.targets = LiveTargets(factory)
-    app.state.tracking = None
-    app.state.zones = None
-    app.state.home = None
-    app.state.frigate = None
-    app.state.token_cache = TokenCache()
-    app.state.auth_limiter = AuthFailureLimiter(settings.auth_failure_limit)
-    app.state.scene_sync = SceneSync(None)
-    app.state.latest_frames = LatestFrames()
-    app.state.camera_health = CameraHealthBook()
-    app.state.viser_host = "127.0.0.1"
-    app.state.viser_port = settings.viser_port
+    # The one thing on app.state: server.api.deps hands its parts to the routes.
+    app.state.runtime = runtime
 
     install_error_handlers(app)
     app.add_exception_handler(RunRefused, calibration_runs.answer_refused)

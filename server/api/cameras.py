@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-from fastapi import APIRouter, HTTPException, Path, Query, Request, status
+from fastapi import APIRouter, HTTPException, Path, Query, status
 from fastapi.responses import PlainTextResponse
 from sqlalchemy import select
 
@@ -19,7 +19,15 @@ from server.api._crud import (
     in_space,
     paginate,
 )
-from server.api.deps import PageDep, ReadAccess, SceneDep, SessionDep, WriteAccess
+from server.api.deps import (
+    FramesDep,
+    HealthDep,
+    PageDep,
+    ReadAccess,
+    SceneDep,
+    SessionDep,
+    WriteAccess,
+)
 from server.api.errors import PROBLEM_RESPONSES
 from server.db.models import Camera, CameraCalibration, Space
 from server.schemas.common import MAX_ID, Page
@@ -38,11 +46,6 @@ router = APIRouter(prefix="/cameras", tags=["cameras"], responses=PROBLEM_RESPON
 CameraId = Annotated[int, Path(ge=1, le=MAX_ID)]
 
 
-def health_book(request: Request) -> CameraHealthBook:
-    """Return the app's camera health book (the one the twin's loop reports to as well)."""
-    return request.app.state.camera_health
-
-
 def _with_health(camera: Camera, book: CameraHealthBook) -> CameraRead:
     read = CameraRead.model_validate(camera)
     read.health = book.health(camera.id)
@@ -53,7 +56,7 @@ def _with_health(camera: Camera, book: CameraHealthBook) -> CameraRead:
 def list_cameras(
     session: SessionDep,
     page: PageDep,
-    request: Request,
+    book: HealthDep,
     space_id: Annotated[int | None, Query(ge=1, le=MAX_ID)] = None,
     unassigned: Unassigned = False,
     status: Annotated[Literal["uncalibrated", "nominal", "calibrated"] | None, Query()] = None,
@@ -69,7 +72,6 @@ def list_cameras(
     if name is not None:
         stmt = stmt.where(Camera.name == name)
     out = paginate(session, stmt, page)
-    book = health_book(request)
     out["items"] = [_with_health(camera, book) for camera in out["items"]]
     return out
 
@@ -92,20 +94,20 @@ def create_camera(body: CameraCreate, session: SessionDep, scene: SceneDep):
 
 
 @router.get("/{camera_id}", response_model=CameraRead, dependencies=[ReadAccess])
-def get_camera(camera_id: CameraId, session: SessionDep, request: Request):
+def get_camera(camera_id: CameraId, session: SessionDep, book: HealthDep):
     """Return one camera with its health: online, stalled or offline since when, from its
     camera node's heartbeats."""
-    return _with_health(get_or_404(session, Camera, camera_id, "camera"), health_book(request))
+    return _with_health(get_or_404(session, Camera, camera_id, "camera"), book)
 
 
 @router.post("/{camera_id}/heartbeat", response_model=CameraHealth, dependencies=[WriteAccess])
 def camera_heartbeat(
-    camera_id: CameraId, body: CameraHeartbeat, session: SessionDep, request: Request
+    camera_id: CameraId, body: CameraHeartbeat, session: SessionDep, book: HealthDep
 ):
     """Record a camera node's report on the camera (every second); return its health. No
     report for 5 s makes the camera offline."""
     get_or_404(session, Camera, camera_id, "camera")
-    return health_book(request).beat(camera_id, body)
+    return book.beat(camera_id, body)
 
 
 @router.patch("/{camera_id}", response_model=CameraRead, dependencies=[WriteAccess])
@@ -124,14 +126,18 @@ def update_camera(camera_id: CameraId, body: CameraUpdate, session: SessionDep, 
 
 @router.delete("/{camera_id}", status_code=status.HTTP_204_NO_CONTENT, dependencies=[WriteAccess])
 def delete_camera(
-    camera_id: CameraId, session: SessionDep, scene: SceneDep, request: Request
+    camera_id: CameraId,
+    session: SessionDep,
+    scene: SceneDep,
+    book: HealthDep,
+    frames: FramesDep,
 ) -> None:
     """Delete a camera and its calibration history (its runs stay, unassigned)."""
     session.delete(get_or_404(session, Camera, camera_id, "camera"))
     session.commit()
     scene.camera_removed(camera_id)
-    health_book(request).forget(camera_id)
-    request.app.state.latest_frames.forget(camera_id)  # its node's last frame
+    book.forget(camera_id)
+    frames.forget(camera_id)  # its node's last frame
 
 
 @router.get(

@@ -1,6 +1,7 @@
-"""Dependencies shared by the routers: settings, database session, the services start-up
-built (run executor, 3D scene, digital twin, task runner, follow tasks, camera frames), caller,
-pagination. Routes take these, typed; only this module reads them off the app.
+"""Dependencies shared by the routers: settings, database session, the parts of the service's
+runtime (`server.runtime.Runtime`: run executor, 3D scene, digital twin, task runner, tracker,
+live targets, zones, ...), caller, pagination. Routes take these, typed; only `runtime_of` reads
+the runtime off the app.
 
 Who is calling is read from one of two places, never from a URL:
 
@@ -23,19 +24,27 @@ from typing import Annotated, Any
 
 from fastapi import Depends, HTTPException, Query, Request, WebSocket, status
 from fastapi.security import APIKeyCookie, HTTPAuthorizationCredentials, HTTPBearer
-from sqlalchemy.orm import Session
+from sqlalchemy import Engine
+from sqlalchemy.orm import Session, sessionmaker
 from starlette.concurrency import run_in_threadpool
 from starlette.requests import HTTPConnection
 
+from server.runtime import Runtime
 from server.schemas.common import MAX_ID
 from server.security import AuthFailureLimiter
 from server.services.auth import KIND_SESSION, Principal, TokenCache, authenticate, csrf_token
+from server.services.camera_health import CameraHealthBook
+from server.services.comms.frigate import FrigateSource
+from server.services.comms.home import HomePublisher
 from server.services.frames import LatestFrames
 from server.services.manipulation import TaskRunner
 from server.services.paths import FollowTasks
 from server.services.runs import RunExecutor
 from server.services.scene_sync import SceneSync
+from server.services.targets import LiveTargets
+from server.services.tracking import TrackingService
 from server.services.twin import Twin
+from server.services.zones import ZoneService
 from server.settings import Settings
 
 SESSION_COOKIE = "intspace_session"
@@ -71,66 +80,146 @@ cookie_scheme = APIKeyCookie(
 
 
 # Dependencies that do no I/O are `async def`: FastAPI runs a sync one in a worker thread, and
-# those hops, not the database, dominated the latency of a registry read.
+# those hops, not the database, dominated the latency of a registry read. They take the
+# connection (not the request) so that WebSocket routes take them too.
 
 
-async def get_settings(request: Request) -> Settings:
+def runtime_of(connection: HTTPConnection) -> Runtime:
+    """Return the service's runtime: the one place it is read off the app."""
+    runtime: Runtime = connection.app.state.runtime
+    return runtime
+
+
+async def get_settings(connection: HTTPConnection) -> Settings:
     """Return the app's settings."""
-    return request.app.state.settings
+    return runtime_of(connection).settings
 
 
-async def get_session(request: Request) -> AsyncIterator[Session]:
+async def get_engine(connection: HTTPConnection) -> Engine:
+    """Return the database engine."""
+    return runtime_of(connection).engine
+
+
+async def get_session_factory(connection: HTTPConnection) -> sessionmaker[Session]:
+    """Return the factory of database sessions, for work that outlives the request's session
+    (a streamed answer, a thread)."""
+    return runtime_of(connection).session_factory
+
+
+async def get_session(connection: HTTPConnection) -> AsyncIterator[Session]:
     """Yield a database session for one request, closed (rolled back if uncommitted) after.
     Creating a session does no I/O; closing it may, so that happens in a worker thread."""
-    session = request.app.state.session_factory()
+    session = runtime_of(connection).session_factory()
     try:
         yield session
     finally:
         await run_in_threadpool(session.close)
 
 
-async def get_scene(request: Request) -> SceneSync:
+async def get_scene(connection: HTTPConnection) -> SceneSync:
     """Return the scene synchroniser (a no-op one when the scene is disabled)."""
-    return request.app.state.scene_sync
+    return runtime_of(connection).scene_sync
 
 
-async def get_executor(request: Request) -> RunExecutor | None:
+async def get_viser_port(connection: HTTPConnection) -> int:
+    """Return the loopback port the 3D scene's viser server listens on."""
+    return runtime_of(connection).viser_port
+
+
+async def get_executor(connection: HTTPConnection) -> RunExecutor | None:
     """Return the in-process run executor, None when external workers execute runs."""
-    return request.app.state.executor
+    return runtime_of(connection).executor
 
 
-async def get_twin(request: Request) -> Twin | None:
+async def get_twin(connection: HTTPConnection) -> Twin | None:
     """Return the running digital twin, None without simulation."""
-    twin: Twin | None = request.app.state.twin
-    return twin
+    return runtime_of(connection).twin
 
 
-async def get_task_runner(request: Request) -> TaskRunner:
+async def get_task_runner(connection: HTTPConnection) -> TaskRunner:
     """Return the runner of robot tasks (fetch, survey) started with the app."""
-    runner: TaskRunner = request.app.state.task_runner
+    runner = runtime_of(connection).task_runner
+    if runner is None:
+        raise HTTPException(
+            status.HTTP_503_SERVICE_UNAVAILABLE, "the task runner has not started (yet)"
+        )
     return runner
 
 
-async def get_follow_tasks(request: Request) -> FollowTasks:
-    """Return the follow tasks of planned paths run by this process."""
-    tasks: FollowTasks = request.app.state.follow_tasks
+async def get_follow_tasks(connection: HTTPConnection) -> FollowTasks:
+    """Return the follow tasks of planned paths run by this process (started with the app)."""
+    tasks = runtime_of(connection).follow_tasks
+    if tasks is None:
+        raise HTTPException(
+            status.HTTP_503_SERVICE_UNAVAILABLE, "the path follow tasks have not started (yet)"
+        )
     return tasks
 
 
-async def get_latest_frames(request: Request) -> LatestFrames:
+async def get_latest_frames(connection: HTTPConnection) -> LatestFrames:
     """Return the service's store of uploaded camera frames."""
-    frames: LatestFrames = request.app.state.latest_frames
-    return frames
+    return runtime_of(connection).latest_frames
+
+
+async def get_camera_health(connection: HTTPConnection) -> CameraHealthBook:
+    """Return the cameras' health from their nodes' heartbeats."""
+    return runtime_of(connection).camera_health
+
+
+async def get_tracking(connection: HTTPConnection) -> TrackingService | None:
+    """Return the trackers' service (None before the app started)."""
+    return runtime_of(connection).tracking
+
+
+async def get_live_targets(connection: HTTPConnection) -> LiveTargets:
+    """Return the live targets of every space."""
+    return runtime_of(connection).targets
+
+
+async def get_zones(connection: HTTPConnection) -> ZoneService | None:
+    """Return the zones' occupancy service (None before the app started)."""
+    return runtime_of(connection).zones
+
+
+async def get_home(connection: HTTPConnection) -> HomePublisher | None:
+    """Return the MQTT publisher to the home, None when no broker is configured."""
+    return runtime_of(connection).home
+
+
+async def get_frigate(connection: HTTPConnection) -> FrigateSource | None:
+    """Return Frigate as a source of detections, None when not configured."""
+    return runtime_of(connection).frigate
+
+
+async def get_token_cache(connection: HTTPConnection) -> TokenCache:
+    """Return the cache of recently authenticated tokens."""
+    return runtime_of(connection).token_cache
+
+
+async def get_auth_limiter(connection: HTTPConnection) -> AuthFailureLimiter:
+    """Return the limiter of failed authentications per client."""
+    return runtime_of(connection).auth_limiter
 
 
 SessionDep = Annotated[Session, Depends(get_session)]
 SettingsDep = Annotated[Settings, Depends(get_settings)]
+EngineDep = Annotated[Engine, Depends(get_engine)]
+SessionFactoryDep = Annotated[sessionmaker[Session], Depends(get_session_factory)]
 SceneDep = Annotated[SceneSync, Depends(get_scene)]
+ViserPortDep = Annotated[int, Depends(get_viser_port)]
 ExecutorDep = Annotated[RunExecutor | None, Depends(get_executor)]
 TwinDep = Annotated[Twin | None, Depends(get_twin)]
 TaskRunnerDep = Annotated[TaskRunner, Depends(get_task_runner)]
 FollowTasksDep = Annotated[FollowTasks, Depends(get_follow_tasks)]
 FramesDep = Annotated[LatestFrames, Depends(get_latest_frames)]
+HealthDep = Annotated[CameraHealthBook, Depends(get_camera_health)]
+TrackingDep = Annotated[TrackingService | None, Depends(get_tracking)]
+LiveTargetsDep = Annotated[LiveTargets, Depends(get_live_targets)]
+ZonesDep = Annotated[ZoneService | None, Depends(get_zones)]
+HomeDep = Annotated[HomePublisher | None, Depends(get_home)]
+FrigateDep = Annotated[FrigateSource | None, Depends(get_frigate)]
+TokenCacheDep = Annotated[TokenCache, Depends(get_token_cache)]
+AuthLimiterDep = Annotated[AuthFailureLimiter, Depends(get_auth_limiter)]
 
 
 class AuthRefused(Exception):
@@ -169,20 +258,24 @@ def same_origin(connection: HTTPConnection, origin: str, settings: Settings) -> 
     return origin == f"{scheme}://{host}"
 
 
-def _authenticate(factory, token: str, configured: str | None) -> Principal | None:
+def _authenticate(
+    factory: sessionmaker[Session], token: str, configured: str | None
+) -> Principal | None:
     with factory() as session:
         return authenticate(session, token, configured)
 
 
 async def principal_of(connection: HTTPConnection, token: str) -> Principal | None:
     """Return the principal of `token` (cached for a few seconds), None when refused."""
-    state = connection.app.state
-    settings: Settings = state.settings
-    tokens: TokenCache = state.token_cache
+    runtime = runtime_of(connection)
+    settings = runtime.settings
+    tokens = runtime.token_cache
     principal = tokens.get(token)
     if principal is None:
         configured = settings.admin_token.get_secret_value() if settings.admin_token else None
-        principal = await run_in_threadpool(_authenticate, state.session_factory, token, configured)
+        principal = await run_in_threadpool(
+            _authenticate, runtime.session_factory, token, configured
+        )
         if principal is not None:
             tokens.put(token, principal)
     return principal
@@ -190,7 +283,7 @@ async def principal_of(connection: HTTPConnection, token: str) -> Principal | No
 
 async def _bearer_principal(connection: HTTPConnection, token: str) -> Principal:
     """Return the principal of a bearer token, counting a refusal against the client."""
-    limiter: AuthFailureLimiter = connection.app.state.auth_limiter
+    limiter = runtime_of(connection).auth_limiter
     key = client_key(connection)
     wait = limiter.retry_after(key)
     if wait is not None:
@@ -357,7 +450,7 @@ async def websocket_caller(
     `bearer.<token>` in Sec-WebSocket-Protocol, or the session cookie from the service's own
     origin. The answered subprotocol is the first offered of `protocols` (never the token).
     Raises AuthRefused."""
-    settings: Settings = websocket.app.state.settings
+    settings = runtime_of(websocket).settings
     offered = [p.strip() for p in websocket.scope.get("subprotocols", [])]
     chosen = next((p for p in offered if p in protocols or _prefixed(p, protocols)), None)
     authorization = websocket.headers.get("authorization", "")

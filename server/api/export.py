@@ -6,11 +6,11 @@ import time
 from typing import Annotated
 
 import cv2
-from fastapi import APIRouter, Path, Query, Request
+from fastapi import APIRouter, Path, Query
 from fastapi.responses import StreamingResponse
 
 from server.api._crud import get_or_404
-from server.api.deps import ReadAccess, SessionDep, SettingsDep
+from server.api.deps import ReadAccess, SessionDep, SessionFactoryDep, SettingsDep, TwinDep
 from server.api.errors import PROBLEM_RESPONSES, FieldProblem
 from server.db.models import Space
 from server.schemas.common import MAX_ID
@@ -20,16 +20,16 @@ from server.services.export import (
     export_messages,
     mcap_stream,
 )
+from server.services.twin import Twin
 
 router = APIRouter(tags=["export"], responses=PROBLEM_RESPONSES)
 
 _JPEG_QUALITY = 90
 
 
-def _latest_images(request: Request, space_id: int) -> list[LatestImage]:
+def _latest_images(twin: Twin | None, space_id: int) -> list[LatestImage]:
     """Return the newest frame of each of the twin's cameras in `space_id` (none without the
     twin: the service keeps no images of real cameras)."""
-    twin = getattr(request.app.state, "twin", None)
     if twin is None or twin.space_id != space_id:
         return []
     images = []
@@ -56,9 +56,10 @@ def _latest_images(request: Request, space_id: int) -> list[LatestImage]:
 )
 def export_mcap(
     space_id: Annotated[int, Path(ge=1, le=MAX_ID)],
-    request: Request,
     session: SessionDep,
     settings: SettingsDep,
+    twin: TwinDep,
+    factory: SessionFactoryDep,
     since: Annotated[float, Query(description="Start, Unix seconds (service clock).")],
     until: Annotated[float | None, Query(description="End, Unix seconds; default: now.")] = None,
 ) -> StreamingResponse:
@@ -73,8 +74,7 @@ def export_mcap(
         field = "since" if "since" in why.split(" ")[:1] else "until"
         raise FieldProblem(422, field, why, "query")
     get_or_404(session, Space, space_id, "space")
-    images = _latest_images(request, space_id)
-    factory = request.app.state.session_factory
+    images = _latest_images(twin, space_id)
 
     def chunks():
         # Its own session: the request's closes when the endpoint returns, before streaming.

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 from typing import Any
 
-from fastapi import APIRouter, Request
+from fastapi import APIRouter
 
-from server.api.deps import ReadAccess
+from server.api.deps import FrigateDep, HomeDep, ReadAccess
 from server.api.errors import PROBLEM_RESPONSES
 from server.schemas.home import HomeStatus
 
@@ -14,11 +14,9 @@ router = APIRouter(prefix="/home", tags=["home"], responses=PROBLEM_RESPONSES)
 
 
 @router.get("/status", response_model=HomeStatus, dependencies=[ReadAccess])
-def home_status(request: Request) -> dict[str, Any]:
+def home_status(publisher: HomeDep, frigate: FrigateDep) -> dict[str, Any]:
     """Return the MQTT publisher's connection (URL without its password, connected or not and
     since when, messages dropped and queued) and Frigate's, each null when not configured."""
-    publisher = getattr(request.app.state, "home", None)
-    frigate = getattr(request.app.state, "frigate", None)
     mqtt = None
     if publisher is not None:
         mqtt = {

@@ -11,7 +11,7 @@ from typing import Annotated, Literal
 
 import cv2
 import numpy as np
-from fastapi import APIRouter, HTTPException, Query, Request, status
+from fastapi import APIRouter, HTTPException, Query, status
 from fastapi.responses import JSONResponse, Response
 from sqlalchemy import select
 from sqlalchemy.orm import Session
@@ -19,9 +19,8 @@ from sqlalchemy.orm import Session
 from core.errors import IntspaceError
 from core.localization import coverage_map
 from core.localization.cameras import NetworkCamera
-from core.sim import Scene
 from core.sim.occluders import scene_occluders
-from server.api.deps import ReadAccess, SessionDep
+from server.api.deps import ReadAccess, SessionDep, TwinDep
 from server.api.errors import PROBLEM_RESPONSES
 from server.db.models import Camera, Room, Space
 from server.schemas.common import MAX_ID
@@ -36,12 +35,6 @@ MAX_CAMERA_CELLS = 400_000
 MAX_PNG_PIXELS = 6_000_000
 
 router = APIRouter(prefix="/maps", tags=["maps"], responses=PROBLEM_RESPONSES)
-
-
-def _floor_plan(request: Request, session: Session, space_id: int) -> Scene | None:
-    """Return the twin scene whose walls and furniture stand in the space, or None
-    (server.services.floor_plan)."""
-    return twin_scene_of(getattr(request.app.state, "twin", None), session, space_id)
 
 
 def usable_cameras(
@@ -76,8 +69,8 @@ def usable_cameras(
     responses={200: {"content": {"application/json": {}, "image/png": {}}}},
 )
 def get_coverage(
-    request: Request,
     session: SessionDep,
+    twin: TwinDep,
     space_id: Annotated[int | None, Query(ge=1, le=MAX_ID)] = None,
     spacing: Annotated[float, Query(ge=0.02, le=5.0, description="Cell size, metres.")] = 0.1,
     height: Annotated[float, Query(ge=0.0, le=5.0, description="Plane Z, metres.")] = 0.0,
@@ -137,7 +130,8 @@ def get_coverage(
             f"= {cells * scale**2} pixel PNG, over the limit of {MAX_PNG_PIXELS} pixels; use "
             "a larger spacing or a smaller scale",
         )
-    plan = _floor_plan(request, session, space_id)
+    # The twin scene whose walls and furniture stand in the space, or None.
+    plan = twin_scene_of(twin, session, space_id)
     cov = coverage_map(
         list(cameras.values()),
         (float(lo[0]), float(hi[0])),

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from typing import Annotated
 
 import numpy as np
-from fastapi import APIRouter, Depends, HTTPException, Request, status
+from fastapi import APIRouter, Depends, HTTPException, status
 from fastapi.responses import JSONResponse
 from sqlalchemy import select
 
@@ -36,7 +36,7 @@ from core.localization import (
     foot_on_axis,
     locate_groups,
 )
-from server.api.deps import SessionDep, require_write
+from server.api.deps import SessionDep, get_live_targets, get_tracking, require_write
 from server.api.errors import PROBLEM_RESPONSES, FieldProblem
 from server.api.server_time import SERVER_TIME_HEADER
 from server.db.models import Camera, Robot
@@ -61,11 +61,6 @@ _STATUS = {
     PointStatus.DEGENERATE: "degenerate",
     PointStatus.BEHIND_CAMERA: "behind_camera",
 }
-
-
-async def get_tracking(request: Request) -> TrackingService | None:
-    """Return the trackers' service (None before the app started)."""
-    return getattr(request.app.state, "tracking", None)
 
 
 @router.post("/observations", response_model=PositionBatch)
@@ -145,11 +140,6 @@ def post_observations(
     # The service's clock to the microsecond: a camera node measures its clock offset by it
     # (the Date header has whole seconds, refreshed late when the service is loaded).
     return JSONResponse(body, headers={SERVER_TIME_HEADER: f"{time.time():.6f}"})
-
-
-async def get_live_targets(request: Request) -> LiveTargets | None:
-    """Return the live targets of every space (None before the app started)."""
-    return getattr(request.app.state, "targets", None)
 
 
 def _check_empty_frames(

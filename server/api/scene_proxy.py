@@ -21,8 +21,9 @@ from starlette.websockets import WebSocketDisconnect, WebSocketState
 from websockets.asyncio.client import ClientConnection, connect
 from websockets.exceptions import ConnectionClosed, InvalidHandshake
 
-from server.api.deps import AuthRefused, ReadAccess, websocket_caller
+from server.api.deps import AuthRefused, ReadAccess, SceneDep, ViserPortDep, websocket_caller
 from server.api.errors import PROBLEM_RESPONSES
+from server.services.scene_sync import SceneSync
 
 router = APIRouter(prefix="/scene/view", tags=["scene"], responses=PROBLEM_RESPONSES)
 
@@ -34,32 +35,36 @@ _PASSED = ("content-type", "content-encoding", "content-length", "last-modified"
 CLOSE_TIMEOUT_S = 5.0
 
 
-def _viser_port(connection: Request | WebSocket) -> int:
-    state = connection.app.state
-    if state.scene_sync.scene is None:
+def _viser_port(scene: SceneSync, port: int) -> int:
+    """Return viser's loopback port, refusing with 404 when no scene runs in this process."""
+    if scene.scene is None:
         raise HTTPException(
             status.HTTP_404_NOT_FOUND,
             "the 3D scene does not run in this process (INTSPACE_VISER_ENABLED=false, or another "
             "process owns it)",
         )
-    return int(state.viser_port)
+    return port
 
 
 @router.get("/", dependencies=[ReadAccess], include_in_schema=False)
-async def scene_index(request: Request) -> Response:
+async def scene_index(request: Request, scene: SceneDep, port: ViserPortDep) -> Response:
     """Return the viser viewer's page."""
-    return await _fetch(request, "")
+    return await _fetch(request, _viser_port(scene, port), "")
 
 
 @router.get("/{path:path}", dependencies=[ReadAccess], include_in_schema=False)
-async def scene_file(request: Request, path: Annotated[str, Path(max_length=512)]) -> Response:
+async def scene_file(
+    request: Request,
+    path: Annotated[str, Path(max_length=512)],
+    scene: SceneDep,
+    port: ViserPortDep,
+) -> Response:
     """Return a file of the viser viewer."""
-    return await _fetch(request, path)
+    return await _fetch(request, _viser_port(scene, port), path)
 
 
-async def _fetch(request: Request, path: str) -> Response:
-    """Return `path` fetched from the loopback viser server."""
-    port = _viser_port(request)
+async def _fetch(request: Request, port: int, path: str) -> Response:
+    """Return `path` fetched from the loopback viser server on `port`."""
     headers = {"Accept-Encoding": request.headers.get("accept-encoding", "identity")}
     url = httpx.URL(scheme="http", host=UPSTREAM_HOST, port=port, path="/" + path)
     try:
@@ -82,12 +87,12 @@ async def _fetch(request: Request, path: str) -> Response:
 
 @router.websocket("")
 @router.websocket("/")
-async def scene_socket(websocket: WebSocket) -> None:
+async def scene_socket(websocket: WebSocket, scene: SceneDep, port: ViserPortDep) -> None:
     """Relay the viser viewer's WebSocket, after checking the caller may read. A refused
     caller's handshake is answered 403 and never reaches viser."""
     try:
         who = await websocket_caller(websocket, "read", protocols=("viser-v*",))
-        port = _viser_port(websocket)
+        port = _viser_port(scene, port)
     except (AuthRefused, HTTPException):
         await websocket.close(code=status.WS_1008_POLICY_VIOLATION)
         return

@@ -7,7 +7,7 @@ who is calling and gives the session's CSRF token, DELETE /session signs out.
 
 from __future__ import annotations
 
-from typing import Annotated
+from typing import Annotated, Literal
 
 from fastapi import APIRouter, Depends, HTTPException, Request, Response, status
 from fastapi.security import HTTPAuthorizationCredentials
@@ -15,8 +15,11 @@ from starlette.concurrency import run_in_threadpool
 
 from server.api.deps import (
     SESSION_COOKIE,
+    AuthLimiterDep,
     AuthRefused,
+    SessionFactoryDep,
     SettingsDep,
+    TokenCacheDep,
     bearer_scheme,
     caller,
     check_csrf,
@@ -28,7 +31,6 @@ from server.api.deps import (
 )
 from server.api.errors import PROBLEM_RESPONSES
 from server.schemas.tokens import SessionLogin, SessionState
-from server.security import AuthFailureLimiter
 from server.services.auth import (
     KIND_SESSION,
     Principal,
@@ -41,7 +43,10 @@ router = APIRouter(prefix="/session", tags=["session"], responses=PROBLEM_RESPON
 
 
 def _state(
-    principal: Principal | None, via: str | None, session_token: str | None, public: bool
+    principal: Principal | None,
+    via: Literal["cookie", "bearer"] | None,
+    session_token: str | None,
+    public: bool,
 ) -> SessionState:
     if principal is None:
         return SessionState(authenticated=False, public_reads=public)
@@ -75,13 +80,20 @@ async def who_am_i(
             response.headers["Set-Cookie"] = refused.headers["Set-Cookie"]
             return _state(None, None, None, settings.public_reads)
         raise refused.http() from None
-    via = None if principal is None else ("cookie" if via_cookie else "bearer")
+    via: Literal["cookie", "bearer"] | None = None
+    if principal is not None:
+        via = "cookie" if via_cookie else "bearer"
     return _state(principal, via, via_cookie, settings.public_reads)
 
 
 @router.post("", response_model=SessionState)
 async def sign_in(
-    body: SessionLogin, request: Request, response: Response, settings: SettingsDep
+    body: SessionLogin,
+    request: Request,
+    response: Response,
+    settings: SettingsDep,
+    limiter: AuthLimiterDep,
+    factory: SessionFactoryDep,
 ) -> SessionState:
     """Sign in to the dashboard with a read, write or admin token: the answer sets the
     HttpOnly SameSite=Strict session cookie (valid INTSPACE_SESSION_TTL_S seconds) and gives the
@@ -89,7 +101,6 @@ async def sign_in(
     origin = request.headers.get("origin")
     if origin is not None and not same_origin(request, origin, settings):
         raise HTTPException(status.HTTP_403_FORBIDDEN, f"sign-in from {origin} is not allowed")
-    limiter: AuthFailureLimiter = request.app.state.auth_limiter
     key = client_key(request)
     wait = limiter.retry_after(key)
     if wait is not None:
@@ -107,7 +118,6 @@ async def sign_in(
             status.HTTP_403_FORBIDDEN,
             "an ingest token is a camera node's; sign in with a read, write or admin token",
         )
-    factory = request.app.state.session_factory
 
     def make() -> tuple[float | None, str]:
         with factory() as session:
@@ -140,6 +150,8 @@ async def sign_out(
     request: Request,
     settings: SettingsDep,
     session_token: Annotated[str | None, Depends(cookie_scheme)],
+    factory: SessionFactoryDep,
+    tokens: TokenCacheDep,
 ) -> Response:
     """Sign out: the session ends at once (on every API process) and its cookie is removed.
     Needs the session's X-CSRF-Token; an ended session just loses its cookie."""
@@ -151,14 +163,13 @@ async def sign_out(
                 check_csrf(request, settings, session_token)
             except AuthRefused as refused:
                 raise refused.http() from None
-            factory = request.app.state.session_factory
 
             def end() -> None:
                 with factory() as session:
                     end_session(session, session_token)
 
             await run_in_threadpool(end)
-            request.app.state.token_cache.clear()
+            tokens.clear()
     return Response(
         status_code=status.HTTP_204_NO_CONTENT,
         headers={"Set-Cookie": clear_cookie_header(secure), "Cache-Control": "no-store"},

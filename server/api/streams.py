@@ -20,7 +20,7 @@ from fastapi import APIRouter, HTTPException, Path, Request, status
 from fastapi.responses import StreamingResponse
 from starlette.concurrency import run_in_threadpool
 
-from server.api.deps import ReadAccess
+from server.api.deps import ReadAccess, TwinDep
 from server.api.errors import PROBLEM_RESPONSES
 from server.schemas.common import MAX_ID
 from server.services.twin import Twin, TwinFrame
@@ -79,8 +79,7 @@ def part(jpeg: bytes, t: float) -> bytes:
     return head + jpeg + b"\r\n"
 
 
-def _twin_camera(request: Request, camera_id: int) -> Twin:
-    twin: Twin | None = getattr(request.app.state, "twin", None)
+def _twin_camera(twin: Twin | None, camera_id: int) -> Twin:
     if twin is None:
         raise HTTPException(
             status.HTTP_404_NOT_FOUND,
@@ -128,14 +127,13 @@ async def _frames(request: Request, twin: Twin, camera_id: int) -> AsyncIterator
     },
 )
 async def camera_stream(
-    camera_id: Annotated[int, Path(ge=1, le=MAX_ID)], request: Request
+    camera_id: Annotated[int, Path(ge=1, le=MAX_ID)], request: Request, twin: TwinDep
 ) -> StreamingResponse:
     """Stream a twin camera's frames as they are rendered (MJPEG, multipart/x-mixed-replace),
     each part stamped with its capture time in an `X-Timestamp` header. The stream ends when
     the client leaves, or after 30 s without a new frame (the twin paused)."""
-    twin = _twin_camera(request, camera_id)
     return StreamingResponse(
-        _frames(request, twin, camera_id),
+        _frames(request, _twin_camera(twin, camera_id), camera_id),
         media_type=f"multipart/x-mixed-replace; boundary={BOUNDARY}",
         headers={"Cache-Control": "no-store", "X-Accel-Buffering": "no"},
     )

@@ -9,7 +9,7 @@ from fastapi.responses import FileResponse, RedirectResponse
 
 import server
 from server.api._crud import get_or_404
-from server.api.deps import SceneDep, SessionDep, SettingsDep, WriteAccess
+from server.api.deps import EngineDep, SceneDep, SessionDep, SettingsDep, WriteAccess
 from server.api.errors import PROBLEM_RESPONSES
 from server.db.migrate import current_revision
 from server.db.models import Space
@@ -25,10 +25,12 @@ SCENE_VIEW_PATH = "/api/v1/scene/view/"
 
 
 @router.get("/health", response_model=Health)
-def health(request: Request, session: SessionDep, settings: SettingsDep) -> Health:
+def health(
+    request: Request, session: SessionDep, settings: SettingsDep, engine: EngineDep, scene: SceneDep
+) -> Health:
     """Return liveness, version and the database backend (no token needed); `status` is
     "failing" with the reason in `storage` when the database's storage is known to fail."""
-    problem = storage_problem(request.app.state.engine)
+    problem = storage_problem(engine)
     return Health(
         status="ok" if problem is None else "failing",
         storage=problem or "ok",
@@ -37,7 +39,7 @@ def health(request: Request, session: SessionDep, settings: SettingsDep) -> Heal
         schema_revision=current_revision(session.connection()),
         public_reads=settings.public_reads,
         simulation=settings.simulation,
-        scene=request.app.state.scene_sync.scene is not None,
+        scene=scene.scene is not None,
     )
 
 

@@ -12,7 +12,14 @@ from fastapi import APIRouter, Path, Query, WebSocket, WebSocketDisconnect, stat
 from sqlalchemy import select
 
 from server.api._crud import get_or_404, paginate
-from server.api.deps import AuthRefused, PageDep, ReadAccess, SessionDep, websocket_caller
+from server.api.deps import (
+    AuthRefused,
+    LiveTargetsDep,
+    PageDep,
+    ReadAccess,
+    SessionDep,
+    websocket_caller,
+)
 from server.api.errors import PROBLEM_RESPONSES
 from server.db.models import Target, TrackPoint
 from server.schemas.common import MAX_ID, Page
@@ -135,7 +142,7 @@ def get_track(
 
 
 @router.websocket("/ws/targets")
-async def stream_targets(websocket: WebSocket) -> None:
+async def stream_targets(websocket: WebSocket, live: LiveTargetsDep) -> None:
     """Stream {"type": "positions", "t", "targets": [{id, label, kind, state, t, xy, cov}]}
     of the live targets whenever one changes, at most 30 times a second: each target's `t` is
     the capture time of the observation of its last update, the message's `t` the newest of
@@ -171,7 +178,6 @@ async def stream_targets(websocket: WebSocket) -> None:
             return
         space_id = int(raw_space)
     await websocket.accept(subprotocol=who.subprotocol)
-    live = websocket.app.state.targets
     seen = -1
     loop = asyncio.get_running_loop()
     last_sent = -float("inf")

@@ -5,11 +5,11 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import APIRouter, Path, Request, status
+from fastapi import APIRouter, Path, status
 from sqlalchemy import select
 
 from server.api._crud import get_or_404, paginate
-from server.api.deps import AdminAccess, PageDep, SessionDep
+from server.api.deps import AdminAccess, PageDep, SessionDep, TokenCacheDep
 from server.api.errors import PROBLEM_RESPONSES, FieldProblem
 from server.db.models import ApiToken, Camera
 from server.schemas.common import MAX_ID, Page
@@ -44,9 +44,9 @@ def list_api_tokens(session: SessionDep, page: PageDep):
 
 @router.delete("/{token_id}", status_code=status.HTTP_204_NO_CONTENT)
 def revoke_api_token(
-    token_id: Annotated[int, Path(ge=1, le=MAX_ID)], session: SessionDep, request: Request
+    token_id: Annotated[int, Path(ge=1, le=MAX_ID)], session: SessionDep, tokens: TokenCacheDep
 ) -> None:
     """Revoke a token: it stops working at once (in other API processes within seconds)."""
     get_or_404(session, ApiToken, token_id, "token").revoked = True
     session.commit()
-    request.app.state.token_cache.clear()
+    tokens.clear()

@@ -6,11 +6,11 @@ from __future__ import annotations
 from typing import Annotated
 
 import cv2
-from fastapi import APIRouter, HTTPException, Path, Query, Request, status
+from fastapi import APIRouter, HTTPException, Path, Query, status
 from fastapi.responses import Response
 
 from core.sim.scenarios import DESCRIPTIONS, SCENARIOS
-from server.api.deps import ReadAccess, WriteAccess
+from server.api.deps import FramesDep, ReadAccess, TwinDep, WriteAccess
 from server.api.errors import PROBLEM_RESPONSES
 from server.schemas.common import MAX_ID
 from server.schemas.twin import Scenario, TwinRate, TwinState
@@ -19,8 +19,8 @@ from server.services.twin import Twin
 router = APIRouter(tags=["twin"], responses=PROBLEM_RESPONSES)
 
 
-def _twin(request: Request) -> Twin:
-    twin = getattr(request.app.state, "twin", None)
+def _running(twin: Twin | None) -> Twin:
+    """Return the twin, refusing with 409 when it does not run."""
     if twin is None:
         raise HTTPException(
             status.HTTP_409_CONFLICT,
@@ -31,40 +31,39 @@ def _twin(request: Request) -> Twin:
 
 
 @router.get("/twin", response_model=TwinState, dependencies=[ReadAccess])
-def get_twin(request: Request):
+def get_twin(twin: TwinDep) -> TwinState:
     """Return the twin's state: running, simulation time, the robot's pose and the people."""
-    twin = getattr(request.app.state, "twin", None)
-    return {"enabled": False} if twin is None else twin.state()
+    return TwinState(enabled=False) if twin is None else twin.state()
 
 
 @router.post("/twin/pause", response_model=TwinState, dependencies=[WriteAccess])
-def pause_twin(request: Request):
+def pause_twin(running: TwinDep) -> TwinState:
     """Hold the simulation."""
-    twin = _twin(request)
+    twin = _running(running)
     twin.pause()
     return twin.state()
 
 
 @router.post("/twin/resume", response_model=TwinState, dependencies=[WriteAccess])
-def resume_twin(request: Request):
+def resume_twin(running: TwinDep) -> TwinState:
     """Continue the simulation."""
-    twin = _twin(request)
+    twin = _running(running)
     twin.resume()
     return twin.state()
 
 
 @router.post("/twin/reset", response_model=TwinState, dependencies=[WriteAccess])
-def reset_twin(request: Request):
+def reset_twin(running: TwinDep) -> TwinState:
     """Put the robot at its start, the clock at zero and clear the live tracks."""
-    twin = _twin(request)
+    twin = _running(running)
     twin.reset()
     return twin.state()
 
 
 @router.post("/twin/rate", response_model=TwinState, dependencies=[WriteAccess])
-def set_twin_rate(body: TwinRate, request: Request):
+def set_twin_rate(body: TwinRate, running: TwinDep) -> TwinState:
     """Set the twin's frame rate (frames per second of every camera)."""
-    twin = _twin(request)
+    twin = _running(running)
     twin.set_rate(body.rate_hz)
     return twin.state()
 
@@ -84,16 +83,16 @@ def list_scenarios():
 )
 def camera_frame(
     camera_id: Annotated[int, Path(ge=1, le=MAX_ID)],
-    request: Request,
+    twin: TwinDep,
+    frames: FramesDep,
     overlay: Annotated[bool, Query(description="Draw the detections.")] = False,
 ) -> Response:
     """Return the camera's latest frame as JPEG: a twin camera's latest render, with the
     detections drawn (circles and labels) when `overlay`; a real camera's latest frame its
     node uploaded (PUT /cameras/{id}/frame; no overlay)."""
-    twin = getattr(request.app.state, "twin", None)
     frame = twin.frame(camera_id) if twin is not None else None
     if frame is None:
-        uploaded = request.app.state.latest_frames.get(camera_id)
+        uploaded = frames.get(camera_id)
         if uploaded is not None:
             return Response(
                 uploaded.jpeg,

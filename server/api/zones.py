@@ -3,31 +3,23 @@
 
 from __future__ import annotations
 
-from typing import Annotated, Any
+from typing import Annotated
 
-from fastapi import APIRouter, Depends, Path, Request, status
+from fastapi import APIRouter, Path, status
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from server.api._crud import apply_changes, get_or_404
-from server.api.deps import ReadAccess, SessionDep, WriteAccess
+from server.api.deps import ReadAccess, SessionDep, WriteAccess, ZonesDep
 from server.api.errors import PROBLEM_RESPONSES, FieldProblem
 from server.db.models import Room, Space, Zone
 from server.schemas.common import MAX_ID
 from server.schemas.zones import ZoneCreate, ZoneRead, ZoneUpdate
-from server.services.zones import ZoneService, load_zone_defs, slugify, zone_payload
+from server.services.zones import ZoneService, load_zone_defs, slugify, zone_read
 
 router = APIRouter(tags=["zones"], responses=PROBLEM_RESPONSES)
 SpaceId = Annotated[int, Path(ge=1, le=MAX_ID)]
 ZoneId = Annotated[int, Path(ge=1, le=MAX_ID)]
-
-
-async def get_zones(request: Request) -> ZoneService | None:
-    """Return the zones service (None before the app has started)."""
-    return getattr(request.app.state, "zones", None)
-
-
-ZonesDep = Annotated[ZoneService | None, Depends(get_zones)]
 
 
 def _slug_of(session: Session, space_id: int, name: str, zone_id: int | None) -> str:
@@ -47,10 +39,10 @@ def _slug_of(session: Session, space_id: int, name: str, zone_id: int | None) ->
     return slug
 
 
-def _read(session: Session, zones: ZoneService | None, zone: Zone) -> dict[str, Any]:
+def _read(session: Session, zones: ZoneService | None, zone: Zone) -> ZoneRead:
     defs = [d for d in load_zone_defs(session, zone.space_id) if d.key == ("zone", zone.id)]
     occ = zones.occupancy(zone.space_id) if zones is not None else None
-    return zone_payload(defs[0], occ)
+    return zone_read(defs[0], occ)
 
 
 @router.get("/spaces/{space_id}/zones", response_model=list[ZoneRead], dependencies=[ReadAccess])
@@ -58,7 +50,7 @@ def list_zones(space_id: SpaceId, session: SessionDep, zones: ZonesDep):
     """Return the zones of a space, its rooms first (read-only), each with its occupancy."""
     get_or_404(session, Space, space_id, "space")
     occ = zones.occupancy(space_id) if zones is not None else None
-    return [zone_payload(d, occ) for d in load_zone_defs(session, space_id)]
+    return [zone_read(d, occ) for d in load_zone_defs(session, space_id)]
 
 
 @router.post(

@@ -336,14 +336,14 @@ def _calibrate(args: argparse.Namespace, input_fn: Callable[[str], str]) -> int:
         except NodeError as exc:
             raise CalibrateError(str(exc), EXIT_USAGE) from None
         camera_id, size = int(row["id"]), (int(row["width"]), int(row["height"]))
-        source = (
+        address = (
             parse_source(args.source) if args.source else f"{api}/cameras/{camera_id}/stream.mjpg"
         )
-        config = CameraConfig(name=args.camera, source=source, realtime=True)
+        config = CameraConfig(name=args.camera, source=address, realtime=True)
         capture = BoardCapture(args.board, size, max_views=args.views, min_views=args.min_views)
         _say(
             f"Calibrating camera {args.camera!r} (id {camera_id}, {size[0]}x{size[1]} px) from "
-            f"{source}: show it the {args.board[0]}x{args.board[1]} chessboard and move it "
+            f"{address}: show it the {args.board[0]}x{args.board[1]} chessboard and move it "
             "across the image, near and far, tilted left, right, up and down."
         )
         source = make_source(config, api, token)

@@ -69,7 +69,7 @@ def agent_id(value: Any) -> str:
 def _finite(agent: Mapping[str, Any], key: str, default: float | None = None) -> float:
     value = agent.get(key, default)
     try:
-        number = float(value)  # type: ignore[arg-type]
+        number = float(value)
     except (TypeError, ValueError):
         raise InvalidInput(f"agent {key!r} must be a number, got {value!r}") from None
     if not math.isfinite(number):

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -85,8 +84,9 @@ def matrix_from_quaternion(wxyz: ArrayLike) -> Array:
     )
 
 
-def pose_from_transform(T_world_camera: ArrayLike, name: str = "T_world_camera") -> Pose:
-    """Return the Pose of a 4x4 rigid transform; raise InvalidInput if it is not one."""
+def pose_from_transform(T_world_camera: object, name: str = "T_world_camera") -> Pose:
+    """Return the Pose of a 4x4 rigid transform; raise InvalidInput if it is not one (or not a
+    matrix at all: whatever the caller was given is checked here)."""
     try:
         T = np.asarray(T_world_camera, dtype=np.float64)
     except (TypeError, ValueError) as exc:
@@ -128,8 +128,9 @@ def frustum_from_intrinsics(K: ArrayLike | None, width: int, height: int) -> Fru
     return Frustum(2.0 * math.atan2(float(height), 2.0 * float(k[1, 1])), aspect)
 
 
-def as_polygon(points: Sequence[Sequence[float]], name: str) -> Array:
-    """Return a floor polygon as an (N, 2) float array, N >= 3; raise InvalidInput otherwise."""
+def as_polygon(points: object, name: str) -> Array:
+    """Return a floor polygon as an (N, 2) float array, N >= 3; raise InvalidInput otherwise
+    (whatever the caller was given is checked here)."""
     try:
         p = np.asarray(points, dtype=np.float64)
     except (TypeError, ValueError) as exc:

@@ -104,6 +104,12 @@ Distortion = Annotated[
 ]
 
 
+# An update schema's default for an absent field: the field keeps its type (not optional), so an
+# explicit null is refused where the column is required. Typed Any so that such a field may
+# default to it.
+ABSENT: Any = None
+
+
 class Schema(BaseModel):
     """Base of request schemas: unknown fields are errors, not silently dropped, and a boolean
     field takes only true or false (pydantic's lax mode would read 1, "yes" or "on" too)."""

@@ -18,6 +18,7 @@ from server.schemas.calibration import (
     Point3,
 )
 from server.schemas.common import (
+    ABSENT,
     Distortion,
     Id,
     Matrix3,
@@ -127,13 +128,13 @@ class ArmCreate(Schema):
 class ArmUpdate(Schema):
     """Fields to change; setting T_ee_camera by hand detaches the arm from its hand-eye run."""
 
-    robot_id: Id = None
-    name: Name = None
-    dh: DHParameters = None
-    limits: JointLimits = None
-    tool: RigidTransform = None
-    home: Angles6 = None
-    T_robot_arm: RigidTransform = None
+    robot_id: Id = ABSENT
+    name: Name = ABSENT
+    dh: DHParameters = ABSENT
+    limits: JointLimits = ABSENT
+    tool: RigidTransform = ABSENT
+    home: Angles6 = ABSENT
+    T_robot_arm: RigidTransform = ABSENT
     camera_id: Id | None = None
     T_ee_camera: RigidTransform | None = None
 

@@ -12,6 +12,7 @@ from shapely.validation import explain_validity
 
 from core.errors import IntspaceError
 from server.schemas.common import (
+    ABSENT,
     Distortion,
     Finite,
     Id,
@@ -111,8 +112,8 @@ class SpaceCreate(Schema):
 
 
 class SpaceUpdate(Schema):
-    name: Name = None
-    description: Text = None
+    name: Name = ABSENT
+    description: Text = ABSENT
 
 
 class SpaceRead(ReadSchema):
@@ -133,9 +134,9 @@ class RoomCreate(Schema):
 
 
 class RoomUpdate(Schema):
-    space_id: Id = None
-    name: Name = None
-    polygon: Polygon = None
+    space_id: Id = ABSENT
+    name: Name = ABSENT
+    polygon: Polygon = ABSENT
 
 
 class RoomRead(ReadSchema):
@@ -249,9 +250,9 @@ class CameraCreate(_PoseInput):
 
 
 class CameraUpdate(_PoseInput):
-    name: Name = None
-    width: PixelCount = None
-    height: PixelCount = None
+    name: Name = ABSENT
+    width: PixelCount = ABSENT
+    height: PixelCount = ABSENT
     space_id: Id | None = None
     K: Matrix3 | None = None
     dist: Distortion | None = None
@@ -350,9 +351,9 @@ class ProjectorCreate(_PoseInput):
 class ProjectorUpdate(_PoseInput):
     pose_field: ClassVar[str] = "T_world_projector"
 
-    name: Name = None
-    width: PixelCount = None
-    height: PixelCount = None
+    name: Name = ABSENT
+    width: PixelCount = ABSENT
+    height: PixelCount = ABSENT
     space_id: Id | None = None
     K: Matrix3 | None = None
     dist: Distortion | None = None
@@ -387,9 +388,9 @@ class RobotCreate(Schema):
 
 
 class RobotUpdate(Schema):
-    name: Name = None
+    name: Name = ABSENT
     space_id: Id | None = None
-    kinematic_model: JsonDocument = None
+    kinematic_model: JsonDocument = ABSENT
     onboard_camera_id: Id | None = None
     hand_camera_id: Id | None = None
     T_hand_camera: RigidTransform | None = None
@@ -423,9 +424,9 @@ class LandmarkCreate(Schema):
 
 
 class LandmarkUpdate(Schema):
-    kind: LandmarkKind = None
-    payload: Payload = None
-    size_m: SizeMetres = None
+    kind: LandmarkKind = ABSENT
+    payload: Payload = ABSENT
+    size_m: SizeMetres = ABSENT
     space_id: Id | None = None
     T_world_landmark: RigidTransform | None = None
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pydantic import BaseModel, Field
 
-from server.schemas.common import Finite, Name, Schema
+from server.schemas.common import ABSENT, Finite, Name, Schema
 from server.schemas.registry import Polygon
 
 # An inertia or loitering time above a day says nothing a home automation can use.
@@ -27,10 +27,10 @@ class ZoneCreate(Schema):
 
 
 class ZoneUpdate(Schema):
-    name: Name = None
-    polygon: Polygon = None
-    inertia_s: Finite = Field(None, ge=0, le=MAX_SECONDS)
-    loiter_s: Finite = Field(None, ge=0, le=MAX_SECONDS)
+    name: Name = ABSENT
+    polygon: Polygon = ABSENT
+    inertia_s: Finite = Field(ABSENT, ge=0, le=MAX_SECONDS)
+    loiter_s: Finite = Field(ABSENT, ge=0, le=MAX_SECONDS)
 
 
 class ZoneRead(BaseModel):

@@ -26,6 +26,7 @@ from sqlalchemy import delete, select
 from sqlalchemy.orm import Session
 
 from server.db.models import ApiToken
+from server.schemas.tokens import Scope
 
 SCOPES = ("read", "write", "admin", "ingest")
 # What each scope grants: admin implies write implies read; write also lets a script ingest.
@@ -35,6 +36,9 @@ _GRANTS = {
     "write": {"read", "write", "ingest"},
     "admin": {"read", "write", "ingest", "admin"},
 }
+# Scopes that alone name a credential's rights, widest first; the narrow ones, in sorted order.
+_WIDEST: tuple[Scope, ...] = ("admin", "write")
+_NARROW: tuple[Scope, ...] = ("ingest", "read")
 ADMIN_TOKEN_NAME = "admin (first run)"
 # A configured admin token shorter than this is refused at start: 16 random characters from the
 # 64-symbol URL-safe alphabet are 96 bits, beyond guessing even without the rate limit.
@@ -68,12 +72,12 @@ class Principal:
         return self.camera_ids is None or camera_id in self.camera_ids
 
     @property
-    def scopes(self) -> list[str]:
+    def scopes(self) -> list[Scope]:
         """Return the smallest list of scopes granting these rights."""
-        for scope in ("admin", "write"):
+        for scope in _WIDEST:
             if self.rights == frozenset(_GRANTS[scope]):
                 return [scope]
-        return sorted(s for s in ("read", "ingest") if s in self.rights)
+        return [s for s in _NARROW if s in self.rights]
 
 
 def hash_token(token: str) -> str:

@@ -24,13 +24,14 @@ from collections import deque
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, cast
 
-from sqlalchemy import delete, func, select, update
+from sqlalchemy import Table, delete, func, select, update
 from sqlalchemy.orm import Session, sessionmaker
 
 from server.db.base import utcnow
 from server.db.models import Detection, Target, TrackPoint
+from server.services.jobs import rows_changed
 
 log = logging.getLogger(__name__)
 
@@ -467,7 +468,7 @@ class LiveTargets:
                 live.id = row.id
                 if points:
                     session.execute(
-                        TrackPoint.__table__.insert(),
+                        cast(Table, TrackPoint.__table__).insert(),
                         [
                             {"target_id": row.id, "t": pt, "x": pxy[0], "y": pxy[1], "cov": pcov}
                             for pt, pxy, pcov in points
@@ -484,8 +485,10 @@ class LiveTargets:
         track_cut = now - self.track_retention_s
         det_cut = now - self.detection_retention_s
         with self._factory() as session:
-            points = session.execute(delete(TrackPoint).where(TrackPoint.t < track_cut)).rowcount
-            dets = session.execute(delete(Detection).where(Detection.t < det_cut)).rowcount
+            points = rows_changed(
+                session.execute(delete(TrackPoint).where(TrackPoint.t < track_cut))
+            )
+            dets = rows_changed(session.execute(delete(Detection).where(Detection.t < det_cut)))
             old = select(Target.id).where(Target.state == "ended", Target.last_seen < track_cut)
             ids = list(session.scalars(old))
             if ids:
@@ -499,7 +502,7 @@ class LiveTargets:
         Their trackers' state did not survive the restart."""
         result = session.execute(update(Target).where(Target.state.in_(LIVE)).values(state="ended"))
         session.commit()
-        return result.rowcount or 0
+        return rows_changed(result)
 
     def close_stale_space(self, session: Session, space_id: int | None, keep: list[int]) -> int:
         """Mark the stored live targets of one space as ended but those whose track ids are in
@@ -509,7 +512,7 @@ class LiveTargets:
             stmt = stmt.where(Target.track_id.is_(None) | Target.track_id.not_in(keep))
         result = session.execute(stmt.values(state="ended"))
         session.commit()
-        return result.rowcount or 0
+        return rows_changed(result)
 
     def stored_live(self, session: Session, space_id: int | None) -> list[Target]:
         """Return the stored live targets of a space that have a track id."""

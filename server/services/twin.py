@@ -37,6 +37,7 @@ from core.sim.occluders import scene_occluders
 from core.sim.render import camera_model, renderer_for
 from server.db.models import Camera, CameraCalibration, Landmark, Projector, Robot, Room, Space
 from server.schemas.registry import CameraHeartbeat
+from server.schemas.twin import TwinState
 from server.services.cameras import CameraNotPlaced, network_camera
 from server.services.tracking import DetectionIn
 
@@ -363,28 +364,28 @@ class Twin:
 
     # -- reads -------------------------------------------------------------------------------
 
-    def state(self) -> dict[str, Any]:
+    def state(self) -> TwinState:
         """Return the twin's state: running, paused, sim time, robot pose, people, rate."""
         with self._lock:
             pose = self._pose  # the published instant's, read with its sim_time
             people = list(world_state(self.scene, self.sim_time).people)
             errors = np.array(list(self.errors)[-200:])
-            return {
-                "enabled": True,
-                "running": self.running,
-                "paused": self._paused.is_set(),
-                "scene": self.scene.name,
-                "space_id": self.space_id,
-                "sim_time": self.sim_time,
-                "steps": self.steps,
-                "rate_hz": self.rate_hz,
-                "stuck": self.stuck,
-                "last_step_age_s": time.monotonic() - self._last_step,
-                "robot": None if pose is None else {"x": pose.x, "y": pose.y, "theta": pose.yaw},
-                "people": [{"x": x, "y": y} for x, y in people],
-                "robot_error_rms_m": float(np.sqrt(np.mean(errors**2))) if errors.size else None,
-                "cameras": self.camera_ids,
-            }
+            return TwinState(
+                enabled=True,
+                running=self.running,
+                paused=self._paused.is_set(),
+                scene=self.scene.name,
+                space_id=self.space_id,
+                sim_time=self.sim_time,
+                steps=self.steps,
+                rate_hz=self.rate_hz,
+                stuck=self.stuck,
+                last_step_age_s=time.monotonic() - self._last_step,
+                robot=None if pose is None else {"x": pose.x, "y": pose.y, "theta": pose.yaw},
+                people=[{"x": x, "y": y} for x, y in people],
+                robot_error_rms_m=float(np.sqrt(np.mean(errors**2))) if errors.size else None,
+                cameras=self.camera_ids,
+            )
 
     def frame(self, camera_id: int) -> TwinFrame | None:
         """Return the latest frame of camera `camera_id`, None when it has none."""
@@ -553,7 +554,7 @@ class Twin:
             # The instant's frames in one transaction: the tracker takes them together anyway,
             # once the last camera's has come.
             with self._factory() as session:
-                space_of = dict.fromkeys(frames, self.space_id)
+                space_of: dict[int, int | None] = dict.fromkeys(frames, self.space_id)
                 self._tracking.ingest(session, detections, space_of, empty=empty)
         with self._lock:
             self.steps += 1
@@ -575,8 +576,8 @@ class Twin:
         latest = self._targets.latest(robot.name) if robot is not None else None
         if latest is None:
             return
-        state, t, xy = latest
-        if state != "confirmed" or t <= self._scored_until:
+        phase, t, xy = latest
+        if phase != "confirmed" or t <= self._scored_until:
             return
         truth = self.truth_at(np.array([t]))
         # An update the truth's history does not reach yet is scored at the next step.
@@ -610,15 +611,16 @@ class Twin:
         """Send the agents (true poses), the tracks (estimates) and the camera images to the
         3D scene, at most `_SCENE_HZ` times a second; the scene only records them and returns,
         its own thread draws."""
-        scene = self._scene_sync.scene if self._scene_sync is not None else None
-        if scene is None:
+        sync = self._scene_sync
+        scene = sync.scene if sync is not None else None
+        if sync is None or scene is None:
             return
         now = time.monotonic()
         if now - self._last_scene < 1.0 / _SCENE_HZ:
             return
         self._last_scene = now
         try:
-            if not self._scene_sync.shows(self.space_id):
+            if not sync.shows(self.space_id):
                 self._leave_scene(scene)
                 return
             self._in_scene = True

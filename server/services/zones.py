@@ -29,6 +29,7 @@ from core.localization.zones import Zone as CoreZone
 from core.localization.zones import ZoneEvent, ZoneOccupancy, points_in_polygons
 from server.db.models import Room, Space
 from server.db.models import Zone as ZoneRow
+from server.schemas.zones import ZoneRead
 
 log = logging.getLogger(__name__)
 
@@ -369,18 +370,18 @@ class ZoneService:
                 sink.forget_space(space_id)
 
 
-def zone_payload(d: ZoneDef, occupancy: dict[Any, int] | None) -> dict[str, Any]:
+def zone_read(d: ZoneDef, occupancy: dict[Any, int] | None) -> ZoneRead:
     """Return a zone as the API shows it."""
     kind, i = d.key
-    return {
-        "id": i if kind == "zone" else None,
-        "room_id": i if kind == "room" else None,
-        "space_id": d.space_id,
-        "name": d.name,
-        "slug": d.slug,
-        "polygon": [list(p) for p in d.polygon],
-        "inertia_s": d.inertia_s,
-        "loiter_s": d.loiter_s,
-        "read_only": d.read_only,
-        "occupancy": None if occupancy is None else occupancy.get(d.key, 0),
-    }
+    return ZoneRead(
+        id=i if kind == "zone" else None,
+        room_id=i if kind == "room" else None,
+        space_id=d.space_id,
+        name=d.name,
+        slug=d.slug,
+        polygon=[list(p) for p in d.polygon],
+        inertia_s=d.inertia_s,
+        loiter_s=d.loiter_s,
+        read_only=d.read_only,
+        occupancy=None if occupancy is None else occupancy.get(d.key, 0),
+    )

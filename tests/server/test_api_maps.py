@@ -155,11 +155,11 @@ def test_coverage_uses_the_running_twins_scene(client, admin):
     data["walls"].append({"name": "extra", "start": [0.0, 3.0], "end": [4.5, 3.0], "height": 2.9})
     scene = load_scene(data)
     space = _register(client, admin, scene)
-    client.app.state.twin = SimpleNamespace(space_id=space, scene=scene)
+    client.app.state.runtime.twin = SimpleNamespace(space_id=space, scene=scene)
     try:
         body = client.get("/api/v1/maps/coverage", headers=admin).json()
     finally:
-        client.app.state.twin = None
+        client.app.state.runtime.twin = None
     expected = coverage_map(
         _cameras(scene), (0.0, 8.0), (0.0, 6.0), spacing=0.1, occluders=scene_occluders(scene)
     )

@@ -92,7 +92,7 @@ class _SceneRecorder:
 def test_plan_in_the_twin_home_with_the_projector_trajectory(client, admin):
     space, projector = _register_home(client, admin)
     scene = _SceneRecorder()
-    client.app.state.scene_sync.scene = scene
+    client.app.state.runtime.scene_sync.scene = scene
     body = {"space_id": space, "start": START, "goal": GOAL, "projector_id": projector}
     response = client.post("/api/v1/paths", json=body, headers=admin)
     assert response.status_code == 201, response.text
@@ -356,7 +356,7 @@ def test_a_task_whose_heartbeat_stopped_reads_as_interrupted():
 def test_projector_calibration_run_on_the_twin(client, admin, run_waiter):
     # The registry as the twin's first start leaves it: the home, its cameras with their
     # installed calibration, its robot; then the projector at the nominal mount entered.
-    with client.app.state.session_factory() as session:
+    with client.app.state.runtime.session_factory() as session:
         space, _ = bootstrap_space(session, SCENE)
     _, projector = _add_projector(client, admin, space)
     body = {"kind": "projector", "projector_id": projector, "seed": 2, "images": False}

@@ -49,7 +49,7 @@ def test_robot_detections_need_a_robot_in_the_space(client, admin):
     response = client.post("/api/v1/cameras", json=body, headers=admin)
     assert response.status_code == 201, response.text
     camera = response.json()["id"]
-    tracking = client.app.state.tracking
+    tracking = client.app.state.runtime.tracking
     t0 = float(np.ceil(time.time())) + 10.0
     # The service's clock follows the frames, as live: the space's one camera releases each of
     # its frames at once by its own watermark.

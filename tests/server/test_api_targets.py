@@ -219,7 +219,7 @@ def test_targets_live_by_default_newest_first_and_tracks_page_back(client, admin
     assert target["kind"] == "person" and target["state"] in ("confirmed", "coasting")
     assert target["first_seen"] >= now and target["last_seen"] > target["first_seen"]
     # The tracker's rate is kept (at most track_points_hz points a second are stored).
-    client.app.state.targets.flush()
+    client.app.state.runtime.targets.flush()
     track = client.get(f"/api/v1/targets/{target['id']}/track", headers=admin).json()["points"]
     assert len(track) >= 6
     older = client.get(
@@ -233,7 +233,7 @@ def test_targets_live_by_default_newest_first_and_tracks_page_back(client, admin
             break
         time.sleep(0.1)
     assert client.get("/api/v1/targets", headers=admin).json()["items"] == []
-    client.app.state.targets.flush()
+    client.app.state.runtime.targets.flush()
     history = client.get("/api/v1/targets?state=all", headers=admin).json()["items"]
     assert [t["state"] for t in history] == ["ended"]
     recent = client.get("/api/v1/targets/tracks?state=all", headers=admin).json()["tracks"]
@@ -271,7 +271,7 @@ def test_empty_frames_release_the_other_cameras_frames_at_once(client, admin):
     default) for that camera before taking the other cameras' frames of the same time."""
     cameras = _cameras()[:2]
     a, b = _register(client, admin, cameras)
-    tracking = client.app.state.tracking
+    tracking = client.app.state.runtime.tracking
     assert tracking.latency == 1.0  # the default window; the clock below never reaches it
     T = float(np.ceil(time.time())) + 10.0
     clock = _Clock(T)
@@ -303,7 +303,7 @@ def test_empty_frames_release_the_other_cameras_frames_at_once(client, admin):
     empty = post({"empty_frames": [{"camera_id": b, "t": T - 0.1}]})
     assert (empty["stored"], empty["frames"], empty["late"], empty["positions"]) == (0, 1, 0, [])
     assert _processed(tracking, base + 4)
-    state, t, xy = client.app.state.targets.latest("cup")
+    state, t, xy = client.app.state.runtime.targets.latest("cup")
     assert state == "confirmed"
     assert t == T - 0.1 and np.linalg.norm(np.array(xy) - [2.0, 1.5]) < 1e-3
     # The stream says each target's own time.
@@ -354,7 +354,7 @@ def test_empty_frames_are_validated_like_detections(client, admin):
         if field is not None:
             assert response.json()["errors"][0]["field"] == field, response.text
     # Nothing of the refused batches reached the tracker or the database.
-    assert client.app.state.tracking.frames_processed == 0
+    assert client.app.state.runtime.tracking.frames_processed == 0
     # An ingest token speaks for its own cameras' empty frames only.
     token = client.post(
         "/api/v1/tokens",
@@ -442,7 +442,7 @@ def test_a_notified_empty_frame_moves_the_tracker_on(client, admin):
     as if it had been posted to it."""
     cameras = _cameras()[:2]
     a, b = _register(client, admin, cameras)
-    tracking = client.app.state.tracking
+    tracking = client.app.state.runtime.tracking
     T = float(np.ceil(time.time())) + 10.0
     tracking._clock = _Clock(T)
     px = cameras[0].project(np.array([[2.0, 1.5, 0.0]]))[0].tolist()
@@ -460,7 +460,7 @@ def test_a_notified_empty_frame_moves_the_tracker_on(client, admin):
     tracking._on_detections({"space": None, "items": [{"c": b, "t": T - 0.1}]})
     tracking._read_notified()
     assert _processed(tracking, base + 4)
-    assert client.app.state.targets.latest("cup")[1] == T - 0.1
+    assert client.app.state.runtime.targets.latest("cup")[1] == T - 0.1
 
 
 def test_targets_tracks_and_stream_of_one_space(client, admin):

@@ -201,7 +201,7 @@ def test_every_failure_of_an_episode_names_its_phase():
 def test_a_task_whose_process_stopped_reads_interrupted(client, admin):
     # A task left running by a process that died (no heartbeat for an hour) is not shown as
     # running forever: reading tasks marks it interrupted, with the reason.
-    with client.app.state.session_factory() as session:
+    with client.app.state.runtime.session_factory() as session:
         task = Task(
             kind="fetch",
             status="running",
@@ -336,7 +336,7 @@ def _read_mark(client, admin, space: int, mark_id: int, name: str, T: np.ndarray
 def test_fetch_an_object_of_the_semantic_map(twin_client, admin):
     client = twin_client
     arm = _arm(client, admin)
-    space = client.app.state.twin.space_id
+    space = client.app.state.runtime.twin.space_id
     # A tea box on the dining table, its mark on its top (table 0.75 m + box 0.10 m), as the
     # semantic map holds it; a mark on a cupboard door (vertical); a box in the bedroom.
     table = _yawed(6.25, 1.66, 0.85, 0.6)
@@ -348,7 +348,7 @@ def test_fetch_an_object_of_the_semantic_map(twin_client, admin):
     assert set(held) == {41, 42, 43}
 
     scene = _SceneRecorder()
-    client.app.state.scene_sync.scene = scene
+    client.app.state.runtime.scene_sync.scene = scene
     body = {"kind": "fetch", "arm_id": arm["id"], "object": "Tea Box", "episodes": 1, "seed": 3}
     response = client.post("/api/v1/tasks", json=body, headers=admin)
     assert response.status_code == 202, response.text

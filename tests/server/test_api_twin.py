@@ -67,7 +67,7 @@ def test_twin_locates_the_robot_and_is_controlled(twin_client, admin):
     # steps): replaying the patrol gives the true pose at each point's time.
     t = np.array([p["t"] for p in track["points"]])
     assert abs(t.max() - time.time()) < 30
-    sim = client.app.state.twin.sim_time_at(t)
+    sim = client.app.state.runtime.twin.sim_time_at(t)
     assert np.all(np.isfinite(sim))
     truth = simulate_patrol(default_scene().robot, float(sim.max()) + 0.1, dt=0.05, rng=0)
     true_xy = truth.pose[np.round(sim / 0.05).astype(int), :2]
@@ -204,7 +204,7 @@ class _SceneRecorder:
 
 def test_twin_pushes_agents_tracks_and_images_to_the_scene(twin_client, admin):
     recorder = _SceneRecorder()
-    twin_client.app.state.scene_sync.scene = recorder
+    twin_client.app.state.runtime.scene_sync.scene = recorder
 
     def pushed():
         return {"upsert_agent", "set_track", "set_camera_image"} <= set(recorder.calls)
@@ -217,5 +217,5 @@ def test_twin_pushes_agents_tracks_and_images_to_the_scene(twin_client, admin):
     assert robot_tracks and all(len(p) == 2 for p in robot_tracks[-1][1])
     assert np.array(robot_tracks[-1][2]).shape == (2, 2)  # the newest point's covariance
     camera_id, image = recorder.calls["set_camera_image"][0]
-    assert camera_id in twin_client.app.state.twin.camera_ids.values()
+    assert camera_id in twin_client.app.state.runtime.twin.camera_ids.values()
     assert image.shape == (480, 640, 3)

@@ -68,7 +68,7 @@ def test_export_writes_detections_tracks_poses_and_calibrations_of_the_range(cli
     cam_a = _camera(client, admin, space, "cam_a", posed=True)
     cam_b = _camera(client, admin, space, "cam_b", posed=False)
     cam_c = _camera(client, admin, other, "cam_c", posed=True)
-    factory = client.app.state.session_factory
+    factory = client.app.state.runtime.session_factory
     with factory() as session:
         session.add_all(
             [

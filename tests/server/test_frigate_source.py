@@ -213,8 +213,8 @@ def test_frigate_replay_two_cameras_three_walkers(broker, make_settings, admin):
         ref_sid, ref_ids = _register(
             client, admin, "Lab", {f: f"{n} (steady)" for f, n in names.items()}
         )
-        live = client.app.state.targets
-        tracking = client.app.state.tracking
+        live = client.app.state.runtime.targets
+        tracking = client.app.state.runtime.tracking
 
         t0 = time.time() + 0.5
         rng = np.random.default_rng(4)

@@ -48,5 +48,5 @@ def test_no_server_errors(make_settings, admin, mode):
                 raise
             continue
         fuzzed += 1
-    app.state.engine.dispose()
+    app.state.runtime.engine.dispose()
     assert fuzzed >= 30

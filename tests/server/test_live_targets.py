@@ -24,7 +24,7 @@ def _update(live: LiveTargets, track_id: int, x: float) -> None:
 
 
 def test_a_batch_of_changes_wakes_the_watchers_once(client):
-    live = LiveTargets(client.app.state.session_factory)
+    live = LiveTargets(client.app.state.runtime.session_factory)
     woken = []
     live.watch(lambda: woken.append(live.version))
     _update(live, 1, 1.0)
@@ -41,7 +41,7 @@ def test_a_batch_of_changes_wakes_the_watchers_once(client):
 
 
 def test_one_encoding_per_version_with_the_targets_of_that_version(client):
-    live = LiveTargets(client.app.state.session_factory)
+    live = LiveTargets(client.app.state.runtime.session_factory)
     _update(live, 1, 1.0)
     v1, text1 = _positions_message(live)
     assert _positions_message(live) == (v1, text1)

@@ -34,12 +34,12 @@ def test_retention_deletes_old_rows_only(client, admin):
         ]
         == 1
     )
-    live = client.app.state.targets
+    live = client.app.state.runtime.targets
     deadline = time.monotonic() + 5
     while time.monotonic() < deadline and live.get("cup") is None:
         time.sleep(0.05)
     live.flush()
-    factory = client.app.state.session_factory
+    factory = client.app.state.runtime.session_factory
 
     def counts():
         with factory() as s:

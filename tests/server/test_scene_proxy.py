@@ -74,7 +74,7 @@ def scene_client(make_settings) -> Iterator[tuple[TestClient, int]]:
     port = free_port()
     settings = make_settings(viser_enabled=True, viser_port=port)
     with TestClient(create_app(settings)) as client:
-        yield client, client.app.state.viser_port
+        yield client, client.app.state.runtime.viser_port
 
 
 def test_viser_listens_on_loopback_only(scene_client):

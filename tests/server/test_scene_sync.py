@@ -23,7 +23,7 @@ def test_registry_changes_reach_the_scene(make_settings, admin):
     port = _free_port()
     settings = make_settings(viser_enabled=True, viser_port=port)
     with TestClient(create_app(settings)) as client:
-        scene = client.app.state.scene_sync.scene
+        scene = client.app.state.runtime.scene_sync.scene
         assert scene is not None and scene.running
         assert client.get("/api/v1/health").json()["scene"] is True
         assert client.get("/api/v1/scene").json()["viser_url"].endswith("/api/v1/scene/view/")
@@ -63,7 +63,7 @@ def test_scene_is_loaded_from_the_database_at_start(make_settings, admin):
         )
     settings = make_settings(viser_enabled=True, viser_port=_free_port())
     with TestClient(create_app(settings)) as client:
-        scene = client.app.state.scene_sync.scene
+        scene = client.app.state.runtime.scene_sync.scene
         assert scene.flush(10.0)
         assert [c.name for c in scene.cameras().values()] == ["c"]
 
@@ -72,7 +72,7 @@ def test_scene_is_loaded_from_the_database_at_start(make_settings, admin):
 def test_the_scene_shows_one_space_at_a_time(make_settings, admin):
     settings = make_settings(viser_enabled=True, viser_port=_free_port())
     with TestClient(create_app(settings)) as client:
-        scene = client.app.state.scene_sync.scene
+        scene = client.app.state.runtime.scene_sync.scene
         polygons = {"home": [[0, 0], [5, 0], [5, 4], [0, 4]], "flat": [[0, 0], [3, 0], [3, 9.6]]}
         spaces, cameras = {}, {}
         for name, polygon in polygons.items():

@@ -36,7 +36,7 @@ class _FakeTwin:
 
 def test_stream_parts_carry_the_frames_and_their_capture_times(client, admin):
     twin = _FakeTwin(camera_id=3)
-    client.app.state.twin = twin
+    client.app.state.runtime.twin = twin
     parts = []
     with client.stream("GET", "/api/v1/cameras/3/stream.mjpg", headers=admin) as response:
         assert response.status_code == 200
@@ -60,7 +60,7 @@ def test_stream_parts_carry_the_frames_and_their_capture_times(client, admin):
 
 
 def test_stream_needs_a_token_in_the_header_and_a_twin_camera(client, admin):
-    client.app.state.twin = _FakeTwin(camera_id=3)
+    client.app.state.runtime.twin = _FakeTwin(camera_id=3)
     assert client.get("/api/v1/cameras/3/stream.mjpg").status_code == 401
     # A token in the URL is not a credential.
     token = admin["Authorization"].split()[1]
@@ -78,7 +78,7 @@ def test_stream_is_404_without_the_twin(client, admin):
 
 def test_stream_generator_stops_when_the_client_leaves(client, admin):
     twin = _FakeTwin(camera_id=3, period=0.02)
-    client.app.state.twin = twin
+    client.app.state.runtime.twin = twin
     with client.stream("GET", "/api/v1/cameras/3/stream.mjpg", headers=admin) as response:
         for _ in response.iter_bytes():
             break

@@ -134,8 +134,8 @@ class _Clock:
 def test_a_service_whose_trackers_process_dies_goes_on_with_its_tracks(client, admin):
     cameras = _cameras()
     ids = _register(client, admin, cameras)
-    factory = client.app.state.session_factory
-    live = client.app.state.targets
+    factory = client.app.state.runtime.session_factory
+    live = client.app.state.runtime.targets
     t0 = float(np.ceil(time.time())) + 1.0
     clock = _Clock(t0)
     service = TrackingService(factory, live, latency=0.2, clock=clock, separate_process=True)

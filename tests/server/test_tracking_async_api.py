@@ -95,7 +95,7 @@ def test_unlabelled_detections_from_unsynchronised_cameras_become_tracks(client,
     duration = 60.0 * MINUTES
     frames = [f for f in ts.async_camera_frames(scene, truth, duration, rng) if f.camera in ids]
 
-    tracking = client.app.state.tracking
+    tracking = client.app.state.runtime.tracking
     t0 = float(np.ceil(time.time())) + 1.0  # the capture times: Unix seconds from now on
     clock = _Clock(t0 - 1.0)
     tracking._clock = clock
@@ -135,7 +135,7 @@ def test_unlabelled_detections_from_unsynchronised_cameras_become_tracks(client,
             assert time.monotonic() < deadline, "the tracker did not keep up"
             time.sleep(0.005)
         live_counts.append(len(tracking.tracks(None)))
-    client.app.state.targets.flush()
+    client.app.state.runtime.targets.flush()
     log = _stored_tracks(client, admin)
 
     truth_t, truth_xy = ts.truth_instants(scene, duration)

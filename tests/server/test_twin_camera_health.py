@@ -108,7 +108,7 @@ def test_twin_cameras_report_their_health(twin_client, admin):
 
 def test_twin_registers_its_projector_and_landmarks_once(client, admin):
     scene = default_scene()
-    with client.app.state.session_factory() as session:
+    with client.app.state.runtime.session_factory() as session:
         space, _ = bootstrap_space(session, scene)
         register_devices(session, space, scene)
     projectors = client.get(f"/api/v1/projectors?space_id={space}", headers=admin).json()
@@ -128,7 +128,7 @@ def test_twin_registers_its_projector_and_landmarks_once(client, admin):
     body = {"T_world_landmark": moved.tolist()}
     lm_id = landmarks[0]["id"]
     assert client.patch(f"/api/v1/landmarks/{lm_id}", json=body, headers=admin).status_code == 200
-    with client.app.state.session_factory() as session:
+    with client.app.state.runtime.session_factory() as session:
         assert bootstrap_space(session, scene)[0] == space
         register_devices(session, space, scene)
     assert client.get("/api/v1/projectors", headers=admin).json()["total"] == 1

@@ -12,9 +12,9 @@ import logging
 import threading
 import time
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, cast
 
-from sqlalchemy import insert
+from sqlalchemy import Table, insert
 from sqlalchemy.orm import Session, sessionmaker
 
 from core.localization.tracking import LIVE_STATES, TrackerConfig
@@ -23,6 +23,7 @@ from server.services.fanout import Fanout
 from server.services.ownership import SpaceLocks
 from server.services.targets import LiveTargets
 from server.services.tracking.ingest import (
+    CameraFrame,
     DetectionIn,
     FrameDelays,
     IngestResult,
@@ -118,7 +119,7 @@ class TrackingService(SharedTrackers):
             stmt = insert(Detection).returning(Detection.id, sort_by_parameter_order=True)
             ids = list(session.scalars(stmt, rows))
         else:
-            session.execute(Detection.__table__.insert(), rows)
+            session.execute(cast(Table, Detection.__table__).insert(), rows)
         session.commit()
         stored = len(detections)
         if not all(d.tracked for d in detections):
@@ -283,7 +284,8 @@ class TrackingService(SharedTrackers):
         for space, frames in ready:
             self._load_cameras(space)
             with space.lock:
-                for _, (frame, arrived) in frames:
+                for _, item in frames:
+                    frame, arrived = cast(tuple[CameraFrame, float], item)
                     self._feed(space, frame)
                     self.delays.frame(frame.t, arrived, released, self._clock())
                     done += 1

@@ -72,7 +72,7 @@ def test_a_space_with_landmarks_and_maps_is_drawn(client, admin, scene) -> None:
     assert update.status_code == 200, update.text
     n_edges = update.json()["navigation_edges"]
     nav = client.get("/api/v1/maps/navigation", headers=admin).json()
-    with client.app.state.session_factory() as session:
+    with client.app.state.runtime.session_factory() as session:
         SceneSync(scene).load(session)
     assert scene.flush()
     find = scene.server.scene.get_handle_by_name

@@ -41,14 +41,15 @@ def test_applying_a_projector_run_redraws_the_projector_at_its_new_pose(client, 
         "rms_m": 0.01,
         "spots": 12,
     }
-    with client.app.state.session_factory() as session:
+    with client.app.state.runtime.session_factory() as session:
         run = CalibrationRun(
             kind="projector", source="twin", status="succeeded", inputs={}, result=result
         )
         session.add(run)
         session.commit()
         run_id = run.id
-    client.app.state.scene_sync.scene = scene  # the service's scene, as `intspace serve` has
+    # The service's scene, as `intspace serve` has.
+    client.app.state.runtime.scene_sync.scene = scene
     applied = client.post(f"/api/v1/calibration-runs/{run_id}/apply", headers=admin)
     assert applied.status_code == 200, applied.text
     assert applied.json()["T_world_projector"] == calibrated.tolist()
@@ -73,7 +74,7 @@ def test_load_draws_the_shown_robots_arm_at_home(client, admin, scene):
     arm = client.post(
         "/api/v1/arms", json={"robot_id": robot, "name": "puma"}, headers=admin
     ).json()
-    with client.app.state.session_factory() as session:
+    with client.app.state.runtime.session_factory() as session:
         SceneSync(scene).load(session)
     scene.upsert_agent({"id": ROBOT_AGENT, "kind": "robot", "x": 1.0, "y": 1.0})
     assert scene.flush()
