@@ -74,6 +74,8 @@ from numpy.typing import NDArray
 
 from core.errors import InvalidInput
 from core.geometry.camera import undistort_points
+from core.geometry.polygon import points_in_polygons
+from core.geometry.rotations import quaternion_to_matrix, wrap_angle
 from core.landmarks.ambiguity import PoseHypothesis, fuse_hypotheses, is_decided
 from core.landmarks.artwork import make_artwork, pattern_layout
 from core.landmarks.detect import LandmarkDetection, detect_landmarks
@@ -95,7 +97,6 @@ from core.navigation import (
     segment_is_free,
 )
 from core.navigation import NoRoute as NoPath
-from core.sim._geometry import quaternion_to_matrix
 from core.sim.intrinsics import NOISE, calibrate_from_board_views, facing
 from core.sim.motion import Pose2D, UnicycleBase
 from core.sim.occluders import scene_occluders
@@ -591,10 +592,6 @@ def floor_pose(x: float, y: float, yaw: float) -> Array:
     return T
 
 
-def _wrap(a: float) -> float:
-    return float((a + np.pi) % (2 * np.pi) - np.pi)
-
-
 def reading_standoff(kind: str, focal_px: float, dz: float) -> float:
     """Return the reading pose's horizontal distance d (m) from the camera to a vertical face
     whose centre lies dz metres below the camera: the farthest d at which a nominal module
@@ -613,12 +610,12 @@ def polar_command(robot: Array, goal: Array) -> tuple[float, float, float]:
     (the goal frame's origin and heading), reversing when the goal lies behind."""
     dx, dy = goal[0] - robot[0], goal[1] - robot[1]
     rho = float(np.hypot(dx, dy))
-    alpha = _wrap(np.arctan2(dy, dx) - robot[2])
+    alpha = wrap_angle(np.arctan2(dy, dx) - robot[2])
     direction = 1.0
     if abs(alpha) > np.pi / 2:  # drive backwards: the same law with the heading reversed
         direction = -1.0
-        alpha = _wrap(alpha + np.pi)
-    beta = _wrap(goal[2] - robot[2] - alpha)
+        alpha = wrap_angle(alpha + np.pi)
+    beta = wrap_angle(goal[2] - robot[2] - alpha)
     v = direction * K_RHO * rho
     omega = K_ALPHA * alpha + K_BETA * beta
     return v, omega, rho
@@ -746,7 +743,7 @@ class HeadRobot:
         o = self.odom()
         W = self.T_world_odom
         p = W @ np.array([o[0], o[1], 0.0, 1.0])
-        return np.array([p[0], p[1], _wrap(o[2] + float(np.arctan2(W[1, 0], W[0, 0])))])
+        return np.array([p[0], p[1], wrap_angle(o[2] + float(np.arctan2(W[1, 0], W[0, 0])))])
 
     def _correct(self, x: Array, P: Array) -> None:
         """Make (x, y, yaw) the base's estimated pose now, with covariance P (a fix)."""
@@ -804,7 +801,7 @@ class HeadRobot:
             # slip model's variances are linear in both): the clock the survey spreads a
             # relocalisation's correction along.
             step = float(np.hypot(after.x - before.x, after.y - before.y))
-            self.drift_clock += step + abs(_wrap(after.yaw - before.yaw))
+            self.drift_clock += step + abs(wrap_angle(after.yaw - before.yaw))
             W = self.T_world_odom
             yaw = before.yaw + float(np.arctan2(W[1, 0], W[0, 0]))
             self.P = propagate(self.P, yaw, before, after, self.robot.slip)
@@ -866,18 +863,18 @@ class HeadRobot:
         # x = (x, y, yaw) now, o its odometry now).
         x = self.estimate()
         o = self.odom()
-        phi = _wrap(float(x[2] - o[2]))
+        phi = wrap_angle(float(x[2] - o[2]))
         r_w = _rz(phi)[:2, :2] @ (T_odom_cam[:2, 3] - o[:2])
         H = np.array([[1.0, 0.0, -r_w[1]], [0.0, 1.0, r_w[0]], [0.0, 0.0, 1.0]])
         fix = np.array([T_wc[0, 3], T_wc[1, 3], np.arctan2(M[1, 0], M[0, 0])])
         nu = fix - np.array([x[0] + r_w[0], x[1] + r_w[1], phi])
-        nu[2] = _wrap(float(nu[2]))
+        nu[2] = wrap_angle(float(nu[2]))
         # A fix that disagrees with the estimate beyond their covariances (the rings' other
         # pose, whose yaw the wide RELOCALISE_GATE still lets through) is an outlier.
         k = kalman_update(x, self.P, nu, H, R_fix, RELOCALISE_CHI2)
         if not k.accepted:
             return False
-        k.x[2] = _wrap(float(k.x[2]))
+        k.x[2] = wrap_angle(float(k.x[2]))
         self._correct(k.x, k.P)
         return True
 
@@ -978,7 +975,7 @@ class HeadRobot:
         ap = self.approach
         if ap is None or (
             np.hypot(*(goal[:2] - ap.target[:2])) > REPLAN_M
-            or abs(_wrap(goal[2] - ap.target[2])) > REPLAN_RAD
+            or abs(wrap_angle(goal[2] - ap.target[2])) > REPLAN_RAD
         ):
             ap = self.approach = self._plan_approach(goal)
         final = goal.copy()
@@ -992,7 +989,7 @@ class HeadRobot:
             v, omega, rho = polar_command(o, final)
             if ap is None and rho > 2 * APPROACH_M:
                 return 0.0, 0.0  # no route there: the polar law alone would cut through
-            if rho < 0.02 and abs(_wrap(final[2] - o[2])) < 0.03:
+            if rho < 0.02 and abs(wrap_angle(final[2] - o[2])) < 0.03:
                 return 0.0, 0.0  # at the reading pose: wait for a read
             return v, omega
 
@@ -1121,13 +1118,13 @@ class HeadRobot:
         while ap.index < len(route) and np.hypot(*(route[ap.index] - o[:2])) < WAYPOINT_M:
             ap.index += 1
         if ap.index >= len(route):
-            err = _wrap(heading - o[2])
+            err = wrap_angle(heading - o[2])
             if abs(err) < FACE_RAD:
                 ap.final = True
                 return 0.0, 0.0
             return 0.0, FOLLOW_GAIN * err
         d = route[ap.index] - o[:2]
-        err = _wrap(float(np.arctan2(d[1], d[0])) - o[2])
+        err = wrap_angle(float(np.arctan2(d[1], d[0])) - o[2])
         if abs(err) > TURN_IN_PLACE_RAD:
             return 0.0, FOLLOW_GAIN * err
         lim = self.robot.limits
@@ -1255,8 +1252,13 @@ def _start_pose(
         b = np.radians(rng.uniform(-START_BEARING_DEG, START_BEARING_DEG))
         p = m[:2] + r * (_rz(b)[:2, :2] @ n[:2])
         to_mark = np.arctan2(m[1] - p[1], m[0] - p[0])
-        yaw = _wrap(to_mark + rng.uniform(-np.pi / 2, np.pi / 2))
-        if _clearance(robot, p) < START_CLEARANCE or not _inside(robot.scene, p):
+        yaw = wrap_angle(to_mark + rng.uniform(-np.pi / 2, np.pi / 2))
+        if (
+            _clearance(robot, p) < START_CLEARANCE
+            or not points_in_polygons(
+                p[None, :2], [room.polygon for room in robot.scene.rooms]
+            ).any()
+        ):
             continue
         eye = floor_pose(p[0], p[1], yaw) @ np.append(head, 1.0)
         if not line_of_sight(eye[None, :3], m[None], robot.occluders)[0, 0]:
@@ -1274,14 +1276,6 @@ def _clearance(robot: HeadRobot, p: Array) -> float:
     local = np.abs(np.stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]], 1))
     out = np.linalg.norm(np.maximum(local - occ.half_size, 0.0), axis=1)
     return float(np.min(np.where(low, out, np.inf))) - robot.robot.base_radius
-
-
-def _inside(scene: Scene, p: Array) -> bool:
-    return any(
-        cv2.pointPolygonTest(np.asarray(r.polygon, np.float32), (float(p[0]), float(p[1])), False)
-        > 0
-        for r in scene.rooms
-    )
 
 
 def landmark_reading(

@@ -34,7 +34,7 @@ from numpy.typing import NDArray
 from core.calibration import Chessboard, board_object_points, estimate_plane_pose, find_chessboard
 from core.errors import InvalidInput, PatternNotFound
 from core.geometry.camera import project_points, undistort_points
-from core.geometry.rotations import matrix_to_rotvec, nearest_rotation
+from core.geometry.rotations import matrix_to_rotvec, nearest_rotation, wrap_angle
 from core.manipulation import (
     METHODS,
     BasePlacement,
@@ -619,7 +619,7 @@ def _drive(
 
     def turn_to(heading: float) -> None:
         while True:
-            err = (heading - x[2] + math.pi) % (2 * math.pi) - math.pi
+            err = wrap_angle(float(heading - x[2]))
             if abs(err) < 1e-9:
                 break
             x[2] += float(np.clip(err, -w_max * dt, w_max * dt))

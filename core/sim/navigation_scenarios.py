@@ -56,6 +56,7 @@ from core.calibration.onboard import FloorPlane, calibrate_floor_plane
 from core.calibration.projector import calibrate_projector, mount_errors
 from core.errors import InvalidInput
 from core.geometry.camera import project_points
+from core.geometry.poses import pose_from_quaternion
 from core.geometry.rotations import matrix_to_rotvec, rotvec_to_matrix
 from core.localization import NetworkCamera
 from core.localization.ground import locate_ml
@@ -126,20 +127,6 @@ CEILING_PIXEL_SIGMA = 0.5
 LASER_BLOB_SIGMA = 1.2
 
 
-def _pose_matrix(position: tuple[float, ...], quaternion_xyzw: tuple[float, ...]) -> Array:
-    x, y, z, w = quaternion_xyzw
-    R = np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-        ]
-    )
-    T = np.eye(4)
-    T[:3, :3], T[:3, 3] = R, position
-    return T
-
-
 def nominal_projector(scene: Scene) -> PanTiltProjector:
     """Return the installer's model of the scene's projector: its nominal mount, ideal joints."""
     p = scene.projector
@@ -148,7 +135,7 @@ def nominal_projector(scene: Scene) -> PanTiltProjector:
     if p.pose.quaternion_xyzw is None:
         raise InvalidInput("the projector's pose must be given with quaternion_xyzw")
     return PanTiltProjector(
-        _pose_matrix(p.pose.position, p.pose.quaternion_xyzw),
+        pose_from_quaternion(p.pose.position, p.pose.quaternion_xyzw),
         pan_limits=p.pan_limits,
         tilt_limits=p.tilt_limits,
         max_rate=(p.max_rate, p.max_rate),

@@ -33,11 +33,11 @@ from core.calibration.network import (
     registered,
 )
 from core.errors import DegenerateConfiguration, InvalidInput
+from core.geometry.rotations import quaternion_to_matrix
 from core.landmarks.payload import PayloadError, Signpost, decode_payload
 from core.localization import NetworkCamera
 from core.localization.detect import MarkerDetectorConfig, detect_marker
 from core.localization.ground import locate_monocular
-from core.sim._geometry import quaternion_to_matrix
 from core.sim.landmark_scenarios import (
     HeadRobot,
     _calibrated,

@@ -28,6 +28,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from core.errors import IntspaceError, InvalidInput
+from core.geometry.rotations import wrap_angle
 from core.localization import NetworkCamera, line_of_sight, locate_ml
 from core.localization.detect import MarkerDetectorConfig, detect_marker
 from core.sim.installation import installed_calibration, scene_fingerprint
@@ -66,7 +67,7 @@ def propagate(P: Array, yaw: float, before: Pose2D, after: Pose2D, slip: SlipNoi
     |dyaw| on the heading (core.sim.scene.SlipNoise)."""
     d_odom = np.array([after.x - before.x, after.y - before.y])
     step = _rot(-before.yaw) @ d_odom
-    dyaw = float((after.yaw - before.yaw + np.pi) % (2 * np.pi) - np.pi)
+    dyaw = wrap_angle(float(after.yaw - before.yaw))
     R = _rot(yaw)
     d_w = R @ step
     F = np.eye(3)
