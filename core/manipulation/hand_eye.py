@@ -30,7 +30,7 @@ Methods (`method=`):
   motions that rotate about at least two different axes: with R_X known, (R_A - I) t_X =
   R_X t_B - t_A is linear in t_X. The motions are told apart by the end effector's rotation
   (under 0.5 degrees: the first group); the rotation uses the first group only, so the method
-  needs views with pure translations among them (core.sim.manipulation_scenarios.
+  needs views with pure translations among them (core.sim.eye_in_hand.
   hand_eye_views makes them).
 
 With the target's points and their pixels, X is refined by minimising the reprojection error of

@@ -26,7 +26,7 @@ from numpy.typing import NDArray
 
 from core.errors import IntspaceError, InvalidInput
 from core.manipulation import DHArm
-from core.sim.manipulation_scenarios import BOX_SIZE, MARK_BOARD, T_MARK_BOARD
+from core.sim.marked_box import BOX_SIZE, MARK_BOARD, T_MARK_BOARD
 from server.scene._agents import agent_id
 from server.scene._geometry import Pose, pose_from_transform
 

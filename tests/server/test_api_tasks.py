@@ -14,15 +14,9 @@ from fastapi.testclient import TestClient
 from core.landmarks import ObjectMark, decode_payload, encode_payload
 from core.manipulation import calibrate_hand_eye, default_manipulator
 from core.sim import Renderer
-from core.sim.manipulation_scenarios import (
-    GRIPPER_OPEN,
-    GraspEpisode,
-    eye_camera_intrinsics,
-    grasp,
-    grasp_episode,
-    hand_eye_views,
-    taught_image,
-)
+from core.sim.eye_in_hand import eye_camera_intrinsics, hand_eye_views
+from core.sim.fetch import GRIPPER_OPEN, GraspEpisode, grasp_episode, taught_image
+from core.sim.manipulation_scenarios import grasp
 from core.sim.render.landmarks import scene_landmarks
 from core.sim.scene import default_scene
 from server.app import create_app
