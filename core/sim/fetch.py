@@ -11,7 +11,7 @@ the marked box (core.sim.marked_box) with its eye-in-hand camera (core.sim.eye_i
   mark's corners detected in it, plus pixel noise; the parallel gripper opens, and closes on
   the box where the controller put it (`close_gripper`).
 
-The `grasp` scenario (core.sim.manipulation_scenarios) and the service's fetch task
+The `grasp` scenario (core.sim.scenarios.manipulation) and the service's fetch task
 (server.services.manipulation.run_fetch) both run it through these, so a task's episodes with
 the twin's arm are the scenario's.
 """

@@ -6,7 +6,7 @@ along when the robot moves; the frames come from core.manipulation's forward kin
 (`DHArm.frames`), never recomputed here. A joint update moves the eight frames and redraws
 the link poly-line: a few small messages, fine at the ~10 Hz a task reports.
 
-The box a fetch task reports (the twin's, core.sim.manipulation_scenarios: BOX_SIZE with its
+The box a fetch task reports (the twin's, core.sim.marked_box: BOX_SIZE with its
 chessboard MARK_BOARD printed on its top) is drawn in the arm's base frame at the pose the
 task gives, T_arm_box: on the table as the robot drives to it, between the fingers as it lifts.
 

@@ -4,7 +4,7 @@ and result stored as they go. Hand-eye runs are server.services.calibration.hand
 
 The twin's simulated eye-in-hand camera sits where core.manipulation's default manipulator
 mounts it; that true mount only renders (or projects) what the camera sees and scores the
-results, as in core.sim.manipulation_scenarios: no estimate reads it.
+results, as in core.sim.scenarios.manipulation: no estimate reads it.
 """
 
 from __future__ import annotations
@@ -206,7 +206,7 @@ def fetch_target(
     """Return the object a fetch takes, as the space's semantic map holds it: {"id" (its mark's
     id), "name", "class", "T_world_mark"}; `ref` is its id (int) or its name (str, any case).
     Raises FetchRefused: 404 when the map has no such object, 409 when two have that name or
-    the arm cannot fetch it from there (core.sim.manipulation_scenarios.fetch_problem)."""
+    the arm cannot fetch it from there (core.sim.fetch.fetch_problem)."""
     query = (
         select(SemanticObject)
         .where(SemanticObject.space_id == space_id)

@@ -6,7 +6,7 @@ history.
 
 The twin's simulated eye-in-hand camera sits where core.manipulation's default manipulator
 mounts it; that true mount only renders what the camera sees and scores the results, as in
-core.sim.manipulation_scenarios: no estimate reads it.
+core.sim.scenarios.manipulation: no estimate reads it.
 """
 
 from __future__ import annotations

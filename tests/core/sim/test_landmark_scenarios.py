@@ -21,7 +21,7 @@ from core.sim.head_robot import (
     robot_head_pose,
 )
 from core.sim.installation import installed_cameras
-from core.sim.landmark_scenarios import (
+from core.sim.scenarios.landmarks import (
     _se2_exp,
     _se2_log,
     landmark_pose,

@@ -33,8 +33,8 @@ from core.sim.fetch import (
     grasp_episode,
 )
 from core.sim.intrinsics import RenderedCalibration
-from core.sim.manipulation_scenarios import grasp, hand_eye
 from core.sim.marked_box import BOX_SIZE, MARK_POINTS
+from core.sim.scenarios.manipulation import grasp, hand_eye
 
 
 @cache
