@@ -26,7 +26,7 @@ a robot in this home gets without the twin's truth: a signpost (whose payload ca
 world pose) read within RELOCALISE_M and, when a `CeilingLocaliser` is given, its top marker
 located by the ceiling cameras about CEILING_HZ times a second while the base moves.
 
-The landmark scenarios (core.sim.scenarios.landmarks) and the network's registration by the
+The landmark scenarios (core.sim.scenarios.landmark_*) and the network's registration by the
 signposts (core.sim.network_registration) drive this robot.
 """
 

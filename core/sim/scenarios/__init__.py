@@ -11,7 +11,7 @@
   the ceiling cameras (core.sim.scenarios.navigation).
 * `landmark-pose`, `landmark-reading`, `landmark-survey`: object marks and signposts located
   and read by the robot's head camera, reading by PBVS, and the survey that builds the maps
-  (core.sim.scenarios.landmarks).
+  (core.sim.scenarios.landmark_pose, landmark_reading, landmark_survey).
 * `hand-eye`, `grasp`: the eye-in-hand camera's hand-eye calibration by every method and the
   reprojection refinement, and randomised fetches by the switching grasp controller
   (core.sim.scenarios.manipulation).
@@ -28,14 +28,9 @@ from collections.abc import Callable
 
 from core.errors import InvalidInput
 from core.sim.network_drive import MarkerDrive, PoseErrors, calibration_errors
-from core.sim.scenarios.landmarks import (
-    LandmarkPoseResult,
-    LandmarkReadingResult,
-    LandmarkSurveyResult,
-    landmark_pose,
-    landmark_reading,
-    landmark_survey,
-)
+from core.sim.scenarios.landmark_pose import LandmarkPoseResult, landmark_pose
+from core.sim.scenarios.landmark_reading import LandmarkReadingResult, landmark_reading
+from core.sim.scenarios.landmark_survey import LandmarkSurveyResult, landmark_survey
 from core.sim.scenarios.localization import localization, localization_images
 from core.sim.scenarios.manipulation import grasp, hand_eye
 from core.sim.scenarios.navigation import (

@@ -21,13 +21,9 @@ from core.sim.head_robot import (
     robot_head_pose,
 )
 from core.sim.installation import installed_cameras
-from core.sim.scenarios.landmarks import (
-    _se2_exp,
-    _se2_log,
-    landmark_pose,
-    landmark_reading,
-    landmark_survey,
-)
+from core.sim.scenarios.landmark_pose import landmark_pose
+from core.sim.scenarios.landmark_reading import landmark_reading
+from core.sim.scenarios.landmark_survey import _se2_exp, _se2_log, landmark_survey
 from core.sim.scene import default_scene, load_scene
 
 

@@ -13,7 +13,7 @@ from core.landmarks.payload import Signpost, decode_payload
 from core.sim.head_robot import HeadRobot, head_camera
 from core.sim.installation import installed_cameras
 from core.sim.motion import Pose2D, UnicycleBase
-from core.sim.scenarios.landmarks import SEPARATE_M, SURVEY_READ_TRIES, _Survey
+from core.sim.scenarios.landmark_survey import SEPARATE_M, SURVEY_READ_TRIES, _Survey
 from core.sim.scene import MotionLimits, SlipNoise, default_scene
 from core.sim.survey_localisation import (
     CEILING_FLOOR_M,
