@@ -3,9 +3,10 @@
 * `network-calibration`, `network-calibration-board`: every ceiling camera calibrated by the
   robot's marker or its chessboard (core.sim.scenarios.network).
 * `localization`, `localization-images`: the ground estimators against the Cramer-Rao bound
-  (core.sim.scenarios.localization).
+  (core.sim.scenarios.floor_localization).
 * `tracking`, `tracking-async`: the one tracker scored by the MOT metrics, on rendered images
-  and on unsynchronised cameras' points (core.sim.scenarios.tracking); `minutes` shortens them.
+  and on unsynchronised cameras' points (core.sim.scenarios.multi_target_tracking); `minutes`
+  shortens them.
 * `path-following`, `projector-calibration`: the projector drawing a planned path that the
   robot follows by three control laws, and the projector's mount calibrated from spots seen by
   the ceiling cameras (core.sim.scenarios.navigation).
@@ -28,11 +29,12 @@ from collections.abc import Callable
 
 from core.errors import InvalidInput
 from core.sim.network_drive import MarkerDrive, PoseErrors, calibration_errors
+from core.sim.scenarios.floor_localization import localization, localization_images
 from core.sim.scenarios.landmark_pose import LandmarkPoseResult, landmark_pose
 from core.sim.scenarios.landmark_reading import LandmarkReadingResult, landmark_reading
 from core.sim.scenarios.landmark_survey import LandmarkSurveyResult, landmark_survey
-from core.sim.scenarios.localization import localization, localization_images
 from core.sim.scenarios.manipulation import grasp, hand_eye
+from core.sim.scenarios.multi_target_tracking import TrackingResult, tracking, tracking_async
 from core.sim.scenarios.navigation import (
     PathFollowingResult,
     ProjectorCalibrationResult,
@@ -54,7 +56,6 @@ from core.sim.scenarios.records import (
     RejectedCameraReport,
     ScenarioResult,
 )
-from core.sim.scenarios.tracking import TrackingResult, tracking, tracking_async
 from core.sim.scene import Scene
 
 __all__ = [

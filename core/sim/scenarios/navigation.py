@@ -34,8 +34,8 @@ with the laser's light added where the spot's image falls, when the camera sees 
 not hidden by walls or furniture), and the spot is detected in it by
 core.navigation.detect_laser_spot; the spots are then located on the floor by
 core.localization.locate_ml with the cameras' *calibrated* models, the marker network
-calibration of the same seed (core.sim.scenarios.tracking.calibrated_cameras), so their errors
-include that calibration's.
+calibration of the same seed (core.sim.scenarios.multi_target_tracking.calibrated_cameras), so
+their errors include that calibration's.
 """
 
 from __future__ import annotations
@@ -576,8 +576,8 @@ class ProjectorCalibrationResult:
     mount's `position_error_m` and `rotation_error_deg` against the twin's true mount, the same
     after moving the estimate by the planar rigid motion that best aligns the calibrated
     cameras' centres with the twin's (`aligned_*`: the network calibration's own frame error
-    removed, core.sim.scenarios.tracking.frame_alignment; scoring only), the tilt offset's
-    error (rad), the calibration's own standard deviations, its RMS floor
+    removed, core.sim.scenarios.multi_target_tracking.frame_alignment; scoring only), the tilt
+    offset's error (rad), the calibration's own standard deviations, its RMS floor
     residual (m), `cameras` the calibrated cameras used (their network calibration's
     output, `cameras_from`) and how the spots' pixels were found (`spots_from`). `model`
     (not in to_dict) is the calibrated projector."""
@@ -704,7 +704,7 @@ def projector_calibration(
     seed: int = 0,
     *,
     cameras: list[NetworkCamera] | None = None,
-    cameras_from: str = "marker network calibration (core.sim.scenarios.tracking."
+    cameras_from: str = "marker network calibration (core.sim.scenarios.multi_target_tracking."
     "calibrated_cameras, rendered drive)",
     images: bool = True,
 ) -> ProjectorCalibrationResult:
@@ -719,7 +719,7 @@ def projector_calibration(
     truth = twin_projector(scene, seed)
     nominal = nominal_projector(scene)
     if cameras is None:
-        from core.sim.scenarios.tracking import calibrated_cameras
+        from core.sim.scenarios.multi_target_tracking import calibrated_cameras
 
         cameras = list(calibrated_cameras(scene, seed).cameras)
     grid = occupancy_grid(scene, 0.1, PLAN_RESOLUTION)
@@ -746,7 +746,7 @@ def projector_calibration(
     ok = located.valid
     calib = calibrate_projector(nominal, q_cmd[ok], located.xy[ok], estimate_tilt_offset=True)
     pos_err, rot_err = mount_errors(calib.T_world_base, truth.T_world_base)
-    from core.sim.scenarios.tracking import frame_alignment
+    from core.sim.scenarios.multi_target_tracking import frame_alignment
 
     T2 = frame_alignment(cameras, _true_cameras(scene, names))
     T4 = np.eye(4)
