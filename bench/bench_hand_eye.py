@@ -8,7 +8,7 @@ $INTSPACE_OPENCV4_VENV) and runs the anchor there in a subprocess; the two sides
 same data through .npz files.
 
 Data: the twin's arm shows its eye-in-hand camera the table's chessboard (8 x 5 corners, 25 mm)
-from `views` reachable poses (core.sim.manipulation_scenarios.hand_eye_views: the last 3 are
+from `views` reachable poses (core.sim.eye_in_hand.hand_eye_views: the last 3 are
 pure translations of the first, the two-group method's first group), true projections plus
 0.5 px Gaussian noise per axis; each view's board pose from its pixels
 (core.calibration.estimate_plane_pose) on the camera's own calibration (Zhang on rendered
@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from core.manipulation import METHODS, calibrate_hand_eye, pose_error
-from core.sim.manipulation_scenarios import eye_camera_intrinsics, hand_eye_views
+from core.sim.eye_in_hand import eye_camera_intrinsics, hand_eye_views
 
 VENV = Path(os.environ.get("INTSPACE_OPENCV4_VENV", "/tmp/intspace-opencv4-venv"))
 

@@ -7,7 +7,7 @@ Run from the repository root: `python -m bench.bench_network_accuracy [--seeds 0
    driving with wheel slip and the odometry as prior): every camera's errors against the twin,
    absolute (world frame of the start pose) and aligned (network geometry), beside the
    Cramer-Rao bound, with the drive's simulated length and the measured pixel noise.
-2. The accuracy study (core.sim.network_scenarios.accuracy_study): drives of at most 100, 200
+2. The accuracy study (core.sim.scenarios.network.accuracy_study): drives of at most 100, 200
    and 300 s (planned stops, then the second pass for cameras below 20 stops), the marker's
    true projections with 0.25, 0.5 and 1 px of noise; per row the worst camera's errors and
    bounds over the seeds.
@@ -35,8 +35,8 @@ from core.sim.network_drive import (
     drive_and_observe,
     show_chessboard,
 )
-from core.sim.network_scenarios import accuracy_study, network_calibration
-from core.sim.scenario_records import AccuracyRow
+from core.sim.scenarios.network import accuracy_study, network_calibration
+from core.sim.scenarios.records import AccuracyRow
 from core.sim.scene import raise_mast
 
 

@@ -2,19 +2,43 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 Array = NDArray[np.float64]
 
 
+def points_in_polygons(points: ArrayLike, polygons: Sequence[ArrayLike]) -> NDArray[np.bool_]:
+    """Return inside (M, Z): whether each point (M, 2) lies inside each polygon ((N_z, 2) each).
+
+    The even-odd rule: a horizontal ray from the point crosses the polygon's boundary an odd
+    number of times when the point is inside. All edges of all polygons are tested at once.
+    A point exactly on an edge may fall either way (a measured position never sits there).
+    """
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+    if not polygons:
+        return np.zeros((p.shape[0], 0), dtype=bool)
+    rings = [np.asarray(poly, dtype=np.float64).reshape(-1, 2) for poly in polygons]
+    a = np.concatenate(rings)
+    b = np.concatenate([np.roll(r, -1, axis=0) for r in rings])
+    owner = np.repeat(np.arange(len(rings)), [r.shape[0] for r in rings])
+    px, py = p[:, 0:1], p[:, 1:2]
+    straddles = (a[None, :, 1] > py) != (b[None, :, 1] > py)  # (M, E)
+    dy = b[:, 1] - a[:, 1]
+    safe = np.where(dy == 0.0, 1.0, dy)
+    x_cross = a[None, :, 0] + (py - a[None, :, 1]) * (b[:, 0] - a[:, 0])[None, :] / safe[None, :]
+    crosses = straddles & (px < x_cross)
+    # Crossings per polygon: (M, E) @ (E, Z), the edges' one-hot owners.
+    owners = np.zeros((owner.size, len(rings)), dtype=np.int64)
+    owners[np.arange(owner.size), owner] = 1
+    counts = crosses.astype(np.int64) @ owners
+    return (counts % 2) == 1
+
+
 def inside_polygon(P: Array, poly: Array) -> NDArray[np.bool_]:
     """Return whether points P (N, 2) lie inside a simple polygon poly (V, 2), by the even-odd
-    rule (a ray to +x crosses the boundary an odd number of times); points on an edge may fall
-    either way."""
-    x, y = P[:, 0:1], P[:, 1:2]
-    a, b = poly, np.roll(poly, -1, axis=0)
-    cross = (a[:, 1] > y) != (b[:, 1] > y)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        xi = a[:, 0] + (y - a[:, 1]) * (b[:, 0] - a[:, 0]) / (b[:, 1] - a[:, 1])
-    return np.asarray(np.sum(cross & (x < xi), axis=1) % 2 == 1)
+    rule (points_in_polygons); points on an edge may fall either way."""
+    inside: NDArray[np.bool_] = points_in_polygons(P, [poly])[:, 0]
+    return inside

@@ -1,9 +1,15 @@
-"""Rotation matrices, rotation vectors and the nearest rotation. Batch dimensions come first."""
+"""Rotation matrices, rotation vectors, quaternions, the nearest rotation and angle wrapping.
+Batch dimensions come first."""
 
 from __future__ import annotations
 
+import math
+from typing import overload
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+
+from core.errors import InvalidInput
 
 Array = NDArray[np.float64]
 
@@ -83,3 +89,70 @@ def nearest_rotation(M: ArrayLike) -> Array:
     u = u.copy()
     u[..., :, 2] *= d[..., None]
     return u @ vt
+
+
+def quaternion_to_matrix(q_xyzw: ArrayLike) -> Array:
+    """Return the rotations (..., 3, 3) of quaternions (..., 4) in (x, y, z, w) order,
+    normalised first (Hamilton convention, R rotates body coordinates into the parent frame)."""
+    q = np.asarray(q_xyzw, dtype=np.float64)
+    if q.shape[-1:] != (4,):
+        raise InvalidInput(f"quaternions must have shape (..., 4), got {q.shape}")
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    return np.stack(
+        [
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
+            np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
+            np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1),
+        ],
+        -2,
+    )
+
+
+def matrix_to_quaternion(R: ArrayLike) -> Array:
+    """Return the unit quaternions (..., 4) in (x, y, z, w) order, w >= 0, of rotations
+    (..., 3, 3).
+
+    Shepperd's method (J. Guidance and Control 1(3), 1978): the largest of w^2, x^2, y^2, z^2 is
+    taken from the trace or a diagonal element, so no division is by a small number and half
+    turns keep full precision.
+    """
+    m = np.asarray(R, dtype=np.float64)
+    if m.shape[-2:] != (3, 3):
+        raise InvalidInput(f"rotations must have shape (..., 3, 3), got {m.shape}")
+    a = m.reshape(-1, 3, 3)
+    tr = np.trace(a, axis1=-2, axis2=-1)
+    k = np.argmax(np.stack([a[:, 0, 0], a[:, 1, 1], a[:, 2, 2], tr], axis=1), axis=1)
+    q = np.empty((len(a), 4))
+    on = k == 3
+    w = np.sqrt(1.0 + tr[on]) / 2.0
+    b = a[on]
+    v = np.stack([b[:, 2, 1] - b[:, 1, 2], b[:, 0, 2] - b[:, 2, 0], b[:, 1, 0] - b[:, 0, 1]], 1)
+    q[on, :3] = v / (4 * w)[:, None]
+    q[on, 3] = w
+    for i in range(3):
+        on = k == i
+        j, l = (i + 1) % 3, (i + 2) % 3
+        b = a[on]
+        s = np.sqrt(1.0 + b[:, i, i] - b[:, j, j] - b[:, l, l]) * 2.0
+        q[on, i] = s / 4.0
+        q[on, j] = (b[:, j, i] + b[:, i, j]) / s
+        q[on, l] = (b[:, l, i] + b[:, i, l]) / s
+        q[on, 3] = (b[:, l, j] - b[:, j, l]) / s
+    q = np.where(q[:, 3:] >= 0, q, -q)
+    return q.reshape((*m.shape[:-2], 4))
+
+
+@overload
+def wrap_angle(a: float) -> float: ...
+@overload
+def wrap_angle(a: Array) -> Array: ...
+def wrap_angle(a: float | Array) -> float | Array:
+    """Return angles (radians, a float or any array) wrapped to [-pi, pi).
+
+    (-pi, pi] is `-wrap_angle(-a)`.
+    """
+    if isinstance(a, float | int):
+        return float((a + math.pi) % math.tau - math.pi)
+    out: Array = (np.asarray(a, dtype=np.float64) + np.pi) % (2 * np.pi) - np.pi
+    return out

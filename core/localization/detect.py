@@ -75,6 +75,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from core.errors import ConvergenceError, InvalidInput
 from core.geometry.camera import undistort_points
+from core.geometry.rotations import wrap_angle
 from core.localization._projection import project_plane
 from core.localization.cameras import NetworkCamera
 
@@ -652,10 +653,6 @@ _Row = tuple[float, float, float, float]
 _MAX_SPAN = math.pi / 2
 
 
-def _wrap(a: Array) -> Array:
-    return (a + np.pi) % (2 * np.pi) - np.pi
-
-
 def _azimuth_slope(camera: NetworkCamera, px: Array, a0: float) -> tuple[Array, Array]:
     """Return, per pixel (N, 2), its ray's world azimuth relative to a0 (rad) and its slope
     d_z / |d_xy| (negative below the horizontal)."""
@@ -670,7 +667,7 @@ def _azimuth_slope(camera: NetworkCamera, px: Array, a0: float) -> tuple[Array, 
     hz = np.hypot(d[:, 0], d[:, 1])
     with np.errstate(divide="ignore", invalid="ignore"):
         slope = d[:, 2] / hz
-    return _wrap(np.arctan2(d[:, 1], d[:, 0]) - a0), slope
+    return wrap_angle(np.arctan2(d[:, 1], d[:, 0]) - a0), slope
 
 
 def _gradient_norms(camera: NetworkCamera, px: Array, a0: float) -> tuple[Array, Array]:
@@ -679,7 +676,7 @@ def _gradient_norms(camera: NetworkCamera, px: Array, a0: float) -> tuple[Array,
     steps = np.array([[0.5, 0.0], [-0.5, 0.0], [0.0, 0.5], [0.0, -0.5]])
     a, s = _azimuth_slope(camera, (px[:, None, :] + steps).reshape(-1, 2), a0)
     a, s = a.reshape(-1, 4), s.reshape(-1, 4)
-    ga = np.hypot(_wrap(a[:, 0] - a[:, 1]), _wrap(a[:, 2] - a[:, 3]))
+    ga = np.hypot(wrap_angle(a[:, 0] - a[:, 1]), wrap_angle(a[:, 2] - a[:, 3]))
     gs = np.hypot(s[:, 0] - s[:, 1], s[:, 2] - s[:, 3])
     return ga, gs
 
@@ -867,7 +864,7 @@ def locate_body_axis(
     # Azimuths relative to the blob's middle pixel's (the last row), away from the wrap at pi.
     a, s = _azimuth_slope(camera, np.vstack([pts, pts.mean(axis=0)]), 0.0)
     a0 = float(a[-1])
-    a, s = _wrap(a[:-1] - a0), s[:-1]
+    a, s = wrap_angle(a[:-1] - a0), s[:-1]
     if not np.all(np.isfinite(a)) or np.ptp(a) > _MAX_SPAN:
         return None
     idx = np.array([np.argmin(a), np.argmax(a), np.argmin(s), np.argmax(s)])
@@ -1002,7 +999,7 @@ def locate_body_axis(
         # Both sides cut by the image border: the middle of what is seen, +- half of it.
         phi = 0.5 * (a_lo + a_hi)
         cov_pd[0, 0] = half**2 + lat2
-    bearing = float(_wrap(np.array(phi + a0)))
+    bearing = float(wrap_angle(np.array(phi + a0)))
     cb, sb = math.cos(bearing), math.sin(bearing)
     floor_xy = camera.center[:2] + dist * np.array([cb, sb])
     J = np.array([[-dist * sb, cb], [dist * cb, sb]])

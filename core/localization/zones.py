@@ -23,13 +23,14 @@ an `end` event when it ends. No I/O and no clock: time is what the caller passes
 from __future__ import annotations
 
 import math
-from collections.abc import Hashable, Iterable, Sequence
+from collections.abc import Hashable, Iterable
 from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from core.errors import InvalidInput
+from core.geometry.polygon import points_in_polygons
 
 Array = NDArray[np.float64]
 
@@ -73,33 +74,6 @@ class ZoneEvent:
     zone: Hashable | None
     xy: tuple[float, float]
     t: float
-
-
-def points_in_polygons(points: ArrayLike, polygons: Sequence[ArrayLike]) -> NDArray[np.bool_]:
-    """Return inside (M, Z): whether each point (M, 2) lies inside each polygon ((N_z, 2) each).
-
-    The even-odd rule: a horizontal ray from the point crosses the polygon's boundary an odd
-    number of times when the point is inside. All edges of all polygons are tested at once.
-    A point exactly on an edge may fall either way (a measured position never sits there).
-    """
-    p = np.asarray(points, dtype=np.float64).reshape(-1, 2)
-    if not polygons:
-        return np.zeros((p.shape[0], 0), dtype=bool)
-    rings = [np.asarray(poly, dtype=np.float64).reshape(-1, 2) for poly in polygons]
-    a = np.concatenate(rings)
-    b = np.concatenate([np.roll(r, -1, axis=0) for r in rings])
-    owner = np.repeat(np.arange(len(rings)), [r.shape[0] for r in rings])
-    px, py = p[:, 0:1], p[:, 1:2]
-    straddles = (a[None, :, 1] > py) != (b[None, :, 1] > py)  # (M, E)
-    dy = b[:, 1] - a[:, 1]
-    safe = np.where(dy == 0.0, 1.0, dy)
-    x_cross = a[None, :, 0] + (py - a[None, :, 1]) * (b[:, 0] - a[:, 0])[None, :] / safe[None, :]
-    crosses = straddles & (px < x_cross)
-    # Crossings per polygon: (M, E) @ (E, Z), the edges' one-hot owners.
-    owners = np.zeros((owner.size, len(rings)), dtype=np.int64)
-    owners[np.arange(owner.size), owner] = 1
-    counts = crosses.astype(np.int64) @ owners
-    return (counts % 2) == 1
 
 
 @dataclass

@@ -12,11 +12,11 @@ hand-eye calibration.
   `first_look` / `next_look` (look then move from a taught image of a planar mark).
 """
 
+from core.geometry.poses import invert_pose
 from core.manipulation.arm import (
     DHArm,
     IKResult,
     default_arm,
-    invert_pose,
     pose_error,
     puma_like_arm,
 )

@@ -29,7 +29,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from core.errors import InvalidInput
-from core.geometry.rotations import matrix_to_rotvec
+from core.geometry.poses import invert_pose
+from core.geometry.rotations import matrix_to_rotvec, wrap_angle
 
 Array = NDArray[np.float64]
 
@@ -59,17 +60,6 @@ def as_pose(T: ArrayLike, name: str = "T") -> Array:
             "last row (0, 0, 0, 1)"
         )
     return a
-
-
-def invert_pose(T: ArrayLike) -> Array:
-    """Return the inverses (..., 4, 4) of rigid transforms T (..., 4, 4): [R^T, -R^T t]."""
-    a = np.asarray(T, dtype=np.float64)
-    out = np.zeros_like(a)
-    Rt = np.swapaxes(a[..., :3, :3], -1, -2)
-    out[..., :3, :3] = Rt
-    out[..., :3, 3] = -(Rt @ a[..., :3, 3:4])[..., 0]
-    out[..., 3, 3] = 1.0
-    return out
 
 
 def pose_error(T: ArrayLike, T_target: ArrayLike) -> tuple[Array, Array]:
@@ -293,7 +283,7 @@ class DHArm:
                         q4 = math.atan2(-M[1, 2] / sq5, -M[0, 2] / sq5)
                         q6 = math.atan2(-M[2, 1] / sq5, M[2, 0] / sq5)
                     base = np.array([q1, q2, q3, q4, q5, q6])
-                    sols.extend(self._shifted(_wrap(base)))
+                    sols.extend(self._shifted(-wrap_angle(-base)))
         return _unique(sols)
 
     def fk_partial(self, q123: Array) -> Array:
@@ -627,12 +617,6 @@ def _rot_z(t: float) -> Array:
 def _rot_y(t: float) -> Array:
     c, s = math.cos(t), math.sin(t)
     return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
-
-
-def _wrap(q: Array) -> Array:
-    """Return angles wrapped to (-pi, pi]."""
-    w: Array = -((-q + np.pi) % (2 * np.pi) - np.pi)
-    return w
 
 
 def _unique(sols: list[Array], tol: float = 1e-9) -> list[Array]:

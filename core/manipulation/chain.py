@@ -17,6 +17,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from core.errors import InvalidInput
+from core.geometry.poses import invert_pose
 from core.manipulation.arm import (
     DHArm,
     IKResult,
@@ -25,7 +26,6 @@ from core.manipulation.arm import (
     _rotvec_one,
     as_pose,
     default_arm,
-    invert_pose,
     pose_error,
 )
 from core.manipulation.errors import Unreachable

@@ -30,7 +30,7 @@ Methods (`method=`):
   motions that rotate about at least two different axes: with R_X known, (R_A - I) t_X =
   R_X t_B - t_A is linear in t_X. The motions are told apart by the end effector's rotation
   (under 0.5 degrees: the first group); the rotation uses the first group only, so the method
-  needs views with pure translations among them (core.sim.manipulation_scenarios.
+  needs views with pure translations among them (core.sim.eye_in_hand.
   hand_eye_views makes them).
 
 With the target's points and their pixels, X is refined by minimising the reprojection error of
@@ -50,8 +50,15 @@ from numpy.typing import ArrayLike, NDArray
 
 from core.errors import InvalidInput
 from core.geometry.camera import as_distortion, project_points
-from core.geometry.rotations import matrix_to_rotvec, nearest_rotation, rotvec_to_matrix, skew
-from core.manipulation.arm import as_pose, invert_pose
+from core.geometry.poses import invert_pose
+from core.geometry.rotations import (
+    matrix_to_quaternion,
+    matrix_to_rotvec,
+    nearest_rotation,
+    rotvec_to_matrix,
+    skew,
+)
+from core.manipulation.arm import as_pose
 from core.manipulation.errors import DegenerateMotions, TooFewMotions
 from core.optim import solve_sparse_lm
 
@@ -190,15 +197,6 @@ def _park(A: Array, B: Array) -> Array:
     return nearest_rotation(inv_sqrt @ M.T)
 
 
-def _quat(R: Array) -> Array:
-    """Return unit quaternions (..., 4) = (w, x, y, z) of rotations, w >= 0."""
-    rv = matrix_to_rotvec(R)
-    th = np.linalg.norm(rv, axis=-1, keepdims=True)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        n = np.where(th > 0, rv / np.where(th > 0, th, 1.0), 0.0)
-    return np.concatenate([np.cos(th / 2.0), np.sin(th / 2.0) * n], axis=-1)
-
-
 def _qmul(p: Array, q: Array) -> Array:
     """Hamilton product of quaternions (..., 4) = (w, x, y, z)."""
     pw, pv = p[..., :1], p[..., 1:]
@@ -210,7 +208,7 @@ def _qmul(p: Array, q: Array) -> Array:
 
 def _dual_quat(T: Array) -> tuple[Array, Array]:
     """Return (q, q') (..., 4) with q' = 0.5 (0, t) q: the dual quaternion of rigid motions."""
-    q = _quat(T[..., :3, :3])
+    q = matrix_to_quaternion(T[..., :3, :3])[..., [3, 0, 1, 2]]  # (w, x, y, z)
     t = np.concatenate([np.zeros((*T.shape[:-2], 1)), T[..., :3, 3]], axis=-1)
     return q, 0.5 * _qmul(t, q)
 

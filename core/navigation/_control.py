@@ -30,12 +30,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from core.errors import InvalidInput
+from core.geometry.rotations import wrap_angle
 
 Array = NDArray[np.float64]
-
-
-def _wrap(a: float) -> float:
-    return (a + math.pi) % (2.0 * math.pi) - math.pi
 
 
 def _rot(theta: float) -> Array:
@@ -205,7 +202,7 @@ class SpotFollower:
                 return np.zeros(2)
             _, s = self.tracker.last
             bearing = math.atan2(s[1] - o[1], s[0] - o[0]) - o[2]
-            turn = math.copysign(self.search_rate, _wrap(bearing))
+            turn = math.copysign(self.search_rate, wrap_angle(bearing))
             return np.array([0.0, turn])
         cmd, integrate = self._law(t, dt, o, reference)
         out, scaled = saturate(cmd, self.limits.v_max, self.limits.omega_max)
@@ -384,18 +381,18 @@ class StateFeedbackLaw(SpotFollower):
         speed = float(np.linalg.norm(v_world))
         track = self.tracker.velocity()
         if speed > 0.05 and abs(reference.turn_rate) < 0.05 and np.linalg.norm(track) > 0.05:
-            ang = _wrap(math.atan2(track[1], track[0]) - math.atan2(v_world[1], v_world[0]))
+            ang = wrap_angle(math.atan2(track[1], track[0]) - math.atan2(v_world[1], v_world[0]))
             # The odometry's heading drifts slowly: a low-pass over ~1 / drift_gain seconds,
             # on straight stretches only (on a curve the fitted track lags the command).
-            self.drift += min(self.drift_gain * dt, 1.0) * _wrap(ang - self.drift)
+            self.drift += min(self.drift_gain * dt, 1.0) * wrap_angle(ang - self.drift)
         V = _rot(self.drift) @ v_world
         s = self.predicted_spot(t, V)
         v_r, w_r = point_to_unicycle(V, self.theta_r, self.L)
         p_r = s - self.L * np.array([math.cos(self.theta_r), math.sin(self.theta_r)])
         e = _rot(th).T @ (p_r - np.asarray(odom[:2]))
-        e_th = _wrap(self.theta_r - th)
+        e_th = wrap_angle(self.theta_r - th)
         v = v_r * math.cos(e_th) + self.k_x * e[0]
         w = w_r + v_r * (self.k_y * e[1] + self.k_theta * math.sin(e_th))
         # The virtual unicycle moves on whatever the robot does (it is the reference).
-        self.theta_r = _wrap(self.theta_r + w_r * dt)
+        self.theta_r = wrap_angle(self.theta_r + w_r * dt)
         return np.array([v, w]), None

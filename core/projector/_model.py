@@ -32,6 +32,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from core._validate import as_matrix
 from core.errors import DegenerateConfiguration, IntspaceError, InvalidInput
+from core.geometry.rotations import wrap_angle
 
 Array = NDArray[np.float64]
 
@@ -302,7 +303,7 @@ class PanTiltProjector:
         cands = []
         for p, tl in ((pan, tilt), (pan + math.pi, -tilt)):
             p = p - self.theta[0]
-            p = q_ref[:, 0] + (p - q_ref[:, 0] + math.pi) % (2 * math.pi) - math.pi
+            p = q_ref[:, 0] + wrap_angle(p - q_ref[:, 0])
             cands.append(np.stack([p, tl - self.theta[1]], -1))
         C = np.stack(cands, 1)  # (N, 2, 2)
         lo, hi = self.tilt_limits

@@ -1,52 +1,14 @@
-"""Pose geometry of the twin: look-at and quaternion (x, y, z, w) rotations, rigid boxes."""
+"""Pose geometry of the twin: look-at rotations, schema poses, rigid boxes."""
 
 from __future__ import annotations
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from core.geometry.rotations import quaternion_to_matrix
 from core.sim.scene import Pose
 
 Array = NDArray[np.float64]
-
-
-def quaternion_to_matrix(q_xyzw: ArrayLike) -> Array:
-    """Return the rotation (..., 3, 3) of unit quaternions (..., 4) in (x, y, z, w) order."""
-    q = np.asarray(q_xyzw, dtype=np.float64)
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    return np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
-            np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
-            np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1),
-        ],
-        -2,
-    )
-
-
-def matrix_to_quaternion(R: ArrayLike) -> Array:
-    """Return the unit quaternion (4,) (x, y, z, w), w >= 0, of a rotation matrix (3, 3).
-
-    Shepperd's method: pivot on the largest of w^2, x^2, y^2, z^2 for numerical stability.
-    """
-    m = np.asarray(R, dtype=np.float64)
-    tr = np.trace(m)
-    diag = np.array([m[0, 0], m[1, 1], m[2, 2], tr])
-    k = int(np.argmax(diag))
-    if k == 3:
-        w = np.sqrt(1.0 + tr) / 2.0
-        q = np.array([m[2, 1] - m[1, 2], m[0, 2] - m[2, 0], m[1, 0] - m[0, 1], 0.0]) / (4 * w)
-        q[3] = w
-    else:
-        i, j, l = k, (k + 1) % 3, (k + 2) % 3
-        s = np.sqrt(1.0 + m[i, i] - m[j, j] - m[l, l]) * 2.0
-        q = np.zeros(4)
-        q[i] = s / 4.0
-        q[j] = (m[j, i] + m[i, j]) / s
-        q[l] = (m[l, i] + m[i, l]) / s
-        q[3] = (m[l, j] - m[j, l]) / s
-    return q if q[3] >= 0 else -q
 
 
 def look_at_rotation(position: ArrayLike, target: ArrayLike) -> Array:

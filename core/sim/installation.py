@@ -23,6 +23,8 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from core.localization import NetworkCamera
+from core.sim.render import camera_model
 from core.sim.scene import Scene
 
 Array = NDArray[np.float64]
@@ -154,3 +156,24 @@ def installed_calibration(scene: Scene, path: Path = DATA_FILE) -> InstalledCali
         if data.get("scene_fingerprint") == scene_fingerprint(scene):
             return _from_json(data, "shipped")
     return calibrate_installation(scene)
+
+
+_INSTALLED: dict[str, list[NetworkCamera]] = {}
+
+
+def installed_cameras(scene: Scene) -> list[NetworkCamera]:
+    """Return the scene's ceiling cameras as its installed network calibration has them
+    (core.sim.installation: shipped for the default home, else a calibration drive, whose
+    result is kept for the process's life)."""
+    key = scene_fingerprint(scene)
+    hit = _INSTALLED.get(key)
+    if hit is None:
+        cal = installed_calibration(scene)
+        # A camera's resolution is what its owner knows of it without any calibration.
+        sizes = {c.name: (camera_model(c).width, camera_model(c).height) for c in scene.cameras}
+        hit = [
+            NetworkCamera.from_pose(c.K, c.dist, c.T_world_camera, sizes[c.name], c.name)
+            for c in cal.cameras
+        ]
+        _INSTALLED[key] = hit
+    return list(hit)

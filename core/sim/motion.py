@@ -18,6 +18,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from core.errors import InvalidInput
+from core.geometry.rotations import wrap_angle
 from core.sim.crowd import crowd_of, script_positions
 from core.sim.scene import MotionLimits, Robot, Scene, SlipNoise, Walker
 
@@ -79,16 +80,12 @@ class SimClock:
         return self.time
 
 
-def _wrap(a: float) -> float:
-    return (a + math.pi) % (2.0 * math.pi) - math.pi
-
-
 def _advance(x: float, y: float, yaw: float, ds: float, dl: float, dyaw: float) -> Pose2D:
     # Second-order (midpoint heading) integration of a body-frame displacement (ds forward,
     # dl to the left) with rotation dyaw; exact for straight lines, O(dyaw^2 ds) for arcs.
     h = yaw + 0.5 * dyaw
     c, s = math.cos(h), math.sin(h)
-    return Pose2D(x + ds * c - dl * s, y + ds * s + dl * c, _wrap(yaw + dyaw))
+    return Pose2D(x + ds * c - dl * s, y + ds * s + dl * c, wrap_angle(yaw + dyaw))
 
 
 class UnicycleBase:
@@ -199,7 +196,7 @@ class Patrol:
                 self.index = 0
         else:
             return 0.0, 0.0  # every waypoint is within tolerance of where the robot stands
-        err = _wrap(math.atan2(dy, dx) - pose.yaw)
+        err = wrap_angle(math.atan2(dy, dx) - pose.yaw)
         omega = self.gain * err
         v = self.limits.max_speed * max(0.0, math.cos(err)) ** 2
         if not self.loop and self.index == len(self.waypoints) - 1:

@@ -2,7 +2,7 @@
 
 After its marker drive the robot visits the signposts the home's map declares (their payloads
 carry their poses in the world) and reads each by PBVS with its head camera, as the landmark
-survey does (core.sim.landmark_scenarios.HeadRobot, its head camera calibrated by Zhang). Where a
+survey does (core.sim.head_robot.HeadRobot, its head camera calibrated by Zhang). Where a
 signpost is read the robot stands still and two things locate its top marker:
 
 * the world, through the read: T_world_cam = T_world_mark T_cam_mark^-1 (the payload's pose,
@@ -33,15 +33,15 @@ from core.calibration.network import (
     registered,
 )
 from core.errors import DegenerateConfiguration, InvalidInput
+from core.geometry.rotations import quaternion_to_matrix
 from core.landmarks.payload import PayloadError, Signpost, decode_payload
 from core.localization import NetworkCamera
 from core.localization.detect import MarkerDetectorConfig, detect_marker
 from core.localization.ground import locate_monocular
-from core.sim._geometry import quaternion_to_matrix
-from core.sim.landmark_scenarios import (
+from core.sim.head_robot import (
     HeadRobot,
-    _calibrated,
-    _Track,
+    TrackedLandmark,
+    calibrate_scene_head_camera,
     floor_pose,
 )
 from core.sim.motion import world_state
@@ -186,7 +186,7 @@ def signpost_registration(
     names = {c.name for c in scene.cameras}
     ceiling = [c for c in cameras if c.name in names]
     rng = np.random.default_rng([seed, 41])
-    K, dist, _ = _calibrated(scene, rng, HEAD_CALIBRATION_VIEWS)
+    K, dist, _ = calibrate_scene_head_camera(scene, rng, HEAD_CALIBRATION_VIEWS)
     robot = HeadRobot(scene, K, dist, rng=rng)
     config = MarkerDetectorConfig(colour=scene.robot.marker.colour)
     sightings: list[SignpostSighting] = []
@@ -198,7 +198,7 @@ def signpost_registration(
         left.sort(key=lambda item: float(np.hypot(*(item[1][:2, 3] - here))))
         _, T_world_mark = left.pop(0)
         T_odom_mark = np.linalg.inv(robot.T_world_odom) @ T_world_mark
-        out = robot.read(_Track(T_odom_mark, "signpost", robot.time), READ_TIMEOUT_S)
+        out = robot.read(TrackedLandmark(T_odom_mark, "signpost", robot.time), READ_TIMEOUT_S)
         det = out.detection
         if not out.read or det is None or out.T_odom_cam is None:
             continue

@@ -5,18 +5,18 @@ drives the prediction (`propagate`): each step's increment (forward, lateral, tu
 by the wheels, with the slip model's noise (variances linear in the distance driven and the
 angle turned; Thrun et al., Probabilistic Robotics, sec. 5.4 and 7.4) and the Jacobian that
 turns a heading error into a growing lateral one. Fixes correct it (`kalman_update`): a
-signpost read near by (the head camera's pose from the rings, core.sim.landmark_scenarios),
+signpost read near by (the head camera's pose from the rings, core.sim.head_robot),
 and the robot's top marker located by the home's ceiling cameras (`CeilingLocaliser`).
 
 The ceiling fixes use the cameras as the home knows them (its installed network calibration,
-core.sim.installation, never the twin's true cameras): about `CEILING_HZ` times a second while
-the base moves, the cameras that should see the marker from the estimated pose (in their view
-and, on the floor plan, with a clear line of sight) render a frame, the marker is detected in
-each (core.localization.detect.detect_marker) and located on the plane of its height by
-maximum likelihood over those cameras (core.localization.locate_ml). The fix is a position
-only; the filter's cross-covariance (built by the prediction while the base drives) lets a run
-of them correct the heading as well. A fix whose innovation fails the chi-square gate
-(CEILING_CHI2) is refused: a wrong blob, a marker hidden in part.
+core.sim.installation.installed_cameras, never the twin's true cameras): about `CEILING_HZ`
+times a second while the base moves, the cameras that should see the marker from the
+estimated pose (in their view and, on the floor plan, with a clear line of sight) render a
+frame, the marker is detected in each (core.localization.detect.detect_marker) and located on
+the plane of its height by maximum likelihood over those cameras (core.localization.locate_ml).
+The fix is a position only; the filter's cross-covariance (built by the prediction while the
+base drives) lets a run of them correct the heading as well. A fix whose innovation fails the
+chi-square gate (CEILING_CHI2) is refused: a wrong blob, a marker hidden in part.
 """
 
 from __future__ import annotations
@@ -28,12 +28,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from core.errors import IntspaceError, InvalidInput
+from core.geometry.rotations import wrap_angle
 from core.localization import NetworkCamera, line_of_sight, locate_ml
 from core.localization.detect import MarkerDetectorConfig, detect_marker
-from core.sim.installation import installed_calibration, scene_fingerprint
 from core.sim.motion import Pose2D, WorldState
 from core.sim.occluders import scene_occluders
-from core.sim.render import camera_model, renderer_for
+from core.sim.render import renderer_for
 from core.sim.scene import Scene, SlipNoise
 
 Array = NDArray[np.float64]
@@ -66,7 +66,7 @@ def propagate(P: Array, yaw: float, before: Pose2D, after: Pose2D, slip: SlipNoi
     |dyaw| on the heading (core.sim.scene.SlipNoise)."""
     d_odom = np.array([after.x - before.x, after.y - before.y])
     step = _rot(-before.yaw) @ d_odom
-    dyaw = float((after.yaw - before.yaw + np.pi) % (2 * np.pi) - np.pi)
+    dyaw = wrap_angle(float(after.yaw - before.yaw))
     R = _rot(yaw)
     d_w = R @ step
     F = np.eye(3)
@@ -115,27 +115,6 @@ class MarkerFix:
     xy: Array
     cov: Array
     cameras: tuple[str, ...]
-
-
-_INSTALLED: dict[str, list[NetworkCamera]] = {}
-
-
-def installed_cameras(scene: Scene) -> list[NetworkCamera]:
-    """Return the scene's ceiling cameras as its installed network calibration has them
-    (core.sim.installation: shipped for the default home, else a calibration drive, whose
-    result is kept for the process's life)."""
-    key = scene_fingerprint(scene)
-    hit = _INSTALLED.get(key)
-    if hit is None:
-        cal = installed_calibration(scene)
-        # A camera's resolution is what its owner knows of it without any calibration.
-        sizes = {c.name: (camera_model(c).width, camera_model(c).height) for c in scene.cameras}
-        hit = [
-            NetworkCamera.from_pose(c.K, c.dist, c.T_world_camera, sizes[c.name], c.name)
-            for c in cal.cameras
-        ]
-        _INSTALLED[key] = hit
-    return list(hit)
 
 
 class CeilingLocaliser:

@@ -6,7 +6,7 @@ along when the robot moves; the frames come from core.manipulation's forward kin
 (`DHArm.frames`), never recomputed here. A joint update moves the eight frames and redraws
 the link poly-line: a few small messages, fine at the ~10 Hz a task reports.
 
-The box a fetch task reports (the twin's, core.sim.manipulation_scenarios: BOX_SIZE with its
+The box a fetch task reports (the twin's, core.sim.marked_box: BOX_SIZE with its
 chessboard MARK_BOARD printed on its top) is drawn in the arm's base frame at the pose the
 task gives, T_arm_box: on the table as the robot drives to it, between the fingers as it lifts.
 
@@ -26,7 +26,7 @@ from numpy.typing import NDArray
 
 from core.errors import IntspaceError, InvalidInput
 from core.manipulation import DHArm
-from core.sim.manipulation_scenarios import BOX_SIZE, MARK_BOARD, T_MARK_BOARD
+from core.sim.marked_box import BOX_SIZE, MARK_BOARD, T_MARK_BOARD
 from server.scene._agents import agent_id
 from server.scene._geometry import Pose, pose_from_transform
 

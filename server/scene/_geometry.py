@@ -9,6 +9,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from core.errors import InvalidInput
+from core.geometry.rotations import matrix_to_quaternion, quaternion_to_matrix
 
 Array = NDArray[np.float64]
 
@@ -38,50 +39,18 @@ class Frustum:
 
 
 def quaternion_from_matrix(R: ArrayLike) -> Array:
-    """Return the unit quaternion (w, x, y, z), w >= 0, of a 3x3 rotation matrix.
-
-    Shepperd's method (J. Guidance and Control 1(3), 1978): the largest of the four squared
-    components is taken from the trace or a diagonal element, so no division is by a small number
-    and every rotation, including half turns, keeps full precision.
-    """
-    m = np.asarray(R, dtype=np.float64)
-    t = np.trace(m)
-    d = np.diagonal(m)
-    k = int(np.argmax([t, d[0], d[1], d[2]]))
-    if k == 0:
-        s = 2.0 * math.sqrt(1.0 + t)
-        q = np.array(
-            [s / 4.0, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s]
-        )
-    elif k == 1:
-        s = 2.0 * math.sqrt(1.0 + d[0] - d[1] - d[2])
-        q = np.array(
-            [(m[2, 1] - m[1, 2]) / s, s / 4.0, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s]
-        )
-    elif k == 2:
-        s = 2.0 * math.sqrt(1.0 - d[0] + d[1] - d[2])
-        q = np.array(
-            [(m[0, 2] - m[2, 0]) / s, (m[0, 1] + m[1, 0]) / s, s / 4.0, (m[1, 2] + m[2, 1]) / s]
-        )
-    else:
-        s = 2.0 * math.sqrt(1.0 - d[0] - d[1] + d[2])
-        q = np.array(
-            [(m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, s / 4.0]
-        )
-    q /= np.linalg.norm(q)
-    return -q if q[0] < 0 else q
+    """Return the unit quaternion (w, x, y, z), w >= 0, of a 3x3 rotation matrix: viser's order
+    of core.geometry's (x, y, z, w) quaternion, renormalised since a pose may be stored as
+    float32 (_ORTHONORMAL_TOL)."""
+    q = matrix_to_quaternion(R)
+    out: Array = q[[3, 0, 1, 2]] / np.linalg.norm(q)
+    return out
 
 
 def matrix_from_quaternion(wxyz: ArrayLike) -> Array:
-    """Return the 3x3 rotation matrix of a quaternion (w, x, y, z) (normalised first)."""
-    w, x, y, z = np.asarray(wxyz, dtype=np.float64) / np.linalg.norm(wxyz)
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-        ]
-    )
+    """Return the 3x3 rotation matrix of a quaternion in viser's (w, x, y, z) order (normalised
+    first)."""
+    return quaternion_to_matrix(np.asarray(wxyz, dtype=np.float64)[[1, 2, 3, 0]])
 
 
 def pose_from_transform(T_world_camera: object, name: str = "T_world_camera") -> Pose:

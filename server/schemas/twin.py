@@ -6,7 +6,7 @@ from typing import Literal
 
 from pydantic import Field
 
-from core.sim.network_scenarios import MAX_DRIVE_S
+from core.sim.scenarios.network import MAX_DRIVE_S
 from server.schemas.common import ReadSchema, Schema
 
 

@@ -4,7 +4,7 @@ and result stored as they go. Hand-eye runs are server.services.calibration.hand
 
 The twin's simulated eye-in-hand camera sits where core.manipulation's default manipulator
 mounts it; that true mount only renders (or projects) what the camera sees and scores the
-results, as in core.sim.manipulation_scenarios: no estimate reads it.
+results, as in core.sim.scenarios.manipulation: no estimate reads it.
 """
 
 from __future__ import annotations
@@ -24,18 +24,15 @@ from core.errors import IntspaceError, InvalidInput
 from core.manipulation import (
     DHArm,
     MobileManipulator,
-    calibrate_hand_eye,
     default_manipulator,
     pose_error,
 )
-from core.sim.manipulation_scenarios import (
+from core.sim.fetch import (
     GRASP_PHASES,
     GraspEpisode,
-    eye_camera_intrinsics,
+    fetch_episodes,
     fetch_problem,
-    grasp_episode,
-    hand_eye_views,
-    taught_image,
+    prepare_fetch,
 )
 from core.sim.render import Renderer
 from core.sim.scene import default_scene
@@ -214,7 +211,7 @@ def fetch_target(
     """Return the object a fetch takes, as the space's semantic map holds it: {"id" (its mark's
     id), "name", "class", "T_world_mark"}; `ref` is its id (int) or its name (str, any case).
     Raises FetchRefused: 404 when the map has no such object, 409 when two have that name or
-    the arm cannot fetch it from there (core.sim.manipulation_scenarios.fetch_problem)."""
+    the arm cannot fetch it from there (core.sim.fetch.fetch_problem)."""
     query = (
         select(SemanticObject)
         .where(SemanticObject.space_id == space_id)
@@ -285,64 +282,43 @@ def run_fetch(
     renderer = Renderer(default_scene(), supersample=1)
     target = inputs.get("object")
     applied = inputs["arm"].get("T_ee_camera")
-    # The eye-in-hand camera's intrinsics from its own calibration, never the twin's lens.
-    intrinsics = eye_camera_intrinsics(rng)
-    if applied is not None:
-        X = np.asarray(applied, dtype=float)
-        source = "arm"
-    else:
-        report("calibrating the eye-in-hand camera", 0.0, None)
-        v = hand_eye_views(
-            rng,
-            views=15,
-            sigma_px=sigma,
-            manipulator=mm,
-            rendered=True,
-            renderer=renderer,
-            intrinsics=intrinsics,
-        )
-        X = calibrate_hand_eye(
-            v.T_base_ee,
-            v.T_cam_target,
-            object_points=v.object_points,
-            image_points=v.image_points,
-            K=v.K,
-            dist=v.dist,
-        ).X
-        source = "calibrated"
-    dp, dr = pose_error(X, mm.T_ee_camera)  # scoring only
+    prepared = prepare_fetch(
+        rng,
+        mm,
+        sigma_px=sigma,
+        renderer=renderer,
+        X=None if applied is None else np.asarray(applied, dtype=float),
+        on_stage=lambda stage: report(stage, 0.0, None),
+    )
+    dp, dr = pose_error(prepared.X, mm.T_ee_camera)  # scoring only
     hand_eye = {
-        "source": source,
+        "source": prepared.hand_eye_source,
         "rotation_error_deg": math.degrees(float(dr)),
         "translation_error_mm": 1e3 * float(dp),
     }
-    report("teaching the mark", 0.0, None)
-    taught = taught_image(mm.T_ee_camera, intrinsics, renderer=renderer, rng=rng, sigma_px=sigma)
     records: list[dict[str, Any]] = []
-    for k in range(planned):
 
-        def entered(name: str, k: int = k) -> None:
-            fraction = (k + PHASES.index(name) / len(PHASES)) / planned
-            # The result so far goes with the next episode's first phase.
-            partial = None
-            if name == PHASES[0] and records:
-                partial = fetch_summary(records, planned, hand_eye, seed)
-            report(f"episode {k + 1} of {planned}: {name}", fraction, partial)
+    def entered(k: int, name: str) -> None:
+        fraction = (k + PHASES.index(name) / len(PHASES)) / planned
+        # The result so far goes with the next episode's first phase.
+        partial = None
+        if name == PHASES[0] and records:
+            partial = fetch_summary(records, planned, hand_eye, seed)
+        report(f"episode {k + 1} of {planned}: {name}", fraction, partial)
 
-        episode = grasp_episode(
-            rng,
-            mm,
-            X,
-            intrinsics=intrinsics,
-            sigma_px=sigma,
-            on_phase=entered,
-            T_world_prior=None if target is None else np.asarray(target["T_world_mark"]),
-            on_joints=joints,
-            renderer=renderer,
-            taught=taught,
-            on_gripper=gripper,
-            on_box=box,
-        )
+    for episode in fetch_episodes(
+        rng,
+        mm,
+        prepared,
+        planned,
+        sigma_px=sigma,
+        renderer=renderer,
+        on_phase=entered,
+        T_world_prior=None if target is None else np.asarray(target["T_world_mark"]),
+        on_joints=joints,
+        on_gripper=gripper,
+        on_box=box,
+    ):
         records.append(episode_record(episode))
     return fetch_summary(records, planned, hand_eye, seed)
 

@@ -11,7 +11,7 @@ as the pan-tilt base pose T_world_base and the tilt offset of its applied calibr
 projector without a pose is uncalibrated.
 
 Following. A follow task runs the closed loop of the twin's `path-following` scenario
-(core.sim.navigation_scenarios.simulate_following) for one law on the path's trajectory, in a
+(core.sim.scenarios.navigation.simulate_following) for one law on the path's trajectory, in a
 background thread: the twin's true projector (its seeded mounting error) draws the spot from
 the commanded angles, the robot's floor camera sees it at 15 Hz with 100 ms latency (every
 frame rendered from the robot's true pose and the spot detected in it), and the
@@ -53,8 +53,8 @@ from core.navigation import (
 )
 from core.projector import JointTrajectory, PanTiltProjector, project_path
 from core.sim import Scene
-from core.sim import navigation_scenarios as nav
 from core.sim.render import Renderer
+from core.sim.scenarios import navigation as nav
 from server.db.models import (
     PlannedPath,
     Projector,
@@ -571,7 +571,7 @@ def series_of(
 
 
 class LiveSeries:
-    """The `on_step` of a follow run (core.sim.navigation_scenarios.simulate_following): keeps
+    """The `on_step` of a follow run (core.sim.scenarios.navigation.simulate_following): keeps
     the samples the stored series will hold and hands the series so far, with the progress
     (simulated time over the trajectory's `duration`, at most 1), to `report` at most every
     `every_s` seconds of wall time (default: the heartbeat's), so that `GET /paths/{id}` shows

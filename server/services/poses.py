@@ -1,11 +1,12 @@
-"""Pose conversions at the API boundary (delegated to SciPy's rotation code)."""
+"""Pose conversions at the API boundary (core.geometry's quaternion convention)."""
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 
 import numpy as np
-from scipy.spatial.transform import Rotation
+
+from core.geometry.poses import pose_from_quaternion
 
 
 def pose_from_position_quaternion(
@@ -18,7 +19,5 @@ def pose_from_position_quaternion(
     # A quaternion this short is noise, not a rotation: refuse it rather than amplify it.
     if not np.isfinite(norm) or norm < 1e-9:
         raise ValueError("quaternion_xyzw must have a non-zero norm")
-    T = np.eye(4)
-    T[:3, :3] = Rotation.from_quat(q / norm).as_matrix()
-    T[:3, 3] = position
-    return T.tolist()
+    T: list[list[float]] = pose_from_quaternion(position, q).tolist()
+    return T

@@ -1,7 +1,7 @@
 """Survey tasks on the digital twin: the robot tours the twin's home, reads the landmarks it
 finds and enters them into the space's semantic and navigation maps as it goes.
 
-The tour is core.sim's `landmark-survey` (core.sim.landmark_scenarios.landmark_survey) on the
+The tour is core.sim's `landmark-survey` (core.sim.scenarios.landmark_survey.landmark_survey) on the
 twin's scene, from the robot's start pose: routes planned on the floor plan, head sweeps at
 every stop, PBVS reads of the landmarks located but not yet read, the odometry corrected at
 signposts. Every read enters the maps through the same service as POST /maps/observations
@@ -24,7 +24,7 @@ from pydantic import Field
 from core.errors import IntspaceError
 from core.landmarks.payload import ObjectMark
 from core.sim import Scene, default_scene
-from core.sim.landmark_scenarios import DEFAULT_TOUR, SurveyRead, landmark_survey
+from core.sim.scenarios.landmark_survey import DEFAULT_TOUR, SurveyRead, landmark_survey
 from server.db.models import Task
 from server.schemas.common import ReadSchema, Schema
 from server.schemas.manipulation import FetchResult, TaskRead

@@ -16,7 +16,7 @@ from core.localization import NetworkCamera
 from core.navigation import Limits
 from core.projector import PanTiltProjector
 from core.sim import Renderer, default_scene
-from core.sim import navigation_scenarios as nav
+from core.sim.scenarios import navigation as nav
 from server.db.models import PlannedPath
 from server.services import paths as paths_service
 from server.services.paths import FOLLOW_LEASES, follow_view

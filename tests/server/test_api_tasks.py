@@ -12,18 +12,11 @@ import pytest
 from fastapi.testclient import TestClient
 
 from core.landmarks import ObjectMark, decode_payload, encode_payload
-from core.manipulation import calibrate_hand_eye, default_manipulator
+from core.manipulation import default_manipulator
 from core.sim import Renderer
-from core.sim.manipulation_scenarios import (
-    GRIPPER_OPEN,
-    GraspEpisode,
-    eye_camera_intrinsics,
-    grasp,
-    grasp_episode,
-    hand_eye_views,
-    taught_image,
-)
+from core.sim.fetch import GRIPPER_OPEN, GraspEpisode, grasp_episode, prepare_fetch
 from core.sim.render.landmarks import scene_landmarks
+from core.sim.scenarios.manipulation import grasp
 from core.sim.scene import default_scene
 from server.app import create_app
 from server.db.base import utcnow
@@ -377,37 +370,21 @@ def test_fetch_an_object_of_the_semantic_map(twin_client, admin):
     rng = np.random.default_rng(3)
     mm = default_manipulator()
     renderer = Renderer(default_scene(), supersample=1)
-    intrinsics = eye_camera_intrinsics(rng)  # the camera's own calibration, as the task's
-    v = hand_eye_views(
-        rng,
-        views=15,
-        sigma_px=0.5,
-        manipulator=mm,
-        rendered=True,
-        renderer=renderer,
-        intrinsics=intrinsics,
-    )
-    X = calibrate_hand_eye(
-        v.T_base_ee,
-        v.T_cam_target,
-        object_points=v.object_points,
-        image_points=v.image_points,
-        K=v.K,
-        dist=v.dist,
-    ).X
+    # The camera's own calibration, the hand-eye calibration and the taught image, as the
+    # task's (and the grasp scenario's).
+    prep = prepare_fetch(rng, mm, sigma_px=0.5, renderer=renderer)
     prior = np.asarray(held[41]["T_world_mark"])
-    taught = taught_image(mm.T_ee_camera, intrinsics, renderer=renderer, rng=rng, sigma_px=0.5)
     reported: list[tuple[str, np.ndarray]] = []  # the episode's joints and box, in order
     for mine in task["result"]["per_episode"]:
         theirs = grasp_episode(
             rng,
             mm,
-            X,
-            intrinsics=intrinsics,
+            prep.X,
+            intrinsics=prep.intrinsics,
             sigma_px=0.5,
             T_world_prior=prior,
             renderer=renderer,
-            taught=taught,
+            taught=prep.taught,
             on_joints=lambda q: reported.append(("joints", q)),
             on_box=lambda T: reported.append(("box", T)),
         )

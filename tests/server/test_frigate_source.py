@@ -21,8 +21,8 @@ import paho.mqtt.client as paho
 import pytest
 from fastapi.testclient import TestClient
 
+from core.geometry.polygon import points_in_polygons
 from core.localization import NetworkCamera
-from core.localization.zones import points_in_polygons
 from server.app import create_app
 from tests.server.frigate_replay import DETECT_FPS, Publisher, frigate_messages
 from tests.server.mqtt_broker import PASSWORD, USER, broker, subscribe  # noqa: F401

@@ -4,106 +4,32 @@ top of a module or inside a function), not from what happens to be imported at r
 
 from __future__ import annotations
 
-import ast
 from pathlib import Path
+
+from tests.support.import_graph import circles, import_graph
 
 SERVER = Path(__file__).resolve().parents[2] / "server"
 # What every router shares; the routers are the other modules of server/api.
 API_SHARED = {"deps", "errors", "_crud", "limits", "server_time"}
 
 
-def _modules() -> dict[str, Path]:
-    modules = {}
-    for path in SERVER.rglob("*.py"):
-        parts = list(path.relative_to(SERVER.parent).with_suffix("").parts)
-        if parts[-1] == "__init__":
-            parts = parts[:-1]
-        modules[".".join(parts)] = path
-    return modules
-
-
-def import_graph() -> dict[str, set[str]]:
-    """Return, for each module of server/, the modules of server/ it imports."""
-    modules = _modules()
-
-    def resolve(name: str) -> str | None:
-        while name and name not in modules:
-            name = name.rpartition(".")[0]
-        return name or None
-
-    graph: dict[str, set[str]] = {m: set() for m in modules}
-    for module, path in modules.items():
-        package = module if path.name == "__init__.py" else module.rpartition(".")[0]
-        for node in ast.walk(ast.parse(path.read_text())):
-            if isinstance(node, ast.Import):
-                names = [alias.name for alias in node.names]
-            elif isinstance(node, ast.ImportFrom):
-                base = node.module or ""
-                if node.level:
-                    up = package.split(".")[: len(package.split(".")) - node.level + 1]
-                    base = ".".join([*up, base] if base else up)
-                names = [base] + [f"{base}.{alias.name}" for alias in node.names]
-            else:
-                continue
-            for name in names:
-                target = resolve(name)
-                if target is not None and target != module:
-                    graph[module].add(target)
-    return graph
-
-
-def circles(graph: dict[str, set[str]]) -> list[list[str]]:
-    """Return the strongly connected components of more than one module (Tarjan)."""
-    index: dict[str, int] = {}
-    low: dict[str, int] = {}
-    stack: list[str] = []
-    on_stack: set[str] = set()
-    found: list[list[str]] = []
-
-    def visit(v: str) -> None:
-        index[v] = low[v] = len(index)
-        stack.append(v)
-        on_stack.add(v)
-        for w in graph[v]:
-            if w not in index:
-                visit(w)
-                low[v] = min(low[v], low[w])
-            elif w in on_stack:
-                low[v] = min(low[v], index[w])
-        if low[v] == index[v]:
-            component = []
-            while True:
-                w = stack.pop()
-                on_stack.discard(w)
-                component.append(w)
-                if w == v:
-                    break
-            if len(component) > 1:
-                found.append(sorted(component))
-
-    for v in graph:
-        if v not in index:
-            visit(v)
-    return found
-
-
 def test_the_graph_sees_imports_inside_functions():
     # The executor once imported a service inside a function to dodge a circle; the check
     # must see such imports, or it would pass on the very circle it is for.
-    graph = import_graph()
+    graph = import_graph(SERVER)
     assert "server.services.runs" in graph["server.commands.serve"]
     assert "server.services.calibration.kinds" in graph["server.services.calibration"]
 
 
 def test_services_and_routers_form_no_circle():
-    graph = import_graph()
+    graph = import_graph(SERVER)
     mine = {m: e for m, e in graph.items() if m.startswith(("server.services", "server.api"))}
     inside = {m: {t for t in e if t in mine} for m, e in mine.items()}
     assert circles(inside) == []
 
 
 def test_no_router_imports_another_and_no_service_imports_a_router():
-    graph = import_graph()
+    graph = import_graph(SERVER)
     routers = {
         m for m in graph if m.startswith("server.api.") and m.rpartition(".")[2] not in API_SHARED
     }

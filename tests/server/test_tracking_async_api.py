@@ -2,12 +2,11 @@
 unlabelled through POST /observations, tracked by the space's one tracker, read back from
 GET /targets and the stored tracks, and scored with motmetrics.
 
-The conditions are the scenario's (core.sim.tracking_scenarios: 10 Hz per camera with its own
-phase, 0.7 px noise, 5 % missed detections, clutter, walkers crossing and pausing, points at
-1.0 m); only the length is shorter than the scenario's ten minutes. The service's clock is
-driven by the test, so the tracker sees the frames exactly as a live service would, in order,
-without the test waiting in real time.
-"""
+The conditions are the scenario's (core.sim.scenarios.multi_target_tracking: 10 Hz per camera
+with its own phase, 0.7 px noise, 5 % missed detections, clutter, walkers crossing and pausing,
+points at 1.0 m); only the length is shorter than the scenario's ten minutes. The service's
+clock is driven by the test, so the tracker sees the frames exactly as a live service would, in
+order, without the test waiting in real time."""
 
 from __future__ import annotations
 
@@ -17,7 +16,7 @@ from collections import Counter
 import numpy as np
 import pytest
 
-from core.sim import tracking_scenarios as ts
+from core.sim.scenarios import multi_target_tracking as ts
 
 MINUTES = 2.0
 SEED = 17  # not a seed the tracker's settings were chosen on (those were 0 and 3)

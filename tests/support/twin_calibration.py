@@ -1,7 +1,7 @@
 """The `tracking` scene's network calibration, computed once by the project's own calibration
-(core.sim.tracking_scenarios.calibrated_cameras: each camera's chessboard calibration, the
-robot's marker drive, the registration by the signposts) and stored as test data, so a test
-that needs calibrated cameras does not redo a ~45 s drive.
+(core.sim.scenarios.multi_target_tracking.calibrated_cameras: each camera's chessboard
+calibration, the robot's marker drive, the registration by the signposts) and stored as test
+data, so a test that needs calibrated cameras does not redo a ~45 s drive.
 
 What is stored is the calibration's estimate (K, distortion, pose and image size of every
 camera it placed, and the names it rejected), never the twin's true cameras. The file records
@@ -19,7 +19,7 @@ import json
 from pathlib import Path
 
 from core.localization import NetworkCamera
-from core.sim import tracking_scenarios as ts
+from core.sim.scenarios import multi_target_tracking as ts
 from core.sim.scene import Scene
 
 DATA_DIR = Path(__file__).resolve().parents[1] / "data"
@@ -66,8 +66,8 @@ def store_calibrated_cameras(scene: Scene, seed: int) -> Path:
     """Run the network calibration of `scene` for `seed` and store it; return the file."""
     calibrated = ts.calibrated_cameras(scene, seed)
     data = {
-        "made_by": "core.sim.tracking_scenarios.calibrated_cameras",
-        "scene": "core.sim.tracking_scenarios.tracking_scene()",
+        "made_by": "core.sim.scenarios.multi_target_tracking.calibrated_cameras",
+        "scene": "core.sim.scenarios.multi_target_tracking.tracking_scene()",
         "seed": seed,
         "scene_sha256": scene_digest(scene),
         "cameras": [

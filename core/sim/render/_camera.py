@@ -13,8 +13,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from core.errors import InvalidInput
 from core.geometry.camera import project_points
-from core.geometry.rotations import matrix_to_rotvec
-from core.sim._geometry import matrix_to_quaternion, pose_matrix
+from core.geometry.rotations import matrix_to_quaternion, matrix_to_rotvec
+from core.sim._geometry import pose_matrix
 from core.sim.motion import Pose2D
 from core.sim.scene import CeilingCamera, Distortion, Intrinsics, Pose
 

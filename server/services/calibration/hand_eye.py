@@ -6,7 +6,7 @@ history.
 
 The twin's simulated eye-in-hand camera sits where core.manipulation's default manipulator
 mounts it; that true mount only renders what the camera sees and scores the results, as in
-core.sim.manipulation_scenarios: no estimate reads it.
+core.sim.scenarios.manipulation: no estimate reads it.
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ from sqlalchemy.orm import Session
 
 from core.manipulation import METHODS, DegenerateMotions, calibrate_hand_eye, pose_error
 from core.manipulation.hand_eye import check_motions, relative_motions
-from core.sim.manipulation_scenarios import hand_eye_views
+from core.sim.eye_in_hand import hand_eye_views
 from server.db.base import utcnow
 from server.db.models import Arm, CalibrationRun, Camera, HandEyeCalibration
 from server.schemas.calibration import HandEyeRunResult

@@ -16,15 +16,15 @@ from core.errors import InvalidInput
 from core.sim import Scene, SensorNoise
 from core.sim.network_drive import drive_marker_calibration
 from core.sim.network_registration import can_register, register_network
-from core.sim.network_scenarios import (
+from core.sim.render import renderer_for
+from core.sim.scenarios.network import (
     DRIVE_S,
     INTRINSICS_FROM_BOARD,
     accuracy_study,
     camera_errors,
     drive_programme,
 )
-from core.sim.render import renderer_for
-from core.sim.scenario_records import AccuracyRow, CameraCalibrationError
+from core.sim.scenarios.records import AccuracyRow, CameraCalibrationError
 from server.db.models import CalibrationRun, Camera
 from server.schemas.calibration import NetworkRunResult
 from server.schemas.twin import NetworkRunCreate
@@ -155,7 +155,7 @@ def network_calibration_drive(
     T_world_camera, standard deviations, per-pose residuals, its errors against the twin and
     their Cramer-Rao bound;
     with `study`, the errors and bounds as functions of drive length and pixel noise for this
-    seed (core.sim.network_scenarios.accuracy_study over STUDY_BUDGETS_S x STUDY_SIGMAS_PX,
+    seed (core.sim.scenarios.network.accuracy_study over STUDY_BUDGETS_S x STUDY_SIGMAS_PX,
     one drive and noise level at a time so that `progress` hears of each)."""
     if scene.robot is None or scene.robot.marker is None:
         raise InvalidInput("the twin's robot carries no marker to calibrate the network with")

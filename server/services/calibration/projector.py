@@ -100,11 +100,11 @@ def calibrate_projector_run(
     inputs: dict[str, Any], options: dict[str, Any], progress: Progress
 ) -> dict[str, Any]:
     """Return the stored result of a projector calibration run: the twin's
-    `projector-calibration` scenario (core.sim.navigation_scenarios.projector_calibration)
+    `projector-calibration` scenario (core.sim.scenarios.navigation.projector_calibration)
     with the registry's calibrated cameras locating the spots."""
     # Imported here: a worker loads the twin's navigation scenarios only when it needs them.
     from core.sim import default_scene
-    from core.sim import navigation_scenarios as nav
+    from core.sim.scenarios import navigation as nav
 
     scene = default_scene()
     cams = inputs["cameras"]

@@ -2,7 +2,16 @@ import cv2
 import numpy as np
 import pytest
 
-from core.geometry.rotations import matrix_to_rotvec, nearest_rotation, rotvec_to_matrix, skew
+from core.errors import InvalidInput
+from core.geometry.rotations import (
+    matrix_to_quaternion,
+    matrix_to_rotvec,
+    nearest_rotation,
+    quaternion_to_matrix,
+    rotvec_to_matrix,
+    skew,
+    wrap_angle,
+)
 
 
 def test_rotvec_to_matrix_matches_opencv_rodrigues():
@@ -48,3 +57,40 @@ def test_skew_is_the_cross_product():
     rng = np.random.default_rng(2)
     a, b = rng.normal(size=(2, 10, 3))
     assert np.allclose((skew(a) @ b[..., None])[..., 0], np.cross(a, b))
+
+
+def test_quaternions_match_scipy_single_and_batched():
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(1)
+    q = rng.normal(size=(500, 4))
+    q[:4] = np.eye(4)  # the identity and the three half turns pivot on each branch
+    q[4] = [0.0, 1.0, 1.0, 0.0]  # a half turn about a diagonal: w = 0
+    R = Rotation.from_quat(q / np.linalg.norm(q, axis=1, keepdims=True)).as_matrix()
+    # Both evaluate closed forms in double precision on unit quaternions.
+    np.testing.assert_allclose(quaternion_to_matrix(q), R, atol=1e-14)
+    np.testing.assert_allclose(quaternion_to_matrix(q[7]), R[7], atol=1e-14)
+    back = matrix_to_quaternion(R)
+    expected = Rotation.from_matrix(R).as_quat(canonical=True)
+    # The sign is fixed by w >= 0; at w = 0 either sign is the same rotation.
+    expected = np.where(expected[:, 3:] < 0, -expected, expected)
+    same = np.minimum(np.abs(back - expected).max(1), np.abs(back + expected).max(1))
+    assert same.max() < 1e-14
+    assert np.all(back[:, 3] >= 0)
+    assert back.shape == (500, 4) and matrix_to_quaternion(R[3]).shape == (4,)
+    with pytest.raises(InvalidInput):
+        matrix_to_quaternion(np.eye(4))
+    with pytest.raises(InvalidInput):
+        quaternion_to_matrix([1.0, 0.0, 0.0])
+
+
+def test_wrap_angle_floats_and_arrays():
+    a = np.array([-3 * np.pi, -np.pi, -0.5, 0.0, np.pi, 2.5 * np.pi, 7.0])
+    w = wrap_angle(a)
+    assert np.all((w >= -np.pi) & (w < np.pi))
+    # Wrapping subtracts whole turns only: the remainder is exact to a few ulps of 2 pi.
+    turns = (a - w) / (2 * np.pi)
+    np.testing.assert_allclose(turns, np.round(turns), atol=1e-15)
+    assert wrap_angle(np.pi) == -np.pi and isinstance(wrap_angle(1.0), float)
+    assert -wrap_angle(-np.pi) == np.pi  # (-pi, pi] as the arm's joints take it
+    assert [wrap_angle(float(x)) for x in a] == w.tolist()

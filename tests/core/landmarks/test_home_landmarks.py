@@ -8,10 +8,10 @@ from itertools import combinations
 import cv2
 import numpy as np
 
+from core.geometry.rotations import quaternion_to_matrix
 from core.landmarks import NavigationMap, ObjectMark, Signpost, decode_payload
 from core.localization.detect import detect_marker
-from core.sim._geometry import quaternion_to_matrix
-from core.sim.landmark_scenarios import (
+from core.sim.head_robot import (
     floor_pose,
     head_camera,
     reading_standoff,

@@ -12,8 +12,8 @@ from core.calibration import place_camera
 from core.localization import DEFAULT_BOX_NOISE, box_foot, foot_on_axis
 from core.localization.detect import BodyModel
 from core.localization.detections import FrameDetection
-from core.sim import tracking_scenarios as ts
 from core.sim.occluders import scene_occluders
+from core.sim.scenarios import multi_target_tracking as ts
 from tests.support.twin_calibration import stored_calibrated_cameras
 
 # The twin's walkers are rigid cylinders of a trunk's size: their boxes are the trunk's.

@@ -25,7 +25,7 @@ from core.localization.detect import (
 from core.localization.detections import detect_frame
 from core.sim import Pose2D, Renderer, SensorNoise, WorldState, default_scene, world_state
 from core.sim.render.landmarks import scene_landmarks
-from core.sim.tracking_scenarios import tracking_scene
+from core.sim.scenarios.multi_target_tracking import tracking_scene
 
 NOISE = SensorNoise(sigma=2.0, blur_sigma=0.5)
 # Kitchen floor seen by cam_kitchen_sw, which also faces signpost_25 on the bedroom wall: its

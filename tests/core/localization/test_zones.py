@@ -8,7 +8,8 @@ import pytest
 import shapely
 
 from core.errors import InvalidInput
-from core.localization.zones import Zone, ZoneOccupancy, points_in_polygons
+from core.geometry.polygon import points_in_polygons
+from core.localization.zones import Zone, ZoneOccupancy
 
 SQUARE = np.array([[0.0, 0.0], [4.0, 0.0], [4.0, 3.0], [0.0, 3.0]])
 L_SHAPE = np.array([[4.0, 0.0], [8.0, 0.0], [8.0, 5.0], [6.0, 5.0], [6.0, 2.0], [4.0, 2.0]])

@@ -11,22 +11,20 @@ import pytest
 
 from core.errors import InvalidInput
 from core.landmarks.ambiguity import PoseHypothesis
-from core.sim.landmark_scenarios import (
+from core.sim.head_robot import (
     HeadRobot,
-    _calibrated,
-    _se2_exp,
-    _se2_log,
-    _Track,
+    TrackedLandmark,
+    calibrate_scene_head_camera,
     floor_pose,
-    landmark_pose,
-    landmark_reading,
-    landmark_survey,
     polar_command,
     reading_standoff,
     robot_head_pose,
 )
+from core.sim.installation import installed_cameras
+from core.sim.scenarios.landmark_pose import landmark_pose
+from core.sim.scenarios.landmark_reading import landmark_reading
+from core.sim.scenarios.landmark_survey import _se2_exp, _se2_log, landmark_survey
 from core.sim.scene import default_scene, load_scene
-from core.sim.survey_localisation import installed_cameras
 
 
 def test_landmark_pose_small_study() -> None:
@@ -144,7 +142,7 @@ def test_reading_plans_around_the_dining_table() -> None:
     from there: read within 60 s, the true base never touching the table."""
     scene = default_scene()
     rng = np.random.default_rng(4)
-    K, dist, _ = _calibrated(scene, rng, 6)
+    K, dist, _ = calibrate_scene_head_camera(scene, rng, 6)
     marks = HeadRobot(scene, K, dist, rng=rng).landmarks
     k = next(i for i, m in enumerate(marks) if m.name == "fridge")
     # Every landmark of the home is drawn; the robot must read the fridge's.
@@ -178,7 +176,7 @@ def test_a_reading_pose_with_nothing_free_on_its_normal_takes_the_nearest_free_p
     across the room, which touched the TV stand and the bookshelf in 4 of 5 surveys."""
     scene = default_scene()
     rng = np.random.default_rng(2)
-    K, dist, _ = _calibrated(scene, rng, 6)
+    K, dist, _ = calibrate_scene_head_camera(scene, rng, 6)
     robot = HeadRobot(scene, K, dist, start=np.array([5.2, 1.0, 0.0]), rng=rng)
     goal = np.array([6.96, 2.15, 0.0])  # odometry frame = world at the start
     assert not any(robot._free(goal[:2] - [s, 0.0]) for s in np.arange(0.0, 0.51, 0.05))
@@ -205,7 +203,7 @@ def test_an_undecided_track_approaches_between_its_two_poses() -> None:
     # weighted mean, between the two and off both; decided, along the chosen one.
     a, b = _facing([-np.cos(0.7), np.sin(0.7), 0.0]), _facing([-np.cos(0.7), -np.sin(0.7), 0.0])
     cov = np.eye(6) * 1e-4
-    undecided = _Track(
+    undecided = TrackedLandmark(
         a, "signpost", 0.0, (PoseHypothesis(a, cov, 0.7), PoseHypothesis(b, cov, 0.3))
     )
     assert not undecided.decided
@@ -216,9 +214,9 @@ def test_an_undecided_track_approaches_between_its_two_poses() -> None:
     # The weighted mean of the two unit normals: (0.7 - 0.3) sin 0.7 across the line of sight.
     expected = np.degrees(np.arctan2(0.4 * np.sin(0.7), np.cos(0.7)))
     assert angle(n, np.array([-1.0, 0.0, 0.0])) == pytest.approx(expected, abs=1e-9)
-    decided = _Track(
+    decided = TrackedLandmark(
         a, "signpost", 0.0, (PoseHypothesis(a, cov, 0.999), PoseHypothesis(b, cov, 0.001))
     )
     assert decided.decided and np.allclose(decided.normal(), a[:3, 2])
     # A landmark known only from a map (no view yet) keeps its pose.
-    assert _Track(a, "signpost", 0.0).decided
+    assert TrackedLandmark(a, "signpost", 0.0).decided

@@ -10,19 +10,14 @@ import pytest
 
 from core.errors import InvalidInput
 from core.landmarks.payload import Signpost, decode_payload
-from core.sim.landmark_scenarios import (
-    SEPARATE_M,
-    SURVEY_READ_TRIES,
-    HeadRobot,
-    _Survey,
-    head_camera,
-)
+from core.sim.head_robot import HeadRobot, head_camera
+from core.sim.installation import installed_cameras
 from core.sim.motion import Pose2D, UnicycleBase
+from core.sim.scenarios.landmark_survey import SEPARATE_M, SURVEY_READ_TRIES, _Survey
 from core.sim.scene import MotionLimits, SlipNoise, default_scene
 from core.sim.survey_localisation import (
     CEILING_FLOOR_M,
     CeilingLocaliser,
-    installed_cameras,
     kalman_update,
     propagate,
 )

@@ -20,26 +20,21 @@ from core.manipulation import (
     pose_error,
 )
 from core.sim import Renderer, default_scene
-from core.sim.intrinsics import RenderedCalibration
-from core.sim.manipulation_scenarios import (
-    BOX_SIZE,
-    EYE_DIST,
-    EYE_K,
+from core.sim.eye_in_hand import EYE_DIST, EYE_K, eye_camera_intrinsics, hand_eye_views
+from core.sim.fetch import (
     GRASP_PHASES,
     GRIPPER_OPEN,
     JOINT_RATE,
-    MARK_POINTS,
     T_MARK_GRASP,
     _Eye,
     _pre_grasp,
     close_gripper,
-    eye_camera_intrinsics,
     fetch_problem,
-    grasp,
     grasp_episode,
-    hand_eye,
-    hand_eye_views,
 )
+from core.sim.intrinsics import RenderedCalibration
+from core.sim.marked_box import BOX_SIZE, MARK_POINTS
+from core.sim.scenarios.manipulation import grasp, hand_eye
 
 
 @cache

@@ -13,7 +13,8 @@ from core.localization import NetworkCamera
 from core.navigation import AdaptiveLaw, Limits, detect_laser_spot, occupancy_grid, segment_is_free
 from core.projector import project_path
 from core.sim.motion import WorldState
-from core.sim.navigation_scenarios import (
+from core.sim.render import Renderer, camera_model
+from core.sim.scenarios.navigation import (
     CONTROL_DT,
     CORNER_RADIUS,
     FLOOR_CAMERA_EXPOSURE,
@@ -30,7 +31,6 @@ from core.sim.navigation_scenarios import (
     start_pose,
     twin_projector,
 )
-from core.sim.render import Renderer, camera_model
 from core.sim.scene import default_scene
 
 

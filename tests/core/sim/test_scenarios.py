@@ -14,7 +14,6 @@ from core.sim.network_drive import (
     plan_stops,
     show_chessboard,
 )
-from core.sim.network_scenarios import drive_programme
 from core.sim.scenarios import (
     SCENARIOS,
     board_mounting,
@@ -24,6 +23,7 @@ from core.sim.scenarios import (
     network_calibration,
     run_scenario,
 )
+from core.sim.scenarios.network import drive_programme
 
 
 def test_shown_chessboard_calibrates_each_camera() -> None:

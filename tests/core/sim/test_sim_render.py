@@ -20,8 +20,8 @@ from core.sim import (
     load_scene,
     world_state,
 )
-from core.sim.network_scenarios import mount_board
 from core.sim.render import _clip_near
+from core.sim.scenarios.network import mount_board
 from core.sim.scene import raise_mast
 
 NOISE = SensorNoise(sigma=2.0, blur_sigma=0.5)

@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 
 from core.errors import InvalidInput
+from core.geometry.rotations import matrix_to_quaternion, quaternion_to_matrix
 from core.sim import default_scene, load_scene, scene_to_json
-from core.sim._geometry import look_at_rotation, matrix_to_quaternion, quaternion_to_matrix
+from core.sim._geometry import look_at_rotation
 from core.sim.scene import Scene
 
 

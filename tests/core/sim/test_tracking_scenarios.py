@@ -11,8 +11,8 @@ import pytest
 from core.errors import InvalidInput
 from core.localization.tracking import TrackerConfig
 from core.sim import crowd
-from core.sim import tracking_scenarios as ts
 from core.sim.motion import simulate_patrol, walker_positions
+from core.sim.scenarios import multi_target_tracking as ts
 from core.sim.scene import Walker
 
 # Seeds 0 and 3 chose the tracker's settings; this one was not looked at before (more seeds,

@@ -9,7 +9,7 @@ import pytest
 
 from core.errors import InvalidInput
 from core.manipulation import default_arm
-from core.sim.manipulation_scenarios import BOX_SIZE, MARK_BOARD, MARK_POINTS, T_MARK_BOARD
+from core.sim.marked_box import BOX_SIZE, MARK_BOARD, MARK_POINTS, T_MARK_BOARD
 from core.sim.render._textures import _board_texture
 from server.scene import Pose
 from server.scene._arm import FRAME_NAMES

@@ -8,7 +8,7 @@ import pytest
 
 from core.errors import InvalidInput
 from core.sim import default_scene
-from core.sim.navigation_scenarios import nominal_projector
+from core.sim.scenarios.navigation import nominal_projector
 from server.scene._geometry import matrix_from_quaternion
 
 # As in test_scene_service: poses go through float64 end to end (~1e-15); 1e-9 still catches

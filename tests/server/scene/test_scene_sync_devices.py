@@ -7,7 +7,7 @@ import numpy as np
 
 from core.manipulation import default_arm
 from core.sim import default_scene
-from core.sim.navigation_scenarios import nominal_projector
+from core.sim.scenarios.navigation import nominal_projector
 from server.db.models import CalibrationRun
 from server.scene._geometry import matrix_from_quaternion
 from server.schemas.manipulation import TWIN_ARM

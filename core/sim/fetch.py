@@ -1,437 +1,67 @@
-"""Manipulation scenarios of the twin: hand-eye calibration of the eye-in-hand camera.
+"""The fetch on the twin: the arm's switching grasp controller (core.manipulation.grasp) fetching
+the marked box (core.sim.marked_box) with its eye-in-hand camera (core.sim.eye_in_hand).
 
-* `hand_eye_views(...)`: the arm shows its eye-in-hand camera a chessboard lying on the dining
-  table from n poses; each view's pixels are either the rendered image's detected corners
-  (`rendered=True`: the twin's renderer draws the board as seen from the camera's pose, with
-  sensor noise, and core.calibration.find_chessboard detects it) or the true projections plus
-  Gaussian noise of `sigma_px`. The calibration inputs are only the arm's forward kinematics
-  at its joint readings and each view's pose estimated from its pixels
-  (core.calibration.estimate_plane_pose) on the camera's calibrated intrinsics; the true
-  hand-eye transform, board pose and lens are kept apart for scoring.
-* `eye_camera_intrinsics(rng)`: the eye-in-hand camera's own calibration (Zhang on rendered
-  chessboard views, core.sim.intrinsics); every scenario here calibrates it first and no
-  estimate reads its true lens (EYE_K, EYE_DIST: image formation and scoring only).
-* `hand_eye`: the scenario: every method of core.manipulation.calibrate_hand_eye and the
-  reprojection refinement on the same views, errors against the twin's truth.
-* `grasp`: randomised fetch episodes on the dining table with the switching controller of
-  core.manipulation.grasp: a box with a printed chessboard on its top (not spec 04's object
-  mark with its blue frame: `GRASP_TARGET`, stated in the record); every image the
-  controller uses (the gaze while driving, each look, the taught image) is rendered by the twin
-  and the mark's corners detected in it, plus 0.5 px noise; the parallel gripper opens, and
-  closes on the box where the controller put it (`close_gripper`).
+* `prepare_fetch(...)`: what a fetch needs before its first episode, in this order on one
+  generator: the eye-in-hand camera's intrinsics (its own calibration), its hand-eye transform
+  (calibrated from 15 views and refined, unless the arm already has one applied), and the mark
+  taught once (`taught_image`).
+* `fetch_episodes(...)`: the episodes (`grasp_episode`) that follow on the same generator.
+* `grasp_episode(...)`: one fetch of the box on the dining table: every image the controller
+  uses (the gaze while driving, each look, the taught image) is rendered by the twin and the
+  mark's corners detected in it, plus pixel noise; the parallel gripper opens, and closes on
+  the box where the controller put it (`close_gripper`).
+
+The `grasp` scenario (core.sim.scenarios.manipulation) and the service's fetch task
+(server.services.manipulation.run_fetch) both run it through these, so a task's episodes with
+the twin's arm are the scenario's.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
-from typing import Any
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 from numpy.typing import NDArray
 
-from core.calibration import Chessboard, board_object_points, estimate_plane_pose, find_chessboard
+from core.calibration import estimate_plane_pose, find_chessboard
 from core.errors import InvalidInput, PatternNotFound
 from core.geometry.camera import project_points, undistort_points
-from core.geometry.rotations import matrix_to_rotvec, nearest_rotation
+from core.geometry.poses import invert_pose
+from core.geometry.rotations import matrix_to_rotvec, nearest_rotation, wrap_angle
 from core.manipulation import (
-    METHODS,
     BasePlacement,
     MobileManipulator,
     base_transform,
     calibrate_hand_eye,
-    default_manipulator,
-    invert_pose,
     pose_error,
 )
 from core.manipulation.grasp import ModeSwitch, first_look, gaze_step, next_look
-from core.sim.intrinsics import NOISE as INTRINSICS_NOISE
-from core.sim.intrinsics import RenderedCalibration, calibrate_from_board_views, focal_error_pct
-from core.sim.render import Renderer, SensorNoise, camera_at
-from core.sim.render.landmarks import LandmarkCamera
-from core.sim.scene import Board, CeilingCamera, Scene, default_scene
+from core.sim.eye_in_hand import (
+    EYE_DIST,
+    EYE_K,
+    EYE_SIZE,
+    TABLE_TOP,
+    eye_camera,
+    eye_camera_intrinsics,
+    hand_eye_views,
+)
+from core.sim.intrinsics import RenderedCalibration
+from core.sim.marked_box import (
+    BOX_HEIGHT,
+    BOX_SIZE,
+    MARK_BOARD,
+    MARK_POINTS,
+    T_MARK_BOARD,
+)
+from core.sim.render import Renderer
 
 Array = NDArray[np.float64]
 
-# The eye-in-hand camera's true lens: 640x480, mildly wide, barrel distortion. It only forms
-# the images and scores: every estimate uses the camera's own calibration
-# (eye_camera_intrinsics).
-EYE_K = np.array([[520.0, 0.0, 319.5], [0.0, 520.0, 239.5], [0.0, 0.0, 1.0]])
-EYE_DIST = np.array([-0.08, 0.02, 0.0, 0.0, 0.0])
-EYE_SIZE = (640, 480)
-# A printed 8 x 5 (inner corners) chessboard with 25 mm squares (8 + 5 odd: the detector can
-# tell its first corner from its last).
-BOARD = Board(inner_corners=(8, 5), square_size=0.025, margin=1.0)
-# The robot parked in front of the dining table (6.3, 1.9), facing it (+y).
-PARK = np.array([6.3, 1.02, math.pi / 2])
-TABLE_TOP = 0.75
 # The phases of a fetch (grasp_episode's on_phase), in order.
 GRASP_PHASES = ("approach", "switch", "look then move", "grasp", "lift and carry")
-# The two-group hand-eye method's first group: of the views, this many (after the first) are
-# pure translations of the first view's camera, along its x, y, z axes in turn, by
-# TRANSLATION_M metres; with the first view they give 6 motions without rotation.
-TRANSLATIONS = 3
-TRANSLATION_M = (0.04, 0.07)
-
-
-@dataclass(frozen=True)
-class HandEyeViews:
-    """The inputs of one hand-eye calibration and the truth kept apart for scoring.
-
-    q (n, 6): joint readings; T_base_ee (n, 4, 4): the arm's fk at q (arm base frame);
-    T_cam_target (n, 4, 4): each view's board pose estimated from its pixels; object_points
-    (M, 3) board frame; image_points (n, M, 2) pixels; K, dist: the eye-in-hand camera's
-    calibrated intrinsics (`intrinsics_from` says how); source: "rendered" (detected corners) or
-    "projected" (true projections plus noise); translations: how many views after the first are
-    pure translations of it (the two-group method's first group). true_X (4, 4)
-    T_ee_cam and true_T_base_target (4, 4): scoring only.
-    """
-
-    q: Array
-    T_base_ee: Array
-    T_cam_target: Array
-    object_points: Array
-    image_points: Array
-    K: Array
-    dist: Array
-    source: str
-    intrinsics_from: str
-    translations: int
-    true_X: Array = field(repr=False)
-    true_T_base_target: Array = field(repr=False)
-
-
-def board_on_table(manipulator: MobileManipulator, park: Array = PARK) -> tuple[Array, Array]:
-    """Return (T_world_board, T_arm_board) of the chessboard lying face up on the dining table,
-    0.62 m ahead of the parked base, in the renderer's board convention (origin at the first
-    inner corner, z into the board)."""
-    cols, rows = BOARD.inner_corners
-    s = BOARD.square_size
-    T = np.eye(4)
-    # x along world +x, y along world -y: z = x cross y = -Z, the printed face looks up.
-    T[:3, :3] = np.diag([1.0, -1.0, -1.0])
-    centre = np.array([park[0], park[1] + 0.62, TABLE_TOP + 1e-3])
-    T[:3, 3] = centre - T[:3, :3] @ np.array([(cols - 1) * s / 2, (rows - 1) * s / 2, 0.0])
-    T_world_arm = base_transform(park) @ manipulator.T_base_arm
-    return T, invert_pose(T_world_arm) @ T
-
-
-def _look_pose(rng: np.random.Generator, centre: Array, normal: Array) -> Array:
-    """Return a camera pose T (4, 4) 0.28-0.42 m from `centre`, its optical axis within 30 deg
-    of -normal, aimed within 2 cm of the centre, rolled at random."""
-    tilt = rng.uniform(0.0, math.radians(30.0))
-    az = rng.uniform(-math.pi, math.pi)
-    a = np.cross(normal, [1.0, 0.0, 0.0])
-    a /= np.linalg.norm(a)
-    b = np.cross(normal, a)
-    direction = math.cos(tilt) * normal + math.sin(tilt) * (math.cos(az) * a + math.sin(az) * b)
-    pos = centre + rng.uniform(0.28, 0.42) * direction
-    aim = centre + rng.normal(0.0, 0.02, 3)
-    z = aim - pos
-    z /= np.linalg.norm(z)
-    x = np.cross(z, rng.normal(size=3))
-    x /= np.linalg.norm(x)
-    T = np.eye(4)
-    T[:3, :3] = np.column_stack([x, np.cross(z, x), z])
-    T[:3, 3] = pos
-    return T
-
-
-def hand_eye_views(
-    rng: np.random.Generator,
-    *,
-    views: int = 15,
-    sigma_px: float = 0.5,
-    rendered: bool = False,
-    manipulator: MobileManipulator | None = None,
-    renderer: Renderer | None = None,
-    noise: SensorNoise | None = None,
-    intrinsics: RenderedCalibration | None = None,
-    translations: int | None = None,
-) -> HandEyeViews:
-    """Return `views` views of the table's chessboard from reachable arm poses.
-
-    Each view: a camera pose drawn by `_look_pose`, kept when the arm's closed-form IK reaches
-    it within limits (the branch nearest the home configuration) and every corner is inside the
-    image with a 20 px margin. Pixels: the true projections, or the corners detected in the
-    rendered image (`rendered`, with `noise`, default SensorNoise()), plus N(0, sigma_px^2) per
-    axis in both cases (the detector alone is far more precise than the 0.5 px spec 05 names).
-    Each view's board pose is estimated on the camera's calibrated intrinsics (`intrinsics`,
-    default: calibrated first from `rng`, eye_camera_intrinsics), never on its true lens.
-
-    Views 1 to `translations` (default TRANSLATIONS, fewer when that would leave under 3 general
-    views) are the two-group method's first group: the arm translates the first view's camera
-    without turning it (along its x, y, z axes in turn, by TRANSLATION_M, each
-    kept when the IK reaches it and the board stays in view); the others are the general
-    motions drawn by `_look_pose`.
-    """
-    if views < 3:
-        raise InvalidInput(f"views must be >= 3, got {views}")
-    if translations is None:
-        translations = min(TRANSLATIONS, views - 3)
-    if not 0 <= translations <= views - 3:
-        raise InvalidInput(f"translations must be 0..views - 3 ({views - 3}), got {translations}")
-    cal = intrinsics if intrinsics is not None else eye_camera_intrinsics(rng)
-    mm = manipulator if manipulator is not None else default_manipulator()
-    X = mm.T_ee_camera
-    T_world_board, W = board_on_table(mm)
-    P = board_object_points(Chessboard(*BOARD.inner_corners), BOARD.square_size)
-    centre = W[:3, :3] @ P.mean(axis=0) + W[:3, 3]
-    normal = -W[:3, 2]
-    T_world_arm = base_transform(PARK) @ mm.T_base_arm
-    if rendered and renderer is None:
-        renderer = Renderer(default_scene())
-    qs: list[Array] = []
-    uvs: list[Array] = []
-    Cs: list[Array] = []
-
-    def take(T_arm_cam: Array) -> bool:
-        """Add the view from camera pose T_arm_cam when the arm reaches it and the board is
-        seen whole; return whether it was added."""
-        sols = mm.arm.ik_analytic(T_arm_cam @ invert_pose(X), include_singular=False)
-        if not sols:
-            return False
-        q = min(sols, key=lambda s: float(np.sum((s - mm.arm.home) ** 2)))
-        # The camera as the joints put it (fk), identical to T_arm_cam up to rounding.
-        T_arm_cam = mm.arm.fk(q) @ X
-        C_true = invert_pose(T_arm_cam) @ W
-        truth = project_points(
-            P, matrix_to_rotvec(C_true[:3, :3]), C_true[:3, 3], EYE_K, EYE_DIST
-        ).points
-        if np.any(truth < 20) or np.any(truth[:, 0] > EYE_SIZE[0] - 21):
-            return False
-        if np.any(truth[:, 1] > EYE_SIZE[1] - 21):
-            return False
-        if rendered:
-            assert renderer is not None
-            cam = _eye_camera(T_world_arm @ T_arm_cam)
-            frame = renderer.render_board(
-                cam, BOARD, T_world_board, rng=rng, noise=SensorNoise() if noise is None else noise
-            )
-            try:
-                uv = find_chessboard(frame.image, BOARD.inner_corners).corners
-            except PatternNotFound:
-                return False
-            if sigma_px > 0:
-                uv = uv + rng.normal(0.0, sigma_px, uv.shape)
-        else:
-            uv = truth + rng.normal(0.0, sigma_px, truth.shape)
-        est = estimate_plane_pose(P, uv, cal.K, cal.dist)
-        C = np.eye(4)
-        C[:3, :3], C[:3, 3] = est.R, est.t
-        qs.append(q)
-        uvs.append(uv)
-        Cs.append(C)
-        return True
-
-    attempts = 0
-    while len(qs) < views:
-        attempts += 1
-        if attempts > 200 * views:
-            raise InvalidInput("could not find reachable views of the board; check the scene")
-        if not take(_look_pose(rng, centre, normal)) or len(qs) > 1 or translations == 0:
-            continue
-        # The first group: the first view's camera translated along its x, y, z axes in turn,
-        # its orientation kept; a first view the arm cannot translate so is drawn again.
-        first = mm.arm.fk(qs[0]) @ X
-        for k in range(translations):
-            for _ in range(30):
-                T = first.copy()
-                step = rng.choice((-1.0, 1.0)) * rng.uniform(*TRANSLATION_M)
-                T[:3, 3] += step * first[:3, k % 3]
-                if take(T):
-                    break
-            else:
-                del qs[:], uvs[:], Cs[:]
-                break
-    q_arr = np.array(qs)
-    return HandEyeViews(
-        q=q_arr,
-        T_base_ee=mm.arm.fk(q_arr),
-        T_cam_target=np.array(Cs),
-        object_points=P,
-        image_points=np.array(uvs),
-        K=cal.K.copy(),
-        dist=cal.dist.copy(),
-        source="rendered" if rendered else "projected",
-        intrinsics_from=cal.source,
-        translations=translations,
-        true_X=X.copy(),
-        true_T_base_target=W,
-    )
-
-
-def eye_camera_intrinsics(rng: np.random.Generator) -> RenderedCalibration:
-    """Return the eye-in-hand camera's intrinsics as its owner gets them: Zhang from rendered
-    chessboard views through its lens (core.sim.intrinsics)."""
-    w, h = EYE_SIZE
-    return calibrate_from_board_views(
-        LandmarkCamera(EYE_K, EYE_DIST, w, h), rng, noise=INTRINSICS_NOISE
-    )
-
-
-def _eye_camera(T_world_cam: Array) -> CeilingCamera:
-    """Return the eye-in-hand camera at a world pose as a renderable camera."""
-    return camera_at("eye_in_hand", EYE_K, EYE_DIST, EYE_SIZE, T_world_cam)
-
-
-@dataclass(frozen=True)
-class HandEyeMethodError:
-    """One method's hand-eye estimate against the truth: rotation error degrees (angle of
-    R_est^T R_true), translation error millimetres, and its own predicted standard deviations."""
-
-    method: str
-    rotation_error_deg: float
-    translation_error_mm: float
-    rotation_std_deg: float
-    translation_std_mm: float
-
-
-@dataclass(frozen=True)
-class HandEyeResult:
-    """Metrics of `hand-eye`: the views (`translations` of them pure translations of the first,
-    the two-group method's first group; `source`: corners detected in rendered images, or true
-    projections), where the camera's intrinsics came from (`intrinsics_from`: its own Zhang
-    calibration) and their focal error against the true lens (%, scoring only), the Gaussian
-    pixel noise `sigma_px` added to them, the measured pixel noise of the final pixels against
-    the true corners (RMS per axis), every linear method's errors and the reprojection
-    refinement's (started from Park-Martin), with the refinement's RMS reprojection error in
-    pixels."""
-
-    scenario: str
-    seed: int
-    views: int
-    translations: int
-    source: str
-    intrinsics_from: str
-    focal_error_pct: float
-    sigma_px: float
-    measured_sigma_px: float
-    methods: tuple[HandEyeMethodError, ...]
-    refined: HandEyeMethodError
-    refined_rms_px: float
-
-    def to_dict(self) -> dict[str, Any]:
-        """Return the record as JSON-ready values."""
-        return asdict(self)
-
-
-def _score(name: str, X: Array, true_X: Array, rot_std: float, tr_std: float) -> HandEyeMethodError:
-    dp, dr = pose_error(X, true_X)
-    return HandEyeMethodError(
-        method=name,
-        rotation_error_deg=math.degrees(float(dr)),
-        translation_error_mm=1e3 * float(dp),
-        rotation_std_deg=rot_std,
-        translation_std_mm=1e3 * tr_std,
-    )
-
-
-def hand_eye(
-    scene: Scene | None = None,
-    seed: int = 0,
-    *,
-    views: int = 15,
-    rendered: bool = True,
-    sigma_px: float = 0.5,
-) -> HandEyeResult:
-    """Return the `hand-eye` scenario's metrics: `views` views of the table's chessboard from
-    the eye-in-hand camera (rendered and detected by default; `rendered=False` projects the
-    true corners), `sigma_px` Gaussian noise added to the pixels, calibrated by every method
-    and refined."""
-    rng = np.random.default_rng(seed)
-    renderer = Renderer(scene if scene is not None else default_scene()) if rendered else None
-    v = hand_eye_views(rng, views=views, sigma_px=sigma_px, rendered=rendered, renderer=renderer)
-    # Scoring only: the detections against the true projections.
-    C_true = invert_pose(v.T_base_ee @ v.true_X) @ v.true_T_base_target
-    truth = np.stack(
-        [
-            project_points(
-                v.object_points, matrix_to_rotvec(c[:3, :3]), c[:3, 3], EYE_K, EYE_DIST
-            ).points
-            for c in C_true
-        ]
-    )
-    measured = float(np.sqrt(np.mean((v.image_points - truth) ** 2)))
-    rows = []
-    for m in METHODS:
-        r = calibrate_hand_eye(v.T_base_ee, v.T_cam_target, method=m)
-        rows.append(_score(m, r.X, v.true_X, r.rotation_std_deg, r.translation_std_m))
-    ref = calibrate_hand_eye(
-        v.T_base_ee,
-        v.T_cam_target,
-        method="park",
-        object_points=v.object_points,
-        image_points=v.image_points,
-        K=v.K,
-        dist=v.dist,
-    )
-    return HandEyeResult(
-        scenario="hand-eye",
-        seed=seed,
-        views=views,
-        translations=v.translations,
-        source=v.source,
-        intrinsics_from=v.intrinsics_from,
-        focal_error_pct=focal_error_pct(v.K, EYE_K),
-        sigma_px=sigma_px,
-        measured_sigma_px=measured,
-        methods=tuple(rows),
-        refined=_score("park+refine", ref.X, v.true_X, ref.rotation_std_deg, ref.translation_std_m),
-        refined_rms_px=float(ref.rms_px if ref.rms_px is not None else math.nan),
-    )
-
-
-__all__ = [
-    "BOARD",
-    "BOX_SIZE",
-    "EYE_DIST",
-    "EYE_K",
-    "GRASP_TARGET",
-    "GRIPPER_OPEN",
-    "JOINT_RATE",
-    "MARK_BOARD",
-    "GraspEpisode",
-    "GraspResult",
-    "HandEyeMethodError",
-    "HandEyeResult",
-    "HandEyeViews",
-    "board_on_table",
-    "close_gripper",
-    "eye_camera_intrinsics",
-    "fetch_problem",
-    "grasp",
-    "grasp_episode",
-    "hand_eye",
-    "hand_eye_views",
-    "taught_image",
-]
-
-
-# --------------------------------------------------------------------------------------------
-# Grasping
-
-# The object: a box 0.16 m long, 0.115 m wide (the gripper closes across its width) and 0.10 m
-# high, with its mark printed on the top: a chessboard of 7 x 6 squares of 16 mm (6 x 5 inner
-# corners: 6 + 5 odd, so the detector tells the first corner from the last and the mark's yaw
-# is not ambiguous) with an 8 mm white border, 128 x 112 mm in all.
-MARK_BOARD = Board(inner_corners=(6, 5), square_size=0.016, margin=0.5)
-BOX_SIZE = (0.16, 0.115, 0.10)
-BOX_HEIGHT = BOX_SIZE[2]
-# The board's frame (origin at the first inner corner, z into the box) in the mark's frame
-# (origin at the centre of the top, z up out of the box, x along the board's columns).
-_cx = (MARK_BOARD.inner_corners[0] - 1) * MARK_BOARD.square_size / 2
-_cy = (MARK_BOARD.inner_corners[1] - 1) * MARK_BOARD.square_size / 2
-T_MARK_BOARD = np.array(
-    [[1.0, 0.0, 0.0, -_cx], [0.0, -1.0, 0.0, _cy], [0.0, 0.0, -1.0, 0.0], [0.0, 0.0, 0.0, 1.0]]
-)
-# The mark's points (its inner corners, in the detector's order) in the mark frame.
-MARK_POINTS = (
-    board_object_points(Chessboard(*MARK_BOARD.inner_corners), MARK_BOARD.square_size)
-    @ T_MARK_BOARD[:3, :3].T
-    + T_MARK_BOARD[:3, 3]
-)
 # The parallel gripper: its fingers close along the end effector's y axis, from an opening of
 # 0.14 m at 0.10 m/s; 15 mm wide (along x), they reach 0.12 m from the flange to the tips.
 GRIPPER_OPEN = 0.14
@@ -495,42 +125,6 @@ class GraspEpisode:
     frames: int = 0
 
 
-@dataclass(frozen=True)
-class GraspResult:
-    """Metrics of `grasp`: episodes, success rate, medians over successes of the final
-    end-effector position error (m) and rotation error (deg), median time (s), failure
-    reasons with counts, the hand-eye transform's own error (it was calibrated first, refined,
-    from 15 views), where the eye-in-hand camera's intrinsics came from (`intrinsics_from`: its
-    own Zhang calibration, done first) and their focal error (%, scoring only), what the fetch
-    grasps (`target`, GRASP_TARGET), the images' source ("rendered": the twin's images,
-    corners detected; "projected": true projections), the eye-in-hand images taken in all, the
-    median gripper opening at closing over successes (mm; the box is 115 mm wide), and every
-    episode."""
-
-    scenario: str
-    seed: int
-    episodes: int
-    success_rate: float
-    position_error_m: float
-    rotation_error_deg: float
-    time_s: float
-    failures: dict[str, int]
-    hand_eye_rotation_error_deg: float
-    hand_eye_translation_error_mm: float
-    intrinsics_from: str
-    focal_error_pct: float
-    target: str
-    sigma_px: float
-    source: str
-    frames: int
-    gripper_opening_mm: float
-    per_episode: tuple[GraspEpisode, ...]
-
-    def to_dict(self) -> dict[str, Any]:
-        """Return the record as JSON-ready values."""
-        return asdict(self)
-
-
 class _Eye:
     """The eye-in-hand camera's observations of the box's mark: with a `renderer`, the twin
     renders what the camera sees (the room, the box and its printed mark, sensor noise) and
@@ -556,7 +150,7 @@ class _Eye:
         C = invert_pose(T_world_cam) @ self.T
         if self.renderer is not None:
             frame = self.renderer.render_board(
-                _eye_camera(T_world_cam),
+                eye_camera(T_world_cam),
                 MARK_BOARD,
                 self.T @ T_MARK_BOARD,
                 rng=self.rng,
@@ -619,7 +213,7 @@ def _drive(
 
     def turn_to(heading: float) -> None:
         while True:
-            err = (heading - x[2] + math.pi) % (2 * math.pi) - math.pi
+            err = wrap_angle(float(heading - x[2]))
             if abs(err) < 1e-9:
                 break
             x[2] += float(np.clip(err, -w_max * dt, w_max * dt))
@@ -1118,79 +712,98 @@ def taught_image(
     return undistort_points(mean, intrinsics.K, intrinsics.dist, to_pixels=True)
 
 
-def grasp(
-    scene: Scene | None = None,
-    seed: int = 0,
+@dataclass(frozen=True)
+class FetchPreparation:
+    """What a fetch's episodes use, prepared once (`prepare_fetch`): the eye-in-hand camera's
+    own calibration, the hand-eye transform X = T_ee_cam (4, 4) they servo with and where it
+    came from ("calibrated": from 15 views, refined; "arm": the one applied to the arm), and
+    the mark's taught ideal pixels (M, 2)."""
+
+    intrinsics: RenderedCalibration
+    X: Array
+    hand_eye_source: str
+    taught: Array
+
+
+HAND_EYE_VIEWS = 15
+
+
+def prepare_fetch(
+    rng: np.random.Generator,
+    mm: MobileManipulator,
     *,
-    episodes: int = 100,
-    sigma_px: float = 0.5,
-    rendered: bool = True,
-) -> GraspResult:
-    """Return the `grasp` scenario's metrics: the eye-in-hand camera is first calibrated
-    (`hand_eye_views`, 15 views, refined), the mark taught once (`taught_image`), then
-    `episodes` randomised fetches of a marked box on the dining table (random placement and
-    yaw, a prior 5 cm / 0.15 rad off, a random start in the kitchen corridor) run the
-    switching controller with `sigma_px` pixel noise. `rendered` (the default): every image
-    is rendered by the twin and its corners detected; otherwise the true projections."""
-    rng = np.random.default_rng(seed)
-    mm = default_manipulator()
-    # The moving camera's static layer is drawn without supersampling: a new one every frame.
-    renderer = (
-        Renderer(scene if scene is not None else default_scene(), supersample=1)
-        if rendered
-        else None
-    )
-    cal = eye_camera_intrinsics(rng)
-    v = hand_eye_views(
-        rng,
-        views=15,
-        sigma_px=sigma_px,
-        rendered=rendered,
-        renderer=renderer,
-        intrinsics=cal,
-    )
-    he = calibrate_hand_eye(
-        v.T_base_ee,
-        v.T_cam_target,
-        object_points=v.object_points,
-        image_points=v.image_points,
-        K=v.K,
-        dist=v.dist,
-    )
-    he_dp, he_dr = pose_error(he.X, mm.T_ee_camera)
-    taught = taught_image(mm.T_ee_camera, cal, renderer=renderer, rng=rng, sigma_px=sigma_px)
-    eps = tuple(
-        grasp_episode(
-            rng, mm, he.X, intrinsics=cal, sigma_px=sigma_px, renderer=renderer, taught=taught
+    sigma_px: float,
+    renderer: Renderer | None,
+    X: Array | None = None,
+    on_stage: Callable[[str], None] | None = None,
+) -> FetchPreparation:
+    """Return what the fetch's episodes need, drawn from `rng` in this order: the eye-in-hand
+    camera's intrinsics (eye_camera_intrinsics), the hand-eye transform (HAND_EYE_VIEWS views
+    of the table's chessboard, calibrated by core.manipulation.calibrate_hand_eye and refined by
+    reprojection) unless the arm's applied one is given as `X`, and the taught image
+    (taught_image, the camera where the arm truly holds it). With a `renderer` every image is
+    rendered by the twin and its corners detected; without one, the true projections; both with
+    N(0, sigma_px^2) noise. `on_stage(name)` is called before the calibration ("calibrating the
+    eye-in-hand camera") and the teaching ("teaching the mark")."""
+    intrinsics = eye_camera_intrinsics(rng)
+    source = "arm"
+    if X is None:
+        if on_stage is not None:
+            on_stage("calibrating the eye-in-hand camera")
+        v = hand_eye_views(
+            rng,
+            views=HAND_EYE_VIEWS,
+            sigma_px=sigma_px,
+            manipulator=mm,
+            rendered=renderer is not None,
+            renderer=renderer,
+            intrinsics=intrinsics,
         )
-        for _ in range(episodes)
-    )
-    good = [e for e in eps if e.success]
-    failures: dict[str, int] = {}
-    for e in eps:
-        if not e.success:
-            failures[e.reason] = failures.get(e.reason, 0) + 1
+        X = calibrate_hand_eye(
+            v.T_base_ee,
+            v.T_cam_target,
+            object_points=v.object_points,
+            image_points=v.image_points,
+            K=v.K,
+            dist=v.dist,
+        ).X
+        source = "calibrated"
+    if on_stage is not None:
+        on_stage("teaching the mark")
+    taught = taught_image(mm.T_ee_camera, intrinsics, renderer=renderer, rng=rng, sigma_px=sigma_px)
+    return FetchPreparation(intrinsics, np.asarray(X, dtype=np.float64), source, taught)
 
-    def med(vals: list[float]) -> float:
-        return float(np.median(vals)) if vals else math.nan
 
-    return GraspResult(
-        scenario="grasp",
-        seed=seed,
-        episodes=episodes,
-        success_rate=len(good) / max(episodes, 1),
-        position_error_m=med([e.position_error_mm / 1e3 for e in good]),
-        rotation_error_deg=med([e.rotation_error_deg for e in good]),
-        time_s=med([e.time_s for e in eps]),
-        failures=failures,
-        hand_eye_rotation_error_deg=math.degrees(float(he_dr)),
-        hand_eye_translation_error_mm=1e3 * float(he_dp),
-        intrinsics_from=cal.source,
-        focal_error_pct=focal_error_pct(cal.K, EYE_K),
-        target=GRASP_TARGET,
-        sigma_px=sigma_px,
-        source="rendered" if rendered else "projected",
-        frames=sum(e.frames for e in eps),
-        gripper_opening_mm=med([e.gripper_opening_mm for e in good]),
-        per_episode=eps,
-    )
+def fetch_episodes(
+    rng: np.random.Generator,
+    mm: MobileManipulator,
+    prepared: FetchPreparation,
+    episodes: int,
+    *,
+    sigma_px: float,
+    renderer: Renderer | None,
+    on_phase: Callable[[int, str], None] | None = None,
+    T_world_prior: Array | None = None,
+    on_joints: Callable[[Array], None] | None = None,
+    on_gripper: Callable[[float], None] | None = None,
+    on_box: Callable[[Array], None] | None = None,
+) -> Iterator[GraspEpisode]:
+    """Yield `episodes` fetches (grasp_episode) one after the other, on `rng` after
+    prepare_fetch's draws, each with the prepared hand-eye transform, intrinsics and taught
+    image; `on_phase(k, name)` as episode k (from 0) enters each of its phases (GRASP_PHASES);
+    `T_world_prior`, `on_joints`, `on_gripper` and `on_box` go to every episode."""
+    for k in range(episodes):
+        yield grasp_episode(
+            rng,
+            mm,
+            prepared.X,
+            intrinsics=prepared.intrinsics,
+            sigma_px=sigma_px,
+            on_phase=None if on_phase is None else partial(on_phase, k),
+            T_world_prior=T_world_prior,
+            on_joints=on_joints,
+            renderer=renderer,
+            taught=prepared.taught,
+            on_gripper=on_gripper,
+            on_box=on_box,
+        )

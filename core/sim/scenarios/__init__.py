@@ -1,20 +1,21 @@
 """Named, seeded scenarios of the digital twin, each returning its metrics as a typed record.
 
 * `network-calibration`, `network-calibration-board`: every ceiling camera calibrated by the
-  robot's marker or its chessboard (core.sim.network_scenarios).
+  robot's marker or its chessboard (core.sim.scenarios.network).
 * `localization`, `localization-images`: the ground estimators against the Cramer-Rao bound
-  (core.sim.localization_scenarios).
+  (core.sim.scenarios.floor_localization).
 * `tracking`, `tracking-async`: the one tracker scored by the MOT metrics, on rendered images
-  and on unsynchronised cameras' points (core.sim.tracking_scenarios); `minutes` shortens them.
+  and on unsynchronised cameras' points (core.sim.scenarios.multi_target_tracking); `minutes`
+  shortens them.
 * `path-following`, `projector-calibration`: the projector drawing a planned path that the
   robot follows by three control laws, and the projector's mount calibrated from spots seen by
-  the ceiling cameras (core.sim.navigation_scenarios).
+  the ceiling cameras (core.sim.scenarios.navigation).
 * `landmark-pose`, `landmark-reading`, `landmark-survey`: object marks and signposts located
   and read by the robot's head camera, reading by PBVS, and the survey that builds the maps
-  (core.sim.landmark_scenarios).
+  (core.sim.scenarios.landmark_pose, landmark_reading, landmark_survey).
 * `hand-eye`, `grasp`: the eye-in-hand camera's hand-eye calibration by every method and the
   reprojection refinement, and randomised fetches by the switching grasp controller
-  (core.sim.manipulation_scenarios).
+  (core.sim.scenarios.manipulation).
 
 `run_scenario(name, scene=None, seed=0)` runs one; `SCENARIOS` is the one registry (name ->
 function(scene, seed)) and `DESCRIPTIONS` their one-line descriptions; modules that add
@@ -27,31 +28,27 @@ import math
 from collections.abc import Callable
 
 from core.errors import InvalidInput
-from core.sim.landmark_scenarios import (
-    LandmarkPoseResult,
-    LandmarkReadingResult,
-    LandmarkSurveyResult,
-    landmark_pose,
-    landmark_reading,
-    landmark_survey,
-)
-from core.sim.localization_scenarios import localization, localization_images
-from core.sim.manipulation_scenarios import grasp, hand_eye
-from core.sim.navigation_scenarios import (
+from core.sim.network_drive import MarkerDrive, PoseErrors, calibration_errors
+from core.sim.scenarios.floor_localization import localization, localization_images
+from core.sim.scenarios.landmark_pose import LandmarkPoseResult, landmark_pose
+from core.sim.scenarios.landmark_reading import LandmarkReadingResult, landmark_reading
+from core.sim.scenarios.landmark_survey import LandmarkSurveyResult, landmark_survey
+from core.sim.scenarios.manipulation import grasp, hand_eye
+from core.sim.scenarios.multi_target_tracking import TrackingResult, tracking, tracking_async
+from core.sim.scenarios.navigation import (
     PathFollowingResult,
     ProjectorCalibrationResult,
     path_following,
     projector_calibration,
 )
-from core.sim.network_drive import MarkerDrive, PoseErrors, calibration_errors
-from core.sim.network_scenarios import (
+from core.sim.scenarios.network import (
     accuracy_study,
     board_mounting,
     mount_board,
     network_calibration,
     network_calibration_board,
 )
-from core.sim.scenario_records import (
+from core.sim.scenarios.records import (
     AccuracyRow,
     CameraCalibrationError,
     LocalizationResult,
@@ -60,7 +57,6 @@ from core.sim.scenario_records import (
     ScenarioResult,
 )
 from core.sim.scene import Scene
-from core.sim.tracking_scenarios import TrackingResult, tracking, tracking_async
 
 __all__ = [
     "DESCRIPTIONS",

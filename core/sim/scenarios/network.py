@@ -53,7 +53,7 @@ from core.sim.network_registration import (
     register_network,
 )
 from core.sim.render import CameraModel, Renderer, SensorNoise
-from core.sim.scenario_records import (
+from core.sim.scenarios.records import (
     AccuracyRow,
     CameraCalibrationError,
     NetworkCalibrationResult,

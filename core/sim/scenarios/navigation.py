@@ -34,8 +34,8 @@ with the laser's light added where the spot's image falls, when the camera sees 
 not hidden by walls or furniture), and the spot is detected in it by
 core.navigation.detect_laser_spot; the spots are then located on the floor by
 core.localization.locate_ml with the cameras' *calibrated* models, the marker network
-calibration of the same seed (core.sim.tracking_scenarios.calibrated_cameras), so their errors
-include that calibration's.
+calibration of the same seed (core.sim.scenarios.multi_target_tracking.calibrated_cameras), so
+their errors include that calibration's.
 """
 
 from __future__ import annotations
@@ -56,6 +56,7 @@ from core.calibration.onboard import FloorPlane, calibrate_floor_plane
 from core.calibration.projector import calibrate_projector, mount_errors
 from core.errors import InvalidInput
 from core.geometry.camera import project_points
+from core.geometry.poses import pose_from_quaternion
 from core.geometry.rotations import matrix_to_rotvec, rotvec_to_matrix
 from core.localization import NetworkCamera
 from core.localization.ground import locate_ml
@@ -126,20 +127,6 @@ CEILING_PIXEL_SIGMA = 0.5
 LASER_BLOB_SIGMA = 1.2
 
 
-def _pose_matrix(position: tuple[float, ...], quaternion_xyzw: tuple[float, ...]) -> Array:
-    x, y, z, w = quaternion_xyzw
-    R = np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-        ]
-    )
-    T = np.eye(4)
-    T[:3, :3], T[:3, 3] = R, position
-    return T
-
-
 def nominal_projector(scene: Scene) -> PanTiltProjector:
     """Return the installer's model of the scene's projector: its nominal mount, ideal joints."""
     p = scene.projector
@@ -148,7 +135,7 @@ def nominal_projector(scene: Scene) -> PanTiltProjector:
     if p.pose.quaternion_xyzw is None:
         raise InvalidInput("the projector's pose must be given with quaternion_xyzw")
     return PanTiltProjector(
-        _pose_matrix(p.pose.position, p.pose.quaternion_xyzw),
+        pose_from_quaternion(p.pose.position, p.pose.quaternion_xyzw),
         pan_limits=p.pan_limits,
         tilt_limits=p.tilt_limits,
         max_rate=(p.max_rate, p.max_rate),
@@ -589,8 +576,8 @@ class ProjectorCalibrationResult:
     mount's `position_error_m` and `rotation_error_deg` against the twin's true mount, the same
     after moving the estimate by the planar rigid motion that best aligns the calibrated
     cameras' centres with the twin's (`aligned_*`: the network calibration's own frame error
-    removed, core.sim.tracking_scenarios.frame_alignment; scoring only), the tilt offset's
-    error (rad), the calibration's own standard deviations, its RMS floor
+    removed, core.sim.scenarios.multi_target_tracking.frame_alignment; scoring only), the tilt
+    offset's error (rad), the calibration's own standard deviations, its RMS floor
     residual (m), `cameras` the calibrated cameras used (their network calibration's
     output, `cameras_from`) and how the spots' pixels were found (`spots_from`). `model`
     (not in to_dict) is the calibrated projector."""
@@ -717,7 +704,7 @@ def projector_calibration(
     seed: int = 0,
     *,
     cameras: list[NetworkCamera] | None = None,
-    cameras_from: str = "marker network calibration (core.sim.tracking_scenarios."
+    cameras_from: str = "marker network calibration (core.sim.scenarios.multi_target_tracking."
     "calibrated_cameras, rendered drive)",
     images: bool = True,
 ) -> ProjectorCalibrationResult:
@@ -732,7 +719,7 @@ def projector_calibration(
     truth = twin_projector(scene, seed)
     nominal = nominal_projector(scene)
     if cameras is None:
-        from core.sim.tracking_scenarios import calibrated_cameras
+        from core.sim.scenarios.multi_target_tracking import calibrated_cameras
 
         cameras = list(calibrated_cameras(scene, seed).cameras)
     grid = occupancy_grid(scene, 0.1, PLAN_RESOLUTION)
@@ -759,7 +746,7 @@ def projector_calibration(
     ok = located.valid
     calib = calibrate_projector(nominal, q_cmd[ok], located.xy[ok], estimate_tilt_offset=True)
     pos_err, rot_err = mount_errors(calib.T_world_base, truth.T_world_base)
-    from core.sim.tracking_scenarios import frame_alignment
+    from core.sim.scenarios.multi_target_tracking import frame_alignment
 
     T2 = frame_alignment(cameras, _true_cameras(scene, names))
     T4 = np.eye(4)

@@ -9,7 +9,7 @@ Both give the estimators the twin's *true* cameras (their records say `"cameras_
 "truth"`): they measure the estimators alone, against the Cramer-Rao bound of the same
 cameras, with no calibration error in the way. What a calibrated home achieves is measured by
 the scenarios that locate on the installed calibration (`tracking`, `tracking-async`,
-`projector-calibration`: core.sim.tracking_scenarios.calibrated_cameras).
+`projector-calibration`: core.sim.scenarios.multi_target_tracking.calibrated_cameras).
 """
 
 from __future__ import annotations
@@ -32,7 +32,7 @@ from core.localization.detect import MarkerDetectorConfig, detect_marker
 from core.sim._floor import free_floor_grid
 from core.sim.motion import Pose2D, world_state
 from core.sim.render import CameraModel, Renderer, SensorNoise
-from core.sim.scenario_records import LocalizationResult
+from core.sim.scenarios.records import LocalizationResult
 from core.sim.scene import Scene, default_scene
 
 Array = NDArray[np.float64]

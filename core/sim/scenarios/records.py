@@ -5,6 +5,8 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 from typing import Any, Protocol
 
+import numpy as np
+
 
 @dataclass(frozen=True)
 class CameraCalibrationError:
@@ -158,3 +160,13 @@ class ScenarioResult(Protocol):
     def to_dict(self) -> dict[str, Any]:
         """Return the record as JSON-ready values."""
         ...
+
+
+def percentile_or_none(x: list[float], q: float) -> float | None:
+    """Return the q-th percentile of x, None when x is empty (a figure with nothing to show)."""
+    return float(np.percentile(x, q)) if x else None
+
+
+def percent_or_none(k: int, n: int) -> float | None:
+    """Return 100 k / n, None when n is 0."""
+    return 100.0 * k / n if n else None
