@@ -43,7 +43,7 @@ def test_the_camera_node_and_its_commands_form_no_circle():
     # The node's modules once imported each other both ways (the recorder and the runner; the
     # chessboard calibration and the node command, for the service's address): a module of a
     # circle cannot be loaded, read or tested without the others.
-    graph = import_graph()
+    graph = import_graph(SERVER)
     mine = {m: e for m, e in graph.items() if m.startswith(("server.node", "server.commands"))}
     assert {"server.node.runner", "server.node.record", "server.commands.node"} <= set(mine)
     inside = {m: {t for t in e if t in mine} for m, e in mine.items()}
@@ -53,7 +53,7 @@ def test_the_camera_node_and_its_commands_form_no_circle():
 def test_no_service_imports_the_node():
     # The node is a program of its own (on the cameras' computers); what a service shares with
     # it (the stages' delays) lives above both, in server/.
-    graph = import_graph()
+    graph = import_graph(SERVER)
     services = [m for m in graph if m.startswith("server.services")]
     assert [(a, b) for a in services for b in graph[a] if b.startswith("server.node")] == []
 
@@ -61,7 +61,7 @@ def test_no_service_imports_the_node():
 def test_the_tracking_and_comms_modules_import_each_other_in_layers():
     # Each package's modules import one another only downwards, never through the package's
     # face (its __init__, which imports them).
-    graph = import_graph()
+    graph = import_graph(SERVER)
     for package in ("server.services.tracking", "server.services.comms"):
         inner = {m: e for m, e in graph.items() if m.startswith(package + ".")}
         assert len(inner) >= (8 if package.endswith("tracking") else 3)
