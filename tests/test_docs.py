@@ -250,6 +250,19 @@ def test_the_make_targets_files_and_modules_shown_exist():
             assert (REPO / path.rstrip("/")).exists(), f"{page.name}: {path} does not exist"
 
 
+def test_the_code_map_names_every_package():
+    # docs/code-map.md is the newcomer's map: a package it leaves out is one nobody finds. That
+    # what it names exists is the test above's.
+    text = (DOCS / "code-map.md").read_text(encoding="utf-8")
+    named = set(re.findall(r"`((?:core|server)(?:/[\w]+)*)`", text))
+    packages = {
+        str(init.parent.relative_to(REPO))
+        for top in ("core", "server")
+        for init in (REPO / top).rglob("__init__.py")
+    }
+    assert sorted(packages - named) == []
+
+
 def test_the_python_shown_compiles_and_its_imports_exist():
     for page in PAGES:
         text = page.read_text(encoding="utf-8")
