@@ -385,7 +385,13 @@ def foot_on_axis(
         assert proj.jacobian is not None
         J = proj.jacobian
         pixel[keep] = proj.pixels
-        cov[keep] = J @ cxy[good] @ J.transpose(0, 2, 1)
-        bad = ~(proj.depth > 0)
+        c = J @ cxy[good] @ J.transpose(0, 2, 1)
+        c = 0.5 * (c + c.transpose(0, 2, 1))  # symmetric to the last bit, as the tracker asks
+        cov[keep] = c
+        # A foot measured along one direction only (a flat fit's covariance) is no floor
+        # position: the tracker takes positive definite covariances.
+        det = c[:, 0, 0] * c[:, 1, 1] - c[:, 0, 1] ** 2
+        flat = ~(det > 1e-12 * (c[:, 0, 0] + c[:, 1, 1]) ** 2)
+        bad = ~(proj.depth > 0) | flat
         measured[keep[bad]] = False
     return FootMeasurement(pixel, cov, measured)

@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from core.errors import InvalidInput
+from core.errors import ConvergenceError, InvalidInput
 from core.localization._projection import project_plane
 from core.localization.cameras import NetworkCamera
 from core.localization.ground import locate_monocular
@@ -27,13 +27,13 @@ Array = NDArray[np.float64]
 def floor_spread_cov(camera: NetworkCamera, pixels: ArrayLike, sigma_m: ArrayLike) -> Array:
     """Return S (N, 2, 2) px^2: the image of an isotropic floor spread sigma_m (N,) metres
     around the floor points (Z = 0) seen at the distorted pixels (N, 2). A pixel whose ray
-    misses the floor (above the horizon) gets an infinite spread."""
+    misses the floor (above the horizon), or where the lens model cannot be inverted, gets an
+    infinite spread."""
     px = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
     sigma = np.broadcast_to(np.asarray(sigma_m, dtype=np.float64), (px.shape[0],))
     if not np.all(np.isfinite(sigma)) or np.any(sigma < 0):
         raise InvalidInput("sigma_m must be finite and >= 0 metres")
-    floor = locate_monocular(camera, px, 0.0)
-    xy = floor.point[..., :2].reshape(-1, 2)
+    xy = _floor_points(camera, px)
     ok = np.all(np.isfinite(xy), axis=1)
     out = np.full((px.shape[0], 2, 2), np.inf)
     if ok.any():
@@ -41,3 +41,19 @@ def floor_spread_cov(camera: NetworkCamera, pixels: ArrayLike, sigma_m: ArrayLik
         assert J is not None
         out[ok] = sigma[ok, None, None] ** 2 * (J @ np.swapaxes(J, 1, 2))
     return out
+
+
+def _floor_points(camera: NetworkCamera, px: Array) -> Array:
+    """Return the floor points (N, 2) the pixels see, NaN where the ray misses the floor or the
+    lens model cannot be inverted at the pixel (each pixel alone then, so one such pixel does
+    not cost the others theirs)."""
+    try:
+        return locate_monocular(camera, px, 0.0).point[..., :2].reshape(-1, 2)
+    except ConvergenceError:
+        out = np.full((px.shape[0], 2), np.nan)
+        for i in range(px.shape[0]):
+            try:
+                out[i] = locate_monocular(camera, px[i : i + 1], 0.0).point[..., :2].reshape(2)
+            except ConvergenceError:
+                continue
+        return out

@@ -198,3 +198,6 @@ def test_a_box_whose_fit_leaves_the_lens_model_is_not_measured_and_raises_nothin
     alone = foot_on_axis(box[1:], box_foot(box[1:], cut[1:]), cam, cut=cut[1:])
     np.testing.assert_allclose(out.pixel[1], alone.pixel[0])
     np.testing.assert_allclose(out.cov[1], alone.cov[0])
+    # What is measured has a floor position: a symmetric positive definite covariance.
+    c = out.cov[out.measured]
+    assert np.array_equal(c, c.transpose(0, 2, 1)) and np.all(np.linalg.det(c) > 0)

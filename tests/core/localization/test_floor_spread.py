@@ -28,3 +28,18 @@ def test_floor_spread_maps_back_to_an_isotropic_floor_covariance() -> None:
     flat = NetworkCamera.looking_at(K, None, [0.0, 0.0, 2.8], [3.0, 2.0, 0.0], (1280, 720))
     horizon_v = flat.project(np.array([[3000.0, 2000.0, 0.0]]))[0, 1]  # -101 px
     assert np.all(np.isinf(floor_spread_cov(flat, [[640.0, horizon_v - 50.0]], 0.3)))
+
+
+def test_a_pixel_the_lens_cannot_invert_gets_an_infinite_spread_and_spares_the_others():
+    # A strong barrel lens (k1 = -0.6) folds back beyond some radius: pixels there have no ray.
+    # A held box at such a pixel says nothing of the floor; it must not take the frame's other
+    # boxes down with it (the batch's undistortion gives up on all of them together).
+    K = np.array([[300.0, 0.0, 320.0], [0.0, 300.0, 240.0], [0.0, 0.0, 1.0]])
+    cam = NetworkCamera.looking_at(
+        K, np.array([-0.6, 0, 0, 0, 0]), [0, 0, 2.8], [2, 0, 0], (640, 480)
+    )
+    S = floor_spread_cov(cam, [[320.0, 240.0], [-1000.0, 240.0]], 0.5)
+    assert np.all(np.isinf(S[1]))
+    alone = floor_spread_cov(cam, [[320.0, 240.0]], 0.5)
+    np.testing.assert_allclose(S[0], alone[0])
+    assert np.all(np.isfinite(S[0])) and np.linalg.det(S[0]) > 0
