@@ -7,7 +7,7 @@ twenty people walking smooth closed paths at up to ~0.8 m/s, detections of a poi
 with 0.7 px noise, 5 % missed and Poisson(0.3) clutter per frame: 60 s of frames. The frames
 are simulated first; only the tracker's calls are timed (time.perf_counter, whole run, one
 core). The anchor is real time: the cameras produce 100 frames/s, so the ratio says how many
-times faster than the cameras the tracker runs (spec 08 / issue 13: >= 1). Also prints the
+times faster than the cameras the tracker runs (spec 08: >= 1). Also prints the
 position RMSE of the confirmed tracks and the most live tracks at once.
 """
 

@@ -151,7 +151,7 @@ def test_unlabelled_detections_from_unsynchronised_cameras_become_tracks(client,
     shifted = ts.transformed(shifted, T)
     score = ts.score_tracks(truth_t, truth_xy, shifted, truth_at=lambda t: ts._walkers_at(scene, t))
     walkers = len(scene.people)
-    # Spec 08 / issue 13's bars, at the scenario's conditions.
+    # Spec 08's bars, at the scenario's conditions.
     assert score.idf1 >= 0.95, score
     assert score.mota >= 0.95, score
     assert score.id_switches <= max(1, round(walkers * MINUTES / 10.0)), score

@@ -2,8 +2,8 @@
 
 A test waits as long as the work advances and fails when it has not advanced for a stated
 time, never at a fixed total deadline: a busy machine slows a run down, it does not stop it,
-and a total deadline fails a run that was advancing (issue 32: a network calibration still
-"running" after 180 s on a busy machine, while its progress moved). What counts as advancing
+and a total deadline fails a run that was advancing (a network calibration still "running"
+after 180 s on a busy machine, while its progress moved). What counts as advancing
 is what the work reports (its status, stage and fraction), never a clock of the test's own.
 """
 

@@ -54,7 +54,7 @@ def test_floor_plane_from_one_view_is_within_spec(pitch: float) -> None:
         cos = abs(float(plane.normal @ n_true))
         worst_n = max(worst_n, math.degrees(math.acos(min(1.0, cos))))
         worst_d = max(worst_d, abs(plane.distance - d_true))
-    # Spec 03 / issue 10: normal within 0.2 deg, distance within 2 mm, in every trial.
+    # Spec 03: normal within 0.2 deg, distance within 2 mm, in every trial.
     assert worst_n < 0.2
     assert worst_d < 0.002
 

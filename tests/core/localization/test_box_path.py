@@ -59,10 +59,10 @@ def test_boxes_of_the_twins_walkers_track_like_the_pixel_path():
         f"pixel path: IDF1 {pixel_path.idf1:.3f} RMSE {pixel_path.person_rmse_m:.3f} m; "
         f"boxes: IDF1 {box_path.idf1:.3f} RMSE {box_path.person_rmse_m:.3f} m"
     )
-    # The same identities (issue 27's bar).
+    # The same identities.
     assert box_path.idf1 >= pixel_path.idf1 - 0.02
     assert box_path.mota >= pixel_path.mota - 0.03
-    # Positions within 1.2x of the pixel path (issue 27's bar). A cylinder fitted to the box's
+    # Positions within 1.2x of the pixel path. A cylinder fitted to the box's
     # four edges, with ends hidden by the floor plan's furniture or inconsistent with one body
     # dropped (core.localization.foot_on_axis), measured 0.031 m against 0.028 m here (1.09x;
     # the bottom centre gave 0.102 m, 3.6x), 1.16x on seed 5 (seen while the consistency
