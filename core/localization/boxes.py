@@ -257,7 +257,8 @@ def _fit_cylinders(
     J = jacobian(theta, r)
     JT = J.transpose(0, 2, 1)
     cov = _solve_each(JT @ J + 1e-12 * eye, np.broadcast_to(eye, J.shape[:1] + eye.shape))
-    chi2: Array = np.sum(r**2, axis=1)
+    with np.errstate(over="ignore", invalid="ignore"):  # a diverged fit's chi2 is inf: refused
+        chi2: Array = np.sum(r**2, axis=1)
     ok: NDArray[np.bool_] = (
         front & np.all(np.isfinite(theta), axis=1) & np.all(np.isfinite(cov), axis=(1, 2))
     )
