@@ -252,7 +252,7 @@ def measure_detectors(frames: list[NDArray[np.uint8]], truth: Truth) -> list[Det
     # 2 rows of tiles at 768 x 576 (24 px overlap, seams joined).
     candidates = [
         ("dnn (SSDLite-MobileNetV2, tiles)", SsdConfig()),
-        ("dnn, tiles and their mirror images", SsdConfig(flip=True, score_threshold=0.6)),
+        ("dnn, tiles and their mirror images", SsdConfig(flip=True)),
         ("dnn, whole frame", SsdConfig(tile_px=max(SIZE))),
         ("dnn, tiles with 24 px overlap", SsdConfig(tile_overlap_px=24)),
     ]
@@ -593,13 +593,9 @@ def run_tracking(
     clip = clip_video(video_path(), frames, workdir / "clip.mkv")
     posted = None
     if every_frame:
-        from core.localization.ssd_people import (
-            FLIP_SCORE_THRESHOLD,
-            SsdConfig,
-            SsdPeopleDetector,
-        )
+        from core.localization.ssd_people import SsdConfig, SsdPeopleDetector
 
-        config = SsdConfig(flip=True, score_threshold=FLIP_SCORE_THRESHOLD) if flip else SsdConfig()
+        config = SsdConfig(flip=flip)
         dnn = SsdPeopleDetector(config=config)
         posted = [dnn.detect_boxes(image) for image in read_frames(clip, frames)]
     node_args = ("--flip",) if flip else ()

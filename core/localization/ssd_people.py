@@ -47,12 +47,6 @@ DEFAULT_MODEL = "ssdlite_mobilenet_v2_coco.onnx"
 MODEL_INPUT_PX = 300
 # The least score of a kept box: the model zoo's own threshold for showing a detection.
 SCORE_THRESHOLD = 0.5
-# The same with `flip`: a box gets two chances (a view and its mirror image), so a wrong box
-# passes more often; at 0.6 the two views' boxes are as precise as one view's at 0.5, measured
-# on PETS 2009 frames 1-200 (precision 0.877 one view, 0.878 both views; 0.864 at 0.55, 0.889
-# at 0.65) and confirmed on frames 201-400 (0.955 and 0.960), with recall 0.743 to 0.766 and
-# 0.859 to 0.879.
-FLIP_SCORE_THRESHOLD = 0.6
 # The COCO label of a person in the TensorFlow model zoo's numbering (1-based, 1 = person).
 COCO_PERSON = 1
 # A box cut by a tile's inner edge is a part of someone another tile sees whole when at least
@@ -71,8 +65,8 @@ _OUTPUTS = ["num_detections:0", "detection_scores:0", "detection_boxes:0", "dete
 class SsdConfig:
     """The neural person detector's settings.
 
-    score_threshold: the least score of a kept box (SCORE_THRESHOLD; FLIP_SCORE_THRESHOLD
-    suits `flip`); min_person_px: the least box height (px) of a person; tile_px: the
+    score_threshold: the least score of a kept box (SCORE_THRESHOLD, with or
+    without `flip`); min_person_px: the least box height (px) of a person; tile_px: the
     tiles' side (px; the model's input, so a person is seen at the camera's own resolution);
     tile_overlap_px: the least overlap between neighbouring tiles (px; a person narrower and
     shorter than this is whole in some tile); nms_iou: the IoU above which two boxes are one

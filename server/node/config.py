@@ -11,7 +11,7 @@ cameras:
     fps: 10                           # detections per second at most (default: every frame)
     masks: [[[0, 0], [120, 0], [120, 80], [0, 80]]]   # pixel polygons to ignore
     detector: dnn                     # people: dnn (neural, photographs) or background
-    score_threshold: 0.5              # dnn: the least score of a person's box (0.6 with flip)
+    score_threshold: 0.5              # dnn: the least score of a person's box
     min_person_px: 20                 # dnn: the least height of a person's box (px)
     flip: false                       # dnn: also detect in each tile's mirror image
   - name: cam_recorded
@@ -36,7 +36,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from core.errors import InvalidInput
-from core.localization.ssd_people import FLIP_SCORE_THRESHOLD, SCORE_THRESHOLD, SsdConfig
+from core.localization.ssd_people import SCORE_THRESHOLD, SsdConfig
 
 # The intspace robot's top marker (a red disc 0.36 m above the floor): what the product's robot
 # carries; a robot with another marker is configured in the file or by flags.
@@ -45,7 +45,6 @@ DEFAULT_MARKER_HEIGHT = 0.36
 DEFAULT_MARKER_RADIUS = 0.05
 
 DEFAULT_SCORE_THRESHOLD = SCORE_THRESHOLD
-DEFAULT_FLIP_SCORE_THRESHOLD = FLIP_SCORE_THRESHOLD
 DEFAULT_MIN_PERSON_PX = SsdConfig.min_person_px
 DEFAULT_FLIP = SsdConfig.flip
 
@@ -79,8 +78,7 @@ class CameraConfig(_Model):
     detector: Literal["auto", "dnn", "background"] = "auto"
     score_threshold: Annotated[float, Field(ge=0, le=1)] | None = Field(
         default=None,
-        description="The least score of a person's box; None: 0.5, or 0.6 with flip (two views "
-        "give a wrong box two chances).",
+        description="The least score of a person's box; None: 0.5, the model zoo's own.",
     )
     min_person_px: Annotated[float, Field(ge=0, le=10_000)] = DEFAULT_MIN_PERSON_PX
     flip: bool = DEFAULT_FLIP

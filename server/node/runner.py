@@ -29,7 +29,6 @@ from core.localization.ssd_people import PersonBoxes, SsdConfig, SsdPeopleDetect
 from server.delays import StageDelays
 from server.node.client import NodeError, ServiceClient, Uploader
 from server.node.config import (
-    DEFAULT_FLIP_SCORE_THRESHOLD,
     DEFAULT_SCORE_THRESHOLD,
     CameraConfig,
     NodeConfig,
@@ -124,7 +123,7 @@ def people_detector(
         return PersonDetector()
     threshold = camera.score_threshold
     if threshold is None:
-        threshold = DEFAULT_FLIP_SCORE_THRESHOLD if camera.flip else DEFAULT_SCORE_THRESHOLD
+        threshold = DEFAULT_SCORE_THRESHOLD
     config = SsdConfig(
         score_threshold=threshold,
         min_person_px=camera.min_person_px,
