@@ -61,7 +61,12 @@ Life cycle, by elapsed time (never by frame count, since cameras report at their
   gate) and is soon dropped; a body's collect large ones. It becomes CONFIRMED when its
   score reaches `confirm_score` with at least `confirm_hits` updates within `confirm_window`
   seconds of its birth, and is dropped when the score falls below `drop_score`, the window
-  passes, or it goes `tentative_timeout` seconds without an update;
+  passes, or it goes `tentative_timeout` seconds without an update. Both times stretch for a
+  camera that reports slowly (a node on a slow machine, detecting every third frame): the
+  window to `CONFIRM_GAPS` of the spacing of the frames of the camera that last saw the track
+  (a running mean of that camera's frame intervals), the timeout to `TENTATIVE_GAPS` of them,
+  so a body seen by a camera reporting twice a second is confirmed like one seen ten times a
+  second, from its sightings' score (each weighs less: the prediction between them is vaguer);
 * a confirmed track becomes COASTING after `coast_after` seconds without an update (predicted
   only; an update makes it confirmed again), and ENDED after `end_after` seconds without one,
   or earlier when its position standard deviation exceeds `max_position_std` (it could be
@@ -102,6 +107,12 @@ _FORBIDDEN = 1e9
 _MAX_COST = 1e8
 
 KINDS = ("robot", "person", "unknown")
+# A tentative track is dropped after this many frame intervals of the camera that last saw it
+# without an update (two frames without it, and half an interval of jitter), and must be
+# confirmed within this many (what the default one-second window holds of a camera at 10 frames
+# a second), when those are longer than tentative_timeout and confirm_window.
+TENTATIVE_GAPS = 2.5
+CONFIRM_GAPS = 10.0
 
 
 class TrackState(StrEnum):
@@ -133,8 +144,9 @@ class TrackerConfig:
     deviation per axis of a new track, m/s. Confirmation: a tentative track's score (module
     docstring) must reach confirm_score with at least confirm_hits updates within
     confirm_window (s) of its birth; below drop_score, or not updated for tentative_timeout (s),
-    it is dropped. p_detect: probability that a camera detects a body it has in view;
-    clutter_density: false detections per pixel per frame. ambiguity: a confirmed track's
+    it is dropped (both stretched for a camera reporting slowly: module docstring). p_detect:
+    probability that a camera detects a body it has in view; clutter_density: false detections
+    per pixel per frame. ambiguity: a confirmed track's
     detection that another track explains within this many log-likelihood units counts as a
     sighting but does not update the state (crossing bodies coast through the crossing on
     their velocities; 0 turns it off), for at most ambiguity_coast seconds since the track's
@@ -442,6 +454,11 @@ class Tracker:
         self._score: list[float] = []
         self._height: list[float] = []
         self._moved: list[float] = []  # time of the last update that moved the state
+        # Each camera's last frame time and the running mean of its frame intervals (s); each
+        # track's interval of the camera that last updated it (module docstring, life cycle).
+        self._camera_last: dict[Hashable, float] = {}
+        self._camera_gap: dict[Hashable, float] = {}
+        self._gap: list[float] = []
 
     # -- cameras and state ---------------------------------------------------------------------
 
@@ -532,6 +549,7 @@ class Tracker:
         self._first = [v + dt for v in self._first]
         self._last = [v + dt for v in self._last]
         self._moved = [v + dt for v in self._moved]
+        self._camera_last = {k: v + dt for k, v in self._camera_last.items()}
 
     def restore(self, t: float, tracks: Sequence[TrackSnapshot]) -> tuple[TrackSnapshot, ...]:
         """Take over confirmed or coasting tracks another tracker followed, keeping their ids,
@@ -615,6 +633,7 @@ class Tracker:
             self._score.append(0.0)
             self._height.append(0.0)  # used by tentative tracks only
             self._moved.append(float(s.last_seen))
+            self._gap.append(0.0)  # used by tentative tracks only
         self._next_id = max(self._next_id, max(ids) + 1)
         return self._manage()[0]
 
@@ -648,6 +667,7 @@ class Tracker:
         t = _as_time(t)
         cam = self.cameras[camera]
         px, R, h, kind, lab = self._parse(pixels, pixel_cov, heights, kinds, labels, pixel_sigma)
+        gap = self._frame_gap(camera, t)
         R, floor_std = self._with_camera_error(cam, px, R, h)
         n_all = px.shape[0]
         used = np.flatnonzero(
@@ -699,6 +719,7 @@ class Tracker:
                     self._height[i] = float(h[j])
                     self._hits[i] += 1
                     self._last[i] = t
+                    self._gap[i] = gap
                     if self._states[i] is TrackState.COASTING:
                         self._states[i] = TrackState.CONFIRMED
                     if self._kinds[i] == "unknown" and kind[j] != "unknown":
@@ -709,7 +730,7 @@ class Tracker:
         self._score_misses(cam, hit, vague)
         if n:
             if free.size:
-                for j, tid in self._births(cam, free, px, R, h, kind, lab):
+                for j, tid in self._births(cam, free, px, R, h, kind, lab, gap):
                     track_ids[j] = tid
                     started[j] = True
                     touched.append(tid)
@@ -1047,6 +1068,16 @@ class Tracker:
         self._x[rows] = x
         self._P[rows] = 0.5 * (P + transposed(P))
 
+    def _frame_gap(self, camera: Hashable, t: float) -> float:
+        """Record a frame of `camera` at t (s); return the running mean of its frame intervals
+        (s; 0 before its second frame): the mean of the previous mean and the newest interval."""
+        last = self._camera_last.get(camera)
+        self._camera_last[camera] = t
+        if last is not None and t > last:
+            old = self._camera_gap.get(camera)
+            self._camera_gap[camera] = t - last if old is None else 0.5 * (old + t - last)
+        return self._camera_gap.get(camera, 0.0)
+
     def _births(
         self,
         cam: NetworkCamera,
@@ -1056,10 +1087,12 @@ class Tracker:
         h: Array,
         kind: list[str],
         lab: list[str | None],
+        gap: float,
     ) -> list[tuple[int, int]]:
         """Start tentative tracks at the free detections that are no existing body; return
-        (detection index, new id) pairs. The most precise detections go first, each checked
-        against every track, those it just started included."""
+        (detection index, new id) pairs (`gap`: the camera's frame interval, `_frame_gap`).
+        The most precise detections go first, each checked against every track, those it just
+        started included."""
         cfg = self.config
         xy = np.full((px.shape[0], 2), np.nan)
         C = np.broadcast_to(np.eye(2), (px.shape[0], 2, 2)).copy()
@@ -1085,10 +1118,12 @@ class Tracker:
                 d2, _ = _mahalanobis(diff, self._P[near, :2, :2] + C[j])
                 if np.any(d2 <= cfg.birth_gate):
                     continue
-            out.append((j, self._birth(xy[j], C[j], kind[j], lab[j], float(h[j]))))
+            out.append((j, self._birth(xy[j], C[j], kind[j], lab[j], float(h[j]), gap)))
         return out
 
-    def _birth(self, xy: Array, C: Array, kind: str, label: str | None, height: float) -> int:
+    def _birth(
+        self, xy: Array, C: Array, kind: str, label: str | None, height: float, gap: float
+    ) -> int:
         x = np.array([xy[0], xy[1], 0.0, 0.0])
         P = np.zeros((4, 4))
         P[:2, :2] = C
@@ -1110,6 +1145,7 @@ class Tracker:
         self._score.append(0.0)
         self._height.append(height)
         self._moved.append(t)
+        self._gap.append(gap)
         return tid
 
     def _manage(self) -> tuple[tuple[TrackSnapshot, ...], tuple[int, ...]]:
@@ -1119,14 +1155,15 @@ class Tracker:
         keep = np.ones(len(self._ids), dtype=bool)
         ended: list[TrackSnapshot] = []
         dropped: list[int] = []
+        gap = self._gap
         for i, st in enumerate(self._states):
             silent = t - self._last[i]
             if st is TrackState.TENTATIVE:
                 if self._hits[i] >= cfg.confirm_hits and self._score[i] >= cfg.confirm_score:
                     self._states[i] = TrackState.CONFIRMED
                 elif (
-                    t - self._first[i] > cfg.confirm_window
-                    or silent > cfg.tentative_timeout
+                    t - self._first[i] > max(cfg.confirm_window, CONFIRM_GAPS * gap[i])
+                    or silent > max(cfg.tentative_timeout, TENTATIVE_GAPS * gap[i])
                     or self._score[i] < cfg.drop_score
                 ):
                     keep[i] = False
@@ -1161,6 +1198,7 @@ class Tracker:
                 "_score",
                 "_height",
                 "_moved",
+                "_gap",
             ):
                 old = getattr(self, name)
                 setattr(self, name, [old[i] for i in idx.tolist()])

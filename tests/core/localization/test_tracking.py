@@ -13,6 +13,7 @@ from scipy.stats import chi2
 from core.errors import InvalidInput
 from core.localization.occluders import Occluders, Wall
 from core.localization.tracking import (
+    CONFIRM_GAPS,
     ReorderBuffer,
     Tracker,
     TrackerConfig,
@@ -229,6 +230,43 @@ def test_a_camera_does_not_see_through_walls():
             np.testing.assert_allclose(old.xy, left[0, :2], atol=0.02)
         else:
             assert r.track_ids[0] == before.id and old.xy[0] > 4.0
+
+
+def test_a_camera_reporting_slowly_still_confirms_a_body():
+    """One camera detecting twice a second (a node on a slow machine): the default timeout
+    (0.4 s) and window (1 s) alone would drop the tentative track between any two frames. They
+    stretch to the camera's frame interval, so the body is confirmed from its sightings' score
+    as at 10 Hz; clutter at that rate still never is."""
+    cams = make_cameras(1)
+    rng = np.random.default_rng(2)
+    cfg = TrackerConfig()
+    needed = {}
+    for rate in (10.0, 2.0):
+        trk = Tracker(cams, cfg)
+        states = []
+        for k in range(12):
+            t = k / rate
+            X = np.array([[3.0 + 0.5 * t, 3.0, HEIGHT]])  # walking at 0.5 m/s
+            px = cams[0].project(X) + rng.normal(0.0, 0.5, (1, 2))
+            r = trk.update(0, t, px, pixel_sigma=0.5, heights=HEIGHT)
+            states.append(r.updated[0].state if r.updated else None)
+        assert TrackState.CONFIRMED in states, (rate, states)
+        needed[rate] = states.index(TrackState.CONFIRMED) + 1
+        assert all(st is TrackState.CONFIRMED for st in states[needed[rate] :]), (rate, states)
+    # Its score (the log-likelihood ratio of its sightings) confirms it: at 2 Hz each
+    # prediction is vaguer, so each sighting weighs less and more are needed, within the
+    # window's stretch (CONFIRM_GAPS intervals).
+    assert cfg.confirm_hits <= needed[10.0] <= needed[2.0] <= CONFIRM_GAPS
+    # Clutter at 2 Hz, two false detections per frame over the image, for a minute.
+    trk = Tracker(cams, cfg)
+    w, h = cams[0].image_size
+    confirmed = set()
+    for k in range(120):
+        n = rng.poisson(2.0)
+        px = np.column_stack([rng.uniform(0, w, n), rng.uniform(0, h, n)])
+        r = trk.update(0, k * 0.5, px, pixel_sigma=0.7, heights=HEIGHT)
+        confirmed |= {s.id for s in r.updated if s.state is not TrackState.TENTATIVE}
+    assert confirmed == set()
 
 
 def test_clutter_alone_never_becomes_a_target():
