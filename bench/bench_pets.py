@@ -235,7 +235,12 @@ def measure_detectors(frames: list[NDArray[np.uint8]], truth: Truth) -> list[Det
     """Return each detector's box score on the frames (frame k is ground-truth frame k + 1)
     and its frames per second per core (thread CPU time) at 768 x 576 and 640 x 480."""
     from core.localization.detect import PersonDetector
-    from core.localization.ssd_people import SsdConfig, SsdPeopleDetector
+    from core.localization.ssd_people import (
+        FLOAT_MODEL,
+        SsdConfig,
+        SsdPeopleDetector,
+        default_model_path,
+    )
 
     cv2.setNumThreads(1)
     results = []
@@ -246,23 +251,27 @@ def measure_detectors(frames: list[NDArray[np.uint8]], truth: Truth) -> list[Det
             detect(image)
         return len(images) / (time.thread_time() - start)
 
-    # dnn: the node's default (300 px tiles at the camera's resolution, 64 px overlap), a
-    # costlier candidate (each tile detected in its mirror image too, the two views merged),
-    # and two cheaper ones: the whole frame in one pass (the model shrinks it to 300 x 300) and
-    # 2 rows of tiles at 768 x 576 (24 px overlap, seams joined).
+    # dnn: the node's default (the 8-bit model over 230 px tiles, each enlarged 1.3 times to the
+    # model's input), the float model it was quantized from on the same tiles, the camera's own
+    # resolution (300 px tiles, the model's input, as the node cut frames before), a costlier
+    # candidate (each tile detected in its mirror image too, the two views merged), and the
+    # whole frame in one pass (the model shrinks it to 300 x 300).
+    native = SsdConfig(tile_px=300, tile_overlap_px=64, row_overlap_px=64)
     candidates = [
-        ("dnn (SSDLite-MobileNetV2, tiles)", SsdConfig()),
-        ("dnn, tiles and their mirror images", SsdConfig(flip=True)),
-        ("dnn, whole frame", SsdConfig(tile_px=max(SIZE))),
-        ("dnn, tiles with 24 px overlap", SsdConfig(tile_overlap_px=24)),
+        ("dnn (8-bit, 230 px tiles)", None, SsdConfig()),
+        ("dnn, float model, 230 px tiles", FLOAT_MODEL, SsdConfig()),
+        ("dnn, 8-bit, 300 px tiles", None, native),
+        ("dnn, 230 px tiles and mirror images", None, SsdConfig(flip=True)),
+        ("dnn, whole frame", None, SsdConfig(tile_px=max(SIZE))),
     ]
-    for name, config in candidates:
-        dnn = SsdPeopleDetector(config=config)
+    for name, model_name, config in candidates:
+        model = None if model_name is None else default_model_path(model_name)
+        dnn = SsdPeopleDetector(model, config=config)
         boxes = {k + 1: dnn.detect_boxes(image).boxes for k, image in enumerate(frames)}
         speed = {}
         for size in (SIZE, (640, 480)):
             images = [cv2.resize(f, size, interpolation=cv2.INTER_AREA) for f in frames[:40]]
-            speed[size] = timed(SsdPeopleDetector(config=config).detect_boxes, images)
+            speed[size] = timed(SsdPeopleDetector(model, config=config).detect_boxes, images)
         results.append(DetectorResult(name, score_boxes(truth, boxes), speed))
 
     # background: the node's learning (its first 30 frames teach the model), then the blobs.

@@ -1,13 +1,18 @@
 """People in real images as the boxes of a neural detector: SSDLite-MobileNetV2 trained on COCO,
-run on the CPU by onnxruntime, over tiles at the model's own scale.
+run on the CPU by onnxruntime, over tiles that magnify the frame.
 
 The model (core/localization/models/, converted once from TensorFlow's object detection model
-zoo, see its README) resizes whatever it is given to 300 x 300 pixels. A whole 768 x 576 frame
-would shrink 2.6 times, and a person 30 m away, 70 pixels tall, would reach the network 27
-pixels tall, below the smallest boxes it was trained to find. So the frame is cut into tiles of
-the model's input size (`tile_px`), overlapping by `tile_overlap_px`, and each tile is detected
-at full resolution: 9 tiles for 768 x 576, 6 for 640 x 480 (the bench measures the cost:
-bench/bench_pets.py).
+zoo and quantized once to 8-bit integers, see its README) resizes whatever it is given to
+300 x 300 pixels. A whole 768 x 576 frame would shrink 2.6 times, and a person 30 m away, 65
+pixels tall, would reach the network 25 pixels tall, below the smallest boxes it was trained to
+find. So the frame is cut into square tiles of `tile_px` pixels that the model enlarges to its
+input: 230 px tiles magnify 1.3 times, so that the same person reaches 85 px, the height of the
+model's smallest upright anchor box (its lowest feature map's scale, 0.2 of the input, at
+aspect ratio 1:2: 0.2 x 300 x sqrt(2)). The tiles overlap by at least `tile_overlap_px`
+between columns and `row_overlap_px` between rows: a standing person is about 2.5 times as tall
+as wide, and one shorter than the rows' overlap is whole in one of the two tiles above each
+other (a person cut by a tile's bottom edge has no feet in it). At 768 x 576 that is 16 tiles
+(4 x 4), at 640 x 480 12 (the bench measures the cost: bench/bench_pets.py).
 
 A person on the seam between two tiles is seen whole by one of them when they are smaller
 than the overlap; the other tile gives a part of them, cut by its edge. Boxes from all tiles
@@ -41,10 +46,22 @@ from core.localization.detections import FrameDetection
 
 Array = NDArray[np.float64]
 
-# The model shipped with the project (package data of core.localization.models).
-DEFAULT_MODEL = "ssdlite_mobilenet_v2_coco.onnx"
+# The models shipped with the project (package data of core.localization.models): the network
+# quantized to 8-bit integers (the default: about 1.8 times faster on a CPU with 8-bit dot
+# products, as precise and as complete on PETS 2009, bench/bench_pets.py) and the float model
+# it was quantized from.
+DEFAULT_MODEL = "ssdlite_mobilenet_v2_coco_int8.onnx"
+FLOAT_MODEL = "ssdlite_mobilenet_v2_coco.onnx"
 # The model's input side (px): its graph resizes every image to this square.
 MODEL_INPUT_PX = 300
+# The tiles' side (px): the model enlarges each to its input, 300 / 230 = 1.3 times (module
+# docstring), and 4 x 4 of them cover 768 x 576 with the overlaps below.
+TILE_PX = 230
+# The least overlap of neighbouring tiles (px): across columns, wider than a person up to 120 px
+# tall (a standing person's box is at most about 0.4 times as wide as tall); across rows, taller
+# than a person up to 100 px tall.
+TILE_OVERLAP_PX = 48
+ROW_OVERLAP_PX = 100
 # The least score of a kept box: the model zoo's own threshold for showing a detection.
 SCORE_THRESHOLD = 0.5
 # The COCO label of a person in the TensorFlow model zoo's numbering (1-based, 1 = person).
@@ -67,9 +84,11 @@ class SsdConfig:
 
     score_threshold: the least score of a kept box (SCORE_THRESHOLD, with or
     without `flip`); min_person_px: the least box height (px) of a person; tile_px: the
-    tiles' side (px; the model's input, so a person is seen at the camera's own resolution);
-    tile_overlap_px: the least overlap between neighbouring tiles (px; a person narrower and
-    shorter than this is whole in some tile); nms_iou: the IoU above which two boxes are one
+    tiles' side in the image (px; the model resizes each to MODEL_INPUT_PX, so a smaller tile
+    magnifies more and costs more tiles); tile_overlap_px: the least overlap between
+    neighbouring tiles of a row (px; a person narrower than this is whole in one of them);
+    row_overlap_px: the least overlap between rows of tiles (px; a person shorter than this is
+    whole in one of them); nms_iou: the IoU above which two boxes are one
     person (0.5, PASCAL's match criterion); flip: also detect in each tile mirrored left to
     right and merge both by the same suppression (test-time augmentation: a person is a
     person in a mirror, the network's misses are not, at twice the cost); threads:
@@ -78,8 +97,9 @@ class SsdConfig:
 
     score_threshold: float = SCORE_THRESHOLD
     min_person_px: float = 20.0
-    tile_px: int = MODEL_INPUT_PX
-    tile_overlap_px: int = 64
+    tile_px: int = TILE_PX
+    tile_overlap_px: int = TILE_OVERLAP_PX
+    row_overlap_px: int = ROW_OVERLAP_PX
     nms_iou: float = 0.5
     flip: bool = False
     threads: int = 1
@@ -89,10 +109,12 @@ class SsdConfig:
             raise InvalidInput(f"score_threshold must lie in [0, 1], got {self.score_threshold}")
         if not self.min_person_px >= 0:
             raise InvalidInput(f"min_person_px must be >= 0, got {self.min_person_px}")
-        if self.tile_px < 32 or not 0 <= self.tile_overlap_px < self.tile_px // 2:
+        overlaps = (self.tile_overlap_px, self.row_overlap_px)
+        if self.tile_px < 32 or not all(0 <= o < self.tile_px // 2 for o in overlaps):
             raise InvalidInput(
-                "tile_px must be >= 32 and tile_overlap_px in [0, tile_px / 2), got "
-                f"{self.tile_px} and {self.tile_overlap_px}"
+                "tile_px must be >= 32 and tile_overlap_px and row_overlap_px in "
+                f"[0, tile_px / 2), got {self.tile_px}, {self.tile_overlap_px} and "
+                f"{self.row_overlap_px}"
             )
         if not 0.0 < self.nms_iou <= 1.0 or self.threads < 1:
             raise InvalidInput("nms_iou must lie in (0, 1] and threads be >= 1")
@@ -112,12 +134,13 @@ class PersonBoxes:
         return int(self.boxes.shape[0])
 
 
-def default_model_path() -> Path:
-    """Return the path of the model installed with the project (package data)."""
-    path = Path(str(resources.files("core.localization.models").joinpath(DEFAULT_MODEL)))
+def default_model_path(name: str = DEFAULT_MODEL) -> Path:
+    """Return the path of a model installed with the project (package data): the default
+    one, or FLOAT_MODEL."""
+    path = Path(str(resources.files("core.localization.models").joinpath(name)))
     if not path.is_file():
         raise InvalidInput(
-            f"the person detector's model {DEFAULT_MODEL} is not installed beside "
+            f"the person detector's model {name} is not installed beside "
             "core/localization/models: reinstall intspace"
         )
     return path
@@ -256,7 +279,7 @@ class SsdPeopleDetector:
         rgb = img[:, :, ::-1]
         cfg = self.config
         found, scores, seams = [], [], []
-        for y0 in tile_origins(height, cfg.tile_px, cfg.tile_overlap_px):
+        for y0 in tile_origins(height, cfg.tile_px, cfg.row_overlap_px):
             for x0 in tile_origins(width, cfg.tile_px, cfg.tile_overlap_px):
                 x1, y1 = min(width, x0 + cfg.tile_px), min(height, y0 + cfg.tile_px)
                 b, s = self._tile_boxes(rgb, x0, y0, x1, y1)

@@ -14,6 +14,7 @@ cameras:
     score_threshold: 0.5              # dnn: the least score of a person's box
     min_person_px: 20                 # dnn: the least height of a person's box (px)
     flip: false                       # dnn: also detect in each tile's mirror image
+    tile_px: 230                      # dnn: the tiles' side (px); smaller magnifies far people
   - name: cam_recorded
     source: /data/entrance.avi
     source_fps: 7                     # a file's true frame rate (its container may say another)
@@ -47,6 +48,7 @@ DEFAULT_MARKER_RADIUS = 0.05
 DEFAULT_SCORE_THRESHOLD = SCORE_THRESHOLD
 DEFAULT_MIN_PERSON_PX = SsdConfig.min_person_px
 DEFAULT_FLIP = SsdConfig.flip
+DEFAULT_TILE_PX = SsdConfig.tile_px
 
 Vertex = Annotated[list[float], Field(min_length=2, max_length=2)]
 
@@ -82,6 +84,11 @@ class CameraConfig(_Model):
     )
     min_person_px: Annotated[float, Field(ge=0, le=10_000)] = DEFAULT_MIN_PERSON_PX
     flip: bool = DEFAULT_FLIP
+    tile_px: Annotated[int, Field(ge=2 * SsdConfig.row_overlap_px + 2, le=4096)] = Field(
+        default=DEFAULT_TILE_PX,
+        description="The side of the square tiles the frame is cut into for the dnn detector; "
+        "the model enlarges each to 300 px, so smaller tiles find farther people at more cost.",
+    )
     source_fps: Annotated[float, Field(gt=0, le=240)] | None = Field(
         default=None,
         description="A video file's frame rate: frame k is captured at t0 + k / source_fps "

@@ -128,6 +128,7 @@ def people_detector(
         score_threshold=threshold,
         min_person_px=camera.min_person_px,
         flip=camera.flip,
+        tile_px=camera.tile_px,
     )
     return SsdPeopleDetector(config=config, mask=mask)
 

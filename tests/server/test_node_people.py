@@ -14,7 +14,7 @@ import pytest
 from bench import bench_pets
 from core.errors import InvalidInput
 from core.localization.detect import PersonDetector
-from core.localization.ssd_people import SsdPeopleDetector
+from core.localization.ssd_people import SsdConfig, SsdPeopleDetector
 from server.cli import main
 from server.commands.node import _config, register
 from server.node.config import CameraConfig, load_config
@@ -49,6 +49,10 @@ def test_real_sources_get_the_neural_detector_and_the_twin_streams_the_backgroun
     for flip in (False, True):
         made = people_detector(plain.model_copy(update={"flip": flip}), "dnn", None)
         assert isinstance(made, SsdPeopleDetector) and made.config.score_threshold == 0.5
+    # The tiles: 230 px (each enlarged 1.3 times to the model's input) unless asked.
+    assert plain.tile_px == SsdConfig().tile_px == 230
+    large = people_detector(plain.model_copy(update={"tile_px": 300}), "dnn", None)
+    assert isinstance(large, SsdPeopleDetector) and large.config.tile_px == 300
     assert isinstance(people_detector(camera, "background", None), PersonDetector)
 
 
@@ -70,6 +74,7 @@ def test_detector_settings_from_yaml_and_flags_are_validated():
         ("detector: hog", "detector"),
         ("score_threshold: 1.2", "score_threshold"),
         ("source_fps: 0", "source_fps"),
+        ("tile_px: 150", "tile_px"),  # smaller than twice the tiles' row overlap
     ]:
         with pytest.raises(InvalidInput, match=field):
             load_config(f"cameras:\n  - name: gate\n    source: /v.avi\n    {bad}\n")
@@ -95,6 +100,8 @@ def test_detector_settings_from_yaml_and_flags_are_validated():
         "12",
         "--source-fps",
         "7",
+        "--tile-px",
+        "300",
         "--mask",
         "0,0 10,0 10,10",
         "--mask",
@@ -108,6 +115,9 @@ def test_detector_settings_from_yaml_and_flags_are_validated():
         7,
     )
     assert cam.masks == [[[0, 0], [10, 0], [10, 10]], [[20, 20], [30, 20], [30, 30], [20, 30]]]
+    assert cam.tile_px == 300
+    with pytest.raises(InvalidInput, match="--tile-px"):
+        parse("--source", "/v.avi", "--camera", "gate", "--tile-px", "64")
     with pytest.raises(InvalidInput, match="--score-threshold"):
         parse("--source", "/v.avi", "--camera", "gate", "--score-threshold", "2")
     with pytest.raises(InvalidInput, match="--mask"):

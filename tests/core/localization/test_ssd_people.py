@@ -8,6 +8,7 @@ import os
 import cv2
 import numpy as np
 import pytest
+from scipy.optimize import linear_sum_assignment
 
 from bench import bench_pets
 from core.errors import InvalidInput
@@ -19,6 +20,7 @@ from core.localization.detections import (
     detect_frame,
 )
 from core.localization.ssd_people import (
+    FLOAT_MODEL,
     SsdConfig,
     SsdPeopleDetector,
     _join_parts,
@@ -117,6 +119,16 @@ def test_settings_and_model_are_checked():
         SsdConfig(score_threshold=1.5)
     with pytest.raises(InvalidInput):
         SsdConfig(tile_px=300, tile_overlap_px=200)
+    with pytest.raises(InvalidInput, match="row_overlap_px"):
+        SsdConfig(tile_px=230, row_overlap_px=120)
+    # The default tiles: 4 x 4 at 768 x 576 and 4 x 3 at 640 x 480, each a person up to 100 px
+    # tall whole in one of two tiles above each other.
+    cfg = SsdConfig()
+    for (w, h), count in (((768, 576), 16), ((640, 480), 12)):
+        rows = tile_origins(h, cfg.tile_px, cfg.row_overlap_px)
+        cols = tile_origins(w, cfg.tile_px, cfg.tile_overlap_px)
+        assert len(rows) * len(cols) == count
+        assert min(cfg.tile_px - np.diff(rows)) >= 100 and min(cfg.tile_px - np.diff(cols)) >= 48
     with pytest.raises(InvalidInput, match="ONNX"):
         SsdPeopleDetector(b"not a model")
     # The installed model, given as bytes, is the same detector as by default.
@@ -161,11 +173,38 @@ def test_people_in_real_footage_are_found_against_the_ground_truth(detector):
     assert background.precision < score.precision - 0.2, background
 
 
+def test_the_8_bit_model_finds_what_the_float_model_finds(detector):
+    # 5 frames 80 apart, about 30 people. The default model is the float one with its
+    # convolutions quantized to 8 bits (core/localization/models/README.md): on the clip's 400
+    # frames both score within 0.01 in precision and recall (python -m bench.bench_pets). Here
+    # each model's boxes are matched one to one to the other's at IoU 0.5 (PASCAL's criterion):
+    # nine in ten of each are the other's, and the matched boxes agree to a few pixels.
+    frames, _ = pets_frames(every=80, count=5)
+    float_model = SsdPeopleDetector(default_model_path(FLOAT_MODEL))
+    matched = total_int8 = total_float = 0
+    offsets = []
+    for image in frames:
+        a = detector.detect_boxes(image).boxes
+        b = float_model.detect_boxes(image).boxes
+        total_int8, total_float = total_int8 + len(a), total_float + len(b)
+        if len(a) and len(b):
+            iou = bench_pets._iou(a, b)
+            r, c = linear_sum_assignment(-iou)
+            ok = iou[r, c] >= 0.5
+            matched += int(ok.sum())
+            offsets.append(np.abs(a[r[ok]] - b[c[ok]]).ravel())
+    print(f"matched {matched} of {total_int8} (8-bit) and {total_float} (float)")
+    assert total_float >= 20
+    assert matched >= 0.9 * total_int8 and matched >= 0.9 * total_float
+    assert np.median(np.concatenate(offsets)) <= 2.0
+
+
 def test_mirror_images_find_people_one_view_missed(detector):
-    # 5 frames 80 apart. Each tile is detected as it is and mirrored; the mirrored view's
+    # 10 frames 40 apart. Each tile is detected as it is and mirrored; the mirrored view's
     # boxes are mirrored back, so mirroring the frame mirrors what is found (the tiles lie
-    # symmetrically: 0, 234 and 468 px across 768 px, so each tile's two views are the other's).
-    frames, numbers = pets_frames(every=80, count=5)
+    # symmetrically: 0, 179, 359 and 538 px across 768 px, so each tile's two views are the
+    # other's).
+    frames, numbers = pets_frames(every=40, count=10)
     flip = SsdPeopleDetector(config=SsdConfig(flip=True))
     image = frames[0]
     found = flip.detect_boxes(image)
@@ -177,19 +216,35 @@ def test_mirror_images_find_people_one_view_missed(detector):
     order = np.lexsort(found.boxes.T[::-1])
     # The same network inputs give the same boxes; 1e-3 px: float32 outputs scaled to pixels.
     np.testing.assert_allclose(back[np.lexsort(back.T[::-1])], found.boxes[order], atol=1e-3)
-    # On the clip's 400 frames both views find 94 more people than one (recall 0.801 to 0.843,
-    # precision 0.917 to 0.904, python -m bench.bench_pets): here, at least as many as one view
-    # and no worse than the one view's precision by more than a tenth.
+    # Both views find people one view misses; the suppression keeps the better-scored of a
+    # person's two boxes, which can fall just under IoU 0.5 where the other was just over, so
+    # a person found by one view can be lost (python -m bench.bench_pets gives the net effect
+    # on the clip's 400 frames). Here: some person found only with both views, no more than
+    # two lost, and the precision no worse than one view's by more than a tenth.
     truth = bench_pets.load_truth()
-    one = bench_pets.score_boxes(
-        truth, {n: detector.detect_boxes(f).boxes for f, n in zip(frames, numbers, strict=True)}
-    )
-    two = bench_pets.score_boxes(
-        truth, {n: flip.detect_boxes(f).boxes for f, n in zip(frames, numbers, strict=True)}
-    )
-    print(f"one view {one}, both {two}")
-    assert two.hits >= one.hits
-    assert two.precision >= one.precision - 0.1
+    one = {n: detector.detect_boxes(f).boxes for f, n in zip(frames, numbers, strict=True)}
+    two = {n: flip.detect_boxes(f).boxes for f, n in zip(frames, numbers, strict=True)}
+    gained = lost = 0
+    for n in numbers:
+        rows = truth.rows(n) & (truth.conf == 1)
+        hit_one = _found(truth.box[rows], one[n])
+        hit_two = _found(truth.box[rows], two[n])
+        gained += int((hit_two & ~hit_one).sum())
+        lost += int((hit_one & ~hit_two).sum())
+    one_score, two_score = (bench_pets.score_boxes(truth, b) for b in (one, two))
+    print(f"one view {one_score}, both {two_score}, gained {gained}, lost {lost}")
+    assert gained >= 1 and lost <= 2
+    assert two_score.precision >= one_score.precision - 0.1
+
+
+def _found(truth: np.ndarray, boxes: np.ndarray) -> np.ndarray:
+    """Return which of the truth's boxes a box matches one to one at IoU 0.5."""
+    hit = np.zeros(len(truth), dtype=bool)
+    if len(truth) and len(boxes):
+        iou = bench_pets._iou(truth, boxes)
+        r, c = linear_sum_assignment(-iou)
+        hit[r[iou[r, c] >= 0.5]] = True
+    return hit
 
 
 def test_a_box_whose_feet_are_masked_gives_no_floor_position(detector):
