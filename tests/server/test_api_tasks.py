@@ -185,10 +185,10 @@ def test_every_failure_of_an_episode_names_its_phase():
     for k, phase in enumerate(PHASES):
         episode = GraspEpisode(False, 1.0, 1.0, 1.0, 0.5, 1, 1, "any reason", phase)
         phases = episode_phases(episode)
-        assert [p["name"] for p in phases] == list(PHASES[: k + 1])
-        assert phases[-1]["ok"] is False and all(p["ok"] for p in phases[:-1])
+        assert [p.name for p in phases] == list(PHASES[: k + 1])
+        assert phases[-1].ok is False and all(p.ok for p in phases[:-1])
     done = episode_phases(GraspEpisode(True, 1.0, 1.0, 1.0, 0.5, 1, 4, "", "lift and carry"))
-    assert done == [{"name": p, "ok": True} for p in PHASES]
+    assert [(p.name, p.ok) for p in done] == [(p, True) for p in PHASES]
 
 
 def test_a_task_whose_process_stopped_reads_interrupted(client, admin):

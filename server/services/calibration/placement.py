@@ -18,7 +18,8 @@ from sqlalchemy.orm import Session
 from core.calibration import place_camera
 from server.db.base import utcnow
 from server.db.models import RUN_SUCCEEDED, CalibrationRun, Camera
-from server.schemas.calibration import PlacementCreate, PlacementRunResult
+from server.schemas.calibration import PlacementCreate, PlacementRunResult, PlacementStd
+from server.schemas.common import stored_json
 from server.services.calibration._shared import (
     Progress,
     camera_history_entry,
@@ -42,8 +43,9 @@ def placement_inputs(body: PlacementCreate, camera: Camera) -> dict[str, Any]:
     }
 
 
-def compute_placement(camera_id: int, inputs: dict[str, Any]) -> dict[str, Any]:
-    """Return the result of a placement run's inputs (raising core's typed errors)."""
+def compute_placement(camera_id: int, inputs: dict[str, Any]) -> PlacementRunResult:
+    """Return the result of a placement run's stored inputs (placement_inputs'; raising
+    core's typed errors)."""
     points = inputs["points"]
     world = np.array([[*p["floor"], p.get("z", 0.0)] for p in points], dtype=np.float64)
     pixels = np.array([p["pixel"] for p in points], dtype=np.float64).reshape(-1, 2)
@@ -55,24 +57,24 @@ def compute_placement(camera_id: int, inputs: dict[str, Any]) -> dict[str, Any]:
         None if K is None else np.asarray(K),
         None if K is None else inputs.get("dist"),
     )
-    return {
-        "kind": "placement",
-        "camera_id": camera_id,
-        "T_world_camera": fit.T_world_camera.tolist(),
-        "K": fit.K.tolist(),
-        "dist": fit.dist.tolist(),
-        "f_estimated": fit.f_estimated,
-        "residuals_px": fit.residuals_px.tolist(),
-        "residuals": fit.residuals.tolist(),
-        "rejected": fit.rejected.tolist(),
-        "rms": fit.rms,
-        "std": {
-            "position_m": fit.std_position_m.tolist(),
-            "rotation_deg": fit.std_rotation_deg.tolist(),
-            "f_px": fit.std_f_px,
-        },
-        "image_size": list(inputs["image_size"]),
-    }
+    return PlacementRunResult(
+        kind="placement",
+        camera_id=camera_id,
+        T_world_camera=fit.T_world_camera.tolist(),
+        K=fit.K.tolist(),
+        dist=fit.dist.tolist(),
+        f_estimated=fit.f_estimated,
+        residuals_px=fit.residuals_px.tolist(),
+        residuals=fit.residuals.tolist(),
+        rejected=fit.rejected.tolist(),
+        rms=fit.rms,
+        std=PlacementStd(
+            position_m=fit.std_position_m.tolist(),
+            rotation_deg=fit.std_rotation_deg.tolist(),
+            f_px=fit.std_f_px,
+        ),
+        image_size=list(inputs["image_size"]),
+    )
 
 
 def create(body: PlacementCreate, camera: Camera) -> CalibrationRun:
@@ -87,27 +89,28 @@ def create(body: PlacementCreate, camera: Camera) -> CalibrationRun:
         camera_id=camera.id,
         inputs=inputs,
         options={},
-        result=result,
+        result=stored_json(result),
         attempts=0,
         started_at=now,
         finished_at=now,
     )
 
 
-def compute(session: Session, run: CalibrationRun, progress: Progress) -> dict[str, Any]:
+def compute(session: Session, run: CalibrationRun, progress: Progress) -> PlacementRunResult:
     """Return the result of a placement run's inputs again (it was made finished; it is
     computed here only if it was re-queued)."""
     del session, progress
     return compute_placement(run.camera_id or 0, run.inputs)
 
 
-def placement_values(result: dict[str, Any]) -> dict[str, Any]:
-    """Return the camera columns a placement result sets: the pose, and K and distortion when
-    they were estimated (a camera with known intrinsics keeps them)."""
-    values: dict[str, Any] = {"T_world_camera": result["T_world_camera"]}
-    if result.get("f_estimated"):
-        values["K"] = result["K"]
-        values["dist"] = result["dist"]
+def placement_values(result: PlacementRunResult) -> dict[str, Any]:
+    """Return the camera columns a placement result sets (column name to value): the pose,
+    and K and distortion when they were estimated (a camera with known intrinsics keeps
+    them)."""
+    values: dict[str, Any] = {"T_world_camera": result.T_world_camera}
+    if result.f_estimated:
+        values["K"] = result.K
+        values["dist"] = result.dist
     return values
 
 
@@ -117,8 +120,8 @@ def apply(session: Session, run: CalibrationRun, scene: SceneSync) -> Camera:
     Applying the run the camera already has changes nothing. Raises RunRefused (409) when the
     camera was deleted or resized since."""
     camera = run_camera(session, run, "placed a {width}x{height} camera", "place it again")
-    assert run.result is not None
-    values = placement_values(run.result)
+    result = Result.model_validate(run.result)
+    values = placement_values(result)
     if set_camera_calibration(session, camera.id, run.id, values):
         session.add(
             camera_history_entry(
@@ -126,8 +129,8 @@ def apply(session: Session, run: CalibrationRun, scene: SceneSync) -> Camera:
                 run.id,
                 values.get("K", camera.K),
                 values.get("dist", camera.dist or [0.0] * 5),
-                run.result.get("rms"),
-                run.result["image_size"],
+                result.rms,
+                result.image_size,
             )
         )
         session.commit()
