@@ -266,9 +266,10 @@ def apply(session: Session, run: CalibrationRun, scene: SceneSync) -> ArmRead:
     if run.arm_id is None:
         raise RunRefused(409, f"the arm of run {run.id} was deleted")
     arm = found(session, Arm, run.arm_id, "arm")
-    assert run.result is not None
-    result = Result.model_validate(run.result)
-    X = result.X
+    # Only the fields applying reads: a result is what its run stored, whatever version wrote it.
+    result = run.result
+    assert result is not None
+    X = result["X"]
     changed = session.execute(
         update(Arm)
         .where(Arm.id == arm.id, or_(Arm.hand_eye_run_id.is_(None), Arm.hand_eye_run_id != run.id))
@@ -281,10 +282,10 @@ def apply(session: Session, run: CalibrationRun, scene: SceneSync) -> ArmRead:
                 arm_id=arm.id,
                 calibration_run_id=run.id,
                 T_ee_camera=X,
-                rotation_std_deg=result.rotation_std_deg,
-                translation_std_m=result.translation_std_m,
-                rms_px=result.rms_px,
-                method=result.method,
+                rotation_std_deg=result["rotation_std_deg"],
+                translation_std_m=result["translation_std_m"],
+                rms_px=result.get("rms_px"),
+                method=result["method"],
             )
         )
     session.commit()

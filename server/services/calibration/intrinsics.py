@@ -216,11 +216,20 @@ def apply(session: Session, run: CalibrationRun, scene: SceneSync) -> Camera:
         "calibrated {width}x{height} images",
         "fix the camera's size or calibrate again",
     )
-    result = Result.model_validate(run.result)
-    if set_camera_calibration(session, camera.id, run.id, {"K": result.K, "dist": result.dist}):
+    # Only the fields applying reads: a result is what its run stored, whatever version wrote it.
+    result = run.result
+    assert result is not None
+    if set_camera_calibration(
+        session, camera.id, run.id, {"K": result["K"], "dist": result["dist"]}
+    ):
         session.add(
             camera_history_entry(
-                camera.id, run.id, result.K, result.dist, result.rms, result.image_size
+                camera.id,
+                run.id,
+                result["K"],
+                result["dist"],
+                result.get("rms"),
+                result["image_size"],
             )
         )
         session.commit()

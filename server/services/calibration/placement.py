@@ -103,14 +103,15 @@ def compute(session: Session, run: CalibrationRun, progress: Progress) -> Placem
     return compute_placement(run.camera_id or 0, run.inputs)
 
 
-def placement_values(result: PlacementRunResult) -> dict[str, Any]:
-    """Return the camera columns a placement result sets (column name to value): the pose,
-    and K and distortion when they were estimated (a camera with known intrinsics keeps
-    them)."""
-    values: dict[str, Any] = {"T_world_camera": result.T_world_camera}
-    if result.f_estimated:
-        values["K"] = result.K
-        values["dist"] = result.dist
+def placement_values(result: dict[str, Any]) -> dict[str, Any]:
+    """Return the camera columns a stored placement result sets (column name to value): the
+    pose, and K and distortion when they were estimated (a camera with known intrinsics keeps
+    them). Only the fields applying reads: a result is what its run stored, whatever version
+    wrote it."""
+    values: dict[str, Any] = {"T_world_camera": result["T_world_camera"]}
+    if result.get("f_estimated"):
+        values["K"] = result["K"]
+        values["dist"] = result["dist"]
     return values
 
 
@@ -120,8 +121,8 @@ def apply(session: Session, run: CalibrationRun, scene: SceneSync) -> Camera:
     Applying the run the camera already has changes nothing. Raises RunRefused (409) when the
     camera was deleted or resized since."""
     camera = run_camera(session, run, "placed a {width}x{height} camera", "place it again")
-    result = Result.model_validate(run.result)
-    values = placement_values(result)
+    assert run.result is not None
+    values = placement_values(run.result)
     if set_camera_calibration(session, camera.id, run.id, values):
         session.add(
             camera_history_entry(
@@ -129,8 +130,8 @@ def apply(session: Session, run: CalibrationRun, scene: SceneSync) -> Camera:
                 run.id,
                 values.get("K", camera.K),
                 values.get("dist", camera.dist or [0.0] * 5),
-                result.rms,
-                result.image_size,
+                run.result.get("rms"),
+                run.result["image_size"],
             )
         )
         session.commit()

@@ -157,12 +157,14 @@ def apply(session: Session, run: CalibrationRun, scene: SceneSync) -> Projector:
     projector's calibration history (once: applying the run in force again adds nothing);
     return the projector, which the 3D scene then draws with its beam from the new pose.
     Raises RunRefused (409) when the projector is gone."""
-    result = Result.model_validate(run.result)
-    projector = session.get(Projector, result.projector_id)
+    # Only the fields applying reads: a result is what its run stored, whatever version wrote it.
+    assert run.result is not None
+    result = run.result
+    projector = session.get(Projector, int(result["projector_id"]))
     if projector is None:
         raise RunRefused(
             409,
-            f"projector {result.projector_id} of run {run.id} was deleted",
+            f"projector {result['projector_id']} of run {run.id} was deleted",
             "run_id",
             "path",
         )
@@ -170,19 +172,19 @@ def apply(session: Session, run: CalibrationRun, scene: SceneSync) -> Projector:
     if (
         latest is not None
         and latest.calibration_run_id == run.id
-        and projector.T_world_projector == result.T_world_projector
+        and projector.T_world_projector == result["T_world_projector"]
     ):
         scene.projector_changed(projector)
         return projector
-    projector.T_world_projector = result.T_world_projector
+    projector.T_world_projector = result["T_world_projector"]
     session.add(
         ProjectorCalibration(
             projector_id=projector.id,
             calibration_run_id=run.id,
-            T_world_projector=result.T_world_projector,
-            tilt_offset=result.tilt_offset_rad,
-            rms_m=result.rms_m,
-            spots=result.spots,
+            T_world_projector=result["T_world_projector"],
+            tilt_offset=float(result["tilt_offset_rad"]),
+            rms_m=float(result["rms_m"]),
+            spots=int(result["spots"]),
         )
     )
     session.commit()
