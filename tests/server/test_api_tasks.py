@@ -350,8 +350,8 @@ def test_fetch_an_object_of_the_semantic_map(twin_client, admin):
     # The 3D scene drew the arm on the twin's robot at home, moved its joints (within its
     # limits) while the task ran, and put it back at home at the end.
     drawn = scene.calls["set_arm"]
-    assert len(drawn) == 2 and all(d["id"] == str(arm["id"]) for (d,) in drawn)
-    assert all(d["agent"] == "robot" and d["q"] is None for (d,) in drawn)  # None: home
+    assert len(drawn) == 2 and all(d.id == str(arm["id"]) for (d,) in drawn)
+    assert all(d.agent == "robot" and d.q is None for (d,) in drawn)  # None: home
     moves = np.array([q for _, q in scene.calls["set_arm_joints"]])
     assert len(moves) >= 2 and moves.shape[1] == 6
     limits = np.asarray(arm["limits"])
