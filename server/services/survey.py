@@ -126,13 +126,17 @@ def _entry(read: SurveyRead, reads: int) -> SurveyEntry:
 
 
 def run_survey(
-    inputs: dict[str, Any], scene: Scene, space_id: int, factory: Any, report: Report
+    seed: int,
+    duration: float | None,
+    scene: Scene,
+    space_id: int,
+    factory: Any,
+    report: Report,
 ) -> SurveyResult:
-    """Run a survey task on `scene` from its stored inputs (seed, duration_s) and return its
-    result; every read enters the maps of space `space_id` (a session from `factory` per read)
-    as it is made; `report(phase, fraction, partial result)` is called as the survey goes."""
-    seed = int(inputs["seed"])
-    duration = inputs.get("duration_s")
+    """Run a survey task on `scene` with `seed`, cut short after `duration` simulated seconds
+    (None: the whole tour), and return its result; every read enters the maps of space
+    `space_id` (a session from `factory` per read) as it is made; `report(phase, fraction,
+    partial result)` is called as the survey goes."""
     entries: dict[tuple[str, int], SurveyEntry] = {}
     count = 0
 
@@ -212,7 +216,9 @@ class TwinTaskRunner(TaskRunner):
         twin = self.twin
         if twin is None or twin.space_id is None:
             raise IntspaceError("the twin stopped before the survey could start")
-        result = run_survey(inputs, twin.scene, twin.space_id, self.factory, report)
+        # The task's stored inputs (survey_task's): the seed drawn, the duration asked for.
+        seed, duration = int(inputs["seed"]), inputs.get("duration_s")
+        result = run_survey(seed, duration, twin.scene, twin.space_id, self.factory, report)
         if self.scene is not None:
             with self.factory() as session:
                 self.scene.maps_changed(session)
