@@ -21,7 +21,7 @@ from server.schemas.manipulation import (
     ArmUpdate,
     HandEyeCalibrationRead,
 )
-from server.services.manipulation import arm_model_problem, arm_read
+from server.services.manipulation import ArmKinematics, arm_model_problem, arm_read
 
 router = APIRouter(prefix="/arms", tags=["arms"], responses=PROBLEM_RESPONSES)
 ArmId = Annotated[int, Path(ge=1, le=MAX_ID)]
@@ -41,7 +41,7 @@ def _check_unique_name(session, arm: Arm | None, changes: dict[str, Any]) -> Non
 def _check_model(arm: Arm | None, changes: dict[str, Any]) -> None:
     keys = ("dh", "limits", "tool", "home", "T_robot_arm", "T_ee_camera")
     merged = {k: changes[k] if k in changes else getattr(arm, k, None) for k in keys}
-    problem = arm_model_problem(merged)
+    problem = arm_model_problem(ArmKinematics.from_json(merged))
     if problem is not None:
         raise FieldProblem(422, *problem)
 

@@ -31,7 +31,7 @@ from server.schemas.common import MAX_ID, Page
 from server.schemas.landmarks import DetectResult
 from server.schemas.registry import LandmarkCreate, LandmarkKind, LandmarkRead, LandmarkUpdate
 from server.services.calibration import decode_image
-from server.services.landmarks import LandmarkUnusable, detection_json, landmark_artwork
+from server.services.landmarks import LandmarkUnusable, detection_read, landmark_artwork
 
 # A PNG is drawn at 4x in each direction before it is reduced: 2e6 output pixels cost ~100 MB
 # while drawn (a 20 cm signpost at the default 5000 px/m is 1.7e6).
@@ -267,11 +267,11 @@ def detect(
     except InvalidInput as exc:
         field = "K" if camera_id is None else "camera_id"
         raise FieldProblem(422, field, f"the camera model cannot be used: {exc}", "form") from None
-    return {
-        "width": int(picture.shape[1]),
-        "height": int(picture.shape[0]),
-        "camera_id": camera_id,
-        "frame_size": frame_size,
-        "ring_size": ring_size,
-        "detections": [detection_json(det) for det in found],
-    }
+    return DetectResult(
+        width=int(picture.shape[1]),
+        height=int(picture.shape[0]),
+        camera_id=camera_id,
+        frame_size=frame_size,
+        ring_size=ring_size,
+        detections=[detection_read(det) for det in found],
+    )

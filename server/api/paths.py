@@ -11,7 +11,7 @@ server.services.paths has the rules.
 from __future__ import annotations
 
 import logging
-from typing import Annotated, Any
+from typing import Annotated
 
 from fastapi import APIRouter, Path, Query, status
 from sqlalchemy import select
@@ -29,8 +29,10 @@ from server.api.deps import (
 )
 from server.api.errors import PROBLEM_RESPONSES, FieldProblem
 from server.db.models import PlannedPath, Projector, ProjectorCalibration, Space
+from server.scene import ProjectorEntry
 from server.schemas.common import MAX_ID, Page
 from server.schemas.paths import (
+    FloorPlanRead,
     FollowCreate,
     PathCreate,
     PathRead,
@@ -93,7 +95,7 @@ def get_floor_plan(
     twin: TwinDep,
     session: SessionDep,
     space_id: Annotated[int, Query(ge=1, le=MAX_ID)],
-) -> dict[str, Any]:
+) -> FloorPlanRead:
     """Return the floor plan paths are planned on in this space: its rooms, the solid spans of
     its walls and its furniture footprints (the twin's home has walls and furniture; another
     space only its rooms), with the clearance the planner keeps (robot radius + margin, m)."""
@@ -104,12 +106,16 @@ def get_floor_plan(
     except service.PathProblem as exc:
         raise _refused(exc, "query") from exc
     radius = service.robot_radius_of(session, space_id)
-    return {
-        "space_id": space_id,
-        **service.plan_drawing(choice),
-        "robot_radius_m": radius,
-        "clearance_m": radius + service.nav.PLAN_MARGIN,
-    }
+    drawing = service.plan_drawing(choice)
+    return FloorPlanRead(
+        space_id=space_id,
+        floor_plan=drawing.floor_plan,
+        rooms=drawing.rooms,
+        walls=drawing.walls,
+        furniture=drawing.furniture,
+        robot_radius_m=radius,
+        clearance_m=radius + service.nav.PLAN_MARGIN,
+    )
 
 
 @router.post(
@@ -167,11 +173,7 @@ def _show_in_scene(sync: SceneSync, row: PlannedPath, projector: Projector | Non
         if projector is not None and row.projector_model is not None:
             spot = row.trajectory["spot"][0] if row.trajectory else None
             scene.set_projector(
-                {
-                    "name": projector.name,
-                    "T_world_projector": row.projector_model["T_world_base"],
-                    "spot": spot,
-                }
+                ProjectorEntry(projector.name, row.projector_model["T_world_base"], spot)
             )
     except Exception:
         log.exception("drawing path %d in the 3D scene failed", row.id)

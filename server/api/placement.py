@@ -21,7 +21,7 @@ from server.api.deps import FramesDep, SceneDep, SessionDep, SettingsDep, WriteA
 from server.api.errors import PROBLEM_RESPONSES, FieldProblem
 from server.api.limits import MiB, read_image_header
 from server.db.models import Camera
-from server.schemas.calibration import PlacementCreate
+from server.schemas.calibration import PlacementCreate, PlacementRead
 from server.schemas.common import MAX_ID
 from server.services.auth import Principal
 from server.services.calibration import placement
@@ -35,6 +35,7 @@ MAX_FRAME_BYTES = 4 * MiB
 @router.post(
     "/{camera_id}/placement",
     status_code=status.HTTP_201_CREATED,
+    response_model=PlacementRead,
     dependencies=[WriteAccess],
 )
 def place_camera_from_points(
@@ -53,13 +54,20 @@ def place_camera_from_points(
     session.commit()
     if body.apply:
         placement.apply(session, run, scene)
-    result = run.result or {}
-    return {
-        "run_id": run.id,
-        "applied": body.apply,
-        **{k: result[k] for k in ("T_world_camera", "K", "dist", "f_estimated")},
-        **{k: result[k] for k in ("residuals_px", "residuals", "rejected", "rms", "std")},
-    }
+    result = placement.Result.model_validate(run.result)
+    return PlacementRead(
+        run_id=run.id,
+        applied=body.apply,
+        T_world_camera=result.T_world_camera,
+        K=result.K,
+        dist=result.dist,
+        f_estimated=result.f_estimated,
+        residuals_px=result.residuals_px,
+        residuals=result.residuals,
+        rejected=result.rejected,
+        rms=result.rms,
+        std=result.std,
+    )
 
 
 @router.put(

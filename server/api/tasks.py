@@ -24,8 +24,8 @@ from server.db.models import Arm, Task
 from server.schemas.common import MAX_ID, Page
 from server.schemas.manipulation import FetchTaskCreate, TaskStatus
 from server.services.manipulation import (
+    ArmKinematics,
     FetchRefused,
-    arm_values,
     closed_form,
     fetch_target,
 )
@@ -69,7 +69,7 @@ def create_task(body: TaskCreate, session: SessionDep, twin: TwinDep, runner: Ta
     check_references(session, {"arm_id": (Arm, body.arm_id)})
     arm = session.get(Arm, body.arm_id)
     assert arm is not None
-    values = arm_values(arm)
+    values = ArmKinematics.of(arm)
     if not closed_form(values):
         raise FieldProblem(
             422,
@@ -80,10 +80,11 @@ def create_task(body: TaskCreate, session: SessionDep, twin: TwinDep, runner: Ta
     inputs = body.model_dump()
     if inputs["seed"] is None:
         inputs["seed"] = secrets.randbelow(2**31)
-    inputs["arm"] = values
+    inputs["arm"] = values.as_json()
     if body.object is not None:
         try:
-            inputs["object"] = fetch_target(session, twin.space_id, body.object, values)
+            target = fetch_target(session, twin.space_id, body.object, values)
+            inputs["object"] = target.as_json()
         except FetchRefused as exc:
             raise FieldProblem(exc.status, exc.field, str(exc)) from exc
     task = Task(

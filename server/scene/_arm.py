@@ -17,7 +17,6 @@ task gives, T_arm_box: on the table as the robot drives to it, between the finge
 from __future__ import annotations
 
 import threading
-from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -28,6 +27,7 @@ from core.errors import IntspaceError, InvalidInput
 from core.manipulation import DHArm
 from core.sim.marked_box import BOX_SIZE, MARK_BOARD, T_MARK_BOARD
 from server.scene._agents import agent_id
+from server.scene._entries import ArmEntry
 from server.scene._geometry import Pose, pose_from_transform
 
 Array = NDArray[np.float64]
@@ -122,33 +122,28 @@ def _matrix(value: Any, shape: tuple[int, ...], name: str) -> Array:
     return a
 
 
-def parse_arm(arm: Mapping[str, Any]) -> ArmSpec:
-    """Return the checked arm {"id", "agent", "name", "dh": {"a", "d", "alpha", "offset"?},
-    "limits", "tool", "home", "T_robot_arm", "q"? (default: home)}; raise InvalidInput naming
-    what is wrong (an unknown field shape, a pose that is not rigid, q outside the limits)."""
-    if not isinstance(arm, Mapping):
-        raise InvalidInput(f"an arm must be a mapping, got {type(arm).__name__}")
-    ident = agent_id(arm.get("id"))
-    agent = agent_id(arm.get("agent"))
-    dh = arm.get("dh")
-    if not isinstance(dh, Mapping):
-        raise InvalidInput(f"arm {ident!r}: 'dh' must be a mapping of a, d, alpha, offset")
+def parse_arm(arm: ArmEntry) -> ArmSpec:
+    """Return the checked arm (its q defaults to home); raise InvalidInput naming what is wrong
+    (a field of the wrong shape, a pose that is not rigid, q outside the limits)."""
+    ident = agent_id(arm.id)
+    agent = agent_id(arm.agent)
+    dh = arm.dh
     try:
         model = DHArm(
-            name=str(arm.get("name") or f"arm {ident}"),
+            name=arm.name or f"arm {ident}",
             a=_matrix(dh.get("a"), (6,), "dh.a"),
             d=_matrix(dh.get("d"), (6,), "dh.d"),
             alpha=_matrix(dh.get("alpha"), (6,), "dh.alpha"),
             offset=_matrix(dh.get("offset", [0.0] * 6), (6,), "dh.offset"),
-            limits=_matrix(arm.get("limits"), (6, 2), "limits"),
-            tool=_matrix(arm.get("tool"), (4, 4), "tool"),
-            home=_matrix(arm.get("home"), (6,), "home"),
+            limits=_matrix(arm.limits, (6, 2), "limits"),
+            tool=_matrix(arm.tool, (4, 4), "tool"),
+            home=_matrix(arm.home, (6,), "home"),
         )
     except IntspaceError as exc:
         raise InvalidInput(f"arm {ident!r}: {exc}") from None
-    mount = _matrix(arm.get("T_robot_arm"), (4, 4), "T_robot_arm")
+    mount = _matrix(arm.T_robot_arm, (4, 4), "T_robot_arm")
     pose_from_transform(mount, f"arm {ident!r} T_robot_arm")  # rigid, or InvalidInput
-    q = model.home if arm.get("q") is None else check_joints(model, arm["q"], ident)
+    q = model.home if arm.q is None else check_joints(model, arm.q, ident)
     return ArmSpec(ident, agent, model.name, model, mount, q)
 
 
@@ -194,10 +189,9 @@ class ArmLayer:
 
     # -- state changes (any thread) ----------------------------------------------------------
 
-    def set_arm(self, arm: Mapping[str, Any]) -> None:
-        """Add or redraw an arm on a robot: {"id", "agent" (the robot's agent id), "name",
-        "dh", "limits", "tool", "home", "T_robot_arm", "q"} with the fields of an arm of the
-        registry (metres, radians; q defaults to home). Its links, frames and gripper are
+    def set_arm(self, arm: ArmEntry) -> None:
+        """Add or redraw an arm of the registry on a robot (`arm.agent`, the robot's agent id;
+        metres, radians; q defaults to home). Its links, frames and gripper are
         drawn inside the agent's frame once the agent is drawn, the gripper at its default
         opening and no box. Raises InvalidInput (nothing changes) for a malformed model, a
         mount that is not rigid, or q outside the limits."""

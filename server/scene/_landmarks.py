@@ -19,14 +19,17 @@ from __future__ import annotations
 
 import math
 import threading
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
 from core.errors import InvalidInput
+from server.scene._entries import LandmarkEntry, PlaceEntry, SemanticObjectEntry
 from server.scene._geometry import Pose, pose_from_transform
+
+T = TypeVar("T")
 
 # The printed patterns' colours (spec 04: pure blue frames, pure red rings).
 _COLOR_KIND = {"object": (0, 0, 255), "signpost": (255, 0, 0)}
@@ -97,14 +100,9 @@ def _key(value: Any, what: str) -> str:
     return text
 
 
-def _items(values: Any, what: str) -> Sequence[Mapping[str, Any]]:
-    if not isinstance(values, Sequence) or isinstance(values, str | bytes):
-        raise InvalidInput(f"{what} must be a list of mappings, got {type(values).__name__}")
+def _items(values: Sequence[T], what: str) -> Sequence[T]:
     if len(values) > MAX_ITEMS:
         raise InvalidInput(f"{what} hold at most {MAX_ITEMS} items, got {len(values)}")
-    for i, item in enumerate(values):
-        if not isinstance(item, Mapping):
-            raise InvalidInput(f"{what}[{i}] must be a mapping, got {type(item).__name__}")
     return values
 
 
@@ -116,25 +114,21 @@ def _unique(ids: list[str], what: str) -> None:
         seen.add(ident)
 
 
-def parse_landmarks(landmarks: Any) -> tuple[LandmarkView, ...]:
-    """Return the checked landmarks [{"id", "name"?, "kind"?, "size"? (m), "T_world_landmark"
-    (4x4 rigid)}]; raise InvalidInput naming what is wrong."""
+def parse_landmarks(landmarks: Sequence[LandmarkEntry]) -> tuple[LandmarkView, ...]:
+    """Return the checked landmarks (T_world_landmark 4x4 rigid, size in (0, 10] m); raise
+    InvalidInput naming what is wrong."""
     out = []
     for item in _items(landmarks, "landmarks"):
-        ident = _key(item.get("id"), "landmarks")
-        pose = pose_from_transform(item.get("T_world_landmark"), f"landmark {ident} pose")
-        size = item.get("size", 0.1)
-        try:
-            size = float(size)
-        except (TypeError, ValueError):
-            raise InvalidInput(f"landmark {ident}: 'size' must be metres, got {size!r}") from None
+        ident = _key(item.id, "landmarks")
+        pose = pose_from_transform(item.T_world_landmark, f"landmark {ident} pose")
+        size = float(item.size)
         if not (math.isfinite(size) and 0.0 < size <= 10.0):
             raise InvalidInput(f"landmark {ident}: 'size' must lie in (0, 10] m, got {size}")
         out.append(
             LandmarkView(
                 id=ident,
-                name=str(item.get("name") or f"landmark {ident}"),
-                kind=str(item.get("kind") or "landmark"),
+                name=item.name or f"landmark {ident}",
+                kind=item.kind or "landmark",
                 size=size,
                 node=f"/landmarks/{ident}",
                 pose=pose,
@@ -144,19 +138,21 @@ def parse_landmarks(landmarks: Any) -> tuple[LandmarkView, ...]:
     return tuple(out)
 
 
-def parse_semantic_objects(objects: Any) -> tuple[SemanticObjectView, ...]:
-    """Return the checked semantic objects [{"id", "name", "class", "room", "T_world_mark"
-    (4x4 rigid)}]; raise InvalidInput naming what is wrong."""
+def parse_semantic_objects(
+    objects: Sequence[SemanticObjectEntry],
+) -> tuple[SemanticObjectView, ...]:
+    """Return the checked semantic objects (T_world_mark 4x4 rigid); raise InvalidInput naming
+    what is wrong."""
     out = []
     for item in _items(objects, "semantic objects"):
-        ident = _key(item.get("id"), "semantic objects")
-        pose = pose_from_transform(item.get("T_world_mark"), f"semantic object {ident} pose")
+        ident = _key(item.id, "semantic objects")
+        pose = pose_from_transform(item.T_world_mark, f"semantic object {ident} pose")
         out.append(
             SemanticObjectView(
                 id=ident,
-                name=str(item.get("name") or f"object {ident}"),
-                object_class=str(item.get("class") or ""),
-                room=str(item.get("room") or ""),
+                name=item.name or f"object {ident}",
+                object_class=item.object_class,
+                room=item.room,
                 node=f"/maps/semantic/{ident}",
                 pose=pose,
             )
@@ -165,16 +161,18 @@ def parse_semantic_objects(objects: Any) -> tuple[SemanticObjectView, ...]:
     return tuple(out)
 
 
-def parse_navigation_graph(places: Any, edges: Any) -> NavigationGraphView:
-    """Return the checked navigation graph: places [{"id", "name", "room", "position": [x, y]
-    or [x, y, z] m}] and edges [[id, id], ...] between listed places; raise InvalidInput naming
-    what is wrong (an edge to an unknown place, a loop, a bad position)."""
+def parse_navigation_graph(
+    places: Sequence[PlaceEntry], edges: Sequence[Sequence[str]]
+) -> NavigationGraphView:
+    """Return the checked navigation graph: places (position [x, y] or [x, y, z] m) and edges
+    [[id, id], ...] between listed places; raise InvalidInput naming what is wrong (an edge to
+    an unknown place, a loop, a bad position)."""
     parsed: dict[str, PlaceView] = {}
     for item in _items(places, "navigation places"):
-        ident = _key(item.get("id"), "navigation places")
+        ident = _key(item.id, "navigation places")
         if ident in parsed:
             raise InvalidInput(f"navigation places: id {ident!r} appears twice")
-        position = item.get("position")
+        position = item.position
         try:
             p = np.asarray(position, dtype=np.float64)
         except (TypeError, ValueError):
@@ -187,8 +185,8 @@ def parse_navigation_graph(places: Any, edges: Any) -> NavigationGraphView:
             )
         parsed[ident] = PlaceView(
             id=ident,
-            name=str(item.get("name") or f"place {ident}"),
-            room=str(item.get("room") or ""),
+            name=item.name or f"place {ident}",
+            room=item.room,
             xy=(float(p[0]), float(p[1])),
         )
     if not isinstance(edges, Sequence) or isinstance(edges, str | bytes):
@@ -247,21 +245,19 @@ class LandmarkLayer:
 
     # -- state changes (any thread) ----------------------------------------------------------
 
-    def set_landmarks(self, landmarks: Sequence[Mapping[str, Any]]) -> None:
-        """Replace the landmarks shown by `landmarks`: [{"id", "name", "kind" ("object",
-        "signpost", ...), "size" (m, the printed pattern's side or ring diameter),
-        "T_world_landmark" (4x4 rigid, the mark frame: z out of the printed face)}]; an empty
-        list removes them. Raises InvalidInput (nothing changes) for a malformed item."""
+    def set_landmarks(self, landmarks: Sequence[LandmarkEntry]) -> None:
+        """Replace the landmarks shown by `landmarks` (size: the printed pattern's side or ring
+        diameter, m; T_world_landmark: 4x4 rigid, the mark frame, z out of the printed face); an
+        empty list removes them. Raises InvalidInput (nothing changes) for a malformed item."""
         parsed = parse_landmarks(landmarks)
         with self._cond:
             self._landmark_specs = parsed
             self._dirty_maps.add("landmarks")
             self._cond.notify_all()
 
-    def set_semantic_objects(self, objects: Sequence[Mapping[str, Any]]) -> None:
-        """Replace the semantic map shown by `objects`: [{"id", "name", "class", "room",
-        "T_world_mark" (4x4 rigid)}]; an empty list removes it. Raises InvalidInput (nothing
-        changes) for a malformed item."""
+    def set_semantic_objects(self, objects: Sequence[SemanticObjectEntry]) -> None:
+        """Replace the semantic map shown by `objects` (T_world_mark 4x4 rigid); an empty list
+        removes it. Raises InvalidInput (nothing changes) for a malformed item."""
         parsed = parse_semantic_objects(objects)
         with self._cond:
             self._object_specs = parsed
@@ -269,12 +265,11 @@ class LandmarkLayer:
             self._cond.notify_all()
 
     def set_navigation_graph(
-        self, places: Sequence[Mapping[str, Any]], edges: Sequence[Sequence[Any]]
+        self, places: Sequence[PlaceEntry], edges: Sequence[Sequence[str]]
     ) -> None:
-        """Replace the navigation graph shown: places [{"id", "name", "room", "position"
-        ([x, y] or [x, y, z] m; drawn on the floor at x, y)}] and edges [[id, id], ...]; empty
-        lists remove it. Raises InvalidInput (nothing changes) for a malformed place or an edge
-        to an unknown place."""
+        """Replace the navigation graph shown: places (position [x, y] or [x, y, z] m; drawn on
+        the floor at x, y) and edges [[id, id], ...]; empty lists remove it. Raises
+        InvalidInput (nothing changes) for a malformed place or an edge to an unknown place."""
         parsed = parse_navigation_graph(places, edges)
         with self._cond:
             self._graph_spec = parsed

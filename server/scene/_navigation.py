@@ -3,14 +3,14 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from core.errors import InvalidInput
+from server.scene._entries import ProjectorEntry
 from server.scene._geometry import Pose, pose_from_transform
 
 # Beyond this many points a planned path is a mistake (the planner's paths have tens).
@@ -48,20 +48,18 @@ def parse_path(points: Sequence[Sequence[float]] | NDArray[np.float64]) -> NDArr
     return p.copy()
 
 
-def parse_projector(projector: Mapping[str, Any]) -> ProjectorView:
-    """Return the view of {"name", "T_world_projector" (4x4 rigid), "spot": [x, y] or None};
+def parse_projector(projector: ProjectorEntry) -> ProjectorView:
+    """Return the view of a projector (T_world_projector 4x4 rigid, spot [x, y] or None);
     raise InvalidInput naming what is wrong."""
-    if not isinstance(projector, Mapping):
-        raise InvalidInput(f"a projector must be a mapping, got {type(projector).__name__}")
-    name = str(projector.get("name") or "projector")
-    pose = pose_from_transform(projector.get("T_world_projector"), "T_world_projector")
-    spot = projector.get("spot")
+    pose = pose_from_transform(projector.T_world_projector, "T_world_projector")
+    spot = projector.spot
+    xy: tuple[float, float] | None = None
     if spot is not None:
         try:
-            xy = [float(v) for v in spot]
+            values = [float(v) for v in spot]
         except (TypeError, ValueError):
             raise InvalidInput(f"a projector's spot must be [x, y] metres, got {spot!r}") from None
-        if len(xy) != 2 or not all(math.isfinite(v) for v in xy):
+        if len(values) != 2 or not all(math.isfinite(v) for v in values):
             raise InvalidInput(f"a projector's spot must be a finite [x, y], got {spot!r}")
-        spot = (xy[0], xy[1])
-    return ProjectorView(name, pose, spot)
+        xy = (values[0], values[1])
+    return ProjectorView(projector.name or "projector", pose, xy)

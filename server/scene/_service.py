@@ -33,6 +33,7 @@ from server.scene._agents import (
     parse_track,
 )
 from server.scene._arm import ArmLayer
+from server.scene._entries import CameraEntry, ProjectorEntry, RoomEntry
 from server.scene._geometry import (
     Frustum,
     Pose,
@@ -113,41 +114,29 @@ class _CameraSpec:
     pose: Pose | None
 
 
-def _parse_camera(camera: Mapping[str, Any]) -> _CameraSpec:
-    try:
-        cam_id = int(camera["id"])
-        width = int(camera["width"])
-        height = int(camera["height"])
-    except (KeyError, TypeError, ValueError) as exc:
-        raise InvalidInput(
-            f"a camera needs integer 'id', 'width' and 'height'; got {exc!r}"
-        ) from None
-    K = camera.get("K")
-    T = camera.get("T_world_camera")
+def _parse_camera(camera: CameraEntry) -> _CameraSpec:
+    cam_id, width, height = camera.id, camera.width, camera.height
+    T = camera.T_world_camera
     return _CameraSpec(
         id=cam_id,
-        name=str(camera.get("name") or f"camera {cam_id}"),
+        name=camera.name or f"camera {cam_id}",
         width=width,
         height=height,
-        has_intrinsics=K is not None,
-        frustum=frustum_from_intrinsics(K, width, height),
+        has_intrinsics=camera.K is not None,
+        frustum=frustum_from_intrinsics(camera.K, width, height),
         pose=None if T is None else pose_from_transform(T, f"camera {cam_id} T_world_camera"),
     )
 
 
-def _parse_rooms(rooms: Sequence[Mapping[str, Any]]) -> list[RoomView]:
+def _parse_rooms(rooms: Sequence[RoomEntry]) -> list[RoomView]:
     out = []
-    for i, room in enumerate(rooms):
-        try:
-            room_id = int(room["id"])
-        except (KeyError, TypeError, ValueError):
-            raise InvalidInput(f"room {i} needs an integer 'id'") from None
-        polygon = as_polygon(room.get("polygon"), f"room {room_id} polygon")
+    for room in rooms:
+        polygon = as_polygon(room.polygon, f"room {room.id} polygon")
         out.append(
             RoomView(
-                id=room_id,
-                name=str(room.get("name") or f"room {room_id}"),
-                node=f"/floor/rooms/{room_id}",
+                id=room.id,
+                name=room.name or f"room {room.id}",
+                node=f"/floor/rooms/{room.id}",
                 polygon=tuple((float(x), float(y)) for x, y in polygon),
             )
         )
@@ -332,10 +321,10 @@ class SceneService(ArmLayer, LandmarkLayer):
 
     # -- state changes (any thread) ----------------------------------------------------------
 
-    def set_floor_plan(self, rooms: Sequence[Mapping[str, Any]]) -> None:
-        """Replace the floor plan by `rooms`: [{"id", "name", "polygon": [[x, y], ...]}] (m).
+    def set_floor_plan(self, rooms: Sequence[RoomEntry]) -> None:
+        """Replace the floor plan by `rooms` (their polygons [[x, y], ...] m).
 
-        Raises InvalidInput (nothing changes) if a room has no id or a bad polygon.
+        Raises InvalidInput (nothing changes) if a room has a bad polygon.
         """
         parsed = _parse_rooms(rooms)
         with self._cond:
@@ -343,8 +332,8 @@ class SceneService(ArmLayer, LandmarkLayer):
             self._dirty_floor = True
             self._cond.notify_all()
 
-    def upsert_camera(self, camera: Mapping[str, Any]) -> None:
-        """Add or redraw a camera: {"id", "name", "width", "height", "K", "T_world_camera"}.
+    def upsert_camera(self, camera: CameraEntry) -> None:
+        """Add or redraw a camera.
 
         K is 3x3 (pixels) or None; T_world_camera is the 4x4 camera-to-world transform (OpenCV
         camera axes: x right, y down, z forward; world Z up) or None, in which case the camera
@@ -438,10 +427,10 @@ class SceneService(ArmLayer, LandmarkLayer):
             self._dirty_navigation = True
             self._cond.notify_all()
 
-    def set_projector(self, projector: Mapping[str, Any] | None) -> None:
-        """Show the ceiling projector: {"name", "T_world_projector" (4x4 mount pose, the
-        pan-tilt base), "spot": [x, y] (m) or None}: its frame with axes at the mount and, with
-        a spot, its beam from the mount to that floor point; None removes it. Raises
+    def set_projector(self, projector: ProjectorEntry | None) -> None:
+        """Show the ceiling projector: its frame with axes at the mount (T_world_projector, the
+        pan-tilt base) and, with a spot, its beam from the mount to that floor point; None
+        removes it. Raises
         InvalidInput (nothing changes) for a pose that is not rigid or a bad spot."""
         view = None if projector is None else parse_projector(projector)
         with self._cond:

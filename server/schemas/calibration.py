@@ -285,6 +285,23 @@ class PlacementRunResult(ReadSchema):
     image_size: list[int]
 
 
+class PlacementRead(ReadSchema):
+    """The answer of POST /cameras/{id}/placement: the stored run's id, whether it was applied,
+    and its result's pose, intrinsics, residuals and standard deviations."""
+
+    run_id: int
+    applied: bool
+    T_world_camera: list[list[float]]
+    K: list[list[float]]
+    dist: list[float]
+    f_estimated: bool
+    residuals_px: list[float]
+    residuals: list[list[float]]
+    rejected: list[int]
+    rms: float
+    std: PlacementStd
+
+
 class RunProgress(ReadSchema):
     """How far a run's current (or last) attempt has come."""
 

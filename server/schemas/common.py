@@ -139,6 +139,12 @@ class ReadSchema(BaseModel):
     model_config = ConfigDict(from_attributes=True)
 
 
+def stored_json(result: BaseModel) -> dict[str, Any]:
+    """Return a result as its JSON column stores it (a run's or a task's): the fields that were
+    set, none filled in by defaults (a result so far lacks the final figures)."""
+    return result.model_dump(exclude_unset=True)
+
+
 class Page(BaseModel, Generic[T]):
     """One page of a listing: the items, the total count and the window asked for."""
 

@@ -306,6 +306,15 @@ class FetchEpisodeRead(ReadSchema):
     frames: int = Field(0, description="Eye-in-hand images rendered and searched.")
 
 
+class FetchHandEye(ReadSchema):
+    """Where a fetch task's hand-eye transform came from ('arm': the arm's applied one;
+    'calibrated': calibrated for the task) and its errors against the twin's truth."""
+
+    source: str
+    rotation_error_deg: float
+    translation_error_mm: float
+
+
 class FetchResult(ReadSchema):
     episodes: int = Field(description="Episodes finished so far.")
     planned: int
@@ -315,10 +324,7 @@ class FetchResult(ReadSchema):
     rotation_error_deg: float | None = Field(description="Median over successes, degrees.")
     time_s: float | None = Field(description="Median simulated time per episode, seconds.")
     failures: dict[str, int]
-    hand_eye: dict[str, Any] = Field(
-        description="Where the hand-eye transform came from ('arm' or 'calibrated') and its "
-        "errors against the twin's truth."
-    )
+    hand_eye: FetchHandEye
     seed: int
     per_episode: list[FetchEpisodeRead]
 

@@ -63,6 +63,23 @@ class JointTrajectoryRead(BaseModel):
     spot: list[list[float]] = Field(description="The planned floor spot (x, y) m per sample.")
 
 
+class FollowResult(BaseModel):
+    """A finished follow's metrics against the twin: the tracking error's RMS, maximum and
+    steady-state value (m; null when it never settled), when it finished (s), the times the
+    camera lost the spot, the trajectory's duration (s), how far the twin's projector drew
+    from the planned spots (m), and the floor camera's rate (Hz) and latency (s)."""
+
+    rms_m: float
+    max_m: float
+    steady_m: float | None
+    finish_s: float | None
+    lost_events: int
+    duration_s: float
+    drawing_error_max_m: float
+    camera_hz: float
+    latency_s: float
+
+
 class FollowRead(BaseModel):
     """The follow task of a path: status (idle, running, succeeded, failed, interrupted),
     law, seed, progress (0..1 of the trajectory's duration), the metrics when it ended and the
@@ -74,7 +91,7 @@ class FollowRead(BaseModel):
     law: str | None
     seed: int | None
     progress: float | None
-    result: dict[str, Any] | None
+    result: FollowResult | None
     series: dict[str, list[float]] | None
     error: str | None
     started_at: UtcDatetime | None
@@ -116,6 +133,47 @@ class PathRead(BaseModel):
     trajectory: JointTrajectoryRead | None
     follow: FollowRead
     created_at: UtcDatetime
+
+
+class RoomOutlineRead(BaseModel):
+    name: str
+    polygon: list[list[float]] = Field(description="Corners (x, y), metres.")
+
+
+class WallSpanRead(BaseModel):
+    """A solid span of a wall, between its doors."""
+
+    start: list[float]
+    end: list[float]
+    thickness: float
+
+
+class FurnitureRead(BaseModel):
+    name: str
+    footprint: list[list[float]] = Field(description="Its 4 corners (x, y) on the floor, metres.")
+
+
+class FloorPlanDrawing(BaseModel):
+    """A floor plan as drawn on a map: which plan, its room polygons, the solid spans of its
+    walls and its furniture footprints, world metres."""
+
+    floor_plan: str
+    rooms: list[RoomOutlineRead]
+    walls: list[WallSpanRead]
+    furniture: list[FurnitureRead]
+
+
+class FloorPlanRead(BaseModel):
+    """The floor plan paths are planned on in a space (its drawing), with the clearance the
+    planner keeps (robot radius + margin, m)."""
+
+    space_id: int
+    floor_plan: str
+    rooms: list[RoomOutlineRead]
+    walls: list[WallSpanRead]
+    furniture: list[FurnitureRead]
+    robot_radius_m: float
+    clearance_m: float
 
 
 # Projector calibration runs (kind "projector")

@@ -32,6 +32,7 @@ from core.landmarks import (
 from core.landmarks.artwork import Artwork, make_artwork
 from core.landmarks.maps import SemanticObject as CoreObject
 from server.db.models import Landmark, NavigationEdge, NavigationPlace, SemanticObject
+from server.schemas.landmarks import Detection, MapChange, MapUpdate, PoseHypothesisOut
 
 # Registry kinds whose payload is ours (spec 04); others (ArUco, AprilTag, ...) print elsewhere.
 QR_KIND = "qr"
@@ -84,30 +85,33 @@ def record_json(record: Record | None) -> dict[str, Any] | None:
     return body
 
 
-def detection_json(det: LandmarkDetection) -> dict[str, Any]:
-    """Return one detection as JSON: kind, outline (N, 2) px, T_cam_mark, cov (rvec then t),
-    position and normal in the camera frame, record or reason, raw text, diagnostics, and
-    whether the image decides the pose with the poses it leaves possible (a signpost's two,
-    each with its own covariance and probability; when undecided, cov covers both)."""
-    return {
-        "kind": det.kind,
-        "outline": np.asarray(det.outline, float).tolist(),
-        "T_cam_mark": det.T_cam_mark.tolist(),
-        "cov": det.cov.tolist(),
-        "position": det.position.tolist(),
-        "normal": det.normal.tolist(),
-        "distance_m": float(np.linalg.norm(det.position)),
-        "record": record_json(det.record),
-        "reason": det.reason,
-        "text": det.text,
-        "orientation_known": bool(det.orientation_known),
-        "rms_px": float(det.rms),
-        "decided": bool(det.decided),
-        "hypotheses": [
-            {"T_cam_mark": h.T.tolist(), "cov": h.cov.tolist(), "probability": h.probability}
+def detection_read(det: LandmarkDetection) -> Detection:
+    """Return one detection as the API shows it: kind, outline (N, 2) px, T_cam_mark, cov
+    (rvec then t), position and normal in the camera frame, record or reason, raw text,
+    diagnostics, and whether the image decides the pose with the poses it leaves possible (a
+    signpost's two, each with its own covariance and probability; when undecided, cov covers
+    both)."""
+    return Detection(
+        kind=det.kind,
+        outline=np.asarray(det.outline, float).tolist(),
+        T_cam_mark=det.T_cam_mark.tolist(),
+        cov=det.cov.tolist(),
+        position=det.position.tolist(),
+        normal=det.normal.tolist(),
+        distance_m=float(np.linalg.norm(det.position)),
+        record=record_json(det.record),
+        reason=det.reason,
+        text=det.text,
+        orientation_known=bool(det.orientation_known),
+        rms_px=float(det.rms),
+        decided=bool(det.decided),
+        hypotheses=[
+            PoseHypothesisOut(
+                T_cam_mark=h.T.tolist(), cov=h.cov.tolist(), probability=h.probability
+            )
             for h in det.hypotheses
         ],
-    }
+    )
 
 
 # The maps
@@ -283,20 +287,20 @@ def _store_edges(session: Session, space_id: int) -> int:
     return edges
 
 
-def observe(session: Session, space_id: int, observations: list[MapObservation]) -> dict[str, Any]:
+def observe(session: Session, space_id: int, observations: list[MapObservation]) -> MapUpdate:
     """Enter read landmarks into the space's maps (objects: fused, never duplicated; signposts:
     places, edges rebuilt) and commit; return what changed per landmark and the edge count."""
-    changes: list[dict[str, Any]] = []
+    changes: list[MapChange] = []
     places = False
     for obs in observations:
         if isinstance(obs.record, ObjectMark):
             what = _observe_object(session, space_id, obs)
-            changes.append({"map": "semantic", "mark_id": obs.record.id, "change": what})
+            changes.append(MapChange(map="semantic", mark_id=obs.record.id, change=what))
         else:
             what = _observe_place(session, space_id, obs)
             places = True
-            changes.append({"map": "navigation", "mark_id": obs.record.id, "change": what})
+            changes.append(MapChange(map="navigation", mark_id=obs.record.id, change=what))
         session.flush()
     edges = _store_edges(session, space_id) if places else None
     session.commit()
-    return {"space_id": space_id, "changes": changes, "navigation_edges": edges}
+    return MapUpdate(space_id=space_id, changes=changes, navigation_edges=edges)

@@ -12,8 +12,8 @@ from __future__ import annotations
 import logging
 import math
 import time
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping
+from dataclasses import asdict, dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -38,7 +38,14 @@ from core.sim.render import Renderer
 from core.sim.scene import default_scene
 from server.db.base import utcnow
 from server.db.models import Arm, SemanticObject, Task
-from server.schemas.manipulation import ArmRead
+from server.schemas.common import ReadSchema, stored_json
+from server.schemas.manipulation import (
+    ArmRead,
+    EpisodePhase,
+    FetchEpisodeRead,
+    FetchHandEye,
+    FetchResult,
+)
 from server.services.jobs import (
     JobCancelled,
     JobEngine,
@@ -59,14 +66,43 @@ Problem = tuple[str, str]  # (field, reason)
 # --------------------------------------------------------------------------------------------
 # Arms
 
+_KINEMATICS = ("dh", "limits", "tool", "home", "T_robot_arm", "T_ee_camera")
 
-def arm_values(arm: Any) -> dict[str, Any]:
-    """Return an arm row's kinematic fields as stored (JSON-ready): dh, limits, tool, home,
-    T_robot_arm, T_ee_camera."""
-    return {
-        key: getattr(arm, key)
-        for key in ("dh", "limits", "tool", "home", "T_robot_arm", "T_ee_camera")
-    }
+
+@dataclass(frozen=True)
+class ArmKinematics:
+    """An arm's kinematic fields as stored (JSON-ready lists): its DH parameters ({a, d, alpha,
+    offset}), joint limits, tool, home configuration, mount on the robot (T_robot_arm) and
+    applied hand-eye transform (T_ee_camera, None when it has none)."""
+
+    dh: dict[str, list[float]]
+    limits: list[list[float]]
+    tool: list[list[float]]
+    home: list[float]
+    T_robot_arm: list[list[float]]
+    T_ee_camera: list[list[float]] | None
+
+    @classmethod
+    def of(cls, arm: Arm) -> ArmKinematics:
+        """Return an arm row's kinematic fields."""
+        return cls.from_json({key: getattr(arm, key) for key in _KINEMATICS})
+
+    @classmethod
+    def from_json(cls, values: Mapping[str, Any]) -> ArmKinematics:
+        """Return the kinematic fields stored as JSON (a task's or a run's inputs["arm"];
+        T_ee_camera may be absent)."""
+        return cls(
+            dh=values["dh"],
+            limits=values["limits"],
+            tool=values["tool"],
+            home=values["home"],
+            T_robot_arm=values["T_robot_arm"],
+            T_ee_camera=values.get("T_ee_camera"),
+        )
+
+    def as_json(self) -> dict[str, Any]:
+        """Return the fields as stored in a task's or a run's inputs."""
+        return asdict(self)
 
 
 _COLUMNS = tuple(name for name in ArmRead.model_fields if name != "closed_form")
@@ -75,30 +111,30 @@ _COLUMNS = tuple(name for name in ArmRead.model_fields if name != "closed_form")
 def arm_read(arm: Arm) -> ArmRead:
     """Return an arm as the API shows it (with whether it has the closed-form IK)."""
     data: dict[str, Any] = {name: getattr(arm, name) for name in _COLUMNS}
-    return ArmRead.model_validate({**data, "closed_form": closed_form(arm_values(arm))})
+    return ArmRead.model_validate({**data, "closed_form": closed_form(ArmKinematics.of(arm))})
 
 
-def dh_arm(values: dict[str, Any], name: str = "arm") -> DHArm:
+def dh_arm(values: ArmKinematics, name: str = "arm") -> DHArm:
     """Return core's DHArm of stored arm fields (raises InvalidInput when they do not make
     one)."""
-    dh = values["dh"]
+    dh = values.dh
     return DHArm(
         name=name,
         a=np.asarray(dh["a"], dtype=float),
         d=np.asarray(dh["d"], dtype=float),
         alpha=np.asarray(dh["alpha"], dtype=float),
         offset=np.asarray(dh.get("offset", [0.0] * 6), dtype=float),
-        limits=np.asarray(values["limits"], dtype=float),
-        tool=np.asarray(values["tool"], dtype=float),
-        home=np.asarray(values["home"], dtype=float),
+        limits=np.asarray(values.limits, dtype=float),
+        tool=np.asarray(values.tool, dtype=float),
+        home=np.asarray(values.home, dtype=float),
     )
 
 
-def arm_model_problem(values: dict[str, Any]) -> Problem | None:
+def arm_model_problem(values: ArmKinematics) -> Problem | None:
     """Return (field, reason) when stored arm fields do not form a usable arm (the home
     configuration outside the limits, or anything core refuses), None when they do."""
-    home = np.asarray(values["home"], dtype=float)
-    limits = np.asarray(values["limits"], dtype=float)
+    home = np.asarray(values.home, dtype=float)
+    limits = np.asarray(values.limits, dtype=float)
     outside = np.flatnonzero((home < limits[:, 0]) | (home > limits[:, 1]))
     if outside.size:
         j = int(outside[0])
@@ -114,17 +150,17 @@ def arm_model_problem(values: dict[str, Any]) -> Problem | None:
     return None
 
 
-def closed_form(values: dict[str, Any]) -> bool:
+def closed_form(values: ArmKinematics) -> bool:
     """Return whether the stored arm has the Puma-type closed-form inverse kinematics."""
     return dh_arm(values).has_closed_form
 
 
-def twin_manipulator(values: dict[str, Any]) -> MobileManipulator:
+def twin_manipulator(values: ArmKinematics) -> MobileManipulator:
     """Return the registry arm as the twin simulates it: its geometry and mount, with the
     eye-in-hand camera where the twin's camera truly is (for rendering and scoring only)."""
     return MobileManipulator(
         arm=dh_arm(values),
-        T_base_arm=np.asarray(values["T_robot_arm"], dtype=float),
+        T_base_arm=np.asarray(values.T_robot_arm, dtype=float),
         T_ee_camera=default_manipulator().T_ee_camera,
     )
 
@@ -135,64 +171,66 @@ def twin_manipulator(values: dict[str, Any]) -> MobileManipulator:
 PHASES = GRASP_PHASES  # approach, switch, look then move, grasp, lift and carry
 
 
-def episode_phases(episode: GraspEpisode) -> list[dict[str, Any]]:
-    """Return the phases an episode went through, [{name, ok}], the failed one last (the
-    phase core.sim's grasp episode records it failed in)."""
+def episode_phases(episode: GraspEpisode) -> list[EpisodePhase]:
+    """Return the phases an episode went through, the failed one last (the phase core.sim's
+    grasp episode records it failed in)."""
     if episode.success:
-        return [{"name": p, "ok": True} for p in PHASES]
+        return [EpisodePhase(name=p, ok=True) for p in PHASES]
     k = PHASES.index(episode.phase)
-    return [{"name": p, "ok": i < k} for i, p in enumerate(PHASES[: k + 1])]
+    return [EpisodePhase(name=p, ok=i < k) for i, p in enumerate(PHASES[: k + 1])]
 
 
 def _finite(x: float) -> float | None:
     return None if not math.isfinite(x) else float(x)
 
 
-def episode_record(episode: GraspEpisode) -> dict[str, Any]:
+def episode_record(episode: GraspEpisode) -> FetchEpisodeRead:
     """Return an episode as stored: outcome, phases, final errors and diagnostics."""
-    return {
-        "success": episode.success,
-        "phases": episode_phases(episode),
-        "position_error_mm": _finite(episode.position_error_mm),
-        "rotation_error_deg": _finite(episode.rotation_error_deg),
-        "time_s": episode.time_s,
-        "visible_fraction": episode.visible_fraction,
-        "switches": episode.switches,
-        "looks": episode.looks,
-        "reason": episode.reason,
-        "gripper_opening_mm": _finite(episode.gripper_opening_mm),
-        "frames": episode.frames,
-    }
+    return FetchEpisodeRead(
+        success=episode.success,
+        phases=episode_phases(episode),
+        position_error_mm=_finite(episode.position_error_mm),
+        rotation_error_deg=_finite(episode.rotation_error_deg),
+        time_s=episode.time_s,
+        visible_fraction=episode.visible_fraction,
+        switches=episode.switches,
+        looks=episode.looks,
+        reason=episode.reason,
+        gripper_opening_mm=_finite(episode.gripper_opening_mm),
+        frames=episode.frames,
+    )
+
+
+def _median(values: list[float | None]) -> float | None:
+    known = [v for v in values if v is not None]
+    return float(np.median(known)) if known else None
 
 
 def fetch_summary(
-    records: list[dict[str, Any]], planned: int, hand_eye: dict[str, Any], seed: int
-) -> dict[str, Any]:
+    records: list[FetchEpisodeRead], planned: int, hand_eye: FetchHandEye, seed: int
+) -> FetchResult:
     """Return the stored result of a fetch task from its episodes so far: success rate, medians
     over successes of the final errors, median time, failure reasons with counts."""
-    good = [r for r in records if r["success"]]
+    good = [r for r in records if r.success]
     failures: dict[str, int] = {}
     for r in records:
-        if not r["success"]:
-            failures[r["reason"]] = failures.get(r["reason"], 0) + 1
-
-    def median(values: list[float]) -> float | None:
-        return float(np.median(values)) if values else None
-
-    pos = median([r["position_error_mm"] / 1e3 for r in good])
-    return {
-        "episodes": len(records),
-        "planned": planned,
-        "successes": len(good),
-        "success_rate": len(good) / len(records) if records else None,
-        "position_error_m": pos,
-        "rotation_error_deg": median([r["rotation_error_deg"] for r in good]),
-        "time_s": median([r["time_s"] for r in records]),
-        "failures": failures,
-        "hand_eye": hand_eye,
-        "seed": seed,
-        "per_episode": records,
-    }
+        if not r.success:
+            failures[r.reason] = failures.get(r.reason, 0) + 1
+    return FetchResult(
+        episodes=len(records),
+        planned=planned,
+        successes=len(good),
+        success_rate=len(good) / len(records) if records else None,
+        position_error_m=_median(
+            [None if r.position_error_mm is None else r.position_error_mm / 1e3 for r in good]
+        ),
+        rotation_error_deg=_median([r.rotation_error_deg for r in good]),
+        time_s=_median([r.time_s for r in records]),
+        failures=failures,
+        hand_eye=hand_eye,
+        seed=seed,
+        per_episode=records,
+    )
 
 
 class FetchRefused(Exception):
@@ -205,11 +243,61 @@ class FetchRefused(Exception):
         self.field = field
 
 
+@dataclass(frozen=True)
+class FetchObject:
+    """The object a fetch takes, as the space's semantic map holds it: its mark's id, name,
+    class and pose (T_world_mark, 4x4 nested lists)."""
+
+    id: int
+    name: str
+    object_class: str
+    T_world_mark: list[list[float]]
+
+    @classmethod
+    def from_json(cls, values: Mapping[str, Any]) -> FetchObject:
+        """Return the object stored in a task's inputs (as_json's)."""
+        return cls(values["id"], values["name"], values["class"], values["T_world_mark"])
+
+    def as_json(self) -> dict[str, Any]:
+        """Return the object as a task's inputs store it."""
+        return {
+            "id": self.id,
+            "name": self.name,
+            "class": self.object_class,
+            "T_world_mark": self.T_world_mark,
+        }
+
+
+@dataclass(frozen=True)
+class FetchInputs:
+    """What a fetch task runs from, read from its stored inputs: the seed, the episodes
+    planned, the pixel noise, the arm's fields at submission and the object (None: a box
+    placed at random)."""
+
+    seed: int
+    episodes: int
+    sigma_px: float
+    arm: ArmKinematics
+    object: FetchObject | None
+
+    @classmethod
+    def from_json(cls, inputs: Mapping[str, Any]) -> FetchInputs:
+        """Return the inputs a task stores (POST /tasks builds them)."""
+        target = inputs.get("object")
+        return cls(
+            seed=int(inputs["seed"]),
+            episodes=int(inputs["episodes"]),
+            sigma_px=float(inputs["sigma_px"]),
+            arm=ArmKinematics.from_json(inputs["arm"]),
+            object=None if target is None else FetchObject.from_json(target),
+        )
+
+
 def fetch_target(
-    session: Session, space_id: int, ref: int | str, values: dict[str, Any]
-) -> dict[str, Any]:
-    """Return the object a fetch takes, as the space's semantic map holds it: {"id" (its mark's
-    id), "name", "class", "T_world_mark"}; `ref` is its id (int) or its name (str, any case).
+    session: Session, space_id: int, ref: int | str, values: ArmKinematics
+) -> FetchObject:
+    """Return the object a fetch takes, as the space's semantic map holds it; `ref` is its id
+    (int) or its name (str, any case).
     Raises FetchRefused: 404 when the map has no such object, 409 when two have that name or
     the arm cannot fetch it from there (core.sim.fetch.fetch_problem)."""
     query = (
@@ -246,42 +334,40 @@ def fetch_target(
         raise FetchRefused(
             409, "object", f"object {row.mark_id} ({row.name}) cannot be fetched: {problem}"
         )
-    return {
-        "id": row.mark_id,
-        "name": row.name,
-        "class": row.object_class,
-        "T_world_mark": row.T_world_mark,
-    }
+    return FetchObject(row.mark_id, row.name, row.object_class, row.T_world_mark)
+
+
+Report = Callable[[str, float, ReadSchema | None], None]
 
 
 def run_fetch(
-    inputs: dict[str, Any],
-    report: Callable[[str, float, dict[str, Any] | None], None],
+    inputs: FetchInputs,
+    report: Report,
     joints: Callable[[np.ndarray], None] | None = None,
     gripper: Callable[[float], None] | None = None,
     box: Callable[[np.ndarray], None] | None = None,
-) -> dict[str, Any]:
+) -> FetchResult:
     """Run a fetch task and return its result; `report(phase, fraction, partial result)` is
     called as each episode enters each of its phases ("episode 2 of 5: look then move", the
     controller's own calls) and with the result so far after each episode; `joints(q)` each
     time the arm moves, `gripper(opening)` (m) each time the gripper opens or closes and
     `box(T_arm_box)` each time the twin's box moves relative to the arm's base (its mark frame
     in the arm's base frame, before the joints of the same step: grasp_episode's on_box). With
-    inputs["object"] (fetch_target's), every episode fetches the box at the pose the semantic
+    inputs.object (fetch_target's), every episode fetches the box at the pose the semantic
     map holds (the twin's box lies off it by the map's error).
 
     Every eye-in-hand image is rendered by the twin and the mark detected in it. The hand-eye
     calibration (when the arm has none applied), the taught image and the episodes draw from
-    one generator seeded by inputs["seed"], in the order of `intspace sim run grasp`: with the
+    one generator seeded by inputs.seed, in the order of `intspace sim run grasp`: with the
     twin's arm and no applied hand-eye, a task's episodes are that scenario's."""
-    seed = int(inputs["seed"])
-    planned = int(inputs["episodes"])
-    sigma = float(inputs["sigma_px"])
+    seed = inputs.seed
+    planned = inputs.episodes
+    sigma = inputs.sigma_px
     rng = np.random.default_rng(seed)
-    mm = twin_manipulator(inputs["arm"])
+    mm = twin_manipulator(inputs.arm)
     renderer = Renderer(default_scene(), supersample=1)
-    target = inputs.get("object")
-    applied = inputs["arm"].get("T_ee_camera")
+    target = inputs.object
+    applied = inputs.arm.T_ee_camera
     prepared = prepare_fetch(
         rng,
         mm,
@@ -291,12 +377,12 @@ def run_fetch(
         on_stage=lambda stage: report(stage, 0.0, None),
     )
     dp, dr = pose_error(prepared.X, mm.T_ee_camera)  # scoring only
-    hand_eye = {
-        "source": prepared.hand_eye_source,
-        "rotation_error_deg": math.degrees(float(dr)),
-        "translation_error_mm": 1e3 * float(dp),
-    }
-    records: list[dict[str, Any]] = []
+    hand_eye = FetchHandEye(
+        source=prepared.hand_eye_source,
+        rotation_error_deg=math.degrees(float(dr)),
+        translation_error_mm=1e3 * float(dp),
+    )
+    records: list[FetchEpisodeRead] = []
 
     def entered(k: int, name: str) -> None:
         fraction = (k + PHASES.index(name) / len(PHASES)) / planned
@@ -314,7 +400,7 @@ def run_fetch(
         sigma_px=sigma,
         renderer=renderer,
         on_phase=entered,
-        T_world_prior=None if target is None else np.asarray(target["T_world_mark"]),
+        T_world_prior=None if target is None else np.asarray(target.T_world_mark),
         on_joints=joints,
         on_gripper=gripper,
         on_box=box,
@@ -388,16 +474,20 @@ class TaskRunner(JobEngine):
                 return None
             lease.write(status="running", started_at=utcnow(), progress=0.0)
 
-            def report(phase: str, fraction: float, partial: dict[str, Any] | None) -> None:
+            def report(phase: str, fraction: float, partial: ReadSchema | None) -> None:
                 values: dict[str, Any] = {"phase": phase[:80], "progress": fraction}
                 if partial is not None:
-                    values["result"] = partial
+                    values["result"] = stored_json(partial)
                 lease.write(**values)
 
             outcome: dict[str, Any]
             try:
                 result = self._execute(str(kind), inputs, report, arm)
-                outcome = {"status": "succeeded", "result": result, "phase": "done"}
+                outcome = {
+                    "status": "succeeded",
+                    "result": stored_json(result),
+                    "phase": "done",
+                }
                 outcome["progress"] = 1.0
             except JobCancelled:
                 raise
@@ -414,14 +504,16 @@ class TaskRunner(JobEngine):
                 self.scene.arm_changed(arm)
 
     def _execute(
-        self, kind: str, inputs: dict[str, Any], report: Callable[..., None], arm: Arm | None
-    ) -> dict[str, Any]:
-        """Run one task of `kind` and return its result; a runner that knows more kinds
-        extends this."""
+        self, kind: str, inputs: dict[str, Any], report: Report, arm: Arm | None
+    ) -> ReadSchema:
+        """Run one task of `kind` from its stored inputs (a JSON column, each kind's own
+        fields) and return its result; a runner that knows more kinds extends this."""
         if kind != "fetch":
             raise IntspaceError(f"this service cannot run {kind!r} tasks")
         motion = self._arm_motion(arm)
-        return run_fetch(inputs, report, motion.joints, motion.gripper, motion.box)
+        return run_fetch(
+            FetchInputs.from_json(inputs), report, motion.joints, motion.gripper, motion.box
+        )
 
     def _arm_motion(self, arm: Arm | None) -> ArmMotion:
         """Return what shows a task's arm moving in the 3D scene: its joints, at most 10

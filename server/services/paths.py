@@ -61,6 +61,15 @@ from server.db.models import (
     Robot,
     Room,
 )
+from server.schemas.paths import (
+    FloorPlanDrawing,
+    FollowRead,
+    FollowResult,
+    FurnitureRead,
+    JointTrajectoryRead,
+    RoomOutlineRead,
+    WallSpanRead,
+)
 from server.services.calibration.projector import latest_calibration
 from server.services.jobs import (
     JobCancelled,
@@ -137,12 +146,12 @@ def floor_plan_of(session: Session, space_id: int, scene: Scene | None) -> Floor
     return FloorPlanChoice(RoomsPlan(rooms), "registered rooms (no walls or furniture)")
 
 
-def plan_drawing(choice: FloorPlanChoice) -> dict[str, Any]:
+def plan_drawing(choice: FloorPlanChoice) -> FloorPlanDrawing:
     """Return the floor plan as drawn on a map: room polygons, solid wall spans (between their
     doors) with their thickness, and furniture footprints (4 corners), world metres."""
     plan = choice.plan
     walls = [
-        {"start": a.tolist(), "end": b.tolist(), "thickness": float(w.thickness)}
+        WallSpanRead(start=a.tolist(), end=b.tolist(), thickness=float(w.thickness))
         for w in plan.walls
         for a, b in wall_spans(w)
     ]
@@ -151,16 +160,16 @@ def plan_drawing(choice: FloorPlanChoice) -> dict[str, Any]:
         c, s = math.cos(f.yaw), math.sin(f.yaw)
         half = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]]) * np.asarray(f.size[:2]) / 2
         corners = np.asarray(f.centre) + half @ np.array([[c, s], [-s, c]])
-        furniture.append({"name": getattr(f, "name", ""), "footprint": corners.tolist()})
-    return {
-        "floor_plan": choice.label,
-        "rooms": [
-            {"name": r.name, "polygon": [[float(x), float(y)] for x, y in r.polygon]}
+        furniture.append(FurnitureRead(name=getattr(f, "name", ""), footprint=corners.tolist()))
+    return FloorPlanDrawing(
+        floor_plan=choice.label,
+        rooms=[
+            RoomOutlineRead(name=r.name, polygon=[[float(x), float(y)] for x, y in r.polygon])
             for r in plan.rooms
         ],
-        "walls": walls,
-        "furniture": furniture,
-    }
+        walls=walls,
+        furniture=furniture,
+    )
 
 
 def robot_radius_of(session: Session, space_id: int) -> float:
@@ -282,16 +291,16 @@ def draw(model: PanTiltProjector, points: np.ndarray, spot_speed: float) -> Join
     )
 
 
-def _trajectory_dict(traj: JointTrajectory) -> dict[str, Any]:
+def _trajectory_read(traj: JointTrajectory) -> JointTrajectoryRead:
     t = np.append(np.arange(0.0, traj.duration, TRAJECTORY_DT), traj.duration)
     q, spot = traj.at(t)
-    return {
-        "dt_s": TRAJECTORY_DT,
-        "duration_s": traj.duration,
-        "t": np.round(t, 4).tolist(),
-        "q": np.round(q, 8).tolist(),
-        "spot": np.round(spot, 6).tolist(),
-    }
+    return JointTrajectoryRead(
+        dt_s=TRAJECTORY_DT,
+        duration_s=traj.duration,
+        t=np.round(t, 4).tolist(),
+        q=np.round(q, 8).tolist(),
+        spot=np.round(spot, 6).tolist(),
+    )
 
 
 def plan(
@@ -328,7 +337,7 @@ def plan(
         if length < 1e-6:
             raise PathProblem(422, "goal", "the start and the goal coincide: nothing to draw")
         try:
-            trajectory = _trajectory_dict(draw(model, points, spot_speed))
+            trajectory = _trajectory_read(draw(model, points, spot_speed))
         except IntspaceError as exc:
             raise PathProblem(
                 422,
@@ -347,7 +356,7 @@ def plan(
         floor_plan=choice.label,
         spot_speed_mps=None if model is None else spot_speed,
         projector_model=None if model is None else _model_dict(model),
-        trajectory=trajectory,
+        trajectory=None if trajectory is None else trajectory.model_dump(),
         follow_status="idle",
     )
     session.add(row)
@@ -398,23 +407,24 @@ def claim_follow(
     )
 
 
-def follow_view(row: PlannedPath, now: datetime | None = None) -> dict[str, Any]:
+def follow_view(row: PlannedPath, now: datetime | None = None) -> FollowRead:
     """Return the follow task's state as the API shows it; a running task whose lease has
     expired (its service stopped) reads as interrupted."""
     status = row.follow_status
     if status == "running" and lease_expired(row, now):
         status = "interrupted"
-    return {
-        "status": status,
-        "law": row.follow_law,
-        "seed": row.follow_seed,
-        "progress": row.follow_progress,
-        "result": row.follow_result,
-        "series": row.follow_series,
-        "error": row.follow_error,
-        "started_at": row.follow_started_at,
-        "finished_at": row.follow_finished_at,
-    }
+    result = row.follow_result
+    return FollowRead(
+        status=status,
+        law=row.follow_law,
+        seed=row.follow_seed,
+        progress=row.follow_progress,
+        result=None if result is None else FollowResult.model_validate(result),
+        series=row.follow_series,
+        error=row.follow_error,
+        started_at=row.follow_started_at,
+        finished_at=row.follow_finished_at,
+    )
 
 
 def _law(name: str, limits: Limits) -> nav.SpotFollower:
@@ -457,7 +467,7 @@ class FollowTasks(JobEngine):
             )
         if scene.robot is None:
             raise PathProblem(409, "path_id", f"the twin scene {scene.name!r} has no robot")
-        if follow_view(row)["status"] == "running":
+        if follow_view(row).status == "running":
             raise PathProblem(409, "path_id", f"path {row.id} is being followed already")
         with self._starting:
             alive = self.held()
@@ -482,7 +492,7 @@ class FollowTasks(JobEngine):
             outcome = {
                 "follow_status": "succeeded",
                 "follow_progress": 1.0,
-                "follow_result": result,
+                "follow_result": result.model_dump(),
                 "follow_series": series,
             }
         except JobCancelled:  # deleted while it ran, or its service is stopping
@@ -493,9 +503,7 @@ class FollowTasks(JobEngine):
         with self._factory() as session:
             return str(outcome["follow_status"]) if lease.finish(session, **outcome) else None
 
-    def _simulate(
-        self, lease: Lease, scene: Scene
-    ) -> tuple[dict[str, Any], dict[str, list[float]]]:
+    def _simulate(self, lease: Lease, scene: Scene) -> tuple[FollowResult, dict[str, list[float]]]:
         with self._factory() as session:
             row = session.get(PlannedPath, lease.job_id)
             if row is None or row.projector_model is None or row.spot_speed_mps is None:
@@ -529,17 +537,17 @@ class FollowTasks(JobEngine):
         )
         drawn = truth.spot(traj.q)
         steady = run.steady
-        result = {
-            "rms_m": run.rms,
-            "max_m": float(run.error.max()),
-            "steady_m": None if math.isnan(steady) else steady,
-            "finish_s": run.finished_s,
-            "lost_events": run.lost_events,
-            "duration_s": traj.duration,
-            "drawing_error_max_m": float(np.max(np.linalg.norm(drawn - traj.spot, axis=1))),
-            "camera_hz": nav.CAMERA_RATE,
-            "latency_s": nav.CAMERA_LATENCY,
-        }
+        result = FollowResult(
+            rms_m=run.rms,
+            max_m=float(run.error.max()),
+            steady_m=None if math.isnan(steady) else steady,
+            finish_s=run.finished_s,
+            lost_events=run.lost_events,
+            duration_s=traj.duration,
+            drawing_error_max_m=float(np.max(np.linalg.norm(drawn - traj.spot, axis=1))),
+            camera_hz=nav.CAMERA_RATE,
+            latency_s=nav.CAMERA_LATENCY,
+        )
         return result, series_of(run.time, run.error, run.pose, run.spot)
 
     def shutdown(self, reason: str = "the service stopped during it") -> int:

@@ -26,6 +26,7 @@ from server.db.models import (
     RUN_SUCCEEDED,
     CalibrationRun,
 )
+from server.schemas.common import stored_json
 from server.services.calibration import kind_of
 from server.services.jobs import (
     JobCancelled,
@@ -118,7 +119,7 @@ def execute_claimed_run(
             result = kind_of(run.kind).compute(session, run, attempt.progress)
             outcome = {
                 "status": RUN_SUCCEEDED,
-                "result": result,
+                "result": stored_json(result),
                 "error": None,
                 "progress_stage": "done",
                 "progress_fraction": 1.0,

@@ -27,6 +27,15 @@ from server.db.models import (
     SemanticObject,
     Space,
 )
+from server.scene import (
+    ArmEntry,
+    CameraEntry,
+    LandmarkEntry,
+    PlaceEntry,
+    ProjectorEntry,
+    RoomEntry,
+    SemanticObjectEntry,
+)
 
 if TYPE_CHECKING:
     from server.scene import SceneService
@@ -38,28 +47,27 @@ log = logging.getLogger(__name__)
 ROBOT_AGENT = "robot"
 
 
-def camera_view(camera: Camera) -> dict[str, Any]:
-    """Return the scene's description of a camera."""
-    return {
-        "id": camera.id,
-        "name": camera.name,
-        "width": camera.width,
-        "height": camera.height,
-        "K": camera.K,
-        "T_world_camera": camera.T_world_camera,
-    }
+def camera_entry(camera: Camera) -> CameraEntry:
+    """Return a camera as the scene takes it."""
+    return CameraEntry(
+        camera.id, camera.name, camera.width, camera.height, camera.K, camera.T_world_camera
+    )
 
 
-def arm_view(arm: Arm, agent: str, q: Any = None) -> dict[str, Any]:
-    """Return the scene's description of an arm on the robot drawn as `agent`."""
-    fields = ("dh", "limits", "tool", "home", "T_robot_arm")
-    return {
-        "id": str(arm.id),
-        "agent": agent,
-        "name": arm.name,
-        **{key: getattr(arm, key) for key in fields},
-        "q": None if q is None else [float(v) for v in q],
-    }
+def arm_entry(arm: Arm, agent: str, q: Any = None) -> ArmEntry:
+    """Return an arm on the robot drawn as `agent` as the scene takes it, at joint values q
+    (None: home)."""
+    return ArmEntry(
+        id=str(arm.id),
+        agent=agent,
+        name=arm.name,
+        dh=arm.dh,
+        limits=arm.limits,
+        tool=arm.tool,
+        home=arm.home,
+        T_robot_arm=arm.T_robot_arm,
+        q=None if q is None else [float(v) for v in q],
+    )
 
 
 def first_space(session: Session) -> int | None:
@@ -79,9 +87,9 @@ def shown_robot_arms(session: Session, space_id: int | None = None) -> list[Arm]
     return list(session.scalars(select(Arm).where(Arm.robot_id == robot).order_by(Arm.id)))
 
 
-def landmark_views(session: Session, space_id: int | None = None) -> list[dict[str, Any]]:
-    """Return the scene's description of every registry landmark with a pose (of one space
-    when `space_id` is given): a QR landmark named by its payload ("#id name", kind "object" or
+def landmark_entries(session: Session, space_id: int | None = None) -> list[LandmarkEntry]:
+    """Return every registry landmark with a pose (of one space when `space_id` is given) as
+    the scene takes it: a QR landmark named by its payload ("#id name", kind "object" or
     "signpost"), any other by its id."""
     stmt = select(Landmark).where(Landmark.T_world_landmark.is_not(None))
     if space_id is not None:
@@ -89,39 +97,35 @@ def landmark_views(session: Session, space_id: int | None = None) -> list[dict[s
     rows = session.scalars(stmt.order_by(Landmark.id))
     out = []
     for row in rows:
+        assert row.T_world_landmark is not None  # selected for it
         name, kind = f"landmark {row.id}", row.kind
         try:
             record = decode_payload(row.payload)
             name, kind = f"#{record.id} {record.name}", record.kind
         except PayloadError:
             pass  # a foreign code (ArUco, another QR): shown by its registry id and kind
-        view = {"id": row.id, "name": name, "kind": kind, "size": row.size_m}
-        out.append({**view, "T_world_landmark": row.T_world_landmark})
+        out.append(LandmarkEntry(row.id, name, kind, row.size_m, row.T_world_landmark))
     return out
 
 
-def semantic_views(session: Session, space_id: int | None = None) -> list[dict[str, Any]]:
-    """Return the scene's description of the semantic objects (id "space:mark") of every
-    space, or of one."""
+def semantic_entries(session: Session, space_id: int | None = None) -> list[SemanticObjectEntry]:
+    """Return the semantic objects (id "space:mark") of every space, or of one, as the scene
+    takes them."""
     stmt = select(SemanticObject)
     if space_id is not None:
         stmt = stmt.where(SemanticObject.space_id == space_id)
     rows = session.scalars(stmt.order_by(SemanticObject.space_id, SemanticObject.mark_id))
     return [
-        {
-            "id": f"{r.space_id}:{r.mark_id}",
-            "name": r.name,
-            "class": r.object_class,
-            "room": r.room,
-            "T_world_mark": r.T_world_mark,
-        }
+        SemanticObjectEntry(
+            f"{r.space_id}:{r.mark_id}", r.name, r.object_class, r.room, r.T_world_mark
+        )
         for r in rows
     ]
 
 
-def navigation_views(
+def navigation_entries(
     session: Session, space_id: int | None = None
-) -> tuple[list[dict[str, Any]], list[list[str]]]:
+) -> tuple[list[PlaceEntry], list[list[str]]]:
     """Return the navigation places (id "space:mark", at the pose their payload carries) and
     edges of every space, or of one, as the scene takes them."""
     place_stmt = select(NavigationPlace)
@@ -132,15 +136,7 @@ def navigation_views(
     places = session.scalars(place_stmt.order_by(NavigationPlace.space_id, NavigationPlace.mark_id))
     edges = session.scalars(edge_stmt.order_by(NavigationEdge.id))
     return (
-        [
-            {
-                "id": f"{p.space_id}:{p.mark_id}",
-                "name": p.name,
-                "room": p.room,
-                "position": p.pose[:3],
-            }
-            for p in places
-        ],
+        [PlaceEntry(f"{p.space_id}:{p.mark_id}", p.name, p.room, p.pose[:3]) for p in places],
         [[f"{e.space_id}:{e.from_mark}", f"{e.space_id}:{e.to_mark}"] for e in edges],
     )
 
@@ -199,8 +195,7 @@ class SceneSync:
             return
         stmt = select(Room).where(Room.space_id == self._space(session))
         rooms = session.scalars(stmt.order_by(Room.id)).all()
-        plan = [{"id": r.id, "name": r.name, "polygon": r.polygon} for r in rooms]
-        self._call("set_floor_plan", plan)
+        self._call("set_floor_plan", [RoomEntry(r.id, r.name, r.polygon) for r in rooms])
 
     def camera_changed(self, camera: Camera) -> None:
         """Send one camera's (new) state to the scene; a camera of another space than the
@@ -211,7 +206,7 @@ class SceneSync:
         if session is not None:
             self._space(session)
         if camera.space_id is None or camera.space_id == self.space_id:
-            self._call("upsert_camera", camera_view(camera))
+            self._call("upsert_camera", camera_entry(camera))
         else:
             self._call("remove_camera", camera.id)
 
@@ -223,7 +218,7 @@ class SceneSync:
     def arm_changed(self, arm: Arm, q: Any = None, agent: str = ROBOT_AGENT) -> None:
         """Draw an arm on the robot shown as `agent`, at joint values q (default: home)."""
         if self.scene is not None:
-            self._call("set_arm", arm_view(arm, agent, q))
+            self._call("set_arm", arm_entry(arm, agent, q))
 
     def arm_joints(self, arm_id: int, q: Any) -> None:
         """Move a drawn arm's joints to q (6,) rad (a task reporting its arm's motion)."""
@@ -253,21 +248,21 @@ class SceneSync:
             return
         shown = self.scene.projector()
         spot = shown.spot if shown is not None and shown.name == projector.name else None
-        view = {"name": projector.name, "T_world_projector": projector.T_world_projector}
-        self._call("set_projector", {**view, "spot": spot})
+        entry = ProjectorEntry(projector.name, projector.T_world_projector, spot)
+        self._call("set_projector", entry)
 
     def landmarks_changed(self, session: Session) -> None:
         """Send every placed landmark of the space shown to the scene."""
         if self.scene is not None:
-            self._call("set_landmarks", landmark_views(session, self._space(session)))
+            self._call("set_landmarks", landmark_entries(session, self._space(session)))
 
     def maps_changed(self, session: Session) -> None:
         """Send the semantic and navigation maps of the space shown to the scene."""
         if self.scene is None:
             return
         space_id = self._space(session)
-        self._call("set_semantic_objects", semantic_views(session, space_id))
-        self._call("set_navigation_graph", *navigation_views(session, space_id))
+        self._call("set_semantic_objects", semantic_entries(session, space_id))
+        self._call("set_navigation_graph", *navigation_entries(session, space_id))
 
     def load(self, session: Session) -> None:
         """Send the floor plan, the cameras and the arms of the robot (at home) of the space

@@ -16,7 +16,6 @@ from __future__ import annotations
 import logging
 import secrets
 import time
-from collections.abc import Callable
 from typing import Any, Literal
 
 from pydantic import Field
@@ -29,11 +28,9 @@ from server.db.models import Task
 from server.schemas.common import ReadSchema, Schema
 from server.schemas.manipulation import FetchResult, TaskRead
 from server.services.landmarks import MapObservation, observe
-from server.services.manipulation import TaskRunner
+from server.services.manipulation import Report, TaskRunner
 
 log = logging.getLogger(__name__)
-
-Report = Callable[[str, float, dict[str, Any] | None], None]
 
 
 class SurveyTaskCreate(Schema):
@@ -67,6 +64,24 @@ class SurveyEntry(ReadSchema):
     reads: int
 
 
+class SurveyTruth(ReadSchema):
+    """A finished survey's figures against the twin's truth (core.sim's LandmarkSurveyResult):
+    object marks and signpost places present, seen and found, the semantic map's mean and max
+    position error (m), false and duplicate entries, landmarks seen but not read."""
+
+    objects_present: int
+    objects_seen: int
+    objects_found: int
+    places_present: int
+    places_seen: int
+    places_found: int
+    position_error_mean_m: float | None
+    position_error_max_m: float | None
+    false_entries: int
+    duplicate_entries: int
+    seen_not_read: list[str]
+
+
 class SurveyResult(ReadSchema):
     """What a survey found so far (filled read by read) and, once done, its figures against
     the twin's truth (`truth`: objects and places present, seen and found, mean and max
@@ -82,7 +97,7 @@ class SurveyResult(ReadSchema):
     reads_attempted: int | None = None
     reads_succeeded: int | None = None
     collided: bool | None = None
-    truth: dict[str, Any] | None = None
+    truth: SurveyTruth | None = None
 
 
 class AnyTaskRead(TaskRead):
@@ -97,50 +112,51 @@ def survey_tour(scene: Scene) -> tuple[tuple[float, float], ...] | None:
     return DEFAULT_TOUR if scene.name == default_scene().name else None
 
 
-def _entry(read: SurveyRead, reads: int) -> dict[str, Any]:
+def _entry(read: SurveyRead, reads: int) -> SurveyEntry:
     rec = read.record
     if isinstance(rec, ObjectMark):
         position = [float(v) for v in read.T_world_mark[:3, 3]]
-        which = "semantic"
+        which: Literal["semantic", "navigation"] = "semantic"
     else:
         position = [float(v) for v in rec.pose[:3]]
         which = "navigation"
-    return {
-        "map": which,
-        "mark_id": rec.id,
-        "name": rec.name,
-        "room": rec.room,
-        "position": position,
-        "reads": reads,
-    }
+    return SurveyEntry(
+        map=which, mark_id=rec.id, name=rec.name, room=rec.room, position=position, reads=reads
+    )
 
 
 def run_survey(
-    inputs: dict[str, Any], scene: Scene, space_id: int, factory: Any, report: Report
-) -> dict[str, Any]:
-    """Run a survey task on `scene` and return its result; every read enters the maps of
-    space `space_id` (a session from `factory` per read) as it is made; `report(phase,
-    fraction, partial result)` is called as the survey goes."""
-    seed = int(inputs["seed"])
-    duration = inputs.get("duration_s")
-    entries: dict[tuple[str, int], dict[str, Any]] = {}
+    seed: int,
+    duration: float | None,
+    scene: Scene,
+    space_id: int,
+    factory: Any,
+    report: Report,
+) -> SurveyResult:
+    """Run a survey task on `scene` with `seed`, cut short after `duration` simulated seconds
+    (None: the whole tour), and return its result; every read enters the maps of space
+    `space_id` (a session from `factory` per read) as it is made; `report(phase, fraction,
+    partial result)` is called as the survey goes."""
+    entries: dict[tuple[str, int], SurveyEntry] = {}
     count = 0
 
-    def partial() -> dict[str, Any]:
-        return {
-            "space_id": space_id,
-            "seed": seed,
-            "duration_s": duration,
-            "entries": sorted(entries.values(), key=lambda e: (e["map"], e["mark_id"])),
-            "reads": count,
-            "time_s": None,
-            "completed": None,
-        }
+    def partial() -> SurveyResult:
+        return SurveyResult(
+            space_id=space_id,
+            seed=seed,
+            duration_s=duration,
+            entries=sorted(entries.values(), key=lambda e: (e.map, e.mark_id)),
+            reads=count,
+            time_s=None,
+            completed=None,
+        )
 
-    now: dict[str, Any] = {"phase": "starting", "fraction": 0.0}
+    phase = "starting"
+    done = 0.0
 
     def on_progress(what: str, fraction: float) -> None:
-        now.update(phase=what, fraction=fraction)
+        nonlocal phase, done
+        phase, done = what, fraction
         report(what, fraction, partial())
 
     def on_read(read: SurveyRead) -> None:
@@ -152,8 +168,8 @@ def run_survey(
         count += 1
         key = ("semantic" if read.record.kind == "object" else "navigation", read.record.id)
         before = entries.get(key)
-        entries[key] = _entry(read, 1 if before is None else before["reads"] + 1)
-        report(now["phase"], now["fraction"], partial())
+        entries[key] = _entry(read, 1 if before is None else before.reads + 1)
+        report(phase, done, partial())
 
     result = landmark_survey(
         scene,
@@ -163,32 +179,26 @@ def run_survey(
         on_progress=on_progress,
         on_read=on_read,
     )
-    out = partial()
-    out.update(
+    return SurveyResult(
+        space_id=space_id,
+        seed=seed,
+        duration_s=duration,
+        entries=partial().entries,
+        reads=count,
         time_s=result.time_s,
         completed=result.completed,
         reads_attempted=result.reads_attempted,
         reads_succeeded=result.reads_succeeded,
         collided=result.collided,
-        truth={
-            key: getattr(result, key)
-            for key in (
-                "objects_present",
-                "objects_seen",
-                "objects_found",
-                "places_present",
-                "places_seen",
-                "places_found",
-                "position_error_mean_m",
-                "position_error_max_m",
-                "false_entries",
-                "duplicate_entries",
-                "seen_not_read",
-            )
-        },
+        truth=SurveyTruth(
+            **{
+                name: getattr(result, name)
+                for name in SurveyTruth.model_fields
+                if name != "seen_not_read"
+            },
+            seen_not_read=list(result.seen_not_read),
+        ),
     )
-    out["truth"]["seen_not_read"] = list(out["truth"]["seen_not_read"])
-    return out
 
 
 class TwinTaskRunner(TaskRunner):
@@ -200,15 +210,15 @@ class TwinTaskRunner(TaskRunner):
         self.twin = twin
         super().__init__(factory, *args, **kwargs)
 
-    def _execute(
-        self, kind: str, inputs: dict[str, Any], report: Callable[..., None], arm: Any
-    ) -> dict[str, Any]:
+    def _execute(self, kind: str, inputs: dict[str, Any], report: Report, arm: Any) -> ReadSchema:
         if kind != "survey":
             return super()._execute(kind, inputs, report, arm)
         twin = self.twin
         if twin is None or twin.space_id is None:
             raise IntspaceError("the twin stopped before the survey could start")
-        result = run_survey(inputs, twin.scene, twin.space_id, self.factory, report)
+        # The task's stored inputs (survey_task's): the seed drawn, the duration asked for.
+        seed, duration = int(inputs["seed"]), inputs.get("duration_s")
+        result = run_survey(seed, duration, twin.scene, twin.space_id, self.factory, report)
         if self.scene is not None:
             with self.factory() as session:
                 self.scene.maps_changed(session)

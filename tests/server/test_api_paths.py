@@ -102,9 +102,9 @@ def test_plan_in_the_twin_home_with_the_projector_trajectory(client, admin):
     # spot the trajectory draws.
     assert scene.calls["set_planned_path"] == [(path["points"],)]
     (shown,) = scene.calls["set_projector"][0]
-    assert shown["name"] == "ceiling_projector"
-    assert shown["T_world_projector"] == path["projector_model"]["T_world_base"]
-    assert shown["spot"] == path["trajectory"]["spot"][0]
+    assert shown.name == "ceiling_projector"
+    assert shown.T_world_projector == path["projector_model"]["T_world_base"]
+    assert shown.spot == path["trajectory"]["spot"][0]
     points = np.asarray(path["points"])
     assert np.allclose(points[0], START) and np.allclose(points[-1], GOAL)
     # The robot's radius (the scene's robot, 0.2 m) plus the 5 cm planning margin: every
@@ -355,10 +355,10 @@ def test_a_task_whose_heartbeat_stopped_reads_as_interrupted():
     # for longer than 30 s belonged to a service that stopped.
     beat = datetime(2026, 1, 1, tzinfo=UTC)
     row = PlannedPath(follow_status="running", **FOLLOW_LEASES.lease("s:1:0", beat))
-    assert follow_view(row, now=beat + timedelta(seconds=29))["status"] == "running"
-    assert follow_view(row, now=beat + timedelta(seconds=31))["status"] == "interrupted"
+    assert follow_view(row, now=beat + timedelta(seconds=29)).status == "running"
+    assert follow_view(row, now=beat + timedelta(seconds=31)).status == "interrupted"
     row.follow_status = "succeeded"
-    assert follow_view(row, now=beat + timedelta(hours=1))["status"] == "succeeded"
+    assert follow_view(row, now=beat + timedelta(hours=1)).status == "succeeded"
 
 
 def test_projector_calibration_run_on_the_twin(client, admin, run_waiter):

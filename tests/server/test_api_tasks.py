@@ -185,10 +185,10 @@ def test_every_failure_of_an_episode_names_its_phase():
     for k, phase in enumerate(PHASES):
         episode = GraspEpisode(False, 1.0, 1.0, 1.0, 0.5, 1, 1, "any reason", phase)
         phases = episode_phases(episode)
-        assert [p["name"] for p in phases] == list(PHASES[: k + 1])
-        assert phases[-1]["ok"] is False and all(p["ok"] for p in phases[:-1])
+        assert [p.name for p in phases] == list(PHASES[: k + 1])
+        assert phases[-1].ok is False and all(p.ok for p in phases[:-1])
     done = episode_phases(GraspEpisode(True, 1.0, 1.0, 1.0, 0.5, 1, 4, "", "lift and carry"))
-    assert done == [{"name": p, "ok": True} for p in PHASES]
+    assert [(p.name, p.ok) for p in done] == [(p, True) for p in PHASES]
 
 
 def test_a_task_whose_process_stopped_reads_interrupted(client, admin):
@@ -350,8 +350,8 @@ def test_fetch_an_object_of_the_semantic_map(twin_client, admin):
     # The 3D scene drew the arm on the twin's robot at home, moved its joints (within its
     # limits) while the task ran, and put it back at home at the end.
     drawn = scene.calls["set_arm"]
-    assert len(drawn) == 2 and all(d["id"] == str(arm["id"]) for (d,) in drawn)
-    assert all(d["agent"] == "robot" and d["q"] is None for (d,) in drawn)  # None: home
+    assert len(drawn) == 2 and all(d.id == str(arm["id"]) for (d,) in drawn)
+    assert all(d.agent == "robot" and d.q is None for (d,) in drawn)  # None: home
     moves = np.array([q for _, q in scene.calls["set_arm_joints"]])
     assert len(moves) >= 2 and moves.shape[1] == 6
     limits = np.asarray(arm["limits"])

@@ -115,6 +115,7 @@ def test_an_attempt_that_lost_its_claim_writes_nothing(make_settings, admin, fac
 def test_heartbeats_keep_a_run_longer_than_its_lease(make_settings, admin, factory, monkeypatch):
     import time as clock
 
+    from server.schemas.calibration import CalibrationResult
     from server.services.calibration import intrinsics
     from server.services.runs import RunExecutor
 
@@ -123,7 +124,8 @@ def test_heartbeats_keep_a_run_longer_than_its_lease(make_settings, admin, facto
         for k in range(50):
             progress("long", k / 50)
             clock.sleep(0.05)
-        return {"K": [[1.0, 0, 0], [0, 1.0, 0], [0, 0, 1]], "dist": [], "rms": 0.0}
+        K = [[1.0, 0, 0], [0, 1.0, 0], [0, 0, 1]]
+        return CalibrationResult(K=K, dist=[], rms=0.0, per_view_rms=[], image_size=[640, 480])
 
     monkeypatch.setattr(intrinsics, "calibrate_from_correspondences", long_calibration)
     (run_id,) = _queue_runs(make_settings, admin, 1)

@@ -25,7 +25,7 @@ from core.manipulation.hand_eye import check_motions, relative_motions
 from core.sim.eye_in_hand import hand_eye_views
 from server.db.base import utcnow
 from server.db.models import Arm, CalibrationRun, Camera, HandEyeCalibration
-from server.schemas.calibration import HandEyeRunResult
+from server.schemas.calibration import HandEyeMethodRow, HandEyeRunResult
 from server.schemas.manipulation import ArmRead, HandEyeRunCreate
 from server.services.calibration._shared import (
     Progress,
@@ -36,9 +36,9 @@ from server.services.calibration._shared import (
 )
 from server.services.jobs import rows_changed
 from server.services.manipulation import (
+    ArmKinematics,
     Problem,
     arm_read,
-    arm_values,
     closed_form,
     twin_manipulator,
 )
@@ -55,9 +55,9 @@ def create(body: HandEyeRunCreate, context: RunContext) -> CalibrationRun:
     whose pixels do not match, refinement without K."""
     session = context.session
     arm = existing(session, Arm, body.arm_id, "arm_id")
-    values = arm_values(arm)
+    values = ArmKinematics.of(arm)
     options: dict[str, Any] = {"method": body.method, "refine": body.refine}
-    inputs: dict[str, Any] = {"arm_id": arm.id, "arm": values, "source": body.source}
+    inputs: dict[str, Any] = {"arm_id": arm.id, "arm": values.as_json(), "source": body.source}
     if body.source == "twin":
         if context.twin is None:
             raise RunRefused(
@@ -155,33 +155,36 @@ def pose_pairs_problem(
     return None
 
 
-def _method_row(name: str, X: np.ndarray, truth: np.ndarray, rs: float, ts: float) -> dict:
+def _method_row(
+    name: str, X: np.ndarray, truth: np.ndarray, rs: float, ts: float
+) -> HandEyeMethodRow:
     dp, dr = pose_error(X, truth)
-    return {
-        "method": name,
-        "rotation_error_deg": math.degrees(float(dr)),
-        "translation_error_mm": 1e3 * float(dp),
-        "rotation_std_deg": rs,
-        "translation_std_mm": 1e3 * ts,
-    }
+    return HandEyeMethodRow(
+        method=name,
+        rotation_error_deg=math.degrees(float(dr)),
+        translation_error_mm=1e3 * float(dp),
+        rotation_std_deg=rs,
+        translation_std_mm=1e3 * ts,
+    )
 
 
 def calibrate_hand_eye_run(
     inputs: dict[str, Any], options: dict[str, Any], progress: Progress
-) -> dict[str, Any]:
-    """Return the stored result of a hand-eye run (raising core's typed errors on bad data).
+) -> HandEyeRunResult:
+    """Return the result of a hand-eye run (raising core's typed errors on bad data).
 
     inputs: arm_id, arm (its stored fields at submission), source, and for source "poses" the
     pose lists with optional object_points, image_points, K, dist. options: method, refine,
-    and for the twin views, sigma_px, rendered, seed."""
+    and for the twin views, sigma_px, rendered, seed (inputs and options are the run's JSON
+    columns)."""
     method = options["method"]
-    extra: dict[str, Any] = {}
+    twin: dict[str, Any] = {}
     P: Any
     uv: Any
     K: Any
     dist: Any
     if inputs["source"] == "twin":
-        mm = twin_manipulator(inputs["arm"])
+        mm = twin_manipulator(ArmKinematics.from_json(inputs["arm"]))
         seed = options["seed"]
         progress(f"simulating {options['views']} eye-in-hand views", 0.05)
         views = hand_eye_views(
@@ -193,7 +196,7 @@ def calibrate_hand_eye_run(
         )
         E, C = views.T_base_ee, views.T_cam_target
         P, uv, K, dist = views.object_points, views.image_points, views.K, views.dist
-        extra = {"seed": seed, "sigma_px": options["sigma_px"], "rendered": options["rendered"]}
+        twin = {"seed": seed, "sigma_px": options["sigma_px"], "rendered": options["rendered"]}
     else:
         E = np.asarray(inputs["T_base_ee"], dtype=float)
         C = np.asarray(inputs["T_cam_target"], dtype=float)
@@ -212,45 +215,44 @@ def calibrate_hand_eye_run(
         K=K if refine else None,
         dist=dist if refine else None,
     )
-    out: dict[str, Any] = {
-        "kind": "hand-eye",
-        "arm_id": inputs["arm_id"],
-        "source": inputs["source"],
-        "method": result.method,
-        "X": result.X.tolist(),
-        "covariance": result.covariance.tolist(),
-        "rotation_std_deg": result.rotation_std_deg,
-        "translation_std_m": result.translation_std_m,
-        "views": int(E.shape[0]),
-        "motions": result.motions,
-        "rotation_residuals_deg": result.rotation_residuals_deg.tolist(),
-        "translation_residuals_m": result.translation_residuals_m.tolist(),
-        "refined": result.refined,
-        "rms_px": result.rms_px,
-        "per_view_rms_px": (
-            None if result.per_view_rms_px is None else result.per_view_rms_px.tolist()
-        ),
-        "iterations": result.iterations,
-        "T_base_target": result.T_base_target.tolist(),
-        **extra,
-    }
     if inputs["source"] == "twin":
         # Scoring only: every method on the same views, and this result, against the truth.
         truth = views.true_X
-        rows = []
+        methods = []
         for m in METHODS:
             r = calibrate_hand_eye(E, C, method=m)
-            rows.append(_method_row(m, r.X, truth, r.rotation_std_deg, r.translation_std_m))
-        out["methods"] = rows
-        out["truth"] = _method_row(
+            methods.append(_method_row(m, r.X, truth, r.rotation_std_deg, r.translation_std_m))
+        twin["methods"] = methods
+        twin["truth"] = _method_row(
             result.method, result.X, truth, result.rotation_std_deg, result.translation_std_m
         )
     progress("done", 1.0)
-    return out
+    return HandEyeRunResult(
+        kind="hand-eye",
+        arm_id=inputs["arm_id"],
+        source=inputs["source"],
+        method=result.method,
+        X=result.X.tolist(),
+        covariance=result.covariance.tolist(),
+        rotation_std_deg=result.rotation_std_deg,
+        translation_std_m=result.translation_std_m,
+        views=int(E.shape[0]),
+        motions=result.motions,
+        rotation_residuals_deg=result.rotation_residuals_deg.tolist(),
+        translation_residuals_m=result.translation_residuals_m.tolist(),
+        refined=result.refined,
+        rms_px=result.rms_px,
+        per_view_rms_px=(
+            None if result.per_view_rms_px is None else result.per_view_rms_px.tolist()
+        ),
+        iterations=result.iterations,
+        T_base_target=result.T_base_target.tolist(),
+        **twin,
+    )
 
 
-def compute(session: Session, run: CalibrationRun, progress: Progress) -> dict[str, Any]:
-    """Return the stored result of a claimed hand-eye run (calibrate_hand_eye_run)."""
+def compute(session: Session, run: CalibrationRun, progress: Progress) -> HandEyeRunResult:
+    """Return the result of a claimed hand-eye run (calibrate_hand_eye_run)."""
     del session  # the arm's fields were stored with the run
     return calibrate_hand_eye_run(run.inputs, run.options, progress)
 
@@ -264,6 +266,7 @@ def apply(session: Session, run: CalibrationRun, scene: SceneSync) -> ArmRead:
     if run.arm_id is None:
         raise RunRefused(409, f"the arm of run {run.id} was deleted")
     arm = found(session, Arm, run.arm_id, "arm")
+    # Only the fields applying reads: a result is what its run stored, whatever version wrote it.
     result = run.result
     assert result is not None
     X = result["X"]

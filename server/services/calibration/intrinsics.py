@@ -17,7 +17,7 @@ from core.calibration.detect import find_chessboard
 from core.calibration.zhang import CameraCalibration, calibrate_camera
 from core.errors import PatternNotFound
 from server.db.models import CalibrationRun, CalibrationRunFile, Camera
-from server.schemas.calibration import CalibrationResult, IntrinsicsRunCreate
+from server.schemas.calibration import CalibrationResult, IntrinsicsRunCreate, SkippedPhoto
 from server.services.calibration._shared import (
     Progress,
     RunContext,
@@ -94,22 +94,29 @@ def create_from_images(
     )
 
 
-def _result(calibration: CameraCalibration, views_used: list[int] | None) -> dict[str, Any]:
-    return {
-        "K": np.asarray(calibration.K, dtype=float).tolist(),
-        "dist": np.asarray(calibration.dist, dtype=float).ravel().tolist(),
-        "rms": float(calibration.rms),
-        "std_intrinsics": {k: float(v) for k, v in calibration.std_intrinsics.items()},
-        "per_view_rms": np.asarray(calibration.per_view_rms, dtype=float).ravel().tolist(),
-        "image_size": [int(v) for v in calibration.image_size],
-        "views_used": views_used,
-    }
+def _result(
+    calibration: CameraCalibration,
+    views_used: list[int] | None,
+    skipped: list[SkippedPhoto] | None = None,
+) -> CalibrationResult:
+    # A run from correspondences has no photos to skip: its stored result has no `skipped`.
+    extra = {} if skipped is None else {"skipped": skipped}
+    return CalibrationResult(
+        K=np.asarray(calibration.K, dtype=float).tolist(),
+        dist=np.asarray(calibration.dist, dtype=float).ravel().tolist(),
+        rms=float(calibration.rms),
+        std_intrinsics={k: float(v) for k, v in calibration.std_intrinsics.items()},
+        per_view_rms=np.asarray(calibration.per_view_rms, dtype=float).ravel().tolist(),
+        image_size=[int(v) for v in calibration.image_size],
+        views_used=views_used,
+        **extra,
+    )
 
 
 def calibrate_from_correspondences(
     inputs: dict[str, Any], options: dict[str, Any], progress: Progress = no_progress
-) -> dict[str, Any]:
-    """Return the stored result of Zhang's calibration on inline correspondences."""
+) -> CalibrationResult:
+    """Return the result of Zhang's calibration on inline correspondences."""
     progress("calibrating", 0.0)
     calibration = calibrate_camera(
         [np.asarray(v, dtype=float) for v in inputs["object_points"]],
@@ -128,15 +135,15 @@ def calibrate_from_images(
     progress: Progress = no_progress,
     *,
     names: Sequence[str] | None = None,
-) -> dict[str, Any]:
-    """Return the stored result of Zhang's calibration on photos of a chessboard. Photos that
+) -> CalibrationResult:
+    """Return the result of Zhang's calibration on photos of a chessboard. Photos that
     cannot be used are skipped and named in `skipped` with the reason (their indices are
     missing from views_used); raises PatternNotFound, naming them, when none can be used."""
     names = list(names) if names is not None else [f"image-{i}" for i in range(len(images))]
     cols, rows = inputs["chessboard"]
     model = board_object_points_for(cols, rows, float(inputs["square_m"]))
     object_points, image_points, used = [], [], []
-    skipped: list[dict[str, Any]] = []
+    skipped: list[SkippedPhoto] = []
     for index, data in enumerate(images):
         # Detection is most of the run; the calibration itself takes the last tenth.
         progress("detecting the chessboard", 0.9 * index / len(images))
@@ -157,7 +164,7 @@ def calibrate_from_images(
         image_points.append(detection.corners)
         used.append(index)
     if not used:
-        listed = "; ".join(f"{s['filename']}: {s['reason']}" for s in skipped[:10])
+        listed = "; ".join(f"{s.filename}: {s.reason}" for s in skipped[:10])
         more = f" (and {len(skipped) - 10} more)" if len(skipped) > 10 else ""
         raise PatternNotFound(
             f"no {cols}x{rows} chessboard (inner corners) found in any of the {len(images)} "
@@ -172,15 +179,15 @@ def calibrate_from_images(
         skew=bool(options.get("skew", False)),
         distortion=str(options.get("distortion", "k1k2p1p2")),
     )
-    return {**_result(calibration, used), "skipped": skipped}
+    return _result(calibration, used, skipped)
 
 
-def _skip(index: int, names: Sequence[str], reason: str) -> dict[str, Any]:
-    return {"index": index, "filename": names[index], "reason": reason}
+def _skip(index: int, names: Sequence[str], reason: str) -> SkippedPhoto:
+    return SkippedPhoto(index=index, filename=names[index], reason=reason)
 
 
-def compute(session: Session, run: CalibrationRun, progress: Progress) -> dict[str, Any]:
-    """Return the stored result of a claimed intrinsics run: from its photos (source "images",
+def compute(session: Session, run: CalibrationRun, progress: Progress) -> CalibrationResult:
+    """Return the result of a claimed intrinsics run: from its photos (source "images",
     read from the database in upload order) or its correspondences."""
     if run.source != "images":
         return calibrate_from_correspondences(run.inputs, run.options, progress)
@@ -209,6 +216,7 @@ def apply(session: Session, run: CalibrationRun, scene: SceneSync) -> Camera:
         "calibrated {width}x{height} images",
         "fix the camera's size or calibrate again",
     )
+    # Only the fields applying reads: a result is what its run stored, whatever version wrote it.
     result = run.result
     assert result is not None
     if set_camera_calibration(

@@ -17,9 +17,13 @@ import server.services.calibration.network as network
 import server.services.calibration.placement as placement
 import server.services.calibration.projector as projector
 from core.errors import IntspaceError
-from server.db.models import CalibrationRun
+from server.db.models import CalibrationRun, Camera, Projector
+from server.schemas.manipulation import ArmRead
 from server.services.calibration._shared import Progress, RunContext
 from server.services.scene_sync import SceneSync
+
+# What applying a run changed: a camera, cameras, an arm (as the API shows it) or a projector.
+Applied = Camera | list[Camera] | ArmRead | Projector
 
 
 @dataclass(frozen=True)
@@ -28,14 +32,14 @@ class RunKind:
 
     `create(body, context)` returns the unsaved queued run of a POST /calibration-runs body of
     this kind (None: runs of the kind are made by another route), `compute(session, run,
-    progress)` the result a worker stores, `apply(session, run, scene)` what the applied run
-    changed (a camera, cameras, an arm or a projector); `result` is the schema of the stored
-    result. create and apply raise RunRefused, compute core's typed errors."""
+    progress)` the result a worker stores (a `result`), `apply(session, run, scene)` what the
+    applied run changed (a camera, cameras, an arm or a projector); `result` is the schema of
+    the stored result. create and apply raise RunRefused, compute core's typed errors."""
 
     name: str
     result: type[BaseModel]
-    compute: Callable[[Session, CalibrationRun, Progress], dict[str, Any]]
-    apply: Callable[[Session, CalibrationRun, SceneSync], Any]
+    compute: Callable[[Session, CalibrationRun, Progress], BaseModel]
+    apply: Callable[[Session, CalibrationRun, SceneSync], Applied]
     create: Callable[[Any, RunContext], CalibrationRun] | None = None
 
 

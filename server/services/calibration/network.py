@@ -26,7 +26,15 @@ from core.sim.scenarios.network import (
 )
 from core.sim.scenarios.records import AccuracyRow, CameraCalibrationError
 from server.db.models import CalibrationRun, Camera
-from server.schemas.calibration import NetworkRunResult
+from server.schemas.calibration import (
+    AccuracyCamera,
+    AccuracyRowRead,
+    NetworkCameraBound,
+    NetworkCameraErrors,
+    NetworkCameraResult,
+    NetworkRegistration,
+    NetworkRunResult,
+)
 from server.schemas.twin import NetworkRunCreate
 from server.services.calibration._shared import (
     Progress,
@@ -69,16 +77,16 @@ def create(body: NetworkRunCreate, context: RunContext) -> CalibrationRun:
     )
 
 
-def compute(session: Session, run: CalibrationRun, progress: Progress) -> dict[str, Any]:
-    """Return the stored result of a claimed network run (calibrate_network)."""
+def compute(session: Session, run: CalibrationRun, progress: Progress) -> NetworkRunResult:
+    """Return the result of a claimed network run (calibrate_network)."""
     del session  # the run's inputs name everything it needs
     return calibrate_network(run.inputs, run.options, progress)
 
 
 def calibrate_network(
     inputs: dict[str, Any], options: dict[str, Any], progress: Progress = no_progress
-) -> dict[str, Any]:
-    """Return the stored result of calibrating the twin's cameras by driving the robot's
+) -> NetworkRunResult:
+    """Return the result of calibrating the twin's cameras by driving the robot's
     marker (`network_calibration_drive`), each camera named by its registry id too."""
     from core.sim import default_scene
 
@@ -91,9 +99,8 @@ def calibrate_network(
         progress=progress,
     )
     ids = inputs.get("cameras", {})
-    for camera in result["cameras"]:
-        camera["camera_id"] = ids.get(camera["name"])
-    return result
+    cameras = [c.model_copy(update={"camera_id": ids.get(c.name)}) for c in result.cameras]
+    return result.model_copy(update={"cameras": cameras})
 
 
 def _std_of(cal: CalibratedCamera) -> dict[str, Any]:
@@ -114,26 +121,26 @@ def _std_of(cal: CalibratedCamera) -> dict[str, Any]:
     }
 
 
-def _camera_errors(e: CameraCalibrationError) -> dict[str, Any]:
-    return {
-        "focal_pct": e.focal_error_pct,
-        "position_m": e.position_error_m,
-        "rotation_deg": e.rotation_error_deg,
-        "aligned_position_m": e.aligned_position_error_m,
-        "aligned_rotation_deg": e.aligned_rotation_error_deg,
-        "start_frame_position_m": e.start_frame_position_error_m,
-        "start_frame_rotation_deg": e.start_frame_rotation_error_deg,
-    }
+def _camera_errors(e: CameraCalibrationError) -> NetworkCameraErrors:
+    return NetworkCameraErrors(
+        focal_pct=e.focal_error_pct,
+        position_m=e.position_error_m,
+        rotation_deg=e.rotation_error_deg,
+        aligned_position_m=e.aligned_position_error_m,
+        aligned_rotation_deg=e.aligned_rotation_error_deg,
+        start_frame_position_m=e.start_frame_position_error_m,
+        start_frame_rotation_deg=e.start_frame_rotation_error_deg,
+    )
 
 
-def _camera_bound(e: CameraCalibrationError) -> dict[str, Any]:
-    return {
-        "focal_pct": e.bound_focal_pct,
-        "position_m": e.bound_position_m,
-        "rotation_deg": e.bound_rotation_deg,
-        "aligned_position_m": e.bound_aligned_position_m,
-        "aligned_rotation_deg": e.bound_aligned_rotation_deg,
-    }
+def _camera_bound(e: CameraCalibrationError) -> NetworkCameraBound:
+    return NetworkCameraBound(
+        focal_pct=e.bound_focal_pct,
+        position_m=e.bound_position_m,
+        rotation_deg=e.bound_rotation_deg,
+        aligned_position_m=e.bound_aligned_position_m,
+        aligned_rotation_deg=e.bound_aligned_rotation_deg,
+    )
 
 
 def network_calibration_drive(
@@ -144,7 +151,7 @@ def network_calibration_drive(
     minutes: float = DRIVE_S / 60.0,
     study: bool = True,
     progress: Progress = no_progress,
-) -> dict[str, Any]:
+) -> NetworkRunResult:
     """Return the result of calibrating the scene's cameras by the robot's marker
     (core.sim.network_drive: each camera's own chessboard calibration, the robot driving for
     at most `minutes` through `stops` planned stops per 5 minutes (drive_programme), the
@@ -174,15 +181,18 @@ def network_calibration_drive(
     )
     net = md.calibration
     start_frame = None
-    registration: dict[str, Any] | None = None
+    registration: NetworkRegistration | None = None
     if can_register(scene):
         progress("touring the signposts", 0.8 * DRIVE_SHARE)
         registered_net, tour = register_network(net, scene, seed, renderer=renderer)
         reg = tour.registration
-        registration = {"signposts_read": tour.read, "reason": tour.reason}
-        if reg is not None:
+        if reg is None:
+            registration = NetworkRegistration(signposts_read=tour.read, reason=tour.reason)
+        else:
             start_frame, net = net, registered_net
-            registration.update(
+            registration = NetworkRegistration(
+                signposts_read=tour.read,
+                reason=tour.reason,
                 theta_deg=float(np.degrees(reg.theta)),
                 theta_std_deg=reg.theta_std_deg,
                 t_m=[float(v) for v in reg.t],
@@ -194,26 +204,26 @@ def network_calibration_drive(
     for cal in net.cameras:
         e = scored[cal.name]
         cameras.append(
-            {
-                "name": cal.name,
-                "K": cal.K.tolist(),
-                "dist": cal.dist.tolist(),
-                "T_world_camera": cal.T_world_camera.tolist(),
-                "std": _std_of(cal),
-                "rms": cal.rms,
-                "poses_seen": cal.poses_seen,
-                "detections": cal.detections,
-                "outliers": cal.outliers,
-                "pose_residuals": [
+            NetworkCameraResult(
+                name=cal.name,
+                K=cal.K.tolist(),
+                dist=cal.dist.tolist(),
+                T_world_camera=cal.T_world_camera.tolist(),
+                std=_std_of(cal),
+                rms=cal.rms,
+                poses_seen=cal.poses_seen,
+                detections=cal.detections,
+                outliers=cal.outliers,
+                pose_residuals=[
                     [int(j), float(r[0]), float(r[1])]
                     for j, r in zip(cal.pose_index, cal.residuals, strict=True)
                 ],
-                "errors": _camera_errors(e),
-                "bound": _camera_bound(e),
-                "image_size": [true[cal.name].width, true[cal.name].height],
-            }
+                errors=_camera_errors(e),
+                bound=_camera_bound(e),
+                image_size=[true[cal.name].width, true[cal.name].height],
+            )
         )
-    accuracy = []
+    accuracy: list[AccuracyRowRead] = []
     if study:
         # Each (drive length, noise) row of the study draws from its own generator, seeded by
         # (seed, length): one call per row gives the rows of one call over all of them.
@@ -232,38 +242,40 @@ def network_calibration_drive(
             )
         for row in rows:
             accuracy.append(
-                {
-                    "stops": row.stops,
-                    "poses": row.poses,
-                    "drive_s": row.drive_s,
-                    "sigma_px": row.sigma_px,
-                    "cameras": [
-                        {"name": c.name, "errors": _camera_errors(c), "bound": _camera_bound(c)}
+                AccuracyRowRead(
+                    stops=row.stops,
+                    poses=row.poses,
+                    drive_s=row.drive_s,
+                    sigma_px=row.sigma_px,
+                    cameras=[
+                        AccuracyCamera(
+                            name=c.name, errors=_camera_errors(c), bound=_camera_bound(c)
+                        )
                         for c in row.cameras
                     ],
-                    "rejected": list(row.rejected),
-                }
+                    rejected=list(row.rejected),
+                )
             )
     pose_rms = net.pose_rms_px
-    return {
-        "kind": "network",
-        "target": "marker",
-        "poses": md.poses,
-        "detections": int(md.seen.sum()),
-        "drive_s": md.drive.duration_s,
-        "sigma_px": md.observations.sigma_px,
-        "intrinsics_from": INTRINSICS_FROM_BOARD,
-        "rms_px": net.rms_px,
-        "rms_whitened": net.rms_whitened,
-        "residual_variance": net.residual_variance,
-        "pose_rms_px": [None if not np.isfinite(v) else float(v) for v in pose_rms],
-        "cameras": cameras,
-        "rejected": [
+    return NetworkRunResult(
+        kind="network",
+        target="marker",
+        poses=md.poses,
+        detections=int(md.seen.sum()),
+        drive_s=md.drive.duration_s,
+        sigma_px=md.observations.sigma_px,
+        intrinsics_from=INTRINSICS_FROM_BOARD,
+        rms_px=net.rms_px,
+        rms_whitened=net.rms_whitened,
+        residual_variance=net.residual_variance,
+        pose_rms_px=[None if not np.isfinite(v) else float(v) for v in pose_rms],
+        cameras=cameras,
+        rejected=[
             {"name": r.name, "reason": r.reason, "poses_seen": r.poses_seen} for r in net.rejected
         ],
-        "accuracy": accuracy,
-        "registration": registration,
-    }
+        accuracy=accuracy,
+        registration=registration,
+    )
 
 
 def apply(session: Session, run: CalibrationRun, scene: SceneSync) -> list[Camera]:

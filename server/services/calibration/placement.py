@@ -18,7 +18,8 @@ from sqlalchemy.orm import Session
 from core.calibration import place_camera
 from server.db.base import utcnow
 from server.db.models import RUN_SUCCEEDED, CalibrationRun, Camera
-from server.schemas.calibration import PlacementCreate, PlacementRunResult
+from server.schemas.calibration import PlacementCreate, PlacementRunResult, PlacementStd
+from server.schemas.common import stored_json
 from server.services.calibration._shared import (
     Progress,
     camera_history_entry,
@@ -42,8 +43,9 @@ def placement_inputs(body: PlacementCreate, camera: Camera) -> dict[str, Any]:
     }
 
 
-def compute_placement(camera_id: int, inputs: dict[str, Any]) -> dict[str, Any]:
-    """Return the result of a placement run's inputs (raising core's typed errors)."""
+def compute_placement(camera_id: int, inputs: dict[str, Any]) -> PlacementRunResult:
+    """Return the result of a placement run's stored inputs (placement_inputs'; raising
+    core's typed errors)."""
     points = inputs["points"]
     world = np.array([[*p["floor"], p.get("z", 0.0)] for p in points], dtype=np.float64)
     pixels = np.array([p["pixel"] for p in points], dtype=np.float64).reshape(-1, 2)
@@ -55,24 +57,24 @@ def compute_placement(camera_id: int, inputs: dict[str, Any]) -> dict[str, Any]:
         None if K is None else np.asarray(K),
         None if K is None else inputs.get("dist"),
     )
-    return {
-        "kind": "placement",
-        "camera_id": camera_id,
-        "T_world_camera": fit.T_world_camera.tolist(),
-        "K": fit.K.tolist(),
-        "dist": fit.dist.tolist(),
-        "f_estimated": fit.f_estimated,
-        "residuals_px": fit.residuals_px.tolist(),
-        "residuals": fit.residuals.tolist(),
-        "rejected": fit.rejected.tolist(),
-        "rms": fit.rms,
-        "std": {
-            "position_m": fit.std_position_m.tolist(),
-            "rotation_deg": fit.std_rotation_deg.tolist(),
-            "f_px": fit.std_f_px,
-        },
-        "image_size": list(inputs["image_size"]),
-    }
+    return PlacementRunResult(
+        kind="placement",
+        camera_id=camera_id,
+        T_world_camera=fit.T_world_camera.tolist(),
+        K=fit.K.tolist(),
+        dist=fit.dist.tolist(),
+        f_estimated=fit.f_estimated,
+        residuals_px=fit.residuals_px.tolist(),
+        residuals=fit.residuals.tolist(),
+        rejected=fit.rejected.tolist(),
+        rms=fit.rms,
+        std=PlacementStd(
+            position_m=fit.std_position_m.tolist(),
+            rotation_deg=fit.std_rotation_deg.tolist(),
+            f_px=fit.std_f_px,
+        ),
+        image_size=list(inputs["image_size"]),
+    )
 
 
 def create(body: PlacementCreate, camera: Camera) -> CalibrationRun:
@@ -87,14 +89,14 @@ def create(body: PlacementCreate, camera: Camera) -> CalibrationRun:
         camera_id=camera.id,
         inputs=inputs,
         options={},
-        result=result,
+        result=stored_json(result),
         attempts=0,
         started_at=now,
         finished_at=now,
     )
 
 
-def compute(session: Session, run: CalibrationRun, progress: Progress) -> dict[str, Any]:
+def compute(session: Session, run: CalibrationRun, progress: Progress) -> PlacementRunResult:
     """Return the result of a placement run's inputs again (it was made finished; it is
     computed here only if it was re-queued)."""
     del session, progress
@@ -102,8 +104,10 @@ def compute(session: Session, run: CalibrationRun, progress: Progress) -> dict[s
 
 
 def placement_values(result: dict[str, Any]) -> dict[str, Any]:
-    """Return the camera columns a placement result sets: the pose, and K and distortion when
-    they were estimated (a camera with known intrinsics keeps them)."""
+    """Return the camera columns a stored placement result sets (column name to value): the
+    pose, and K and distortion when they were estimated (a camera with known intrinsics keeps
+    them). Only the fields applying reads: a result is what its run stored, whatever version
+    wrote it."""
     values: dict[str, Any] = {"T_world_camera": result["T_world_camera"]}
     if result.get("f_estimated"):
         values["K"] = result["K"]

@@ -11,7 +11,7 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from server.db.models import CalibrationRun, Camera, Projector, ProjectorCalibration
-from server.schemas.calibration import ProjectorRunResult
+from server.schemas.calibration import ProjectorRunResult, ProjectorTwinErrors
 from server.schemas.paths import ProjectorRunCreate
 from server.services.calibration._shared import Progress, RunContext, RunRefused
 from server.services.cameras import network_camera
@@ -90,16 +90,17 @@ def create(body: ProjectorRunCreate, context: RunContext) -> CalibrationRun:
     )
 
 
-def compute(session: Session, run: CalibrationRun, progress: Progress) -> dict[str, Any]:
-    """Return the stored result of a claimed projector run (calibrate_projector_run)."""
+def compute(session: Session, run: CalibrationRun, progress: Progress) -> ProjectorRunResult:
+    """Return the result of a claimed projector run (calibrate_projector_run)."""
     del session  # the cameras locating the spots were stored with the run
     return calibrate_projector_run(run.inputs, run.options, progress)
 
 
 def calibrate_projector_run(
     inputs: dict[str, Any], options: dict[str, Any], progress: Progress
-) -> dict[str, Any]:
-    """Return the stored result of a projector calibration run: the twin's
+) -> ProjectorRunResult:
+    """Return the result of a projector calibration run (its inputs and options are the run's
+    JSON columns): the twin's
     `projector-calibration` scenario (core.sim.scenarios.navigation.projector_calibration)
     with the registry's calibrated cameras locating the spots."""
     # Imported here: a worker loads the twin's navigation scenarios only when it needs them.
@@ -118,27 +119,27 @@ def calibrate_projector_run(
         images=bool(options.get("images", True)),
     )
     progress("done", 1.0)
-    return {
-        "kind": "projector",
-        "projector_id": int(inputs["projector_id"]),
-        "T_world_projector": fit.model.T_world_base.tolist(),
-        "tilt_offset_rad": float(fit.model.theta[1]),
-        "spots": fit.spots,
-        "rms_m": fit.rms_m,
-        "position_std_m": fit.position_std_m,
-        "rotation_std_deg": fit.rotation_std_deg,
-        "spot_error_rms_m": fit.spot_error_rms_m,
-        "cameras": list(fit.cameras),
-        "camera_ids": [int(c["camera_id"]) for c in cams],
-        "spots_from": fit.spots_from,
-        "twin_errors": {
-            "position_m": fit.position_error_m,
-            "rotation_deg": fit.rotation_error_deg,
-            "aligned_position_m": fit.aligned_position_error_m,
-            "aligned_rotation_deg": fit.aligned_rotation_error_deg,
-            "tilt_offset_rad": fit.tilt_offset_error_rad,
-        },
-    }
+    return ProjectorRunResult(
+        kind="projector",
+        projector_id=int(inputs["projector_id"]),
+        T_world_projector=fit.model.T_world_base.tolist(),
+        tilt_offset_rad=float(fit.model.theta[1]),
+        spots=fit.spots,
+        rms_m=fit.rms_m,
+        position_std_m=fit.position_std_m,
+        rotation_std_deg=fit.rotation_std_deg,
+        spot_error_rms_m=fit.spot_error_rms_m,
+        cameras=list(fit.cameras),
+        camera_ids=[int(c["camera_id"]) for c in cams],
+        spots_from=fit.spots_from,
+        twin_errors=ProjectorTwinErrors(
+            position_m=fit.position_error_m,
+            rotation_deg=fit.rotation_error_deg,
+            aligned_position_m=fit.aligned_position_error_m,
+            aligned_rotation_deg=fit.aligned_rotation_error_deg,
+            tilt_offset_rad=fit.tilt_offset_error_rad,
+        ),
+    )
 
 
 def latest_calibration(session: Session, projector_id: int) -> ProjectorCalibration | None:
@@ -156,6 +157,7 @@ def apply(session: Session, run: CalibrationRun, scene: SceneSync) -> Projector:
     projector's calibration history (once: applying the run in force again adds nothing);
     return the projector, which the 3D scene then draws with its beam from the new pose.
     Raises RunRefused (409) when the projector is gone."""
+    # Only the fields applying reads: a result is what its run stored, whatever version wrote it.
     assert run.result is not None
     result = run.result
     projector = session.get(Projector, int(result["projector_id"]))

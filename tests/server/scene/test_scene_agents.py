@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from core.errors import InvalidInput
-from server.scene import MAX_TRACK_POINTS, SceneService
+from server.scene import MAX_TRACK_POINTS, CameraEntry, SceneService
 from server.scene import _service as scene_service
 from server.scene._geometry import matrix_from_quaternion
 
@@ -184,9 +184,7 @@ def test_bad_agents_tracks_and_images_are_refused_and_change_nothing(scene):
 def test_camera_image_is_shown_downscaled_in_rgb_on_the_frustum(scene):
     T = np.eye(4)
     T[:3, 3] = [1.0, 1.0, 2.5]
-    scene.upsert_camera(
-        {"id": 3, "name": "c3", "width": 640, "height": 480, "K": K, "T_world_camera": T.tolist()}
-    )
+    scene.upsert_camera(CameraEntry(3, "c3", 640, 480, K, T.tolist()))
     bgr = np.zeros((480, 640, 3), np.uint8)
     bgr[:, :320] = (255, 0, 0)  # blue left half (BGR)
     bgr[:, 320:] = (0, 0, 255)  # red right half
@@ -201,16 +199,14 @@ def test_camera_image_is_shown_downscaled_in_rgb_on_the_frustum(scene):
 
     # A redraw of the camera (a new calibration) keeps its image.
     T[:3, 3] = [2.0, 1.0, 2.5]
-    scene.upsert_camera(
-        {"id": 3, "name": "c3", "width": 640, "height": 480, "K": K, "T_world_camera": T.tolist()}
-    )
+    scene.upsert_camera(CameraEntry(3, "c3", 640, 480, K, T.tolist()))
     assert scene.flush()
     frustum = scene.server.scene.get_handle_by_name("/cameras/3/frustum")
     np.testing.assert_array_equal(frustum.image, shown)
 
     # An image for a camera not drawn yet waits for it; a grey image is shown as RGB.
     assert scene.set_camera_image(4, np.full((30, 40), 77, np.uint8))
-    scene.upsert_camera({"id": 4, "name": "c4", "width": 40, "height": 30})
+    scene.upsert_camera(CameraEntry(4, "c4", 40, 30))
     assert scene.flush()
     small = scene.server.scene.get_handle_by_name("/cameras/4/frustum").image
     assert small.shape == (30, 40, 3) and np.all(small == 77)  # narrower than 160: as is

@@ -11,7 +11,7 @@ from core.errors import InvalidInput
 from core.manipulation import default_arm
 from core.sim.marked_box import BOX_SIZE, MARK_BOARD, MARK_POINTS, T_MARK_BOARD
 from core.sim.render._textures import _board_texture
-from server.scene import Pose
+from server.scene import ArmEntry, Pose
 from server.scene._arm import FRAME_NAMES
 from server.scene._geometry import matrix_from_quaternion
 from server.schemas.manipulation import TWIN_ARM
@@ -22,9 +22,9 @@ POSE_TOL = 1e-9
 MOUNT = [[1.0, 0.0, 0.0, 0.05], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.80], [0, 0, 0, 1.0]]
 
 
-def _arm(q=None, **extra):
-    return {"id": "7", "agent": "robot", "name": "puma", **TWIN_ARM, "T_robot_arm": MOUNT,
-            "q": q, **extra}  # fmt: skip
+def _arm(q=None, **extra) -> ArmEntry:
+    fields = {"id": "7", "agent": "robot", "name": "puma", **TWIN_ARM, "T_robot_arm": MOUNT}
+    return ArmEntry(**{**fields, "q": q, **extra})
 
 
 def _pose(handle) -> np.ndarray:

@@ -11,6 +11,7 @@ from core.errors import InvalidInput
 from core.landmarks import decode_payload
 from core.sim import default_scene
 from core.sim._geometry import pose_matrix
+from server.scene import LandmarkEntry, PlaceEntry, SemanticObjectEntry
 from server.scene._geometry import matrix_from_quaternion
 from server.services.scene_sync import SceneSync
 
@@ -134,29 +135,28 @@ def test_a_space_with_landmarks_and_maps_is_drawn(client, admin, scene) -> None:
 def test_malformed_landmarks_and_maps_are_refused_and_change_nothing(scene) -> None:
     T = np.eye(4)
     T[:3, 3] = [1.0, 2.0, 1.3]
-    scene.set_landmarks([{"id": 1, "name": "door", "kind": "signpost", "T_world_landmark": T}])
+    scene.set_landmarks([LandmarkEntry(1, "door", "signpost", 0.1, T)])
     assert scene.flush()
     skew = T.copy()
     skew[0, 1] = 0.3  # not a rotation
     bad_landmarks = [
-        [{"id": 2, "T_world_landmark": skew}],
-        [{"id": "a/b", "T_world_landmark": T}],
-        [{"id": 2, "T_world_landmark": T, "size": -0.1}],
-        [{"id": 2, "T_world_landmark": T}, {"id": 2, "T_world_landmark": T}],
-        "not a list",
+        [LandmarkEntry(2, "", "", 0.1, skew)],
+        [LandmarkEntry("a/b", "", "", 0.1, T)],
+        [LandmarkEntry(2, "", "", -0.1, T)],
+        [LandmarkEntry(2, "", "", 0.1, T), LandmarkEntry(2, "", "", 0.1, T)],
     ]
     for bad in bad_landmarks:
         with pytest.raises(InvalidInput):
-            scene.set_landmarks(bad)  # type: ignore[arg-type]
+            scene.set_landmarks(bad)
     with pytest.raises(InvalidInput, match="semantic object 1 pose"):
-        scene.set_semantic_objects([{"id": 1, "T_world_mark": skew}])
-    place = {"id": "p", "name": "door", "position": [1.0, 2.0]}
+        scene.set_semantic_objects([SemanticObjectEntry("1", "", "", "", skew)])
+    place = PlaceEntry("p", "door", "", [1.0, 2.0])
     with pytest.raises(InvalidInput, match="not listed"):
         scene.set_navigation_graph([place], [["p", "q"]])
     with pytest.raises(InvalidInput, match="itself"):
         scene.set_navigation_graph([place], [["p", "p"]])
     with pytest.raises(InvalidInput, match="position"):
-        scene.set_navigation_graph([{"id": "p", "position": [1.0, np.nan]}], [])
+        scene.set_navigation_graph([PlaceEntry("p", "", "", [1.0, np.nan])], [])
     assert scene.flush()
     assert list(scene.landmarks()) == ["1"]
     np.testing.assert_allclose(

@@ -9,6 +9,7 @@ import pytest
 from core.errors import InvalidInput
 from core.sim import default_scene
 from core.sim.scenarios.navigation import nominal_projector
+from server.scene import ProjectorEntry
 from server.scene._geometry import matrix_from_quaternion
 
 # As in test_scene_service: poses go through float64 end to end (~1e-15); 1e-9 still catches
@@ -20,7 +21,7 @@ def test_planned_path_and_projector_are_drawn_where_given(scene):
     path = [[1.0, 2.5], [3.0, 2.0], [3.5, 1.6]]
     T = nominal_projector(default_scene()).T_world_base
     scene.set_planned_path(path)
-    scene.set_projector({"name": "laser", "T_world_projector": T.tolist(), "spot": path[0]})
+    scene.set_projector(ProjectorEntry("laser", T.tolist(), path[0]))
     assert scene.flush()
     find = scene.server.scene.get_handle_by_name
     # The path: one segment per leg, just above the floor, through the given points.
@@ -60,9 +61,9 @@ def test_bad_path_or_projector_is_refused_and_changes_nothing(scene):
     skew = np.eye(4)
     skew[0, 1] = 0.3  # not a rotation
     with pytest.raises(InvalidInput, match="T_world_projector"):
-        scene.set_projector({"name": "p", "T_world_projector": skew.tolist()})
+        scene.set_projector(ProjectorEntry("p", skew.tolist()))
     with pytest.raises(InvalidInput, match="spot"):
-        scene.set_projector({"name": "p", "T_world_projector": np.eye(4).tolist(), "spot": [1]})
+        scene.set_projector(ProjectorEntry("p", np.eye(4).tolist(), [1]))
     assert scene.flush()
     np.testing.assert_allclose(scene.planned_path(), [[0.0, 0.0], [1.0, 0.0]])
     assert scene.projector() is None

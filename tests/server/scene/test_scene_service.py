@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from core.errors import InvalidInput
-from server.scene import SceneService
+from server.scene import CameraEntry, RoomEntry, SceneService
 from server.scene._geometry import matrix_from_quaternion
 
 # Poses go through float64 end to end (quaternion via Shepperd, handle stores float64), so the
@@ -41,15 +41,10 @@ def random_pose(rng: np.random.Generator) -> np.ndarray:
     return T
 
 
-def camera(cam_id: int, T: np.ndarray | None, K=K_ZHANG, name: str | None = None) -> dict:
-    return {
-        "id": cam_id,
-        "name": name or f"ceiling-{cam_id}",
-        "width": 640,
-        "height": 480,
-        "K": K,
-        "T_world_camera": None if T is None else T.tolist(),
-    }
+def camera(cam_id: int, T: np.ndarray | None, K=K_ZHANG, name: str | None = None) -> CameraEntry:
+    return CameraEntry(
+        cam_id, name or f"ceiling-{cam_id}", 640, 480, K, None if T is None else T.tolist()
+    )
 
 
 def test_serves_the_viser_page(scene):
@@ -98,7 +93,7 @@ def test_half_turn_poses_keep_full_precision(scene):
 
 
 def test_camera_without_pose_is_parked_grey_and_labelled(scene):
-    scene.set_floor_plan([{"id": 1, "name": "Flat", "polygon": L_SHAPED_FLAT}])
+    scene.set_floor_plan([RoomEntry(1, "Flat", L_SHAPED_FLAT)])
     scene.upsert_camera(camera(1, None, K=None, name="door"))
     scene.upsert_camera(camera(2, None, name="hall"))
     assert scene.flush()
@@ -142,8 +137,8 @@ def test_remove_camera_removes_its_nodes(scene):
 def test_floor_plan_draws_rooms_and_replaces_the_old_plan(scene):
     scene.set_floor_plan(
         [
-            {"id": 1, "name": "Living room", "polygon": L_SHAPED_FLAT},
-            {"id": 2, "name": "Kitchen", "polygon": [[6, 0], [9, 0], [9, 3], [6, 3]]},
+            RoomEntry(1, "Living room", L_SHAPED_FLAT),
+            RoomEntry(2, "Kitchen", [[6, 0], [9, 0], [9, 3], [6, 3]]),
         ]
     )
     assert scene.flush()
@@ -156,7 +151,7 @@ def test_floor_plan_draws_rooms_and_replaces_the_old_plan(scene):
     # The label sits at the L's area centroid: (6*3*(3, 1.5) + 3*2*(4.5, 4)) / 24.
     np.testing.assert_allclose(find("/floor/rooms/1/label").position[:2], [3.375, 2.125])
 
-    scene.set_floor_plan([{"id": 3, "name": "Study", "polygon": [[0, 0], [3, 0], [3, 3]]}])
+    scene.set_floor_plan([RoomEntry(3, "Study", [[0, 0], [3, 0], [3, 3]])])
     assert scene.flush()
     assert find("/floor/rooms/1/walls") is None
     assert find("/floor/rooms/3/walls") is not None
@@ -173,10 +168,10 @@ def test_bad_input_is_refused_and_changes_nothing(scene):
         scene.upsert_camera(camera(1, sheared))
     with pytest.raises(InvalidInput, match="3x3"):
         scene.upsert_camera(camera(1, None, K=[[1, 2], [3, 4]]))
-    with pytest.raises(InvalidInput, match="width"):
-        scene.upsert_camera({"id": 1, "name": "x"})
+    with pytest.raises(InvalidInput, match="image size"):
+        scene.upsert_camera(CameraEntry(1, "x", 0, 480))
     with pytest.raises(InvalidInput, match="polygon"):
-        scene.set_floor_plan([{"id": 1, "name": "line", "polygon": [[0, 0], [1, 1]]}])
+        scene.set_floor_plan([RoomEntry(1, "line", [[0, 0], [1, 1]])])
     assert scene.flush()
     assert scene.cameras()[1] == before
 
@@ -225,7 +220,7 @@ def test_calls_do_not_block_and_changes_show_within_a_second(scene):
 def test_state_given_before_start_is_drawn_on_start():
     service = SceneService("127.0.0.1", free_port())
     T = random_pose(np.random.default_rng(9))
-    service.set_floor_plan([{"id": 1, "name": "Flat", "polygon": L_SHAPED_FLAT}])
+    service.set_floor_plan([RoomEntry(1, "Flat", L_SHAPED_FLAT)])
     service.upsert_camera(camera(2, T))
     assert service.cameras() == {} and not service.running
     service.start()

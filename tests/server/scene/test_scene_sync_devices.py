@@ -9,6 +9,7 @@ from core.manipulation import default_arm
 from core.sim import default_scene
 from core.sim.scenarios.navigation import nominal_projector
 from server.db.models import CalibrationRun
+from server.scene import ProjectorEntry
 from server.scene._geometry import matrix_from_quaternion
 from server.schemas.manipulation import TWIN_ARM
 from server.services.scene_sync import ROBOT_AGENT, SceneSync
@@ -27,7 +28,7 @@ def test_applying_a_projector_run_redraws_the_projector_at_its_new_pose(client, 
     projector_id = created.json()["id"]
     # The scene shows it as a planned path left it: the nominal mount, the beam on a spot.
     spot = [2.0, 3.0]
-    scene.set_projector({"name": "laser", "T_world_projector": nominal.tolist(), "spot": spot})
+    scene.set_projector(ProjectorEntry("laser", nominal.tolist(), spot))
     # A succeeded calibration run that moved the mount by 4 cm and 1.5 degrees of yaw.
     c, s = np.cos(np.radians(1.5)), np.sin(np.radians(1.5))
     calibrated = nominal.copy()
