@@ -1,5 +1,5 @@
 """`intspace node --source rtsp://...` against a local RTSP camera (GStreamer's RTSP server
-serving the twin's living-room view as H.264, tests/server/rtsp_server.py), as against an IP
+serving the twin's living-room view as H.264, tests/support/rtsp_server.py), as against an IP
 camera: frames are read, the robot's marker is detected and tracked where it stands, and a
 camera that goes away for 10 s is read again within 5 s of its return (spec 08).
 
@@ -22,17 +22,17 @@ import cv2
 import httpx
 import numpy as np
 import pytest
-from node_helpers import free_port, node_env, serve_without_twin
 
 from core.sim import WorldState, default_scene
 from core.sim.installation import installed_calibration
 from core.sim.motion import Pose2D
 from core.sim.render import renderer_for
+from tests.support.node_helpers import free_port, node_env, serve_without_twin
 
 TOKEN = "rtsp-test-admin-token"
 HEADERS = {"Authorization": f"Bearer {TOKEN}"}
 SYSTEM_PYTHON = Path("/usr/bin/python3")
-SERVER = Path(__file__).with_name("rtsp_server.py")
+SERVER = Path(__file__).resolve().parents[3] / "support" / "rtsp_server.py"
 PACKAGES = (
     "python3-gi gir1.2-gst-rtsp-server-1.0 gstreamer1.0-plugins-good gstreamer1.0-plugins-ugly"
 )

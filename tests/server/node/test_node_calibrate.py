@@ -22,7 +22,6 @@ import cv2
 import httpx
 import numpy as np
 import pytest
-from node_helpers import MjpegStream, node_env, serve_without_twin
 
 from server.node.calibrate import (
     MIN_PARAM_DISTANCE,
@@ -30,6 +29,7 @@ from server.node.calibrate import (
     Coverage,
     board_view_params,
 )
+from tests.support.node_helpers import MjpegStream, node_env, serve_without_twin
 
 TOKEN = "node-calibrate-admin-token"
 HEADERS = {"Authorization": f"Bearer {TOKEN}"}

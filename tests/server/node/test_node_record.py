@@ -22,7 +22,6 @@ import cv2
 import httpx
 import numpy as np
 import pytest
-from node_helpers import MjpegStream, node_env, serve_without_twin
 
 from core.errors import InvalidInput
 from server.node.frames import Frame
@@ -34,6 +33,7 @@ from server.node.record import (
     is_recording,
     recorded_frames,
 )
+from tests.support.node_helpers import MjpegStream, node_env, serve_without_twin
 
 TOKEN = "node-record-admin-token"
 HEADERS = {"Authorization": f"Bearer {TOKEN}"}

@@ -16,13 +16,13 @@ import time
 
 import numpy as np
 import pytest
-from test_api_targets import _register
 
 from core.errors import InvalidInput
 from core.localization import NetworkCamera
 from core.localization.tracking import LIVE_STATES, Tracker, TrackerConfig
 from server.services.tracking import DetectionIn, TrackingService
 from server.services.tracking.process import RemoteTracker, TrackerHost
+from tests.server.api.test_api_targets import _register
 
 K = [[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]]
 DIST = [-0.1, 0.01, 0.0005, -0.0003, 0.0]

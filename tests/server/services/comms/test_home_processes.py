@@ -18,8 +18,8 @@ from sqlalchemy import create_engine, text
 from server.app import create_app
 from server.services.comms.home import AVAILABLE_KEY
 from server.services.ownership import APPLICATION_NAME, NAMESPACE
-from tests.server.mqtt_broker import broker, subscribe  # noqa: F401
-from tests.server.test_multiprocess import Serve
+from tests.server.services.test_multiprocess import Serve
+from tests.support.mqtt_broker import broker, subscribe  # noqa: F401
 
 TOPIC = "intspace/available"
 

@@ -19,12 +19,12 @@ import cv2
 import httpx
 import numpy as np
 import pytest
-from node_helpers import free_port, node_env, serve_without_twin
 
 from core.sim import Scene, WorldState, default_scene
 from core.sim.installation import installed_calibration
 from core.sim.motion import Pose2D
 from core.sim.render import renderer_for
+from tests.support.node_helpers import free_port, node_env, serve_without_twin
 
 TOKEN = "node-failures-test-admin-token"
 HEADERS = {"Authorization": f"Bearer {TOKEN}"}

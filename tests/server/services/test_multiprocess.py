@@ -25,7 +25,7 @@ from core.localization import NetworkCamera
 from server.services.fanout import PAYLOAD_LIMIT, Fanout, chunk_payloads
 from server.services.ownership import APPLICATION_NAME, NAMESPACE
 
-REPO_ROOT = Path(__file__).resolve().parents[2]
+REPO_ROOT = Path(__file__).resolve().parents[3]
 TOKEN = "multi-process-admin-token"
 ADMIN = {"Authorization": f"Bearer {TOKEN}"}
 K = [[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]]
