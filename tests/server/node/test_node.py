@@ -22,6 +22,7 @@ from server.node.masks import apply_mask, polygon_mask
 from server.node.mjpeg import MjpegParser, boundary_of
 from server.schemas.registry import CameraHeartbeat
 from server.services.camera_health import CameraHealthBook
+from tests.support.mjpeg_stream import MjpegStream, flat_jpeg
 from tests.support.service import clean_env, start_service
 
 TOKEN = "node-test-admin-token"
@@ -352,57 +353,11 @@ def test_node_refuses_to_start_without_a_token(monkeypatch, capsys):
 # -- sources ------------------------------------------------------------------------------------
 
 
-class _FlakyMjpeg:
-    """A local MJPEG server that sends `per_connection` stamped frames (20 ms apart) per
-    connection, then drops it; it refuses connections while `down` is set."""
-
-    def __init__(self, per_connection: int = 5) -> None:
-        import http.server
-
-        ok, jpg = cv2.imencode(".jpg", np.full((24, 32, 3), 90, np.uint8))
-        assert ok
-        body = jpg.tobytes()
-        owner = self
-        self.connections = 0
-        self.down = threading.Event()
-
-        class Handler(http.server.BaseHTTPRequestHandler):
-            def log_message(self, *args) -> None:  # quiet
-                pass
-
-            def do_GET(self) -> None:
-                if owner.down.is_set():
-                    self.send_error(503)
-                    return
-                owner.connections += 1
-                self.send_response(200)
-                self.send_header("Content-Type", "multipart/x-mixed-replace; boundary=b")
-                self.end_headers()
-                for _ in range(per_connection):
-                    head = (
-                        f"--b\r\nContent-Type: image/jpeg\r\nContent-Length: {len(body)}\r\n"
-                        f"X-Timestamp: {time.time():.6f}\r\n\r\n"
-                    )
-                    try:
-                        self.wfile.write(head.encode() + body + b"\r\n")
-                        self.wfile.flush()
-                    except (BrokenPipeError, ConnectionResetError):
-                        return  # the reader left
-                    time.sleep(0.02)
-
-        self.server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Handler)
-        self.url = f"http://127.0.0.1:{self.server.server_address[1]}/stream.mjpg"
-        threading.Thread(target=self.server.serve_forever, daemon=True).start()
-
-    def close(self) -> None:
-        self.server.shutdown()
-        self.server.server_close()
-
-
 def test_mjpeg_source_reconnects_with_backoff_and_reads_again_when_the_camera_returns():
     from server.node.sources import MjpegHttpSource
 
-    camera = _FlakyMjpeg()
+    # Five frames 20 ms apart per connection, then the stream ends.
+    camera = MjpegStream([flat_jpeg()], fps=50.0, per_connection=5)
     source = MjpegHttpSource("flaky", camera.url)
     try:
         source.start()

@@ -23,7 +23,7 @@ from server.db.models import CalibrationRun
 from server.db.session import make_engine, make_session_factory
 from server.services.jobs import JobCancelled, LeasePolicy, claim_next, release_expired, renew
 from server.services.runs import RUNS, Attempt
-from tests.server.api.test_api_calibration import K_TRUE, POSES, SQUARE_M, chessboard_photo
+from tests.support.chessboard_photos import K_TRUE, POSES, SQUARE_M, chessboard_photo
 
 REPO_ROOT = Path(__file__).resolve().parents[3]
 PHOTOS = 16
