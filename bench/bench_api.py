@@ -22,10 +22,6 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import os
-import signal
-import socket
-import subprocess
 import sys
 import tempfile
 import time
@@ -34,55 +30,11 @@ from pathlib import Path
 import httpx
 import numpy as np
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
+from tests.support.service import running_service
+
 TOKEN = "bench-admin-token"
 HEADERS = {"Authorization": f"Bearer {TOKEN}"}
 P99_TARGET_MS = 50.0
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def start_server(data_dir: Path) -> tuple[subprocess.Popen, str]:
-    """Start `intspace serve` on a free port; return the process and the API base URL."""
-    port = _free_port()
-    env = {k: v for k, v in os.environ.items() if not k.startswith("INTSPACE_")}
-    env.update(
-        INTSPACE_DATA_DIR=str(data_dir),
-        INTSPACE_ADMIN_TOKEN=TOKEN,
-        INTSPACE_VISER_ENABLED="false",
-    )
-    process = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "server.cli",
-            "serve",
-            "--port",
-            str(port),
-            "--log-level",
-            "warning",
-        ],
-        cwd=REPO_ROOT,
-        env=env,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-    )
-    base = f"http://127.0.0.1:{port}/api/v1"
-    deadline = time.monotonic() + 60
-    while time.monotonic() < deadline:
-        if process.poll() is not None:
-            raise RuntimeError("the server exited during start-up")
-        try:
-            if httpx.get(f"{base}/health", timeout=1).status_code == 200:
-                return process, base
-        except httpx.TransportError:
-            time.sleep(0.2)
-    process.kill()
-    raise RuntimeError("the server did not answer within 60 s")
 
 
 def seed(base: str, cameras: int) -> list[int]:
@@ -194,20 +146,19 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
 
     with tempfile.TemporaryDirectory(prefix="intspace-bench-") as tmp:
-        process, base = start_server(Path(tmp))
-        try:
+        with running_service(
+            Path(tmp),
+            token=TOKEN,
+            env={"INTSPACE_VISER_ENABLED": "false"},
+            args=("--log-level", "warning"),
+        ) as service:
+            base = service.api
             ids = seed(base, args.cameras)
             # Warm-up: connections, caches, the first-request import costs.
             asyncio.run(load(base, ids, args.clients, 500, None, 0.0))
             latencies, errors, wall = asyncio.run(
                 load(base, ids, args.clients, args.requests, args.duration, args.rate)
             )
-        finally:
-            process.send_signal(signal.SIGINT)
-            try:
-                process.wait(timeout=20)
-            except subprocess.TimeoutExpired:
-                process.kill()
 
     ms = latencies * 1e3
     p50, p90, p99 = np.percentile(ms, [50, 90, 99])

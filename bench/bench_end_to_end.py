@@ -51,10 +51,8 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import re
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -69,6 +67,8 @@ import httpx
 import numpy as np
 from numpy.typing import NDArray
 from websockets.sync.client import connect
+
+from tests.support.service import clean_env, start_service
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 TOKEN = "end-to-end-admin-token"
@@ -86,58 +86,27 @@ _MATCH_SLACK_S = 0.03
 WINDOW_START_S = 3.0
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def _clean_env() -> dict[str, str]:
-    return {k: v for k, v in os.environ.items() if not k.startswith("INTSPACE_")}
-
-
 class Service:
-    """`intspace serve` with the twin, detection `internal` or `external`."""
+    """`intspace serve` with the twin (tests/support/service.py), detection `internal` or
+    `external`, and a client of its API."""
 
     def __init__(
         self, data_dir: Path, detection: str, seed: int, tracker_latency_s: float | None = None
     ) -> None:
-        self.port = _free_port()
-        env = _clean_env()
+        env = {
+            "INTSPACE_SIMULATION": "true",
+            "INTSPACE_TWIN_DETECTION": detection,
+            "INTSPACE_TWIN_SEED": str(seed),
+            "INTSPACE_VISER_ENABLED": "false",
+        }
         if tracker_latency_s is not None:
             env["INTSPACE_TRACKER_LATENCY_S"] = str(tracker_latency_s)
-        env.update(
-            INTSPACE_DATA_DIR=str(data_dir),
-            INTSPACE_SIMULATION="true",
-            INTSPACE_TWIN_DETECTION=detection,
-            INTSPACE_TWIN_SEED=str(seed),
-            INTSPACE_VISER_ENABLED="false",
-            INTSPACE_ADMIN_TOKEN=TOKEN,
-        )
-        self.log = data_dir / "serve.log"
-        with self.log.open("w") as out:
-            self.process = subprocess.Popen(
-                [sys.executable, "-m", "server.cli", "serve", "--port", str(self.port)],
-                cwd=REPO_ROOT,
-                env=env,
-                stdout=out,
-                stderr=subprocess.STDOUT,
-            )
-        self.api = f"http://127.0.0.1:{self.port}/api/v1"
+        self.served = start_service(data_dir, token=TOKEN, env=env, wait=False)
+        self.api = self.served.api
         self.http = httpx.Client(base_url=self.api, headers=HEADERS, timeout=10)
 
-    def wait_healthy(self, timeout: float = 90.0) -> None:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            if self.process.poll() is not None:
-                raise RuntimeError("intspace serve exited:\n" + self.log.read_text())
-            try:
-                if self.http.get("/health").status_code == 200:
-                    return
-            except httpx.TransportError:
-                pass
-            time.sleep(0.1)
-        raise RuntimeError("intspace serve did not answer:\n" + self.log.read_text())
+    def wait_healthy(self) -> None:
+        self.served.wait_healthy()
 
     def get(self, path: str, **params: Any) -> Any:
         response = self.http.get(path, params=params)
@@ -147,13 +116,7 @@ class Service:
 
     def stop(self) -> None:
         self.http.close()
-        if self.process.poll() is None:
-            self.process.send_signal(signal.SIGINT)
-            try:
-                self.process.wait(timeout=20)
-            except subprocess.TimeoutExpired:
-                self.process.kill()
-                self.process.wait()
+        self.served.stop()
 
 
 def start_node(service: Service, folder: Path) -> subprocess.Popen:
@@ -176,7 +139,7 @@ def start_node(service: Service, folder: Path) -> subprocess.Popen:
         ),
         encoding="utf-8",
     )
-    env = _clean_env()
+    env = clean_env()
     env["INTSPACE_TOKEN"] = created.json()["token"]
     with (folder / "node.log").open("w") as out:
         return subprocess.Popen(

@@ -19,7 +19,7 @@ real broker, live targets on a SQLite file) on a simulated clock, fed 30 simulat
 the default home's five cameras seeing three walkers who come and go (each present 90 s of
 every 120 s, standing still 20 s of it): first their feet projected with 0.7 px noise (2 frames
 a second a camera by default: the tracker's arithmetic, not the clock, sets the pace), then
-Frigate's events of the same walkers (tests/server/frigate_replay: `new`, an `update` per path
+Frigate's events of the same walkers (tests/support/frigate_replay: `new`, an `update` per path
 step, stationary change or snapshot, `end`) through the Frigate source as the service runs it.
 Every simulated minute it records what could pile up: the MQTT queue and its drops, the targets
 followed by the zones, the publisher's per-target rate entries, the live targets and the
@@ -46,7 +46,7 @@ import numpy as np
 REPO_ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO_ROOT))
 
-from tests.server.mqtt_broker import Broker, subscribe  # noqa: E402
+from tests.support.mqtt_broker import Broker, subscribe  # noqa: E402
 
 TOKEN = "bench-mqtt-admin-token"
 HEADERS = {"Authorization": f"Bearer {TOKEN}"}
@@ -493,7 +493,7 @@ def run_frigate_soak(broker: Broker, minutes: float, seed: int = 0, top: int = 0
     from server.services.comms.frigate import FrigateSource
     from server.services.comms.mqtt import Message
     from server.settings import FrigateCamera
-    from tests.server.frigate_replay import frigate_messages
+    from tests.support.frigate_replay import frigate_messages
 
     svc = _SoakService(broker, top)
     names = {cid: name for name, cid in svc.camera_ids.items() if cid in svc.cams}

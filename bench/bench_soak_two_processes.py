@@ -32,8 +32,6 @@ import asyncio
 import json
 import multiprocessing
 import os
-import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -49,6 +47,7 @@ from sqlalchemy import create_engine, text
 from sqlalchemy.engine import make_url
 
 from core.localization import NetworkCamera
+from tests.support.service import WITHOUT_TWIN, Service, clean_env, start_service
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 TOKEN = "bench-soak-admin-token"
@@ -60,12 +59,6 @@ SIGMA_PX = 0.5
 NODE_HZ = 10.0
 # A node posts a frame this long after its capture (reading, detecting, HTTP).
 CAPTURE_DELAY_S = 0.05
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def make_database(server_url: str) -> str:
@@ -87,55 +80,37 @@ def drop_database(server_url: str, url: str) -> None:
     admin.dispose()
 
 
-def _env(database_url: str, data_dir: Path) -> dict[str, str]:
-    env = {k: v for k, v in os.environ.items() if not k.startswith("INTSPACE_")}
-    env.update(
-        INTSPACE_DATABASE_URL=database_url,
-        INTSPACE_DATA_DIR=str(data_dir),
-        INTSPACE_ADMIN_TOKEN=TOKEN,
-        INTSPACE_VISER_ENABLED="false",
-        INTSPACE_SIMULATION="false",
-    )
-    return env
-
-
-def start_servers(
-    database_url: str, data_dir: Path, n: int = 2
-) -> list[tuple[subprocess.Popen, str]]:
-    """Migrate once, then start n `intspace serve` processes; return (process, API base)."""
+def start_servers(database_url: str, data_dir: Path, n: int = 2) -> list[Service]:
+    """Migrate once, then start n `intspace serve` processes side by side (neither runs the
+    twin nor the 3D scene); return them once all answer."""
+    settings = {"INTSPACE_DATABASE_URL": database_url}
     subprocess.run(
         [sys.executable, "-m", "server.cli", "db", "upgrade"],
         cwd=REPO_ROOT,
-        env=_env(database_url, data_dir),
+        env={**clean_env(), **settings},
         check=True,
         stdout=subprocess.DEVNULL,
     )
-    out = []
-    for _ in range(n):
-        port = _free_port()
-        command = [sys.executable, "-m", "server.cli", "serve", "--port", str(port)]
-        process = subprocess.Popen(
-            [*command, "--log-level", "warning"],
-            cwd=REPO_ROOT,
-            env=_env(database_url, data_dir),
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.DEVNULL,
+    services = [
+        start_service(
+            data_dir,
+            token=TOKEN,
+            env={**settings, **WITHOUT_TWIN},
+            args=("--log-level", "warning"),
+            log_path=data_dir / f"serve{i}.log",
+            wait=False,
         )
-        out.append((process, f"http://127.0.0.1:{port}/api/v1"))
-    deadline = time.monotonic() + 120
-    for process, base in out:
-        while True:
-            if process.poll() is not None:
-                raise RuntimeError("a server exited during start-up")
-            try:
-                if httpx.get(f"{base}/health", timeout=1).status_code == 200:
-                    break
-            except httpx.TransportError:
-                pass
-            if time.monotonic() > deadline:
-                raise RuntimeError("the servers did not answer within 120 s")
-            time.sleep(0.2)
-    return out
+        for i in range(n)
+    ]
+    try:
+        for service in services:
+            service.wait_healthy()
+    except BaseException:
+        for service in services:
+            if service.process.poll() is None:
+                service.kill()
+        raise
+    return services
 
 
 def tracker_owners(database_url: str, pids: list[int]) -> list[int]:
@@ -425,29 +400,26 @@ def main(argv: list[str] | None = None) -> int:
     if args.clients < 6:
         parser.error("--clients must be at least 6 (4 camera nodes and 2 readers)")
     database_url = make_database(args.postgres_url)
-    servers: list[tuple[subprocess.Popen, str]] = []
+    servers: list[Service] = []
     try:
         with tempfile.TemporaryDirectory(prefix="intspace-soak-") as tmp:
-            servers = start_servers(database_url, Path(tmp))
-            bases = [b for _, b in servers]
-            cameras = make_cameras()
-            ids = register(bases[0], cameras)
-            print(
-                f"soak: {args.minutes:g} min, {args.clients} clients (4 camera nodes at "
-                f"{NODE_HZ:g} Hz, {args.clients - 4} readers at {args.rate:g}/s), two processes"
-            )
-            results, ages, counts, wall = asyncio.run(soak(bases, ids, cameras, args))
-            alive = [p.poll() is None for p, _ in servers]
-            owners = tracker_owners(database_url, [p.pid for p, _ in servers])
-    finally:
-        for process, _ in servers:
-            if process.poll() is None:
-                process.send_signal(signal.SIGTERM)
-        for process, _ in servers:
             try:
-                process.wait(20)
-            except subprocess.TimeoutExpired:
-                process.kill()
+                servers = start_servers(database_url, Path(tmp))
+                bases = [s.api for s in servers]
+                cameras = make_cameras()
+                ids = register(bases[0], cameras)
+                print(
+                    f"soak: {args.minutes:g} min, {args.clients} clients (4 camera nodes at "
+                    f"{NODE_HZ:g} Hz, {args.clients - 4} readers at {args.rate:g}/s), two "
+                    "processes"
+                )
+                results, ages, counts, wall = asyncio.run(soak(bases, ids, cameras, args))
+                alive = [s.process.poll() is None for s in servers]
+                owners = tracker_owners(database_url, [s.process.pid for s in servers])
+            finally:
+                for server in servers:
+                    server.stop()
+    finally:
         drop_database(args.postgres_url, database_url)
 
     total_errors = sum(results.errors.values())

@@ -246,7 +246,9 @@ def test_the_make_targets_files_and_modules_shown_exist():
             assert (REPO / (module.replace(".", "/") + ".py")).is_file(), (page.name, module)
         for bench in re.findall(r"^\| `(bench_\w+)`", text, re.M):
             assert (REPO / "bench" / f"{bench}.py").is_file(), (page.name, bench)
-        for path in re.findall(r"`((?:docker|bench|core|server|web|migrations)/[\w./-]+)`", text):
+        for path in re.findall(
+            r"`((?:docker|bench|core|server|web|migrations|tests)/[\w./-]+)`", text
+        ):
             assert (REPO / path.rstrip("/")).exists(), f"{page.name}: {path} does not exist"
 
 

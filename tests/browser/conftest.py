@@ -6,10 +6,6 @@ from __future__ import annotations
 import contextlib
 import json
 import os
-import signal
-import socket
-import subprocess
-import sys
 import time
 import urllib.error
 import urllib.request
@@ -19,6 +15,8 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+
+from tests.support.service import running_service as serve_process
 
 REPO = Path(__file__).resolve().parents[2]
 ZHANG_DIR = REPO.parent / "shared" / "data" / "zhang1998"
@@ -40,12 +38,6 @@ def _in_ci() -> bool:
     return os.environ.get("CI", "").strip().lower() not in ("", "0", "false", "no")
 
 
-def free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 @pytest.fixture(scope="session")
 def chromium_executable() -> str:
     """Return Debian's Chromium; a missing one fails in CI (CI=true) and skips elsewhere."""
@@ -62,7 +54,7 @@ class Service:
     """A running `intspace serve`: where it listens, its admin token and its console output."""
 
     base_url: str
-    viser_port: int
+    viser_port: int | None
     token: str
     log_path: Path
 
@@ -84,61 +76,17 @@ class Service:
 
 @contextlib.contextmanager
 def running_service(data_dir: Path, extra_env: dict[str, str] | None = None) -> Iterator[Service]:
-    """Start `python -m server.cli serve` with its data in `data_dir`, wait for /health, and stop
-    it with Ctrl-C (SIGINT) at the end, failing if it does not stop gracefully."""
-    port, viser_port = free_port(), free_port()
-    env = {
-        **os.environ,
-        "INTSPACE_DATA_DIR": str(data_dir),
-        "INTSPACE_ADMIN_TOKEN": ADMIN_TOKEN,
-        "INTSPACE_VISER_PORT": str(viser_port),
-        "PYTHONUNBUFFERED": "1",
-        **(extra_env or {}),
-    }
-    env.pop("INTSPACE_DATABASE_URL", None)  # the default SQLite file in the data directory
-    log_path = data_dir / "serve.log"
-    with log_path.open("wb") as log:
-        process = subprocess.Popen(
-            [
-                sys.executable,
-                "-m",
-                "server.cli",
-                "serve",
-                "--host",
-                "127.0.0.1",
-                "--port",
-                str(port),
-            ],
-            cwd=REPO,
-            env=env,
-            stdout=log,
-            stderr=subprocess.STDOUT,
-        )
-    svc = Service(f"http://127.0.0.1:{port}", viser_port, ADMIN_TOKEN, log_path)
-    try:
-        deadline = time.monotonic() + STARTUP_TIMEOUT_S
-        while True:
-            if process.poll() is not None:
-                pytest.fail(f"intspace serve exited with {process.returncode}:\n{svc.log()}")
-            try:
-                with urllib.request.urlopen(f"{svc.base_url}/api/v1/health", timeout=2) as r:
-                    if r.status == 200:
-                        break
-            except (urllib.error.URLError, ConnectionError, TimeoutError):
-                pass
-            if time.monotonic() > deadline:
-                pytest.fail(f"intspace serve did not answer in {STARTUP_TIMEOUT_S} s:\n{svc.log()}")
-            time.sleep(0.2)
-        yield svc
-    finally:
-        if process.poll() is None:
-            process.send_signal(signal.SIGINT)  # what Ctrl-C does: a graceful shutdown
-            try:
-                process.wait(timeout=20)
-            except subprocess.TimeoutExpired:
-                process.kill()
-                process.wait(timeout=10)
-                pytest.fail(f"intspace serve did not stop within 20 s of Ctrl-C:\n{svc.log()}")
+    """Start `python -m server.cli serve` with its data in `data_dir` (tests/support/service.py),
+    wait for /health, and stop it with Ctrl-C (SIGINT) at the end, failing if it does not stop
+    gracefully."""
+    with serve_process(
+        data_dir,
+        token=ADMIN_TOKEN,
+        env=extra_env,
+        args=("--host", "127.0.0.1"),
+        timeout=STARTUP_TIMEOUT_S,
+    ) as served:
+        yield Service(served.base_url, served.viser_port, ADMIN_TOKEN, served.log_path)
 
 
 @pytest.fixture(scope="module")

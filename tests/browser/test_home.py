@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from core.localization import NetworkCamera
-from tests.server.mqtt_broker import PASSWORD, broker  # noqa: F401
+from tests.support.mqtt_broker import PASSWORD, broker  # noqa: F401
 
 try:
     from playwright.sync_api import expect

@@ -10,15 +10,13 @@ robot pose at each track point's own capture time, over the same 8 s of simulate
 
 from __future__ import annotations
 
-import http.server
-import threading
 import time
 
-import cv2
 import numpy as np
 
 from bench.bench_end_to_end import compare, describe, paired
 from server.node.sources import MjpegHttpSource
+from tests.support.mjpeg_stream import MjpegStream, flat_jpeg
 
 # Simulated seconds scored: 40 twin steps, enough for an RMSE whose paired ratio is stable
 # (both paths see the same stretch of the patrol, so the calibration's error is common to both),
@@ -75,53 +73,11 @@ def test_node_path_tracks_the_robot_as_well_as_the_in_process_path(tmp_path):
         assert health["status"] != "offline" and health["last_frame_t"] is not None, (name, report)
 
 
-class _PausingMjpeg:
-    """An MJPEG camera sending stamped parts at 20 Hz; while `paused` it holds every connection
-    open and sends nothing, as the twin's stream does while the twin is paused and as a camera
-    does whose sensor hung: only the reader's read timeout notices."""
-
-    def __init__(self) -> None:
-        ok, jpg = cv2.imencode(".jpg", np.full((24, 32, 3), 90, np.uint8))
-        assert ok
-        body = jpg.tobytes()
-        self.paused = threading.Event()
-        paused = self.paused
-
-        class Handler(http.server.BaseHTTPRequestHandler):
-            def log_message(self, *args) -> None:
-                pass
-
-            def do_GET(self) -> None:
-                self.send_response(200)
-                self.send_header("Content-Type", "multipart/x-mixed-replace; boundary=f")
-                self.end_headers()
-                while True:
-                    if paused.is_set():
-                        time.sleep(0.02)
-                        continue
-                    head = (
-                        f"--f\r\nContent-Type: image/jpeg\r\nContent-Length: {len(body)}\r\n"
-                        f"X-Timestamp: {time.time():.6f}\r\n\r\n"
-                    )
-                    try:
-                        self.wfile.write(head.encode() + body + b"\r\n")
-                        self.wfile.flush()
-                    except (BrokenPipeError, ConnectionResetError):
-                        return  # the reader gave up on this connection
-                    time.sleep(0.05)
-
-        self.server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Handler)
-        self.server.daemon_threads = True
-        self.url = f"http://127.0.0.1:{self.server.server_address[1]}/stream.mjpg"
-        threading.Thread(target=self.server.serve_forever, daemon=True).start()
-
-    def close(self) -> None:
-        self.server.shutdown()
-        self.server.server_close()
-
-
 def test_a_stream_stopped_for_10_s_is_read_again_within_5_s_of_its_return():
-    camera = _PausingMjpeg()
+    # While paused the camera holds every connection open and sends nothing, as the twin's
+    # stream does while the twin is paused and as a camera does whose sensor hung: only the
+    # reader's read timeout notices.
+    camera = MjpegStream([flat_jpeg()], fps=20.0)
     source = MjpegHttpSource("pausing", camera.url)
     try:
         source.start()

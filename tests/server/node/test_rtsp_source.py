@@ -1,5 +1,5 @@
 """`intspace node --source rtsp://...` against a local RTSP camera (GStreamer's RTSP server
-serving the twin's living-room view as H.264, tests/server/rtsp_server.py), as against an IP
+serving the twin's living-room view as H.264, tests/support/rtsp_server.py), as against an IP
 camera: frames are read, the robot's marker is detected and tracked where it stands, and a
 camera that goes away for 10 s is read again within 5 s of its return (spec 08).
 
@@ -22,17 +22,17 @@ import cv2
 import httpx
 import numpy as np
 import pytest
-from node_helpers import free_port, node_env, serve_without_twin
 
 from core.sim import WorldState, default_scene
 from core.sim.installation import installed_calibration
 from core.sim.motion import Pose2D
 from core.sim.render import renderer_for
+from tests.support.service import WITHOUT_TWIN, clean_env, free_port, start_service
 
 TOKEN = "rtsp-test-admin-token"
 HEADERS = {"Authorization": f"Bearer {TOKEN}"}
 SYSTEM_PYTHON = Path("/usr/bin/python3")
-SERVER = Path(__file__).with_name("rtsp_server.py")
+SERVER = Path(__file__).resolve().parents[2] / "support" / "rtsp_server.py"
 PACKAGES = (
     "python3-gi gir1.2-gst-rtsp-server-1.0 gstreamer1.0-plugins-good gstreamer1.0-plugins-ugly"
 )
@@ -127,7 +127,8 @@ def test_node_reads_an_rtsp_camera_tracks_its_robot_and_reconnects(rtsp_ready, r
     _clip(clip)
     camera = _RtspCamera(clip)
     camera.start()
-    service, api = serve_without_twin(repo_root, tmp_path / "service", TOKEN)
+    service = start_service(tmp_path / "service", token=TOKEN, env=WITHOUT_TWIN)
+    api = service.api
     node = None
     node_log = tmp_path / "node.log"
     http = httpx.Client(base_url=api, headers=HEADERS, timeout=10)
@@ -151,7 +152,7 @@ def test_node_reads_an_rtsp_camera_tracks_its_robot_and_reconnects(rtsp_ready, r
         )
         assert created.status_code == 201, created.text
         camera_id = created.json()["id"]
-        env = node_env()
+        env = clean_env()
         env["INTSPACE_TOKEN"] = TOKEN
         node = subprocess.Popen(
             [
@@ -252,8 +253,4 @@ def test_node_reads_an_rtsp_camera_tracks_its_robot_and_reconnects(rtsp_ready, r
             except subprocess.TimeoutExpired:
                 node.kill()
         camera.stop()
-        service.send_signal(signal.SIGINT)
-        try:
-            service.wait(20)
-        except subprocess.TimeoutExpired:
-            service.kill()
+        service.stop()

@@ -7,18 +7,16 @@ from __future__ import annotations
 
 import http.client
 import json
-import os
-import socket
 import sqlite3
-import subprocess
-import sys
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
+
+from tests.support.service import WITHOUT_TWIN, Service, free_port, running_service
 
 TOKEN = "hostile-input-admin-token-0123456789"
 AUTH = {"Authorization": f"Bearer {TOKEN}", "Content-Type": "application/json"}
@@ -26,93 +24,27 @@ AUTH = {"Authorization": f"Bearer {TOKEN}", "Content-Type": "application/json"}
 RSS_BOUND_MB = 150.0
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+def connect(service: Service) -> http.client.HTTPConnection:
+    """Return a keep-alive connection to the service (requests may take long on a loaded box)."""
+    return http.client.HTTPConnection("127.0.0.1", service.port, timeout=120)
 
 
-class Service:
-    """`intspace serve` in a subprocess on a fresh data directory; its output collected."""
+def _status(service: Service, key: str) -> float:
+    for line in Path(f"/proc/{service.process.pid}/status").read_text().splitlines():
+        if line.startswith(key + ":"):
+            return float(line.split()[1]) / 1024.0
+    raise AssertionError(f"no {key} in /proc status")
 
-    def __init__(
-        self,
-        root: Path,
-        data_dir: Path,
-        preexec: Callable[[], None] | None = None,
-        **env_extra: str,
-    ) -> None:
-        self.data_dir = data_dir
-        self.port = _free_port()
-        env = {k: v for k, v in os.environ.items() if not k.startswith("INTSPACE_")}
-        env.update(
-            INTSPACE_DATA_DIR=str(data_dir),
-            INTSPACE_ADMIN_TOKEN=TOKEN,
-            INTSPACE_VISER_ENABLED="false",
-            INTSPACE_SIMULATION="false",
-            PYTHONPATH=str(root),
-        )
-        env.update(env_extra)
-        self.process = subprocess.Popen(
-            [sys.executable, "-m", "server.cli", "serve", "--port", str(self.port)],
-            cwd=root,
-            env=env,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT,
-            text=True,
-            preexec_fn=preexec,
-        )
-        self.lines: list[str] = []
-        threading.Thread(target=self._read, daemon=True).start()
-        self._wait()
 
-    def _read(self) -> None:
-        assert self.process.stdout is not None
-        for line in self.process.stdout:
-            self.lines.append(line.rstrip("\n"))
+def reset_peak(service: Service) -> float:
+    """Reset the service's peak RSS to its current RSS; return that RSS (MB)."""
+    Path(f"/proc/{service.process.pid}/clear_refs").write_text("5")
+    return _status(service, "VmRSS")
 
-    def _wait(self, timeout: float = 60.0) -> None:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            if self.process.poll() is not None:
-                raise AssertionError("serve exited:\n" + "\n".join(self.lines))
-            try:
-                conn = self.connect()
-                conn.request("GET", "/api/v1/health")
-                if conn.getresponse().status == 200:
-                    conn.close()
-                    return
-            except OSError:
-                pass
-            time.sleep(0.2)
-        raise AssertionError("serve did not answer:\n" + "\n".join(self.lines))
 
-    def connect(self) -> http.client.HTTPConnection:
-        return http.client.HTTPConnection("127.0.0.1", self.port, timeout=120)
-
-    def _status(self, key: str) -> float:
-        for line in Path(f"/proc/{self.process.pid}/status").read_text().splitlines():
-            if line.startswith(key + ":"):
-                return float(line.split()[1]) / 1024.0
-        raise AssertionError(f"no {key} in /proc status")
-
-    def reset_peak(self) -> float:
-        """Reset the process's peak RSS to its current RSS; return that RSS (MB)."""
-        Path(f"/proc/{self.process.pid}/clear_refs").write_text("5")
-        return self._status("VmRSS")
-
-    def peak(self) -> float:
-        """Return the process's peak RSS (MB) since the last reset."""
-        return self._status("VmHWM")
-
-    def stop(self) -> None:
-        if self.process.poll() is None:
-            self.process.terminate()
-            try:
-                self.process.wait(timeout=20)
-            except subprocess.TimeoutExpired:
-                self.process.kill()
-                self.process.wait()
+def peak(service: Service) -> float:
+    """Return the service's peak RSS (MB) since the last reset."""
+    return _status(service, "VmHWM")
 
 
 class Case:
@@ -127,11 +59,11 @@ class Case:
     ) -> tuple[int, dict[str, str], Any, float, int]:
         """Return (status, headers, JSON body or bytes, peak RSS growth MB, answer size)."""
         data = json.dumps(body).encode() if isinstance(body, dict | list) else body
-        before = self.service.reset_peak()
+        before = reset_peak(self.service)
         self.conn.request(method, path, body=data, headers={**AUTH, **headers})
         response = self.conn.getresponse()
         raw = response.read()
-        growth = self.service.peak() - before
+        growth = peak(self.service) - before
         # The figures the issue asks for, shown with `pytest -s`.
         print(f"{method} {path[:70]} -> {response.status}, peak RSS +{growth:.1f} MB")
         try:
@@ -153,17 +85,15 @@ class Case:
 
 
 @pytest.fixture(scope="module")
-def service(repo_root: Path, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Service]:
-    s = Service(repo_root, tmp_path_factory.mktemp("hostile"))
-    try:
+def service(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Service]:
+    """`intspace serve` without the twin on a fresh data directory."""
+    with running_service(tmp_path_factory.mktemp("hostile"), token=TOKEN, env=WITHOUT_TWIN) as s:
         yield s
-    finally:
-        s.stop()
 
 
 @pytest.fixture
 def case(service: Service) -> Iterator[Case]:
-    conn = service.connect()
+    conn = connect(service)
     try:
         yield Case(service, conn)
     finally:
@@ -184,7 +114,7 @@ def home(service: Service) -> dict[str, Any]:
 
 def make_home(service: Service) -> dict[str, Any]:
     """Create the space of `home`; return {space, cameras}."""
-    conn = service.connect()
+    conn = connect(service)
     try:
         c = Case(service, conn)
         space = _json(c, "POST", "/api/v1/spaces", {"name": "hostile"})
@@ -526,7 +456,7 @@ def test_an_unhandled_error_is_a_500_with_a_request_id_and_keeps_the_connection(
 
     # First, ahead of the API's own fallback for unknown paths.
     app.router.routes.insert(0, APIRoute("/api/v1/broken", broken, methods=["GET"]))
-    port = _free_port()
+    port = free_port()
     server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning"))
     thread = threading.Thread(target=server.run, daemon=True)
     thread.start()

@@ -17,7 +17,7 @@ from core.calibration.detect import CharucoSpec, CircleGrid, board_object_points
 from core.calibration.io import from_opencv_yaml, from_ros_yaml
 from server.cli import main
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 
 
 def _renderer() -> ModuleType:

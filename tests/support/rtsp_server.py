@@ -5,7 +5,7 @@ Run with the system Python that has PyGObject and the GStreamer RTSP server's in
 data (Debian: python3-gi, gir1.2-gst-rtsp-server-1.0, gstreamer1.0-plugins-good for the AVI
 demuxer and RTP payloader, gstreamer1.0-plugins-ugly for x264enc):
 
-    /usr/bin/python3 tests/server/rtsp_server.py --port 8554 --mount /cam clip.avi
+    /usr/bin/python3 tests/support/rtsp_server.py --port 8554 --mount /cam clip.avi
 
 Each client gets its own pipeline that plays the file from its start at the file's frame rate
 and ends the stream at the file's end (a client that reconnects plays it again). Prints

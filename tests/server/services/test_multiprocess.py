@@ -6,11 +6,7 @@ takes its space over and keeps the target's id."""
 from __future__ import annotations
 
 import json
-import os
 import signal
-import socket
-import subprocess
-import sys
 import threading
 import time
 from pathlib import Path
@@ -24,8 +20,8 @@ from websockets.sync.client import connect
 from core.localization import NetworkCamera
 from server.services.fanout import PAYLOAD_LIMIT, Fanout, chunk_payloads
 from server.services.ownership import APPLICATION_NAME, NAMESPACE
+from tests.support.service import WITHOUT_TWIN, start_service
 
-REPO_ROOT = Path(__file__).resolve().parents[2]
 TOKEN = "multi-process-admin-token"
 ADMIN = {"Authorization": f"Bearer {TOKEN}"}
 K = [[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]]
@@ -40,64 +36,27 @@ CAPTURE_DELAY_S = 0.05
 FRAME_PERIOD_S = 0.05
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 class Serve:
-    """One `intspace serve` process on the test's database."""
+    """One `intspace serve` process on the test's database (tests/support/service.py), with a
+    client of its API kept alive (the observations' latency is measured through it)."""
 
     def __init__(self, database_url: str, data_dir: Path, log: Path) -> None:
-        self.port = _free_port()
-        self.url = f"http://127.0.0.1:{self.port}"
-        self.log = log
-        env = {
-            **os.environ,
-            "INTSPACE_DATABASE_URL": database_url,
-            "INTSPACE_DATA_DIR": str(data_dir),
-            "INTSPACE_ADMIN_TOKEN": TOKEN,
-            # The twin and the 3D scene run in one designated process; these run neither.
-            "INTSPACE_SIMULATION": "false",
-            "INTSPACE_VISER_ENABLED": "false",
-        }
-        with log.open("w") as out:
-            self.proc = subprocess.Popen(
-                [sys.executable, "-m", "server.cli", "serve", "--port", str(self.port)],
-                cwd=REPO_ROOT,
-                env=env,
-                stdout=out,
-                stderr=subprocess.STDOUT,
-            )
-        self.http = httpx.Client(base_url=self.url, headers=ADMIN, timeout=10.0)
+        # The twin and the 3D scene run in one designated process; these run neither.
+        env = {"INTSPACE_DATABASE_URL": database_url, **WITHOUT_TWIN}
+        self.service = start_service(data_dir, token=TOKEN, env=env, log_path=log, wait=False)
+        self.port = self.service.port
+        self.pid = self.service.process.pid
+        self.http = httpx.Client(base_url=self.service.base_url, headers=ADMIN, timeout=10.0)
 
-    def wait_ready(self, timeout: float = 90.0) -> None:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            if self.proc.poll() is not None:
-                raise AssertionError(f"serve exited:\n{self.log.read_text()}")
-            try:
-                if self.http.get("/api/v1/health").status_code == 200:
-                    return
-            except httpx.HTTPError:
-                pass
-            time.sleep(0.1)
-        raise AssertionError(f"serve not ready after {timeout} s:\n{self.log.read_text()}")
+    def wait_ready(self) -> None:
+        self.service.wait_healthy()
 
     def kill(self) -> None:
-        self.proc.send_signal(signal.SIGKILL)
-        assert self.proc.wait(10) == -signal.SIGKILL
+        assert self.service.kill() == -signal.SIGKILL
 
     def stop(self) -> None:
         self.http.close()
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(15)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait(5)
+        self.service.stop()
 
 
 class Stream:
@@ -287,7 +246,7 @@ def test_processes_share_live_targets_and_survive_a_kill(database_url, tmp_path)
         # The first post makes a tracker owner: the process it reached, or another.
         sender.start(procs[1])
         owner_pid = _wait(lambda: _tracker_owner(database_url), 5, "a tracker owner")
-        owner = next(p for p in procs if p.proc.pid == owner_pid)
+        owner = next(p for p in procs if p.pid == owner_pid)
         other, spare = [p for p in procs if p is not owner]
         s_owner, s_other = streams[owner.port], streams[other.port]
         target = _wait(
@@ -336,7 +295,7 @@ def test_processes_share_live_targets_and_survive_a_kill(database_url, tmp_path)
         killed = time.time()
         time.sleep(3.0)
         sender.stop()
-        assert _tracker_owner(database_url) == spare.proc.pid
+        assert _tracker_owner(database_url) == spare.pid
         fresh = [
             (received, t)
             for received, m in streams[spare.port].since(killed)

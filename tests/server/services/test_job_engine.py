@@ -2,7 +2,7 @@
 whose service died is given up as interrupted, its old holder can write nothing, and another
 service starts it again; a robot task waiting for a worker keeps its lease past the lease's
 length and is interrupted when its runner stops. Calibration runs, the kind with a queue, are
-tests/server/test_worker_leases.py's."""
+tests/server/services/test_worker_leases.py's."""
 
 from __future__ import annotations
 

@@ -16,7 +16,6 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 from sqlalchemy import select, update
-from test_api_calibration import K_TRUE, POSES, SQUARE_M, chessboard_photo
 
 from server.app import create_app
 from server.db.base import utcnow
@@ -24,8 +23,9 @@ from server.db.models import CalibrationRun
 from server.db.session import make_engine, make_session_factory
 from server.services.jobs import JobCancelled, LeasePolicy, claim_next, release_expired, renew
 from server.services.runs import RUNS, Attempt
+from tests.support.chessboard_photos import K_TRUE, POSES, SQUARE_M, chessboard_photo
 
-REPO_ROOT = Path(__file__).resolve().parents[2]
+REPO_ROOT = Path(__file__).resolve().parents[3]
 PHOTOS = 16
 BODY = {
     "kind": "intrinsics",

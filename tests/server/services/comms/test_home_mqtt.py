@@ -16,8 +16,8 @@ from fastapi.testclient import TestClient
 
 from core.localization import NetworkCamera
 from server.app import create_app
-from tests.server.ha_discovery import problems
-from tests.server.mqtt_broker import PASSWORD, broker, subscribe  # noqa: F401
+from tests.support.ha_discovery import problems
+from tests.support.mqtt_broker import PASSWORD, broker, subscribe  # noqa: F401
 
 K = [[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]]
 SOFA = [[0.0, 0.0], [2.0, 0.0], [2.0, 3.0], [0.0, 3.0]]

@@ -6,17 +6,12 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import os
 import shutil
 import signal
-import socket
-import subprocess
-import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
 
-import httpx
 import msgspec
 import pytest
 import viser
@@ -28,6 +23,7 @@ from websockets.exceptions import ConnectionClosed
 
 from server.app import create_app
 from server.scene import SceneService
+from tests.support.service import free_port, start_service
 
 VISER_PROTOCOL = f"viser-v{viser.__version__}"
 
@@ -38,12 +34,6 @@ def database_url(tmp_path: Path, sqlite_template: Path) -> str:
     path = tmp_path / "intspace.sqlite3"
     shutil.copyfile(sqlite_template, path)
     return f"sqlite:///{path}"
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def listening_addresses(port: int) -> set[str]:
@@ -178,26 +168,10 @@ def test_a_viewer_that_goes_away_leaves_no_traceback_in_the_service_log(repo_roo
     browser can: closing the WebSocket, dropping the connection (a tab killed, a laptop lid
     shut) before or after the first message, and staying while the service stops."""
     token = "scene-proxy-test-admin-token"
-    port, viser_port = free_port(), free_port()
-    env = {k: v for k, v in os.environ.items() if not k.startswith("INTSPACE_")}
-    env.update(
-        INTSPACE_DATA_DIR=str(tmp_path),
-        INTSPACE_SIMULATION="false",
-        INTSPACE_VISER_ENABLED="true",
-        INTSPACE_VISER_PORT=str(viser_port),
-        INTSPACE_ADMIN_TOKEN=token,
-        PYTHONUNBUFFERED="1",
-    )
-    log_path = tmp_path / "serve.log"
-    with log_path.open("wb") as log:
-        process = subprocess.Popen(
-            [sys.executable, "-m", "server.cli", "serve", "--port", str(port)],
-            cwd=repo_root,
-            env=env,
-            stdout=log,
-            stderr=subprocess.STDOUT,
-        )
-    url = f"ws://127.0.0.1:{port}/api/v1/scene/view"
+    env = {"INTSPACE_SIMULATION": "false", "INTSPACE_VISER_ENABLED": "true"}
+    service = start_service(tmp_path, token=token, env=env, wait=False)
+    process = service.process
+    url = f"ws://127.0.0.1:{service.port}/api/v1/scene/view"
     headers = {"Authorization": f"Bearer {token}"}
 
     async def viewers() -> list[str]:
@@ -227,21 +201,12 @@ def test_a_viewer_that_goes_away_leaves_no_traceback_in_the_service_log(repo_roo
         return left
 
     try:
-        deadline = time.monotonic() + 90
-        while True:
-            assert process.poll() is None, log_path.read_text(errors="replace")
-            with contextlib.suppress(httpx.TransportError):
-                if httpx.get(f"http://127.0.0.1:{port}/api/v1/health", timeout=2).is_success:
-                    break
-            assert time.monotonic() < deadline, "intspace serve did not answer within 90 s"
-            time.sleep(0.2)
+        service.wait_healthy()
         assert len(asyncio.run(viewers())) == 4
         assert process.wait(timeout=20) == 0
     finally:
-        if process.poll() is None:
-            process.kill()
-            process.wait(10)
-    log = log_path.read_text(errors="replace")
+        service.stop()
+    log = service.log()
     # Each viewer was relayed (uvicorn logs the accepted handshakes), and none left a trace.
     assert log.count('"WebSocket /api/v1/scene/view" [accepted]') == 4, log
     assert "Traceback" not in log and "Exception in ASGI application" not in log, log

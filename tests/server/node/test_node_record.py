@@ -11,7 +11,6 @@ replays the recording; both post to the service, whose stored detections are com
 from __future__ import annotations
 
 import json
-import signal
 import sqlite3
 import subprocess
 import sys
@@ -22,7 +21,6 @@ import cv2
 import httpx
 import numpy as np
 import pytest
-from node_helpers import MjpegStream, node_env, serve_without_twin
 
 from core.errors import InvalidInput
 from server.node.frames import Frame
@@ -34,6 +32,8 @@ from server.node.record import (
     is_recording,
     recorded_frames,
 )
+from tests.support.mjpeg_stream import MjpegStream
+from tests.support.service import WITHOUT_TWIN, clean_env, start_service
 
 TOKEN = "node-record-admin-token"
 HEADERS = {"Authorization": f"Bearer {TOKEN}"}
@@ -143,7 +143,7 @@ def _robot_frames(n: int) -> tuple[list[bytes], dict]:
 
 
 def _node(repo_root: Path, *args: str) -> subprocess.Popen:
-    env = node_env()
+    env = clean_env()
     env["INTSPACE_TOKEN"] = TOKEN
     return subprocess.Popen(
         [sys.executable, "-m", "server.cli", "node", *args],
@@ -175,7 +175,8 @@ def test_a_recorded_stream_replayed_posts_the_same_detections(repo_root, tmp_pat
     stream = MjpegStream(frames)
     data_dir = tmp_path / "service"
     data_dir.mkdir()
-    service, api = serve_without_twin(repo_root, data_dir, TOKEN)
+    service = start_service(data_dir, token=TOKEN, env=WITHOUT_TWIN)
+    api = service.api
     recording = tmp_path / "recording"
     try:
         created = httpx.post(f"{api}/cameras", json=row, headers=HEADERS, timeout=10)
@@ -256,9 +257,5 @@ def test_a_recorded_stream_replayed_posts_the_same_detections(repo_root, tmp_pat
             sorted(recorded_set - replayed),
         )
     finally:
-        service.send_signal(signal.SIGINT)
-        try:
-            service.wait(20)
-        except subprocess.TimeoutExpired:
-            service.kill()
+        service.stop()
         stream.close()

@@ -12,6 +12,7 @@ import pytest
 from starlette.websockets import WebSocketDisconnect
 
 from core.localization import NetworkCamera
+from tests.support.cameras import register_cameras
 
 K = [[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]]
 DIST = [-0.1, 0.01, 0.0005, -0.0003, 0.0]
@@ -28,26 +29,9 @@ def _cameras() -> list[NetworkCamera]:
     ]
 
 
-def _register(client, admin, cameras) -> list[int]:
-    ids = []
-    for k, cam in enumerate(cameras):
-        body = {
-            "name": f"cam{k}",
-            "width": 640,
-            "height": 480,
-            "K": K,
-            "dist": DIST,
-            "T_world_camera": cam.T_world_camera.tolist(),
-        }
-        response = client.post("/api/v1/cameras", json=body, headers=admin)
-        assert response.status_code == 201, response.text
-        ids.append(response.json()["id"])
-    return ids
-
-
 def test_observations_fuse_to_the_true_positions(client, admin):
     cameras = _cameras()
-    ids = _register(client, admin, cameras)
+    ids = register_cameras(client, admin, cameras)
     rng = np.random.default_rng(1)
     truth = rng.uniform([1.0, 0.5], [3.0, 2.5], (20, 2))
     height = 0.36
@@ -109,7 +93,7 @@ def test_observations_fuse_to_the_true_positions(client, admin):
 
 def test_one_camera_gives_a_monocular_position_and_unposed_cameras_are_refused(client, admin):
     cameras = _cameras()
-    ids = _register(client, admin, cameras[:1])
+    ids = register_cameras(client, admin, cameras[:1])
     X = np.array([[2.0, 1.0, 0.0]])
     px = cameras[0].project(X)[0].tolist()
     body = {"observations": [{"camera_id": ids[0], "t": 1, "pixel": px, "target": "a"}]}
@@ -154,7 +138,7 @@ def test_observations_need_a_token(client):
 
 def test_stream_sends_positions_and_refuses_a_bad_token(client, admin):
     cameras = _cameras()
-    ids = _register(client, admin, cameras)
+    ids = register_cameras(client, admin, cameras)
     X = np.array([[2.0, 1.5, 0.0]])
     now = time.time()
     body = {
@@ -190,7 +174,7 @@ def test_targets_live_by_default_newest_first_and_tracks_page_back(client, admin
     """A target seen for a while, then silent: live while it is tracked, ended afterwards (only
     in state=all); its stored track pages back with `until`."""
     cameras = _cameras()
-    ids = _register(client, admin, cameras)
+    ids = register_cameras(client, admin, cameras)
     now = time.time()
     for _ in range(30):  # a walker at 0.4 m/s, stamped as a live camera would stamp it
         time.sleep(0.02)
@@ -270,7 +254,7 @@ def test_empty_frames_release_the_other_cameras_frames_at_once(client, admin):
     """A camera that saw nothing says so: the tracker need not wait its reorder window (1 s by
     default) for that camera before taking the other cameras' frames of the same time."""
     cameras = _cameras()[:2]
-    a, b = _register(client, admin, cameras)
+    a, b = register_cameras(client, admin, cameras)
     tracking = client.app.state.runtime.tracking
     assert tracking.latency == 1.0  # the default window; the clock below never reaches it
     T = float(np.ceil(time.time())) + 10.0
@@ -319,7 +303,7 @@ def test_empty_frames_release_the_other_cameras_frames_at_once(client, admin):
 @pytest.mark.parametrize("database_url", ["sqlite"], indirect=True)
 def test_empty_frames_are_validated_like_detections(client, admin):
     cameras = _cameras()[:2]
-    a, b = _register(client, admin, cameras)
+    a, b = register_cameras(client, admin, cameras)
     bare = client.post(
         "/api/v1/cameras", json={"name": "bare", "width": 640, "height": 480}, headers=admin
     ).json()["id"]
@@ -441,7 +425,7 @@ def test_a_notified_empty_frame_moves_the_tracker_on(client, admin):
     """The tracking process takes an empty frame another process received (its notification)
     as if it had been posted to it."""
     cameras = _cameras()[:2]
-    a, b = _register(client, admin, cameras)
+    a, b = register_cameras(client, admin, cameras)
     tracking = client.app.state.runtime.tracking
     T = float(np.ceil(time.time())) + 10.0
     tracking._clock = _Clock(T)

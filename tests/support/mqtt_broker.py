@@ -18,22 +18,18 @@ from pathlib import Path
 import paho.mqtt.client as paho
 import pytest
 
+from tests.support.service import free_port
+
 MOSQUITTO = shutil.which("mosquitto") or "/usr/sbin/mosquitto"
 MOSQUITTO_PASSWD = shutil.which("mosquitto_passwd") or "/usr/bin/mosquitto_passwd"
 USER, PASSWORD = "intspace", "s3cret-Broker-pw"
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 class Broker:
     """A mosquitto process on 127.0.0.1:`port` requiring USER / PASSWORD."""
 
     def __init__(self, directory: Path) -> None:
-        self.port = _free_port()
+        self.port = free_port()
         self.dir = directory
         passwords = directory / "passwords"
         subprocess.run(

@@ -7,7 +7,6 @@ test_rtsp_source.py (the node says it once, then that it is back, and keeps post
 from __future__ import annotations
 
 import json
-import signal
 import subprocess
 import sys
 import time
@@ -19,12 +18,12 @@ import cv2
 import httpx
 import numpy as np
 import pytest
-from node_helpers import free_port, node_env, serve_without_twin
 
 from core.sim import Scene, WorldState, default_scene
 from core.sim.installation import installed_calibration
 from core.sim.motion import Pose2D
 from core.sim.render import renderer_for
+from tests.support.service import WITHOUT_TWIN, clean_env, free_port, running_service
 
 TOKEN = "node-failures-test-admin-token"
 HEADERS = {"Authorization": f"Bearer {TOKEN}"}
@@ -43,8 +42,9 @@ def service(repo_root: Path, tmp_path_factory: pytest.TempPathFactory) -> Iterat
     """`intspace serve` without the twin, with CAMERA in a space as its installation calibrated
     it (not the twin's true camera)."""
     scene = default_scene()
-    process, api = serve_without_twin(repo_root, tmp_path_factory.mktemp("service"), TOKEN)
-    try:
+    data_dir = tmp_path_factory.mktemp("service")
+    with running_service(data_dir, token=TOKEN, env=WITHOUT_TWIN) as serve:
+        api = serve.api
         with httpx.Client(base_url=api, headers=HEADERS, timeout=10) as http:
             space = http.post("/spaces", json={"name": "replay"}).json()["id"]
             # The robot the clip shows is registered: a space without one makes no robot target.
@@ -64,16 +64,10 @@ def service(repo_root: Path, tmp_path_factory: pytest.TempPathFactory) -> Iterat
             )
             assert created.status_code == 201, created.text
         yield Service(api, space, scene)
-    finally:
-        process.send_signal(signal.SIGINT)
-        try:
-            process.wait(20)
-        except subprocess.TimeoutExpired:
-            process.kill()
 
 
 def _node(repo_root: Path, *args: str, timeout: float = 60) -> subprocess.CompletedProcess:
-    env = node_env()
+    env = clean_env()
     env["INTSPACE_TOKEN"] = TOKEN
     return subprocess.run(
         [sys.executable, "-m", "server.cli", "node", *args],

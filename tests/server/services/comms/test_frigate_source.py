@@ -24,8 +24,8 @@ from fastapi.testclient import TestClient
 from core.geometry.polygon import points_in_polygons
 from core.localization import NetworkCamera
 from server.app import create_app
-from tests.server.frigate_replay import DETECT_FPS, Publisher, frigate_messages
-from tests.server.mqtt_broker import PASSWORD, USER, broker, subscribe  # noqa: F401
+from tests.support.frigate_replay import DETECT_FPS, Publisher, frigate_messages
+from tests.support.mqtt_broker import PASSWORD, USER, broker, subscribe  # noqa: F401
 
 K = [[700.0, 0.0, 640.0], [0.0, 700.0, 360.0], [0.0, 0.0, 1.0]]
 ROOM = [[0.0, 0.0], [6.0, 0.0], [6.0, 4.0], [0.0, 4.0]]

@@ -4,12 +4,8 @@ from __future__ import annotations
 
 import os
 import signal
-import socket
 import subprocess
 import sys
-import threading
-import time
-from pathlib import Path
 
 import httpx
 import pytest
@@ -17,70 +13,14 @@ from alembic.script import ScriptDirectory
 
 from server.cli import main
 from server.db.migrate import alembic_config
+from tests.support.service import start_service
 
 # The newest migration: what a fresh database is upgraded to.
 HEAD = ScriptDirectory.from_config(alembic_config("sqlite://")).get_current_head()
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-class _Server:
-    """`intspace serve` in a subprocess, its output collected line by line."""
-
-    def __init__(self, repo_root: Path, data_dir: Path) -> None:
-        self.port = _free_port()
-        self.viser_port = _free_port()
-        env = {k: v for k, v in os.environ.items() if not k.startswith("INTSPACE_")}
-        env.update(INTSPACE_DATA_DIR=str(data_dir), INTSPACE_VISER_PORT=str(self.viser_port))
-        self.process = subprocess.Popen(
-            [sys.executable, "-m", "server.cli", "serve", "--port", str(self.port)],
-            cwd=repo_root,
-            env=env,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT,
-            text=True,
-        )
-        self.lines: list[str] = []
-        self._reader = threading.Thread(target=self._read, daemon=True)
-        self._reader.start()
-
-    def _read(self) -> None:
-        assert self.process.stdout is not None
-        for line in self.process.stdout:
-            self.lines.append(line.rstrip("\n"))
-
-    def wait_healthy(self, timeout: float = 60.0) -> dict:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            if self.process.poll() is not None:
-                raise AssertionError("serve exited:\n" + "\n".join(self.lines))
-            try:
-                response = httpx.get(f"http://127.0.0.1:{self.port}/api/v1/health", timeout=2)
-                if response.status_code == 200:
-                    return response.json()
-            except httpx.TransportError:
-                pass
-            time.sleep(0.2)
-        raise AssertionError("serve did not answer:\n" + "\n".join(self.lines))
-
-    def line(self, prefix: str) -> str | None:
-        return next((line for line in self.lines if line.startswith(prefix)), None)
-
-    def stop(self) -> int:
-        self.process.send_signal(signal.SIGINT)
-        try:
-            return self.process.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            self.process.kill()
-            raise
-
-
 def test_serve_prints_urls_and_the_first_run_token_once(repo_root, tmp_path):
-    first = _Server(repo_root, tmp_path)
+    first = start_service(tmp_path, wait=False)
     try:
         health = first.wait_healthy()
         assert health["database"] == "sqlite" and health["schema_revision"] == HEAD
@@ -101,13 +41,12 @@ def test_serve_prints_urls_and_the_first_run_token_once(repo_root, tmp_path):
         assert httpx.get(f"http://127.0.0.1:{first.viser_port}/", timeout=5).status_code == 200
         # Secrets are never printed: the database URL has no password here, the token is
         # printed once on its own line only.
-        assert sum(token in line for line in first.lines) == 1
+        assert sum(token in line for line in first.lines()) == 1
     finally:
         assert first.stop() == 0
 
-    second = _Server(repo_root, tmp_path)
+    second = start_service(tmp_path)
     try:
-        second.wait_healthy()
         assert second.line("Dashboard: ") is not None
         assert second.line("Admin token: ") is None
         listed = httpx.get(f"http://127.0.0.1:{second.port}/api/v1/cameras", headers=headers)

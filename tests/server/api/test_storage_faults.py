@@ -9,7 +9,6 @@ import json
 import os
 import resource
 import shutil
-import signal
 import sqlite3
 import threading
 import time
@@ -18,11 +17,12 @@ from pathlib import Path
 
 import pytest
 from fastapi.testclient import TestClient
-from test_hostile_input import AUTH, TOKEN, Service, make_home
+from test_hostile_input import AUTH, TOKEN, connect, make_home
 
 from server.app import create_app
 from server.cli import main
 from server.settings import Settings
+from tests.support.service import WITHOUT_TWIN, start_service
 
 
 @pytest.fixture
@@ -107,14 +107,14 @@ def test_a_storage_error_at_start_up_is_one_line_and_exit_code_2(
 
 def test_no_acknowledged_observation_is_lost_to_a_kill_9(repo_root: Path, tmp_path: Path):
     data = tmp_path / "data"
-    service = Service(repo_root, data)
+    service = start_service(data, token=TOKEN, env=WITHOUT_TWIN)
     home = make_home(service)
     cameras = [c["id"] for c in home["cameras"]]
     acknowledged: list[float] = []
     stop = threading.Event()
 
     def post_continuously() -> None:
-        conn = service.connect()
+        conn = connect(service)
         t = time.time()
         while not stop.is_set():
             t += 0.01
@@ -136,8 +136,7 @@ def test_no_acknowledged_observation_is_lost_to_a_kill_9(repo_root: Path, tmp_pa
         deadline = time.monotonic() + 20
         while len(acknowledged) < 150 and time.monotonic() < deadline:
             time.sleep(0.05)
-        service.process.send_signal(signal.SIGKILL)
-        service.process.wait()
+        service.kill()
     finally:
         stop.set()
         client.join(timeout=30)

@@ -123,7 +123,7 @@ def test_twin_endpoints_without_the_twin(client, admin):
 
 
 # The drive is the same on either database; its storage and apply paths run on PostgreSQL in
-# tests/server/test_api_calibration.py.
+# tests/server/api/test_api_calibration.py.
 @pytest.mark.parametrize("database_url", ["sqlite"], indirect=True)
 def test_network_run_calibrates_every_twin_camera_and_apply_updates_them(
     twin_client, admin, run_waiter

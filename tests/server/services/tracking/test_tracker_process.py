@@ -16,13 +16,13 @@ import time
 
 import numpy as np
 import pytest
-from test_api_targets import _register
 
 from core.errors import InvalidInput
 from core.localization import NetworkCamera
 from core.localization.tracking import LIVE_STATES, Tracker, TrackerConfig
 from server.services.tracking import DetectionIn, TrackingService
 from server.services.tracking.process import RemoteTracker, TrackerHost
+from tests.support.cameras import register_cameras
 
 K = [[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]]
 DIST = [-0.1, 0.01, 0.0005, -0.0003, 0.0]
@@ -133,7 +133,7 @@ class _Clock:
 @pytest.mark.parametrize("database_url", ["sqlite"], indirect=True)
 def test_a_service_whose_trackers_process_dies_goes_on_with_its_tracks(client, admin):
     cameras = _cameras()
-    ids = _register(client, admin, cameras)
+    ids = register_cameras(client, admin, cameras)
     factory = client.app.state.runtime.session_factory
     live = client.app.state.runtime.targets
     t0 = float(np.ceil(time.time())) + 1.0

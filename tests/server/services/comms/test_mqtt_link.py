@@ -13,7 +13,7 @@ import time
 import pytest
 
 from server.services.comms.mqtt import BrokerUrl, BrokerUrlError, MqttLink
-from tests.server.mqtt_broker import PASSWORD, broker, subscribe  # noqa: F401
+from tests.support.mqtt_broker import PASSWORD, broker, subscribe  # noqa: F401
 
 
 def test_broker_url_parsing_and_redaction():

@@ -21,7 +21,7 @@ from server.services.comms.mqtt import Message
 from server.services.targets import LiveTargets
 from server.services.tracking import TrackingService
 from server.settings import FrigateCamera
-from tests.server.frigate_replay import body_box
+from tests.support.frigate_replay import body_box
 
 K = [[700.0, 0.0, 640.0], [0.0, 700.0, 360.0], [0.0, 0.0, 1.0]]
 

@@ -14,7 +14,6 @@ for it and applies it; the applied intrinsics are scored against the rendering c
 from __future__ import annotations
 
 import math
-import signal
 import subprocess
 import sys
 
@@ -22,7 +21,6 @@ import cv2
 import httpx
 import numpy as np
 import pytest
-from node_helpers import MjpegStream, node_env, serve_without_twin
 
 from server.node.calibrate import (
     MIN_PARAM_DISTANCE,
@@ -30,6 +28,8 @@ from server.node.calibrate import (
     Coverage,
     board_view_params,
 )
+from tests.support.mjpeg_stream import MjpegStream
+from tests.support.service import WITHOUT_TWIN, clean_env, start_service
 
 TOKEN = "node-calibrate-admin-token"
 HEADERS = {"Authorization": f"Bearer {TOKEN}"}
@@ -125,13 +125,14 @@ def _board_views(n: int, seed: int) -> tuple[np.ndarray, list[bytes]]:
 def test_calibrate_captures_views_from_a_stream_submits_and_applies_the_run(repo_root, tmp_path):
     K_true, frames = _board_views(14, seed=5)
     stream = MjpegStream(frames)
-    service, api = serve_without_twin(repo_root, tmp_path, TOKEN)
+    service = start_service(tmp_path, token=TOKEN, env=WITHOUT_TWIN)
+    api = service.api
     try:
         http_client = httpx.Client(base_url=api, headers=HEADERS, timeout=10)
         created = http_client.post("/cameras", json={"name": CAMERA, "width": 640, "height": 480})
         assert created.status_code == 201, created.text
         camera_id = created.json()["id"]
-        env = node_env()
+        env = clean_env()
         env["INTSPACE_TOKEN"] = TOKEN
         args = ["--camera", CAMERA, "--board", "9x6", "--square", str(SQUARE), "--api", api]
         done = subprocess.run(
@@ -186,11 +187,7 @@ def test_calibrate_captures_views_from_a_stream_submits_and_applies_the_run(repo
         assert result["rms"] < 0.3  # corners on rendered, noisy JPEG frames: ~0.1 px
         http_client.close()
     finally:
-        service.send_signal(signal.SIGINT)
-        try:
-            service.wait(20)
-        except subprocess.TimeoutExpired:
-            service.kill()
+        service.stop()
         stream.close()
 
 

@@ -3,9 +3,6 @@ node's pieces: the MJPEG parser, the newest-frame holder, the clock offset, mask
 
 from __future__ import annotations
 
-import os
-import signal
-import socket
 import subprocess
 import sys
 import threading
@@ -25,6 +22,8 @@ from server.node.masks import apply_mask, polygon_mask
 from server.node.mjpeg import MjpegParser, boundary_of
 from server.schemas.registry import CameraHeartbeat
 from server.services.camera_health import CameraHealthBook
+from tests.support.mjpeg_stream import MjpegStream, flat_jpeg
+from tests.support.service import clean_env, start_service
 
 TOKEN = "node-test-admin-token"
 HEADERS = {"Authorization": f"Bearer {TOKEN}"}
@@ -159,72 +158,12 @@ def test_health_is_online_stalled_offline_from_heartbeats():
 # -- end to end ---------------------------------------------------------------------------------
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def _clean_env() -> dict[str, str]:
-    return {k: v for k, v in os.environ.items() if not k.startswith("INTSPACE_")}
-
-
-class _Service:
-    """`intspace serve` with the twin rendering and leaving detection to nodes."""
-
-    def __init__(self, repo_root: Path, data_dir: Path) -> None:
-        self.port = _free_port()
-        env = _clean_env()
-        env.update(
-            INTSPACE_DATA_DIR=str(data_dir),
-            INTSPACE_SIMULATION="true",
-            INTSPACE_TWIN_DETECTION="external",
-            INTSPACE_VISER_ENABLED="false",
-            INTSPACE_ADMIN_TOKEN=TOKEN,
-        )
-        self.process = subprocess.Popen(
-            [sys.executable, "-m", "server.cli", "serve", "--port", str(self.port)],
-            cwd=repo_root,
-            env=env,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT,
-            text=True,
-        )
-        self.lines: list[str] = []
-        threading.Thread(target=self._read, daemon=True).start()
-        self.api = f"http://127.0.0.1:{self.port}/api/v1"
-        self.http = httpx.Client(base_url=self.api, headers=HEADERS, timeout=5)
-
-    def _read(self) -> None:
-        assert self.process.stdout is not None
-        for line in self.process.stdout:
-            self.lines.append(line.rstrip("\n"))
-
-    def wait_healthy(self, timeout: float = 60.0) -> None:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            if self.process.poll() is not None:
-                raise AssertionError("serve exited:\n" + "\n".join(self.lines))
-            try:
-                if self.http.get("/health").status_code == 200:
-                    return
-            except httpx.TransportError:
-                pass
-            time.sleep(0.1)
-        raise AssertionError("serve did not answer:\n" + "\n".join(self.lines))
-
-    def get(self, path: str, **params) -> dict:
-        response = self.http.get(path, params=params)
-        assert response.status_code == 200, response.text
-        return response.json()
-
-    def stop(self) -> None:
-        self.http.close()
-        self.process.send_signal(signal.SIGINT)
-        try:
-            self.process.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            self.process.kill()
+# The twin renders its cameras and leaves detecting in their frames to camera nodes.
+TWIN_FOR_NODES = {
+    "INTSPACE_SIMULATION": "true",
+    "INTSPACE_TWIN_DETECTION": "external",
+    "INTSPACE_VISER_ENABLED": "false",
+}
 
 
 def _node(
@@ -232,7 +171,7 @@ def _node(
 ) -> subprocess.Popen:
     """Start `intspace node` with `token`; its stderr to `log` (a long run) or a pipe (read at
     exit)."""
-    env = _clean_env()
+    env = clean_env()
     env["INTSPACE_TOKEN"] = token
     return subprocess.Popen(
         [sys.executable, "-m", "server.cli", "node", *args],
@@ -256,12 +195,19 @@ def _wait(condition, timeout: float, what: str):
 
 def test_node_tracks_the_twin_robot_through_mjpeg_and_goes_offline_when_killed(repo_root, tmp_path):
     started = time.monotonic()
-    service = _Service(repo_root, tmp_path)
+    service = start_service(tmp_path, token=TOKEN, env=TWIN_FOR_NODES, wait=False)
+    http = httpx.Client(base_url=service.api, headers=HEADERS, timeout=5)
+
+    def get(path: str, **params) -> dict:
+        response = http.get(path, params=params)
+        assert response.status_code == 200, response.text
+        return response.json()
+
     node = None
     try:
         service.wait_healthy()
         print(f"service healthy after {time.monotonic() - started:.1f} s")
-        twin = service.get("/twin")
+        twin = get("/twin")
         ids = twin["cameras"]
         names = ["cam_living_sw", "cam_living_ne"]
         config = tmp_path / "node.yaml"
@@ -275,7 +221,7 @@ def test_node_tracks_the_twin_robot_through_mjpeg_and_goes_offline_when_killed(r
         )
         # The node speaks with an ingest token bound to its two cameras (spec 06), which may
         # read their streams and post their detections and heartbeats, and nothing else.
-        created = service.http.post(
+        created = http.post(
             "/tokens",
             json={"name": "node", "scopes": ["ingest"], "camera_ids": [ids[n] for n in names]},
         )
@@ -294,11 +240,11 @@ def test_node_tracks_the_twin_robot_through_mjpeg_and_goes_offline_when_killed(r
 
         # The twin detects nothing itself: every target comes from the node's detections.
         def robot() -> dict | None:
-            items = service.get("/targets", kind="robot")["items"]
+            items = get("/targets", kind="robot")["items"]
             return items[0] if items else None
 
         def health(name: str) -> dict:
-            return service.get(f"/cameras/{ids[name]}")["health"]
+            return get(f"/cameras/{ids[name]}")["health"]
 
         try:
             _wait(robot, 40, "a live robot target from the node's detections")
@@ -318,7 +264,7 @@ def test_node_tracks_the_twin_robot_through_mjpeg_and_goes_offline_when_killed(r
         errors: list[float] = []
         missed: list[float | None] = []
         for _ in range(4):
-            service.http.post("/twin/pause")
+            http.post("/twin/pause")
             paused = time.time()
             # The node's first heartbeat half a second after the pause knows its last frame.
             beats = _wait(
@@ -337,7 +283,7 @@ def test_node_tracks_the_twin_robot_through_mjpeg_and_goes_offline_when_killed(r
                     break
                 time.sleep(0.1)
             if target is not None and target["t"] >= last - 1e-3:
-                pose = service.get("/twin")["robot"]
+                pose = get("/twin")["robot"]
                 errors.append(
                     float(np.hypot(target["xy"][0] - pose["x"], target["xy"][1] - pose["y"]))
                 )
@@ -345,7 +291,7 @@ def test_node_tracks_the_twin_robot_through_mjpeg_and_goes_offline_when_killed(r
                 # Neither camera saw the marker in the last frame (a walker in the way): no
                 # estimate at the pose's time; rest again.
                 missed.append(None if target is None else last - target["t"])
-            service.http.post("/twin/resume")
+            http.post("/twin/resume")
             if len(errors) == 2:
                 break
             time.sleep(1.0)
@@ -391,6 +337,7 @@ def test_node_tracks_the_twin_robot_through_mjpeg_and_goes_offline_when_killed(r
     finally:
         if node is not None and node.poll() is None:
             node.kill()
+        http.close()
         service.stop()
 
 
@@ -406,57 +353,11 @@ def test_node_refuses_to_start_without_a_token(monkeypatch, capsys):
 # -- sources ------------------------------------------------------------------------------------
 
 
-class _FlakyMjpeg:
-    """A local MJPEG server that sends `per_connection` stamped frames (20 ms apart) per
-    connection, then drops it; it refuses connections while `down` is set."""
-
-    def __init__(self, per_connection: int = 5) -> None:
-        import http.server
-
-        ok, jpg = cv2.imencode(".jpg", np.full((24, 32, 3), 90, np.uint8))
-        assert ok
-        body = jpg.tobytes()
-        owner = self
-        self.connections = 0
-        self.down = threading.Event()
-
-        class Handler(http.server.BaseHTTPRequestHandler):
-            def log_message(self, *args) -> None:  # quiet
-                pass
-
-            def do_GET(self) -> None:
-                if owner.down.is_set():
-                    self.send_error(503)
-                    return
-                owner.connections += 1
-                self.send_response(200)
-                self.send_header("Content-Type", "multipart/x-mixed-replace; boundary=b")
-                self.end_headers()
-                for _ in range(per_connection):
-                    head = (
-                        f"--b\r\nContent-Type: image/jpeg\r\nContent-Length: {len(body)}\r\n"
-                        f"X-Timestamp: {time.time():.6f}\r\n\r\n"
-                    )
-                    try:
-                        self.wfile.write(head.encode() + body + b"\r\n")
-                        self.wfile.flush()
-                    except (BrokenPipeError, ConnectionResetError):
-                        return  # the reader left
-                    time.sleep(0.02)
-
-        self.server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Handler)
-        self.url = f"http://127.0.0.1:{self.server.server_address[1]}/stream.mjpg"
-        threading.Thread(target=self.server.serve_forever, daemon=True).start()
-
-    def close(self) -> None:
-        self.server.shutdown()
-        self.server.server_close()
-
-
 def test_mjpeg_source_reconnects_with_backoff_and_reads_again_when_the_camera_returns():
     from server.node.sources import MjpegHttpSource
 
-    camera = _FlakyMjpeg()
+    # Five frames 20 ms apart per connection, then the stream ends.
+    camera = MjpegStream([flat_jpeg()], fps=50.0, per_connection=5)
     source = MjpegHttpSource("flaky", camera.url)
     try:
         source.start()

@@ -9,6 +9,7 @@ leaves its own last will: `offline`, nobody serving any more."""
 from __future__ import annotations
 
 import os
+import signal
 import time
 
 import pytest
@@ -18,10 +19,11 @@ from sqlalchemy import create_engine, text
 from server.app import create_app
 from server.services.comms.home import AVAILABLE_KEY
 from server.services.ownership import APPLICATION_NAME, NAMESPACE
-from tests.server.mqtt_broker import broker, subscribe  # noqa: F401
-from tests.server.test_multiprocess import Serve
+from tests.support.mqtt_broker import broker, subscribe  # noqa: F401
+from tests.support.service import WITHOUT_TWIN, Service, start_service
 
 TOPIC = "intspace/available"
+TOKEN = "home-processes-admin-token"
 
 
 def _available_owner(database_url: str) -> int | None:
@@ -71,20 +73,21 @@ def test_availability_follows_the_processes(
         return [t for t, tp, p, _ in rec.on(lambda tp: tp == TOPIC) if p == payload and t >= since]
 
     # This process's service starts first and takes the topic; the other starts meanwhile.
-    serve: Serve | None = None
+    serve: Service | None = None
     try:
         with TestClient(create_app(make_settings(mqtt_url=broker.url))):
             _wait(lambda: _available_owner(database_url) == os.getpid(), 5, "this process")
             assert rec.wait(lambda: rec.latest(TOPIC) == b"online", 5)
             start = time.monotonic()
-            serve = Serve(database_url, tmp_path, tmp_path / "serve.log")
-            serve.wait_ready()
+            # The twin and the 3D scene run in one designated process; the other runs neither.
+            env = {"INTSPACE_DATABASE_URL": database_url, "INTSPACE_MQTT_URL": broker.url}
+            serve = start_service(tmp_path, token=TOKEN, env={**env, **WITHOUT_TWIN})
             print(f"the other process ready in {time.monotonic() - start:.1f} s")
             assert _available_owner(database_url) == os.getpid()
             stopped = time.time()
         # A clean stop of the owner: the other takes the topic over, nobody says offline.
         print(f"the owner stopped in {time.time() - stopped:.1f} s")
-        other = serve.proc.pid
+        other = serve.process.pid
         _wait(lambda: _available_owner(database_url) == other, 5, "the other process")
         time.sleep(1.0)  # the new owner's reconnection with its last will has landed
         assert said(b"offline", stopped) == [], rec.on(lambda tp: tp == TOPIC)
@@ -99,7 +102,7 @@ def test_availability_follows_the_processes(
 
         # The owner killed, nobody left: its own last will (set when it took over) says offline.
         killed = time.time()
-        serve.kill()
+        assert serve.kill() == -signal.SIGKILL
         assert rec.wait(lambda: bool(said(b"offline", killed)), 5), "no last will"
         assert rec.latest(TOPIC) == b"offline"
     finally:
