@@ -33,8 +33,6 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import argparse  # noqa: E402
 import re  # noqa: E402
-import signal  # noqa: E402
-import socket  # noqa: E402
 import subprocess  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
@@ -48,6 +46,8 @@ import httpx  # noqa: E402
 import numpy as np  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
 from scipy.optimize import linear_sum_assignment, minimize_scalar  # noqa: E402
+
+from tests.support.service import WITHOUT_TWIN, clean_env, running_service  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 VIDEO_ENV = "INTSPACE_PETS_VIDEO"
@@ -301,16 +301,6 @@ def measure_detectors(frames: list[NDArray[np.uint8]], truth: Truth) -> list[Det
 # Part 2: the node and the service
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def _env() -> dict[str, str]:
-    return {k: v for k, v in os.environ.items() if not k.startswith("INTSPACE_")}
-
-
 @dataclass(frozen=True)
 class TrackingRun:
     """What the service tracked from the node's detections: each person target's points
@@ -352,82 +342,64 @@ def track_through_service(
     beforehand), post every frame's boxes one frame each 1/7 s instead, as the node posts
     them: the node's figures on a machine that would keep up with every frame."""
     admin = "pets-bench-admin-token"
-    port = _free_port()
-    env = _env()
-    env.update(
-        INTSPACE_DATA_DIR=str(workdir / "data"),
-        INTSPACE_SIMULATION="false",
-        INTSPACE_VISER_ENABLED="false",
-        INTSPACE_ADMIN_TOKEN=admin,
-    )
-    serve_log = (workdir / "serve.log").open("w")
-    serve = subprocess.Popen(
-        [sys.executable, "-m", "server.cli", "serve", "--port", str(port)],
-        cwd=REPO,
-        env=env,
-        stdout=serve_log,
-        stderr=subprocess.STDOUT,
-    )
-    api = f"http://127.0.0.1:{port}/api/v1"
-    http = httpx.Client(base_url=api, headers={"Authorization": f"Bearer {admin}"}, timeout=10)
-    try:
-        deadline = time.monotonic() + 90
-        while True:
-            if serve.poll() is not None:
-                raise RuntimeError("intspace serve exited: " + (workdir / "serve.log").read_text())
-            try:
-                if http.get("/health").status_code == 200:
-                    break
-            except httpx.TransportError:
-                pass
-            if time.monotonic() > deadline:
-                raise RuntimeError("intspace serve did not answer within 90 s")
-            time.sleep(0.2)
-        space = http.post("/spaces", json={"name": "PETS 2009 campus"})
-        assert space.status_code == 201, space.text
-        camera = http.post(
-            "/cameras",
-            json={
-                "name": CAMERA,
-                "space_id": space.json()["id"],
-                "width": SIZE[0],
-                "height": SIZE[1],
-                "K": placement.K.tolist(),
-                "dist": [0.0] * 5,
-                "T_world_camera": placement.T_world_camera.tolist(),
-            },
-        )
-        assert camera.status_code == 201, camera.text
-        camera_id = camera.json()["id"]
-        token = http.post(
-            "/tokens", json={"name": "pets node", "scopes": ["ingest"], "camera_ids": [camera_id]}
-        )
-        assert token.status_code == 201, token.text
-        ingest = token.json()["token"]
-        if posted is None:
-            t0, text = _play_node(video, api, ingest, workdir, node_args)
-        else:
-            t0, text = _post_frames(posted, api, ingest, camera_id)
-        # The tracker releases the posted frames after its reorder window (1 s) and writes
-        # tracks twice a second: wait that long, then until the stored tracks stop growing.
-        time.sleep(2.0)
-        points = _stored_tracks(http)
-        for _ in range(20):
-            time.sleep(0.5)
-            again = _stored_tracks(http)
-            if sum(len(p) for p in again.values()) == sum(len(p) for p in points.values()):
-                break
-            points = again
-        robots = http.get("/targets", params={"state": "all", "kind": "robot"}).json()["total"]
-        return TrackingRun(points=points, robot_targets=int(robots), t0=t0, node_log=text)
-    finally:
-        http.close()
-        serve.send_signal(signal.SIGINT)
+    with running_service(
+        workdir / "data", token=admin, env=WITHOUT_TWIN, log_path=workdir / "serve.log"
+    ) as service:
+        http = httpx.Client(base_url=service.api, headers=service.headers, timeout=10)
         try:
-            serve.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            serve.kill()
-        serve_log.close()
+            return _track(http, service.api, video, placement, workdir, posted, node_args)
+        finally:
+            http.close()
+
+
+def _track(
+    http: httpx.Client,
+    api: str,
+    video: Path,
+    placement: Placement,
+    workdir: Path,
+    posted: list[Any] | None,
+    node_args: tuple[str, ...],
+) -> TrackingRun:
+    """Register and place the camera in the running service, play or post the clip, and
+    return the service's tracks (track_through_service)."""
+    space = http.post("/spaces", json={"name": "PETS 2009 campus"})
+    assert space.status_code == 201, space.text
+    camera = http.post(
+        "/cameras",
+        json={
+            "name": CAMERA,
+            "space_id": space.json()["id"],
+            "width": SIZE[0],
+            "height": SIZE[1],
+            "K": placement.K.tolist(),
+            "dist": [0.0] * 5,
+            "T_world_camera": placement.T_world_camera.tolist(),
+        },
+    )
+    assert camera.status_code == 201, camera.text
+    camera_id = camera.json()["id"]
+    token = http.post(
+        "/tokens", json={"name": "pets node", "scopes": ["ingest"], "camera_ids": [camera_id]}
+    )
+    assert token.status_code == 201, token.text
+    ingest = token.json()["token"]
+    if posted is None:
+        t0, text = _play_node(video, api, ingest, workdir, node_args)
+    else:
+        t0, text = _post_frames(posted, api, ingest, camera_id)
+    # The tracker releases the posted frames after its reorder window (1 s) and writes
+    # tracks twice a second: wait that long, then until the stored tracks stop growing.
+    time.sleep(2.0)
+    points = _stored_tracks(http)
+    for _ in range(20):
+        time.sleep(0.5)
+        again = _stored_tracks(http)
+        if sum(len(p) for p in again.values()) == sum(len(p) for p in points.values()):
+            break
+        points = again
+    robots = http.get("/targets", params={"state": "all", "kind": "robot"}).json()["total"]
+    return TrackingRun(points=points, robot_targets=int(robots), t0=t0, node_log=text)
 
 
 def _play_node(
@@ -435,7 +407,7 @@ def _play_node(
 ) -> tuple[float, str]:
     """Run `intspace node` on `video` (with `node_args`) to its end; return the capture time
     of the file's frame 0 (what the node said) and the node's log."""
-    node_env = _env()
+    node_env = clean_env()
     node_env["INTSPACE_TOKEN"] = token
     node_log = workdir / "node.log"
     with node_log.open("w") as log:
