@@ -570,7 +570,7 @@ class _Lines:
         return _Lines(*(getattr(self, f)[rows] for f in self.__dataclass_fields__))
 
 
-def _fit_lines(p: Array, label: Array, count: int) -> tuple[_Lines, Array]:
+def _fit_lines(p: Array, label: NDArray[np.intp], count: int) -> tuple[_Lines, Array]:
     """Return the total least-squares lines of the points p (N, 2) of each label 0..count-1,
     each with one 3-sigma outlier pass, and whether each had the 4 points it needs (count,)."""
     ok = np.ones(count, bool)
@@ -655,7 +655,7 @@ class _FrameEdges:
     the outline's, 4-7 the hole's (when its edge was found)."""
 
     points: Array
-    labels: Array
+    labels: NDArray[np.intp]
     count: int
 
 
