@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import functools
 import math
+import threading
 from dataclasses import dataclass, field
 from itertools import pairwise
 from typing import Any
@@ -197,11 +198,12 @@ def detect_landmarks(
         if np.linalg.norm(upv) < 1e-9:
             raise InvalidInput("up must be a non-zero direction")
         upv = upv / np.linalg.norm(upv)
-    # The full-frame passes write into planes numpy allocates, each reused once it is no longer
-    # needed: memory OpenCV allocates for its outputs is fresh at every call (after other
-    # allocations, as a camera's frames see them), and its page faults cost more than the
-    # passes themselves (about a thousand faults and a millisecond per 1280 x 720 frame).
-    b, g, r, bg, grey = np.empty((5, *img.shape[:2]), np.uint8)
+    # The full-frame passes write into this thread's planes, each reused once it is no longer
+    # needed: fresh memory for them at every call (OpenCV's outputs, or numpy's after other
+    # allocations, as a camera's frames see them) is faulted in and zeroed by the system, which
+    # costs more than the passes themselves (about a thousand faults and a millisecond per
+    # 1280 x 720 frame).
+    b, g, r, bg, grey = _scratch_planes(img.shape[:2])
     cv2.split(img, [b, g, r])
     cv2.max(b, g, dst=bg)
     cv2.max(bg, r, dst=grey)
@@ -275,6 +277,19 @@ def detect_landmarks(
         if det is not None:
             out.append(det)
     return out
+
+
+_SCRATCH = threading.local()
+
+
+def _scratch_planes(shape: tuple[int, ...]) -> NDArray[np.uint8]:
+    """Return this thread's five uint8 planes of `shape` (kept from one call to the next: a
+    camera's frames all have the same size; a new size replaces them)."""
+    planes: NDArray[np.uint8] | None = getattr(_SCRATCH, "planes", None)
+    if planes is None or planes.shape[1:] != shape:
+        planes = np.empty((5, *shape), np.uint8)
+        _SCRATCH.planes = planes
+    return planes
 
 
 @dataclass(frozen=True)
