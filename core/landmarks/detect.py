@@ -1095,12 +1095,18 @@ _OUTLINE_ANGLES = np.linspace(0, 2 * np.pi, 36, endpoint=False)
 
 def _conic_points(C: Array, angles: Array) -> Array:
     """Return points (N, 2) of the ellipse C at parametric angles."""
-    A = C[:2, :2]
-    c = np.linalg.solve(A, -C[:2, 2])
-    k = -float(np.array([*c, 1.0]) @ C @ np.array([*c, 1.0]))
-    w, V = np.linalg.eigh(A / k)
+    # The centre by Cramer's rule, its value in plain floats (numpy's solve and products cost
+    # tens of calls on a 2 x 2 system).
+    (a, b, d), (_, e, f), (_, _, g) = C.tolist()
+    det = a * e - b * b
+    cx, cy = (b * f - e * d) / det, (b * d - a * f) / det
+    k = -(cx * (a * cx + b * cy + d) + cy * (b * cx + e * cy + f) + (d * cx + f * cy + g))
+    w, V = np.linalg.eigh(C[:2, :2] / k)
     ax = 1.0 / np.sqrt(w)
-    return c + (np.stack([np.cos(angles) * ax[0], np.sin(angles) * ax[1]], 1) @ V.T)
+    unit = np.empty((len(angles), 2))
+    np.multiply(np.cos(angles), ax[0], out=unit[:, 0])
+    np.multiply(np.sin(angles), ax[1], out=unit[:, 1])
+    return unit @ V.T + [cx, cy]
 
 
 def _ring_pose(
@@ -1403,8 +1409,8 @@ def _rvec_cov(R: Array, cov_theta: Array) -> Array:
 
 
 def _rz(psi: float) -> Array:
-    c, s = np.cos(psi), np.sin(psi)
-    return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+    c, s = math.cos(psi), math.sin(psi)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
 # --------------------------------------------------------------------------------------------
@@ -1485,7 +1491,7 @@ def _read_symbol(
     # where any change of the patch turns some views from read to unread and back.)
     module = qpx / _NOMINAL_MODULES
     scale = 2.5 if module < 2.0 else max(1.0, min(2.5, patch_module_px / module))
-    px = int(np.clip(scale * qpx * 2 * half / qr_side, _PATCH_MIN, _PATCH_MAX))
+    px = int(min(max(scale * qpx * 2 * half / qr_side, _PATCH_MIN), _PATCH_MAX))
     grey = _rectify(ctx, R, t, half, px, grey=True)
     # OpenCV's detector is the fallback where zxing-cpp fails; it is slow (tens of ms) and
     # reads nothing zxing-cpp cannot below 1.5 px modules, so it is not tried there.
@@ -1493,9 +1499,9 @@ def _read_symbol(
     if text is None or pts is None:
         return None
     # Patch pixels -> mark plane metres.
-    X = -half + (pts[:, 0] + 0.5) * 2 * half / px
-    Y = half - (pts[:, 1] + 0.5) * 2 * half / px
-    P = np.column_stack([X, Y])
+    P = (pts + 0.5) * 2 * half / px
+    P[:, 0] = -half + P[:, 0]
+    P[:, 1] = half - P[:, 1]
     fit = _square_fit(P)
     if fit is None:
         return None
@@ -1656,7 +1662,7 @@ def _finish(
     )
     known = False
     if read is not None and read.psi is not None:
-        k = int(np.round(read.psi / (np.pi / 2)))
+        k = round(read.psi / (math.pi / 2))  # (half to even, as np.round)
         R = R @ _rz(k * np.pi / 2)
         known = True
     elif ctx.decode:
