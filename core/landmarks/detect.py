@@ -553,7 +553,12 @@ def _iso_points(score: Image, roi: tuple[int, int, int, int], inside: Image) -> 
 
 
 def _hull_area(p: Array) -> float:
-    return float(cv2.contourArea(cv2.convexHull(p.astype(np.float32))))
+    """Return the area (pixels^2) of the convex hull of points p (N, 2), from the points on a
+    1/256-pixel lattice (OpenCV's integer hull takes two thirds of its floating-point one's
+    time; the area moves by at most 3.5e-5 of itself on the 204 ring edges of 26 rendered
+    frames, where it only sizes the curve against the rings' radii, at 4.5 % tolerance)."""
+    q = np.rint(p * 256.0).astype(np.int32)
+    return float(cv2.contourArea(cv2.convexHull(q))) / 65536.0
 
 
 def _quad(contour: Image) -> Array | None:
