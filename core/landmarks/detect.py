@@ -557,7 +557,7 @@ def _hull(p: Array) -> Image:
     1/256-pixel lattice (OpenCV's integer hull takes two thirds of its floating-point one's
     time), then taken from p."""
     idx = cv2.convexHull(np.rint(p * 256.0).astype(np.int32), returnPoints=False)
-    return p.take(idx[:, 0], 0).astype(np.float32)[:, None]
+    return p.take(idx[:, 0].astype(np.intp), 0).astype(np.float32)[:, None]
 
 
 def _hull_area(p: Array) -> float:
