@@ -878,7 +878,8 @@ def _project_plane(
     """Return the ideal pixels (F, N, 2) of plane points obj (N, 2) under F poses (R (F, 3, 3),
     t (F, 3)), their depths (F, N) and, with `jacobian`, d pixels / d (left rotation
     perturbation, t) (F, N, 2, 6) (R <- exp([d theta]x) R: d Xc / d theta = -[R X]x)."""
-    RX = np.einsum("nk,fjk->fnj", obj, R[:, :, :2])
+    # (R X, as two products and a sum: einsum's parsing costs more than the arithmetic)
+    RX = R[:, None, :, 0] * obj[:, :1] + R[:, None, :, 1] * obj[:, 1:]
     Pc = RX + t[:, None, :]
     z = Pc[..., 2]
     xn = Pc[..., :2] / z[..., None]
