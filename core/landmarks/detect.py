@@ -33,7 +33,7 @@ import functools
 import math
 import threading
 from dataclasses import dataclass, field
-from itertools import pairwise
+from itertools import accumulate, pairwise
 from typing import Any
 
 import cv2
@@ -247,8 +247,8 @@ def detect_landmarks(
         if p is None:
             continue
         ks = rc.first_choices()
-        cuts = np.cumsum([len(rc.distorted[k]) for k in ks])[:-1]
-        rc.ideal.update(zip(ks, np.split(p, cuts), strict=True))
+        ends = list(accumulate(len(rc.distorted[k]) for k in ks))
+        rc.ideal.update((k, p[e - len(rc.distorted[k]) : e]) for k, e in zip(ks, ends, strict=True))
         usable.append(rc)
     rings = usable
     # The outer and innermost edges' ellipses of all signposts in one batch (the ones the pose
@@ -415,7 +415,8 @@ def _undistort_each(ctx: _Context, points: list[Array]) -> list[Array | None]:
         return []
     try:
         ideal = ctx.undistort(np.concatenate(points))
-        return list(np.split(ideal, np.cumsum([len(p) for p in points])[:-1]))
+        ends = list(accumulate(len(p) for p in points))
+        return [ideal[e - len(p) : e] for p, e in zip(points, ends, strict=True)]
     except ConvergenceError:
         out: list[Array | None] = []
         for p in points:
