@@ -553,14 +553,6 @@ def _iso_points(score: Image, roi: tuple[int, int, int, int], inside: Image) -> 
     return [xy[a:b] for a, b in pairwise(cuts) if b - a >= 8]
 
 
-def _hull(p: Array) -> Image:
-    """Return the convex hull (M, 1, 2) float32 of points p (N, 2): its vertices chosen on a
-    1/256-pixel lattice (OpenCV's integer hull takes two thirds of its floating-point one's
-    time), then taken from p."""
-    idx = cv2.convexHull(np.rint(p * 256.0).astype(np.int32), returnPoints=False)
-    return p.take(idx[:, 0].astype(np.intp), 0).astype(np.float32)[:, None]
-
-
 def _hull_area(p: Array) -> float:
     """Return the area (pixels^2) of the convex hull of points p (N, 2), from the points on a
     1/256-pixel lattice (OpenCV's integer hull takes two thirds of its floating-point one's
@@ -705,7 +697,7 @@ def _frame_edges(score: Image, outer: Image, hole: Image) -> _FrameCurves | None
     closed = _iso_points(score, roi, mask)
     if not closed:
         return None
-    hulls = [_hull(c) for c in closed]
+    hulls = [cv2.convexHull(c.astype(np.float32)) for c in closed]
     areas = np.array([cv2.contourArea(h) for h in hulls])
     order = np.argsort(-areas)
     chosen = [int(order[0])]
