@@ -330,10 +330,12 @@ def circle_normals(Q: ArrayLike) -> tuple[Array, Array]:
     return out[0], out[1]
 
 
-def circle_distance(Q: ArrayLike, n: ArrayLike, m: ArrayLike, radius: float) -> Array | float:
-    """Return the depth factor t (..., the circle's centre is t m) of a circle of `radius` with
-    plane normal n (..., 3) whose centre's ray is m (..., 3, with m[2] = 1), from its cone Q
-    (..., 3, 3); a float for single inputs.
+def circle_distance(
+    Q: ArrayLike, n: ArrayLike, m: ArrayLike, radius: float | Array
+) -> Array | float:
+    """Return the depth factor t (..., the circle's centre is t m) of a circle of `radius` (one,
+    or one per conic (...)) with plane normal n (..., 3) whose centre's ray is m (..., 3, with
+    m[2] = 1), from its cone Q (..., 3, 3); a float for single inputs.
 
     With u, v an orthonormal basis of the plane and H = [u v t m] mapping the plane's (x, y, 1)
     to rays, H^T Q H is proportional to diag(1, 1, -radius^2), so

@@ -31,8 +31,9 @@ from __future__ import annotations
 
 import functools
 import math
+import threading
 from dataclasses import dataclass, field
-from itertools import pairwise
+from itertools import accumulate, pairwise
 from typing import Any
 
 import cv2
@@ -197,17 +198,25 @@ def detect_landmarks(
         if np.linalg.norm(upv) < 1e-9:
             raise InvalidInput("up must be a non-zero direction")
         upv = upv / np.linalg.norm(upv)
-    # (into planes numpy allocates: cv2.split allocating its own is 2.5 times as slow)
-    b, g, r = cv2.split(img, list(np.empty((3, *img.shape[:2]), np.uint8)))
-    bg = cv2.max(b, g)
-    ctx = _Context(img, cv2.max(bg, r), Km, d, upv, decode)
-    blue = cv2.subtract(b, cv2.max(g, r))
-    red = cv2.subtract(r, bg)
+    # The full-frame passes write into this thread's planes, each reused once it is no longer
+    # needed: fresh memory for them at every call (OpenCV's outputs, or numpy's after other
+    # allocations, as a camera's frames see them) is faulted in and zeroed by the system, which
+    # costs more than the passes themselves (about a thousand faults and a millisecond per
+    # 1280 x 720 frame).
+    b, g, r, bg, grey = _scratch_planes(img.shape[:2])
+    cv2.split(img, [b, g, r])
+    cv2.max(b, g, dst=bg)
+    cv2.max(bg, r, dst=grey)
+    ctx = _Context(img, grey, Km, d, upv, decode)
+    blue = cv2.subtract(b, cv2.max(g, r, dst=g), dst=b)
+    red = cv2.subtract(r, bg, dst=r)
+    mask = bg  # (free from here: the thresholded scores' scratch plane)
     # A candidate whose geometry fails (degenerate fit, distortion not invertible there) is not
     # a landmark this detector can locate; it is left out, never returned half-made.
     skip = (DegenerateConfiguration, ConvergenceError, np.linalg.LinAlgError)
     frame_curves: list[_FrameCurves] = []
-    for outer, hole in _holed_components(blue):
+    # (the frames' polygons only; the rings' ellipse test fits every boundary pixel)
+    for outer, hole in _holed_components(blue, mask, every_pixel=False):
         try:
             fc = _frame_edges(blue, outer, hole)
         except skip:
@@ -216,7 +225,7 @@ def detect_landmarks(
             frame_curves.append(fc)
     frame_edges = [e for e in _frame_sides(frame_curves) if e is not None]
     rings: list[_RingCurves] = []
-    for outer, _hole in _holed_components(red):
+    for outer, _hole in _holed_components(red, mask):
         try:
             edges = _ring_edges(red, outer)
         except skip:
@@ -238,8 +247,8 @@ def detect_landmarks(
         if p is None:
             continue
         ks = rc.first_choices()
-        cuts = np.cumsum([len(rc.distorted[k]) for k in ks])[:-1]
-        rc.ideal.update(zip(ks, np.split(p, cuts), strict=True))
+        ends = list(accumulate(len(rc.distorted[k]) for k in ks))
+        rc.ideal.update((k, p[e - len(rc.distorted[k]) : e]) for k, e in zip(ks, ends, strict=True))
         usable.append(rc)
     rings = usable
     # The outer and innermost edges' ellipses of all signposts in one batch (the ones the pose
@@ -251,14 +260,37 @@ def detect_landmarks(
         batch = []  # (LAPACK failed on one of them: each ring fits its own below)
     for (i, k), fit in zip(wanted, batch, strict=False):
         rings[i].fits[k] = fit if isinstance(fit, ConicFit) else None
+    ring_fits: list[_RingFit] = []
     for rc in rings:
         try:
-            det = _rings(ctx, rc, ring_size)
+            rf = _ring_fit(ctx, rc, ring_size)
+        except skip:
+            rf = None
+        if rf is not None:
+            ring_fits.append(rf)
+    for rf, cands in zip(ring_fits, _ring_candidates(ring_fits, ctx.K), strict=True):
+        if cands is None:
+            continue
+        try:
+            det = _rings(ctx, rf, cands, ring_size)
         except skip:
             det = None
         if det is not None:
             out.append(det)
     return out
+
+
+_SCRATCH = threading.local()
+
+
+def _scratch_planes(shape: tuple[int, ...]) -> NDArray[np.uint8]:
+    """Return this thread's five uint8 planes of `shape` (kept from one call to the next: a
+    camera's frames all have the same size; a new size replaces them)."""
+    planes: NDArray[np.uint8] | None = getattr(_SCRATCH, "planes", None)
+    if planes is None or planes.shape[1:] != shape:
+        planes = np.empty((5, *shape), np.uint8)
+        _SCRATCH.planes = planes
+    return planes
 
 
 @dataclass(frozen=True)
@@ -270,8 +302,13 @@ class _Context:
     up: Array | None
     decode: bool
 
+    @functools.cached_property
+    def distorted(self) -> bool:
+        """Whether the lens model has any non-zero coefficient."""
+        return bool(np.any(self.dist))
+
     def undistort(self, px: Array) -> Array:
-        if not np.any(self.dist):
+        if not self.distorted:
             return px
         h, w = self.image.shape[:2]
         grid = _ideal_grid(self.K.tobytes(), self.dist.tobytes(), w, h)
@@ -280,18 +317,27 @@ class _Context:
         return _undistort_from_grid(px, self.K, self.dist, grid)
 
     def distort(self, ideal: Array) -> Array:
-        if not np.any(self.dist):
+        if not self.distorted:
             return ideal
-        n = np.linalg.solve(self.K, np.column_stack([ideal, np.ones(len(ideal))]).T).T
-        return self.project(n.astype(np.float64))
+        # K^-1 of the ideal pixels (K upper triangular, K[2] = (0, 0, 1)).
+        (fx, s, cx), (_, fy, cy), _ = self.K.tolist()
+        y = (ideal[:, 1] - cy) / fy
+        return self._pixels(*distortion_model((ideal[:, 0] - cx - s * y) / fx, y, self.dist)[:2])
 
     def project(self, P: Array) -> Array:
         """Return the distorted pixels (N, 2) of camera-frame points P (N, 3) in front of it."""
         x, y = P[:, 0] / P[:, 2], P[:, 1] / P[:, 2]
-        if np.any(self.dist):
+        if self.distorted:
             x, y, _, _ = distortion_model(x, y, self.dist)
-        K = self.K
-        return np.stack([K[0, 0] * x + K[0, 1] * y + K[0, 2], K[1, 1] * y + K[1, 2]], -1)
+        return self._pixels(x, y)
+
+    def _pixels(self, x: Array, y: Array) -> Array:
+        """Return the pixels (N, 2) of normalised (distorted) coordinates x, y (N,)."""
+        (fx, s, cx), (_, fy, cy), _ = self.K.tolist()
+        out = np.empty((len(x), 2))
+        np.add(fx * x + s * y, cx, out=out[:, 0])
+        np.add(fy * y, cy, out=out[:, 1])
+        return out
 
 
 # The undistortion of the edge points starts from the ideal coordinates of a grid of pixels
@@ -369,7 +415,8 @@ def _undistort_each(ctx: _Context, points: list[Array]) -> list[Array | None]:
         return []
     try:
         ideal = ctx.undistort(np.concatenate(points))
-        return list(np.split(ideal, np.cumsum([len(p) for p in points])[:-1]))
+        ends = list(accumulate(len(p) for p in points))
+        return [ideal[e - len(p) : e] for p, e in zip(points, ends, strict=True)]
     except ConvergenceError:
         out: list[Array | None] = []
         for p in points:
@@ -380,10 +427,16 @@ def _undistort_each(ctx: _Context, points: list[Array]) -> list[Array | None]:
         return out
 
 
-def _holed_components(score: Image) -> list[tuple[Image, Image]]:
-    """Return (outer contour, largest hole contour) of every thresholded component with a hole."""
-    _, mask = cv2.threshold(score, SCORE_THRESHOLD, 1, cv2.THRESH_BINARY)  # score > threshold
-    contours, hier = cv2.findContours(mask, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_NONE)
+def _holed_components(
+    score: Image, scratch: Image, every_pixel: bool = True
+) -> list[tuple[Image, Image]]:
+    """Return (outer contour, largest hole contour) of every thresholded component with a hole
+    (scratch: a plane of score's shape and type, overwritten). The contours list every boundary
+    pixel, or with every_pixel False only the ends of their straight runs (the same polygons:
+    the same areas, fills, hulls and quadrilaterals, from a fifth of the points)."""
+    _, mask = cv2.threshold(score, SCORE_THRESHOLD, 1, cv2.THRESH_BINARY, dst=scratch)
+    chain = cv2.CHAIN_APPROX_NONE if every_pixel else cv2.CHAIN_APPROX_SIMPLE
+    contours, hier = cv2.findContours(mask, cv2.RETR_CCOMP, chain)
     if hier is None:
         return []
     h = hier[0]
@@ -461,8 +514,9 @@ def _iso_points(score: Image, roi: tuple[int, int, int, int], inside: Image) -> 
     # Each crossing's first pixel (flat index into the ROI; numpy's two-dimensional nonzero is
     # several times slower), between horizontal neighbours then vertical ones; both axes'
     # crossings are then placed and labelled together.
-    h_rows, h_cols = np.divmod(np.flatnonzero(above[:, :-1] != above[:, 1:]), width - 1)
-    k_v = np.flatnonzero(above[:-1, :] != above[1:, :])
+    # (the arrays' own nonzero: np.flatnonzero's wrapper makes three calls more)
+    h_rows, h_cols = np.divmod((above[:, :-1] != above[:, 1:]).ravel().nonzero()[0], width - 1)
+    k_v = (above[:-1, :] != above[1:, :]).ravel().nonzero()[0]
     n_h = len(h_rows)
     if n_h + len(k_v) == 0:
         return []
@@ -495,12 +549,17 @@ def _iso_points(score: Image, roi: tuple[int, int, int, int], inside: Image) -> 
     xy = np.empty((len(key), 2))
     np.add(px[order], x0, out=xy[:, 0])
     np.add(py[order], y0, out=xy[:, 1])
-    cuts = [0, *(np.flatnonzero(key[1:] != key[:-1]) + 1).tolist(), len(key)]
+    cuts = [0, *((key[1:] != key[:-1]).nonzero()[0] + 1).tolist(), len(key)]
     return [xy[a:b] for a, b in pairwise(cuts) if b - a >= 8]
 
 
 def _hull_area(p: Array) -> float:
-    return float(cv2.contourArea(cv2.convexHull(p.astype(np.float32))))
+    """Return the area (pixels^2) of the convex hull of points p (N, 2), from the points on a
+    1/256-pixel lattice (OpenCV's integer hull takes two thirds of its floating-point one's
+    time; the area moves by at most 3.5e-5 of itself on the 204 ring edges of 26 rendered
+    frames, where it only sizes the curve against the rings' radii, at 4.5 % tolerance)."""
+    q = np.rint(p * 256.0).astype(np.int32)
+    return float(cv2.contourArea(cv2.convexHull(q))) / 65536.0
 
 
 def _quad(contour: Image) -> Array | None:
@@ -538,41 +597,46 @@ class _Lines:
         return _Lines(*(getattr(self, f)[rows] for f in self.__dataclass_fields__))
 
 
-def _fit_lines(p: Array, label: Array, count: int) -> tuple[_Lines, Array]:
+def _fit_lines(p: Array, label: NDArray[np.intp], count: int) -> tuple[_Lines, Array]:
     """Return the total least-squares lines of the points p (N, 2) of each label 0..count-1,
     each with one 3-sigma outlier pass, and whether each had the 4 points it needs (count,)."""
     ok = np.ones(count, bool)
+    # Coordinate by coordinate, each line's values gathered by `take`: numpy's fancy indexing of
+    # (count, 2) rows and its sums along a last axis of 2 cost ten times the arithmetic.
+    x, y = p.T.copy()
     stats = None
     for _ in range(2):
         n_pts = np.bincount(label, minlength=count).astype(np.float64)
         ok &= n_pts >= 4
         n_pts = np.maximum(n_pts, 1)
-        c = np.stack([np.bincount(label, p[:, k], count) for k in range(2)], -1) / n_pts[:, None]
-        d = p - c[label]
+        cx = np.bincount(label, x, count) / n_pts
+        cy = np.bincount(label, y, count) / n_pts
+        dx, dy = x - cx.take(label), y - cy.take(label)
         S = np.empty((count, 2, 2))
-        S[:, 0, 0] = np.bincount(label, d[:, 0] * d[:, 0], count)
-        S[:, 0, 1] = S[:, 1, 0] = np.bincount(label, d[:, 0] * d[:, 1], count)
-        S[:, 1, 1] = np.bincount(label, d[:, 1] * d[:, 1], count)
+        S[:, 0, 0] = np.bincount(label, dx * dx, count)
+        S[:, 0, 1] = S[:, 1, 0] = np.bincount(label, dx * dy, count)
+        S[:, 1, 1] = np.bincount(label, dy * dy, count)
         # The normal: the eigenvector of the scatter matrix's smaller eigenvalue.
         _, V = np.linalg.eigh(S)
-        normal, along_dir = V[:, :, 0], V[:, :, 1]
-        r = np.sum(d * normal[label], 1)
+        r = dx * V[:, 0, 0].take(label) + dy * V[:, 1, 0].take(label)
         s = np.sqrt(np.bincount(label, r * r, count) / np.maximum(n_pts - 2, 1))
-        keep = np.abs(r) <= 3 * np.maximum(s, 0.05)[label]
-        stats = (c, normal, along_dir, s)
+        keep = np.abs(r) <= (3 * np.maximum(s, 0.05)).take(label)
+        stats = (cx, cy, V, s)
         if keep.all():
             break
-        p, label = p[keep], label[keep]
+        x, y, label = x[keep], y[keep], label[keep]
     assert stats is not None
-    c, normal, along_dir, s = stats
-    along = np.sum((p - c[label]) * along_dir[label], 1)
+    cx, cy, V, s = stats
+    ax, ay = V[:, 0, 1].take(label), V[:, 1, 1].take(label)
+    along = (x - cx.take(label)) * ax + (y - cy.take(label)) * ay
     spread = np.bincount(label, along * along, count)
     used = np.maximum(np.bincount(label, minlength=count), 1)
     s = np.maximum(s, 0.02)  # marching squares quantises; never claim better than 0.02 px
+    normal = V[:, :, 0]
     lines = _Lines(
         normal,
-        np.sum(normal * c, 1),
-        c,
+        normal[:, 0] * cx + normal[:, 1] * cy,
+        np.stack([cx, cy], -1),
         s * s / np.maximum(spread, 1e-9),
         s * s / used,
         s,
@@ -618,7 +682,7 @@ class _FrameEdges:
     the outline's, 4-7 the hole's (when its edge was found)."""
 
     points: Array
-    labels: Array
+    labels: NDArray[np.intp]
     count: int
 
 
@@ -700,8 +764,15 @@ def _frame_sides(frames: list[_FrameCurves]) -> list[_FrameEdges | None]:
     mw = np.repeat(margin, sizes, 0)
     ok = (s > mw) & (s < np.repeat(L, sizes, 0) - mw) & (dn < 3.0)
     dn[~ok] = np.inf
-    best = np.argmin(dn, 1)
-    on = np.take_along_axis(dn, best[:, None], 1)[:, 0] < np.inf
+    # The nearest side (the first of equals, as argmin), side by side: numpy's reductions along
+    # a last axis of 4 cost ten times the arithmetic.
+    near = dn[:, 0]
+    best = np.zeros(len(dn), np.intp)
+    for k in (1, 2, 3):
+        closer = dn[:, k] < near
+        best[closer] = k
+        near = np.where(closer, dn[:, k], near)
+    on = near < np.inf
     # Labels within each frame: 0-3 the outline's sides, 4-7 the hole's.
     first = np.cumsum([0] + [len(f.curves) for f in frames])
     rank = np.concatenate([np.arange(len(f.curves)) for f in frames])
@@ -800,7 +871,8 @@ def _project_plane(
     """Return the ideal pixels (F, N, 2) of plane points obj (N, 2) under F poses (R (F, 3, 3),
     t (F, 3)), their depths (F, N) and, with `jacobian`, d pixels / d (left rotation
     perturbation, t) (F, N, 2, 6) (R <- exp([d theta]x) R: d Xc / d theta = -[R X]x)."""
-    RX = np.einsum("nk,fjk->fnj", obj, R[:, :, :2])
+    # (R X, as two products and a sum: einsum's parsing costs more than the arithmetic)
+    RX = R[:, None, :, 0] * obj[:, :1] + R[:, None, :, 1] * obj[:, 1:]
     Pc = RX + t[:, None, :]
     z = Pc[..., 2]
     xn = Pc[..., :2] / z[..., None]
@@ -835,22 +907,22 @@ def _plane_poses(
     if not ideal:
         return []
     ok = np.ones(len(ideal), bool)
-    Hs = []
-    src = obj[:4].astype(np.float32)
-    for f, uv in enumerate(ideal):
-        # The start: the outline's four corners' exact homography (the refinement below makes
-        # every corner count); the normalised DLT when there are more and these are degenerate.
-        H = cv2.getPerspectiveTransform(src, uv[:4].astype(np.float32)).astype(np.float64)
-        if not (np.all(np.isfinite(H)) and abs(np.linalg.det(H)) > 1e-12):
-            try:
-                H = dlt_homography(obj, uv)
-            except DegenerateConfiguration:
-                ok[f] = False
-                H = np.eye(3)
-        Hs.append(H)
-    pose = pose_from_homography(np.array(Hs), K, obj)
-    R, t = np.asarray(pose.R, dtype=np.float64), np.asarray(pose.t, dtype=np.float64)
     target = np.array(ideal)
+    # The start: the outline's four corners' exact homography (the refinement below makes every
+    # corner count); the normalised DLT when there are more and these are degenerate.
+    corners = target[:, :4].astype(np.float32)
+    src = obj[:4].astype(np.float32)
+    Hs = np.array([cv2.getPerspectiveTransform(src, uv) for uv in corners], dtype=np.float64)
+    finite = np.isfinite(Hs).all((1, 2))
+    Hs[~finite] = 0.0
+    for f in (~(finite & (np.abs(np.linalg.det(Hs)) > 1e-12))).nonzero()[0].tolist():
+        try:
+            Hs[f] = dlt_homography(obj, ideal[f])
+        except DegenerateConfiguration:
+            ok[f] = False
+            Hs[f] = np.eye(3)
+    pose = pose_from_homography(Hs, K, obj)
+    R, t = np.asarray(pose.R, dtype=np.float64), np.asarray(pose.t, dtype=np.float64)
     for _ in range(iterations):
         uv, _, J = _project_plane(obj, R, t, K, jacobian=True)
         assert J is not None
@@ -982,8 +1054,9 @@ def _ring_curves(edges: _RingEdges) -> _RingCurves:
     return _RingCurves(curves, matched, float(ref))
 
 
-def _rings(ctx: _Context, rc: _RingCurves, size: float) -> LandmarkDetection | None:
-    """Locate and read a signpost from its matched edge curves."""
+def _ring_fit(ctx: _Context, rc: _RingCurves, size: float) -> _RingFit | None:
+    """Return a signpost's ellipses its pose uses, from its matched edge curves (None when they
+    do not fit)."""
     lay = pattern_layout("signpost", size)
     matched, ref = rc.matched, rc.ref
     # The pose needs only the outer edge (normal, distance, centre) and the innermost one that
@@ -1013,32 +1086,43 @@ def _rings(ctx: _Context, rc: _RingCurves, size: float) -> LandmarkDetection | N
             break
     if len(fits) < 2:
         return None
-    rf = _RingFit(tuple(fits), tuple(radii))
-    try:
-        cands = _ring_candidates(rf, ctx.K)
-    except (DegenerateConfiguration, np.linalg.LinAlgError):
-        return None
-    a = np.linspace(0, 2 * np.pi, 36, endpoint=False)
-    C0 = fits[0].C
-    outline = _conic_points(C0, a)
-    outline = ctx.distort(outline)
+    return _RingFit(tuple(fits), tuple(radii))
+
+
+def _rings(
+    ctx: _Context, rf: _RingFit, cands: _Candidates, size: float
+) -> LandmarkDetection | None:
+    """Locate and read a signpost from its ellipses and candidate poses."""
+    outline = ctx.distort(_conic_points(rf.fits[0].C, _OUTLINE_ANGLES))
     return _finish_rings(ctx, rf, cands, outline, size)
+
+
+_OUTLINE_ANGLES = np.linspace(0, 2 * np.pi, 36, endpoint=False)
 
 
 def _conic_points(C: Array, angles: Array) -> Array:
     """Return points (N, 2) of the ellipse C at parametric angles."""
-    A = C[:2, :2]
-    c = np.linalg.solve(A, -C[:2, 2])
-    k = -float(np.array([*c, 1.0]) @ C @ np.array([*c, 1.0]))
-    w, V = np.linalg.eigh(A / k)
+    # The centre by Cramer's rule, its value in plain floats (numpy's solve and products cost
+    # tens of calls on a 2 x 2 system).
+    (a, b, d), (_, e, f), (_, _, g) = C.tolist()
+    det = a * e - b * b
+    cx, cy = (b * f - e * d) / det, (b * d - a * f) / det
+    k = -(cx * (a * cx + b * cy + d) + cy * (b * cx + e * cy + f) + (d * cx + f * cy + g))
+    w, V = np.linalg.eigh(C[:2, :2] / k)
     ax = 1.0 / np.sqrt(w)
-    return c + (np.stack([np.cos(angles) * ax[0], np.sin(angles) * ax[1]], 1) @ V.T)
+    unit = np.empty((len(angles), 2))
+    np.multiply(np.cos(angles), ax[0], out=unit[:, 0])
+    np.multiply(np.sin(angles), ax[1], out=unit[:, 1])
+    return unit @ V.T + [cx, cy]
 
 
-def _ring_pose(Q0: Array, Qn: Array, radius: float) -> tuple[Array, tuple[Array, Array], Array]:
+def _ring_pose(
+    Q0: Array, Qn: Array, radius: float | Array
+) -> tuple[Array, tuple[Array, Array], Array]:
     """Return (centre ray m (..., 3), the two candidate normals (..., 3), their depth factors
-    (..., 2)) from the normalised conics (..., 3, 3) of the outer edge (radius known) and the
-    innermost one: centre from the pencil of the two, normals and depth from the outer one."""
+    (..., 2)) from the normalised conics (..., 3, 3) of the outer edge (its radius known: one,
+    or one per pair (...)) and the innermost one: centre from the pencil of the two, normals
+    and depth from the outer one."""
     m = concentric_centre(Q0, Qn)
     na, nb = circle_normals(Q0)
     # The outer edge alone gives the distance: it has the white page outside and the widest
@@ -1062,15 +1146,49 @@ class _Candidates:
     centre_loglik: Array
 
 
-def _ring_candidates(rf: _RingFit, K: Array) -> _Candidates:
-    Q0 = K.T @ rf.fits[0].C @ K
-    Qn = K.T @ rf.fits[-1].C @ K
-    r0 = rf.radii[0]
+def _ring_candidates(rfs: list[_RingFit], K: Array) -> list[_Candidates | None]:
+    """Return each signpost's candidates (None where its conics are degenerate): the poses of
+    all signposts' nominal and perturbed conic pairs in one batch."""
+    if not rfs:
+        return []
     # The pose, then the first-order propagation of both conics' covariances (sigma points
     # along their principal axes), ignoring the rotation about the normal (added later from
-    # the symbol): the nominal pair first, then each perturbed one, in one batch.
+    # the symbol): per signpost the nominal pair first, then each perturbed one.
+    w, U = np.linalg.eigh(np.array([f.cov for rf in rfs for f in (rf.fits[0], rf.fits[-1])]))
+    batches = [
+        _sigma_pairs(rf, K, w[2 * i : 2 * i + 2], U[2 * i : 2 * i + 2]) for i, rf in enumerate(rfs)
+    ]
+    sizes = [len(b[0]) for b in batches]
+    radii = np.repeat([rf.radii[0] for rf in rfs], sizes)
+    skip = (DegenerateConfiguration, np.linalg.LinAlgError)
+    try:
+        ms, (pa, pb), dps = _ring_pose(
+            np.concatenate([b[0] for b in batches]), np.concatenate([b[1] for b in batches]), radii
+        )
+    except skip:
+        # One signpost's conics are degenerate: each on its own.
+        out: list[_Candidates | None] = []
+        for rf, b in zip(rfs, batches, strict=True):
+            try:
+                out.append(_candidates(rf, K, *b, None))
+            except skip:
+                out.append(None)
+        return out
+    ends = np.cumsum(sizes).tolist()
+    return [
+        _candidates(rf, K, *b, [a[i - len(b[0]) : i] for a in (ms, pa, pb, dps)])
+        for rf, b, i in zip(rfs, batches, ends, strict=True)
+    ]
+
+
+def _sigma_pairs(rf: _RingFit, K: Array, w: Array, U: Array) -> tuple[Array, Array, Array]:
+    """Return a signpost's normalised conic pairs (outer, innermost) (S, 3, 3) each, the
+    nominal pair first, then each sigma point of either conic's covariance (eigenvalues w (2,
+    6), eigenvectors U (2, 6, 6)) with the other nominal, and the points of the fit each one
+    perturbs (S,) (0 for the nominal)."""
     pair = (rf.fits[0], rf.fits[-1])
-    w, U = np.linalg.eigh(np.array([f.cov for f in pair]))
+    Q0 = K.T @ pair[0].C @ K
+    Qn = K.T @ pair[1].C @ K
     sigma: list[Array] = []
     for k, f in enumerate(pair):
         # The conic's scale direction has no variance (numerically ~0): skipped.
@@ -1080,24 +1198,42 @@ def _ring_candidates(rf: _RingFit, K: Array) -> _Candidates:
     n0, n1 = len(sigma[0]), len(sigma[1])
     Q0s = np.concatenate([Q0[None], sigma[0], np.broadcast_to(Q0, (n1, 3, 3))])
     Qns = np.concatenate([Qn[None], np.broadcast_to(Qn, (n0, 3, 3)), sigma[1]])
-    # the points of the fit each sigma point perturbs
     n_pts = np.repeat([0.0, float(pair[0].n), float(pair[1].n)], [1, n0, n1])
+    return Q0s, Qns, n_pts
+
+
+def _candidates(
+    rf: _RingFit,
+    K: Array,
+    Q0s: Array,
+    Qns: Array,
+    n_pts: Array,
+    poses: list[Array] | None,
+) -> _Candidates:
+    """Return a signpost's two candidate poses, their covariances and their centre evidence
+    from its conic pairs (_sigma_pairs) and their poses (ms, pa, pb, dps of _ring_pose; None:
+    computed here)."""
+    r0 = rf.radii[0]
     skip = (DegenerateConfiguration, np.linalg.LinAlgError)
-    try:
-        ms, (pa, pb), dps = _ring_pose(Q0s, Qns, r0)
-    except skip:
-        # The nominal pair or one sigma point is degenerate (a conic near the limit): the
-        # nominal alone (raising if it is the one), then the other sigma points one at a time.
-        _ring_pose(Q0, Qn, r0)
-        good = [0]
-        for i in range(1, len(Q0s)):
-            try:
-                _ring_pose(Q0s[i], Qns[i], r0)
-            except skip:
-                continue
-            good.append(i)
-        Q0s, n_pts = Q0s[good], n_pts[good]
-        ms, (pa, pb), dps = _ring_pose(Q0s, Qns[good], r0)
+    if poses is not None:
+        ms, pa, pb, dps = poses
+    else:
+        try:
+            ms, (pa, pb), dps = _ring_pose(Q0s, Qns, r0)
+        except skip:
+            # The nominal pair or one sigma point is degenerate (a conic near the limit): the
+            # nominal alone (raising if it is the one), then the other sigma points one at a
+            # time.
+            _ring_pose(Q0s[0], Qns[0], r0)
+            good = [0]
+            for i in range(1, len(Q0s)):
+                try:
+                    _ring_pose(Q0s[i], Qns[i], r0)
+                except skip:
+                    continue
+                good.append(i)
+            Q0s, n_pts = Q0s[good], n_pts[good]
+            ms, (pa, pb), dps = _ring_pose(Q0s, Qns[good], r0)
     m, normals, depths = ms[0], (pa[0], pb[0]), dps[0]
     # What the conics' covariances leave out: a deformation of an edge curve moves its conic's
     # centre by about the fit's RMS residual in any direction (pixels, to normalised units).
@@ -1280,8 +1416,8 @@ def _rvec_cov(R: Array, cov_theta: Array) -> Array:
 
 
 def _rz(psi: float) -> Array:
-    c, s = np.cos(psi), np.sin(psi)
-    return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+    c, s = math.cos(psi), math.sin(psi)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
 # --------------------------------------------------------------------------------------------
@@ -1362,7 +1498,7 @@ def _read_symbol(
     # where any change of the patch turns some views from read to unread and back.)
     module = qpx / _NOMINAL_MODULES
     scale = 2.5 if module < 2.0 else max(1.0, min(2.5, patch_module_px / module))
-    px = int(np.clip(scale * qpx * 2 * half / qr_side, _PATCH_MIN, _PATCH_MAX))
+    px = int(min(max(scale * qpx * 2 * half / qr_side, _PATCH_MIN), _PATCH_MAX))
     grey = _rectify(ctx, R, t, half, px, grey=True)
     # OpenCV's detector is the fallback where zxing-cpp fails; it is slow (tens of ms) and
     # reads nothing zxing-cpp cannot below 1.5 px modules, so it is not tried there.
@@ -1370,9 +1506,9 @@ def _read_symbol(
     if text is None or pts is None:
         return None
     # Patch pixels -> mark plane metres.
-    X = -half + (pts[:, 0] + 0.5) * 2 * half / px
-    Y = half - (pts[:, 1] + 0.5) * 2 * half / px
-    P = np.column_stack([X, Y])
+    P = (pts + 0.5) * 2 * half / px
+    P[:, 0] = -half + P[:, 0]
+    P[:, 1] = half - P[:, 1]
     fit = _square_fit(P)
     if fit is None:
         return None
@@ -1533,7 +1669,7 @@ def _finish(
     )
     known = False
     if read is not None and read.psi is not None:
-        k = int(np.round(read.psi / (np.pi / 2)))
+        k = round(read.psi / (math.pi / 2))  # (half to even, as np.round)
         R = R @ _rz(k * np.pi / 2)
         known = True
     elif ctx.decode:

@@ -176,3 +176,41 @@ def test_edge_points_undistorted_from_the_grid_as_by_newton_alone() -> None:
     # Without distortion there is nothing to undo.
     plain = _Context(image, image[..., 0], CAM.K, np.zeros(5), None, True)
     assert np.array_equal(plain.undistort(px), px)
+
+
+def test_threads_and_frame_sizes_do_not_share_the_full_frame_planes() -> None:
+    # The full-frame planes are kept per thread from one call to the next: two threads reading
+    # different views at once, and a frame of another size in between, find what each view
+    # alone gives (shared planes would mix one view's scores into the other's, and an old
+    # size would not fit the new frame).
+    from concurrent.futures import ThreadPoolExecutor
+
+    art = make_artwork(CUP)
+    views = [
+        render_landmarks(
+            CAM, [(artwork_texture(art), _pose(a, 20.0, t), art.size, None)], noise=NOISE, rng=k
+        ).image
+        for k, (a, t) in enumerate([(0.0, [-0.05, 0.02, 0.35]), (60.0, [0.06, -0.03, 0.45])])
+    ]
+    # 480 x 400 of the first view, the mark inside: the same lens, its principal point moved.
+    small = np.ascontiguousarray(views[0][40:440, 80:560])
+    K_small = CAM.K - np.array([[0, 0, 80.0], [0, 0, 40.0], [0, 0, 0]])
+    cams = [CAM.K, CAM.K, K_small]
+    alone = [detect_landmarks(v, K, CAM.dist) for v, K in zip([*views, small], cams, strict=True)]
+    assert [len(d) for d in alone] == [1, 1, 1]
+
+    def run(k: int) -> list[np.ndarray]:
+        out = []
+        for _ in range(4):
+            (det,) = detect_landmarks(views[k], CAM.K, CAM.dist)
+            out.append(det.T_cam_mark)
+            (det,) = detect_landmarks(small, K_small, CAM.dist)
+            out.append(det.T_cam_mark)
+        return out
+
+    with ThreadPoolExecutor(2) as pool:
+        results = list(pool.map(run, [0, 1]))
+    for k, poses in enumerate(results):
+        for i, T in enumerate(poses):
+            expected = alone[k if i % 2 == 0 else 2][0].T_cam_mark
+            assert np.array_equal(T, expected)
