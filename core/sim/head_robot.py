@@ -35,13 +35,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from core.errors import InvalidInput
-from core.geometry.poses import planar_pose, pose_from_quaternion
+from core.geometry.poses import planar_pose
 from core.geometry.rotations import wrap_angle
 from core.landmarks.ambiguity import PoseHypothesis, fuse_hypotheses, is_decided
 from core.landmarks.detect import LandmarkDetection, detect_landmarks
 from core.landmarks.maps import hypotheses_in_world
-from core.landmarks.payload import Signpost
-from core.sim._geometry import yaw_matrix
 from core.sim.floor_routes import PLAN_RESOLUTION, FloorRoutes
 from core.sim.head_camera import SIZES, head_camera, reading_standoff, robot_head_pose
 from core.sim.intrinsics import NOISE
@@ -52,8 +50,8 @@ from core.sim.scene import HeadCamera, Scene
 from core.sim.survey_localisation import (
     CEILING_MIN_MOVE_M,
     CeilingLocaliser,
-    kalman_update,
     propagate,
+    signpost_update,
 )
 
 Array = NDArray[np.float64]
@@ -70,9 +68,6 @@ SEARCH_TILT = 0.05  # rad: the head's tilt while searching (marks at 0.8-1.5 m, 
 SEARCH_TILTS = (SEARCH_TILT, -0.3)
 MATCH_RADIUS = 0.5  # m: a detection within this of the estimate is the tracked landmark
 READ_TIMEOUT_S = 60.0
-RELOCALISE_M = 1.5  # m: a signpost read from nearer than this corrects the odometry
-RELOCALISE_GATE = (1.0, 0.35)  # m, rad: larger corrections are outliers
-RELOCALISE_CHI2 = 11.34  # chi-square, 3 degrees of freedom, 99 %: the fix's consistency gate
 # The approach: a collision-free route on the floor plan (core.sim.floor_routes) to the
 # hand-over point,
 # APPROACH_M behind the estimated reading pose on the mark's normal; there the base turns to
@@ -302,54 +297,13 @@ class HeadRobot:
         return self.clearance(np.array([p.x, p.y])) < 0.0
 
     def relocalise(self, det: LandmarkDetection, T_odom_cam: Array) -> bool:
-        """Correct T_world_odom from a signpost read within RELOCALISE_M with its rotation
-        fixed by the symbol (its payload carries its world pose): the fix T_world_cam =
-        T_world_mark T_cam_mark^-1, kept planar (camera x, y and the odometry frame's yaw), with
-        its covariance from the detection's (first order), is fused with the pose estimate by
-        a Kalman update (core.sim.survey_localisation: the state is the base's pose now, the
-        camera a point fixed on it, P the estimate's covariance grown by the odometry's slip
-        since the last fix). A ring's yaw is its weakest direction (degrees), so the estimate
-        keeps weight there. A correction larger than RELOCALISE_GATE (m, rad), or whose
-        innovation fails the chi-square test (RELOCALISE_CHI2), is refused as an outlier.
-        Return whether it was applied."""
-        rec = det.record
-        if not isinstance(rec, Signpost) or not det.orientation_known or not det.decided:
-            return False  # (a pose the image cannot decide fixes nothing)
-        if float(np.linalg.norm(det.position)) > RELOCALISE_M:
-            return False
-        T_world_mark = pose_from_quaternion(rec.pose[:3], rec.pose[3:])
-        T_wc = T_world_mark @ np.linalg.inv(det.T_cam_mark)
-        M = T_wc @ np.linalg.inv(T_odom_cam)
-        W = self.T_world_odom
-        new = planar_pose((M[0, 3], M[1, 3], float(np.arctan2(M[1, 0], M[0, 0]))))
-        D = new @ np.linalg.inv(W)
-        at = D @ np.append(T_odom_cam[:3, 3], 1.0) - np.append(T_odom_cam[:3, 3], 1.0)
-        dist_gate, angle_gate = RELOCALISE_GATE
-        if np.hypot(at[0], at[1]) > dist_gate or abs(np.arctan2(D[1, 0], D[0, 0])) > angle_gate:
-            return False
-        # The fix's covariance: camera position c = -R^T t in the mark frame and the camera's
-        # yaw, to first order in (rotation vector, translation) of T_cam_mark.
-        R_cm, t = det.T_cam_mark[:3, :3], det.T_cam_mark[:3, 3]
-        tx = np.array([[0.0, -t[2], t[1]], [t[2], 0.0, -t[0]], [-t[1], t[0], 0.0]])
-        J = np.zeros((3, 6))
-        J[:2] = (T_world_mark[:3, :3] @ np.hstack([-R_cm.T @ tx, -R_cm.T]))[:2]
-        J[2, :3] = -T_wc[2, :3]
-        R_fix = J @ det.cov @ J.T
-        # The measurement model: the camera where the fix saw it, c = (x, y) + R(phi) (c_odom
-        # - o), phi = yaw - yaw_odom the odometry frame's heading (the base's estimated pose
-        # x = (x, y, yaw) now, o its odometry now).
-        x = self.estimate()
-        o = self.odom()
-        phi = wrap_angle(float(x[2] - o[2]))
-        r_w = yaw_matrix(phi)[:2, :2] @ (T_odom_cam[:2, 3] - o[:2])
-        H = np.array([[1.0, 0.0, -r_w[1]], [0.0, 1.0, r_w[0]], [0.0, 0.0, 1.0]])
-        fix = np.array([T_wc[0, 3], T_wc[1, 3], np.arctan2(M[1, 0], M[0, 0])])
-        nu = fix - np.array([x[0] + r_w[0], x[1] + r_w[1], phi])
-        nu[2] = wrap_angle(float(nu[2]))
-        # A fix that disagrees with the estimate beyond their covariances (the rings' other
-        # pose, whose yaw the wide RELOCALISE_GATE still lets through) is an outlier.
-        k = kalman_update(x, self.P, nu, H, R_fix, RELOCALISE_CHI2)
-        if not k.accepted:
+        """Correct T_world_odom by the fix a signpost read from T_odom_cam gives (the Kalman
+        update of core.sim.survey_localisation.signpost_update, refused as it says); return
+        whether it was applied."""
+        k = signpost_update(
+            det, T_odom_cam, self.T_world_odom, self.estimate(), self.odom(), self.P
+        )
+        if k is None or not k.accepted:
             return False
         k.x[2] = wrap_angle(float(k.x[2]))
         self._correct(k.x, k.P)
