@@ -1,5 +1,5 @@
-"""Rigid transforms T (..., 4, 4) = [[R, t], [0, 1]]: made from a position and a quaternion,
-and inverted. Batch dimensions come first."""
+"""Rigid transforms T (..., 4, 4) = [[R, t], [0, 1]]: made from a position and a quaternion or
+from a floor pose, and inverted. Batch dimensions come first."""
 
 from __future__ import annotations
 
@@ -31,3 +31,15 @@ def invert_pose(T: ArrayLike) -> Array:
     out[..., :3, 3] = -(Rt @ a[..., :3, 3:4])[..., 0]
     out[..., 3, 3] = 1.0
     return out
+
+
+def planar_pose(xyt: ArrayLike) -> Array:
+    """Return the rigid transforms (..., 4, 4) of floor poses (..., 3) = (x, y, theta): a turn by
+    theta (rad) about Z and a translation (x, y, 0) (T_world_body of a body on the floor)."""
+    b = np.asarray(xyt, dtype=np.float64)
+    c, s = np.cos(b[..., 2]), np.sin(b[..., 2])
+    T = np.zeros((*b.shape[:-1], 4, 4))
+    T[..., 0, 0], T[..., 0, 1], T[..., 1, 0], T[..., 1, 1] = c, -s, s, c
+    T[..., 2, 2] = T[..., 3, 3] = 1.0
+    T[..., 0, 3], T[..., 1, 3] = b[..., 0], b[..., 1]
+    return T

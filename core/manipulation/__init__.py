@@ -23,7 +23,6 @@ from core.manipulation.arm import (
 from core.manipulation.chain import (
     BasePlacement,
     MobileManipulator,
-    base_transform,
     default_manipulator,
 )
 from core.manipulation.errors import DegenerateMotions, TooFewMotions, Unreachable
@@ -42,7 +41,6 @@ __all__ = [
     "PlaneEstimate",
     "TooFewMotions",
     "Unreachable",
-    "base_transform",
     "calibrate_hand_eye",
     "default_arm",
     "default_manipulator",

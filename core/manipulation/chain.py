@@ -17,7 +17,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from core.errors import InvalidInput
-from core.geometry.poses import invert_pose
+from core.geometry.poses import invert_pose, planar_pose
 from core.manipulation.arm import (
     DHArm,
     IKResult,
@@ -34,17 +34,6 @@ Array = NDArray[np.float64]
 
 # The base's x, y are unbounded; finite stand-ins keep the limit arithmetic finite.
 _FREE = 1e6
-
-
-def base_transform(xyt: ArrayLike) -> Array:
-    """Return T_world_base (..., 4, 4) of planar base poses (..., 3) = (x, y, theta)."""
-    b = np.asarray(xyt, dtype=np.float64)
-    c, s = np.cos(b[..., 2]), np.sin(b[..., 2])
-    T = np.zeros((*b.shape[:-1], 4, 4))
-    T[..., 0, 0], T[..., 0, 1], T[..., 1, 0], T[..., 1, 1] = c, -s, s, c
-    T[..., 2, 2] = T[..., 3, 3] = 1.0
-    T[..., 0, 3], T[..., 1, 3] = b[..., 0], b[..., 1]
-    return T
 
 
 @dataclass(frozen=True)
@@ -98,7 +87,7 @@ class MobileManipulator:
     def arm_base(self, x: ArrayLike) -> Array:
         """Return T_world_arm (..., 4, 4): the arm's base frame for configurations (..., 9)."""
         a = self._check_x(x)
-        return base_transform(a[..., :3]) @ self.T_base_arm
+        return planar_pose(a[..., :3]) @ self.T_base_arm
 
     def fk(self, x: ArrayLike) -> Array:
         """Return T_world_ee (..., 4, 4) for configurations x (..., 9)."""
@@ -290,7 +279,7 @@ class MobileManipulator:
             travel = float(np.linalg.norm(base[:2] - cur[:2]))
             if travel - 0.5 > best_score:
                 continue
-            T_arm = invert_pose(base_transform(base) @ self.T_base_arm) @ Tm
+            T_arm = invert_pose(planar_pose(base) @ self.T_base_arm) @ Tm
             for q in self.arm.ik_analytic(T_arm, include_singular=False):
                 mu = float(self.arm.manipulability(q))
                 if mu < min_manipulability:

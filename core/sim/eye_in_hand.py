@@ -25,11 +25,10 @@ from numpy.typing import NDArray
 from core.calibration import Chessboard, board_object_points, estimate_plane_pose, find_chessboard
 from core.errors import InvalidInput, PatternNotFound
 from core.geometry.camera import project_points
-from core.geometry.poses import invert_pose
+from core.geometry.poses import invert_pose, planar_pose
 from core.geometry.rotations import matrix_to_rotvec
 from core.manipulation import (
     MobileManipulator,
-    base_transform,
     default_manipulator,
 )
 from core.sim.intrinsics import NOISE as INTRINSICS_NOISE
@@ -97,7 +96,7 @@ def board_on_table(manipulator: MobileManipulator, park: Array = PARK) -> tuple[
     T[:3, :3] = np.diag([1.0, -1.0, -1.0])
     centre = np.array([park[0], park[1] + 0.62, TABLE_TOP + 1e-3])
     T[:3, 3] = centre - T[:3, :3] @ np.array([(cols - 1) * s / 2, (rows - 1) * s / 2, 0.0])
-    T_world_arm = base_transform(park) @ manipulator.T_base_arm
+    T_world_arm = planar_pose(park) @ manipulator.T_base_arm
     return T, invert_pose(T_world_arm) @ T
 
 
@@ -163,7 +162,7 @@ def hand_eye_views(
     P = board_object_points(Chessboard(*BOARD.inner_corners), BOARD.square_size)
     centre = W[:3, :3] @ P.mean(axis=0) + W[:3, 3]
     normal = -W[:3, 2]
-    T_world_arm = base_transform(PARK) @ mm.T_base_arm
+    T_world_arm = planar_pose(PARK) @ mm.T_base_arm
     if rendered and renderer is None:
         renderer = Renderer(default_scene())
     qs: list[Array] = []

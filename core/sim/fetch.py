@@ -11,6 +11,10 @@ the marked box (core.sim.marked_box) with its eye-in-hand camera (core.sim.eye_i
   mark's corners detected in it, plus pixel noise; the parallel gripper opens, and closes on
   the box where the controller put it (`close_gripper`).
 
+What it builds on, one module each: the gripper and its grasp pose over the mark
+(core.sim.gripper), where the base stands and how it drives there (core.sim.fetch_placement),
+the eye-in-hand camera's view of the mark and the taught image (core.sim.mark_eye).
+
 The `grasp` scenario (core.sim.scenarios.manipulation) and the service's fetch task
 (server.services.manipulation.run_fetch) both run it through these, so a task's episodes with
 the twin's arm are the scenario's.
@@ -26,57 +30,42 @@ from functools import partial
 import numpy as np
 from numpy.typing import NDArray
 
-from core.calibration import estimate_plane_pose, find_chessboard
-from core.errors import InvalidInput, PatternNotFound
-from core.geometry.camera import project_points, undistort_points
-from core.geometry.poses import invert_pose
-from core.geometry.rotations import matrix_to_rotvec, nearest_rotation, wrap_angle
-from core.manipulation import (
-    BasePlacement,
-    MobileManipulator,
-    base_transform,
-    calibrate_hand_eye,
-    pose_error,
-)
+from core.calibration import estimate_plane_pose
+from core.errors import InvalidInput
+from core.geometry.poses import invert_pose, planar_pose
+from core.geometry.rotations import nearest_rotation
+from core.manipulation import MobileManipulator, calibrate_hand_eye, pose_error
 from core.manipulation.grasp import ModeSwitch, first_look, gaze_step, next_look
-from core.sim.eye_in_hand import (
-    EYE_DIST,
-    EYE_K,
-    EYE_SIZE,
-    TABLE_TOP,
-    eye_camera,
-    eye_camera_intrinsics,
-    hand_eye_views,
+from core.sim.eye_in_hand import eye_camera_intrinsics, hand_eye_views
+from core.sim.fetch_placement import (
+    CORRIDOR_Y,
+    LOOK_BACK,
+    PROBE_SHIFTS,
+    drive_poses,
+    look_posture,
+    place_with_room,
+)
+from core.sim.gripper import (
+    GRIPPER_OPEN,
+    GRIPPER_SPEED,
+    PRE_GRASP,
+    T_MARK_GRASP,
+    close_gripper,
+    pre_grasp_pose,
 )
 from core.sim.intrinsics import RenderedCalibration
-from core.sim.marked_box import (
-    BOX_HEIGHT,
-    BOX_SIZE,
-    MARK_BOARD,
-    MARK_POINTS,
-    T_MARK_BOARD,
-)
+from core.sim.mark_eye import MarkEye, mark_on_table, taught_image
+from core.sim.marked_box import MARK_POINTS
 from core.sim.render import Renderer
 
 Array = NDArray[np.float64]
 
 # The phases of a fetch (grasp_episode's on_phase), in order.
 GRASP_PHASES = ("approach", "switch", "look then move", "grasp", "lift and carry")
-# The parallel gripper: its fingers close along the end effector's y axis, from an opening of
-# 0.14 m at 0.10 m/s; 15 mm wide (along x), they reach 0.12 m from the flange to the tips.
-GRIPPER_OPEN = 0.14
 # The arm's joint position control: every joint at most this fast (rad/s), and a pause for
 # the arm to settle before the camera takes its image.
 JOINT_RATE = 1.0
 SETTLE_S = 0.2
-GRIPPER_SPEED = 0.10
-_FINGER_HALF_WIDTH = 0.0075
-# The end effector's grasp pose in the mark frame: fingertips 5 cm below the mark (mid-box),
-# gripper z pointing down; the pre-grasp pose is 0.20 m back along the approach.
-T_MARK_GRASP = np.array(
-    [[1.0, 0.0, 0.0, 0.0], [0.0, -1.0, 0.0, 0.0], [0.0, 0.0, -1.0, -0.05], [0.0, 0.0, 0.0, 1.0]]
-)
-PRE_GRASP = 0.20
 # What the fetch grasps, as its record says it (spec 05 grasps the object its object mark, spec
 # 04's blue frame, identifies; this controller servoes on a chessboard printed on the box).
 GRASP_TARGET = (
@@ -85,22 +74,6 @@ GRASP_TARGET = (
     "box stands where the semantic map's object is (or at random on the dining table), off by "
     "the map's error"
 )
-# The corridor between the kitchen counter and the dining table where the base may stand.
-_CORRIDOR_Y = (0.95, 1.2)
-
-
-def _pre_grasp(T_mark_grasp: Array = T_MARK_GRASP) -> Array:
-    T = T_mark_grasp.copy()
-    T[:3, 3] -= PRE_GRASP * T[:3, 2]
-    return T
-
-
-def _mark_pose(xy: Array, yaw: float) -> Array:
-    T = np.eye(4)
-    c, s = math.cos(yaw), math.sin(yaw)
-    T[:3, :3] = [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]
-    T[:3, 3] = [xy[0], xy[1], TABLE_TOP + BOX_HEIGHT]
-    return T
 
 
 @dataclass(frozen=True)
@@ -123,218 +96,6 @@ class GraspEpisode:
     phase: str
     gripper_opening_mm: float = math.nan
     frames: int = 0
-
-
-class _Eye:
-    """The eye-in-hand camera's observations of the box's mark: with a `renderer`, the twin
-    renders what the camera sees (the room, the box and its printed mark, sensor noise) and
-    core.calibration.find_chessboard detects the mark's corners; without one, the corners'
-    true projections. Both then get N(0, sigma^2) per axis."""
-
-    def __init__(
-        self,
-        T_world_mark: Array,
-        sigma: float,
-        rng: np.random.Generator,
-        renderer: Renderer | None = None,
-    ) -> None:
-        self.T = T_world_mark
-        self.sigma = sigma
-        self.rng = rng
-        self.renderer = renderer
-        self.frames = 0
-
-    def observe(self, T_world_cam: Array) -> Array | None:
-        """Return the mark's pixels (M, 2), or None when it is not fully in view (not found)."""
-        self.frames += 1
-        C = invert_pose(T_world_cam) @ self.T
-        if self.renderer is not None:
-            frame = self.renderer.render_board(
-                eye_camera(T_world_cam),
-                MARK_BOARD,
-                self.T @ T_MARK_BOARD,
-                rng=self.rng,
-                box=BOX_SIZE,
-            )
-            try:
-                px = find_chessboard(frame.image, MARK_BOARD.inner_corners, thorough=False).corners
-            except PatternNotFound:
-                return None
-        else:
-            if C[2, 3] <= 0.05 or float(C[:3, 2] @ C[:3, 3]) >= 0:  # behind, or seen from below
-                return None
-            pc = MARK_POINTS @ C[:3, :3].T + C[:3, 3]
-            if np.any(pc[:, 2] < 0.05):
-                return None
-            uv = project_points(MARK_POINTS, matrix_to_rotvec(C[:3, :3]), C[:3, 3], EYE_K, EYE_DIST)
-            px = uv.points
-            if (
-                np.any(px < 0)
-                or np.any(px[:, 0] > EYE_SIZE[0] - 1)
-                or np.any(px[:, 1] > EYE_SIZE[1] - 1)
-            ):
-                return None
-        return px + self.rng.normal(0.0, self.sigma, px.shape)
-
-
-def close_gripper(T_world_ee: Array, T_world_mark: Array) -> tuple[float, str]:
-    """Return (opening in metres where the fingers stop, "" or why the grasp does not hold)
-    when the gripper, open at GRIPPER_OPEN with its fingertips' centre at T_world_ee, closes
-    on the box whose mark is at T_world_mark.
-
-    The fingers close along the end effector's y axis. The box's half extent along it, h, is
-    the support of its top square in that direction; its centre lies o off the fingers'
-    midline. The open fingers straddle the box when |o| + h < GRIPPER_OPEN / 2 (otherwise a
-    finger lands on it); they then close until both touch, pushing the box to the midline, at
-    an opening of 2h. The grasp holds when the fingertips are between 1 cm below the top and
-    1 cm above the bottom, and the fingers (15 mm wide) overlap the box along x."""
-    E = invert_pose(T_world_mark) @ np.asarray(T_world_ee, dtype=np.float64)  # T_mark_ee
-    y, x, p = E[:2, 1], E[:2, 0], E[:3, 3]
-    hx, hy, height = BOX_SIZE[0] / 2, BOX_SIZE[1] / 2, BOX_SIZE[2]
-    h = hx * abs(float(y[0])) + hy * abs(float(y[1]))
-    o = float(p[:2] @ y)  # the fingers' midline off the box's axis (x = y = 0, mark frame)
-    if abs(o) + h >= GRIPPER_OPEN / 2:
-        return GRIPPER_OPEN, "a finger landed on the box (the open gripper does not straddle it)"
-    if not -height + 0.01 <= float(p[2]) <= -0.01:
-        return 0.0, "the fingertips are not beside the box (too high or too low)"
-    along = abs(float(p[:2] @ x))
-    if along > hx * abs(float(x[0])) + hy * abs(float(x[1])) + _FINGER_HALF_WIDTH:
-        return 0.0, "the fingers closed beside the box, not on it"
-    return 2.0 * h, ""
-
-
-def _drive(
-    start: Array, goal: Array, dt: float, v_max: float = 0.5, w_max: float = 1.5
-) -> list[Array]:
-    """Return the base poses of a unicycle turning to face the goal, driving straight to it and
-    turning to its heading, at constant speed limits (velocity limits; accelerations ignored)."""
-    poses = [start.copy()]
-    x = start.copy()
-
-    def turn_to(heading: float) -> None:
-        while True:
-            err = wrap_angle(float(heading - x[2]))
-            if abs(err) < 1e-9:
-                break
-            x[2] += float(np.clip(err, -w_max * dt, w_max * dt))
-            poses.append(x.copy())
-
-    origin = x[:2].copy()
-    d = goal[:2] - origin
-    dist = float(np.linalg.norm(d))
-    if dist > 1e-6:
-        turn_to(math.atan2(d[1], d[0]))
-        steps = math.ceil(dist / (v_max * dt))
-        for k in range(1, steps + 1):
-            x[:2] = origin + d * (k / steps)
-            poses.append(x.copy())
-    turn_to(float(goal[2]))
-    return poses
-
-
-def _base_candidates(T_world_mark: Array) -> Array:
-    """Return the base poses (n, 3) a fetch may stand at for a mark: in the corridor between
-    the kitchen counter and the dining table, beside the mark, facing the table (+y)."""
-    return np.array(
-        [
-            [T_world_mark[0, 3] + dx, y, math.pi / 2 + dth]
-            for dx in np.linspace(-0.3, 0.3, 7)
-            for y in np.linspace(*_CORRIDOR_Y, 3)
-            for dth in (-0.4, -0.2, 0.0, 0.2, 0.4)
-        ]
-    )
-
-
-# The first look is taken this far above the pre-grasp view, along the camera's axis (m), and
-# the look-then-move probe moves the camera by these (m, camera frame) from there.
-LOOK_BACK = 0.05
-PROBE_SHIFTS = ((0.03, 0.0, -0.03), (-0.03, 0.0, -0.03), (0.0, 0.03, -0.03), (0.0, -0.03, -0.03))
-# The base is placed where the arm also reaches the first look and a probe for the mark moved
-# by this along each floor axis (m): the prior's standard deviation (grasp_episode's default).
-ROOM_M = 0.05
-
-
-def _has_room(mm: MobileManipulator, T_world_mark: Array, T_ee_cam: Array, base: Array) -> bool:
-    """Return whether the arm, from base pose `base` (x, y, theta), reaches the poses the
-    controller moves through around the pre-grasp pose over the believed mark
-    `T_world_mark`: the first look (LOOK_BACK above the pre-grasp view) and at least one of
-    its probe motions (PROBE_SHIFTS), for the mark where it is believed and moved by ROOM_M
-    along each floor axis. `T_ee_cam` is the hand-eye estimate."""
-    T_arm_world = invert_pose(base_transform(base) @ mm.T_base_arm)
-    probes = []
-    for shift in PROBE_SHIFTS:
-        P = np.eye(4)
-        P[:3, 3] = shift
-        probes.append(T_ee_cam @ P @ invert_pose(T_ee_cam))
-    for dx, dy in ((0.0, 0.0), (ROOM_M, 0.0), (-ROOM_M, 0.0), (0.0, ROOM_M), (0.0, -ROOM_M)):
-        look = T_world_mark @ _pre_grasp()
-        look[:3, 3] += [dx, dy, 0.0]
-        look[:3, 3] -= LOOK_BACK * look[:3, 2]
-        T = T_arm_world @ look
-        if not mm.arm.ik_analytic(T) or not any(mm.arm.ik_analytic(T @ P) for P in probes):
-            return False
-    return True
-
-
-def _place_with_room(
-    mm: MobileManipulator, T_world_mark: Array, T_ee_cam: Array, start: Array
-) -> BasePlacement:
-    """Return the base placement (MobileManipulator.place_base over the corridor's
-    candidates) for the pre-grasp pose over the believed mark from which the arm also has
-    room for the first look and its probe (`_has_room`): the best placement, then the next
-    best while one lacks that room; the best when none has it. Raises InvalidInput when no
-    candidate reaches the pre-grasp pose."""
-    target = T_world_mark @ _pre_grasp()
-    cands = _base_candidates(T_world_mark)
-    best = place = mm.place_base(target, start, candidates=cands)
-    while not _has_room(mm, T_world_mark, T_ee_cam, place.base):
-        cands = cands[np.any(cands != place.base, axis=1)]
-        try:
-            place = mm.place_base(target, start, candidates=cands)
-        except InvalidInput:
-            return best
-    return place
-
-
-# A mark the controller grasps faces up: its normal within this of the world's +Z.
-_MAX_MARK_TILT = math.radians(20.0)
-
-
-def fetch_problem(mm: MobileManipulator, T_world_mark: Array) -> str | None:
-    """Return why the fetch of a box whose mark is at `T_world_mark` (4, 4; the semantic map's
-    pose) cannot start, or None: the controller grasps a box from above by the mark on its
-    top, so the mark must face up (within 20 deg), and a base pose in the kitchen corridor
-    must reach its pre-grasp pose within the arm's limits."""
-    T = np.asarray(T_world_mark, dtype=np.float64)
-    tilt = math.acos(float(np.clip(T[2, 2], -1.0, 1.0)))
-    if tilt > _MAX_MARK_TILT:
-        return (
-            f"its mark faces {math.degrees(tilt):.0f} deg away from up; the grasp controller "
-            "takes a box by the mark on its top (within 20 deg of level)"
-        )
-    cands = _base_candidates(T)
-    try:
-        mm.place_base(T @ _pre_grasp(), cands[len(cands) // 2], candidates=cands)
-    except InvalidInput:
-        x, y, z = (float(v) for v in T[:3, 3])
-        return (
-            f"no base pose in the kitchen corridor (y {_CORRIDOR_Y[0]}-{_CORRIDOR_Y[1]} m) "
-            f"reaches its pre-grasp pose over ({x:.2f}, {y:.2f}, {z:.2f}) m"
-        )
-    return None
-
-
-def _look_posture(mm: MobileManipulator) -> Array:
-    """Joint values holding the camera 0.45 m above the shoulder, looking ahead and 35 degrees
-    down: the posture the approach starts its gaze from."""
-    pitch = math.radians(35.0)
-    z = np.array([math.cos(pitch), 0.0, -math.sin(pitch)])
-    x = np.array([0.0, -1.0, 0.0])
-    T = np.eye(4)
-    T[:3, :3] = np.column_stack([x, np.cross(z, x), z])
-    T[:3, 3] = [0.30, 0.0, 0.45]
-    r = mm.arm.ik(T @ invert_pose(mm.T_ee_camera))
-    return r.q
 
 
 def grasp_episode(
@@ -398,22 +159,22 @@ def grasp_episode(
     enter("approach")
     if T_world_prior is None:
         xy = np.array([rng.uniform(5.95, 6.65), rng.uniform(1.60, 1.72)])
-        T_mark = _mark_pose(xy, rng.uniform(-math.pi, math.pi))
+        T_mark = mark_on_table(xy, rng.uniform(-math.pi, math.pi))
         # The prior: the mark's pose as the semantic map holds it.
         yaw_err = float(rng.normal(0.0, prior_sigma_rad))
-        T_prior = _mark_pose(xy + rng.normal(0.0, prior_sigma_m, 2), 0.0)
-        T_prior[:3, :3] = T_mark[:3, :3] @ _mark_pose(np.zeros(2), yaw_err)[:3, :3]
+        T_prior = mark_on_table(xy + rng.normal(0.0, prior_sigma_m, 2), 0.0)
+        T_prior[:3, :3] = T_mark[:3, :3] @ mark_on_table(np.zeros(2), yaw_err)[:3, :3]
     else:
         T_prior = np.array(T_world_prior, dtype=np.float64)
         # The twin's box, where the map is wrong by the prior's errors.
         yaw_err = float(rng.normal(0.0, prior_sigma_rad))
-        T_mark = _mark_pose(T_prior[:2, 3] + rng.normal(0.0, prior_sigma_m, 2), 0.0)
-        T_mark[:3, :3] = T_prior[:3, :3] @ _mark_pose(np.zeros(2), yaw_err)[:3, :3]
+        T_mark = mark_on_table(T_prior[:2, 3] + rng.normal(0.0, prior_sigma_m, 2), 0.0)
+        T_mark[:3, :3] = T_prior[:3, :3] @ mark_on_table(np.zeros(2), yaw_err)[:3, :3]
         T_mark[2, 3] = T_prior[2, 3]
-    eye = _Eye(T_mark, sigma_px, rng, renderer)
+    eye = MarkEye(T_mark, sigma_px, rng, renderer)
     if on_gripper is not None:
         on_gripper(GRIPPER_OPEN)
-    start = np.array([rng.uniform(5.0, 7.4), rng.uniform(*_CORRIDOR_Y), rng.uniform(-3.1, 3.1)])
+    start = np.array([rng.uniform(5.0, 7.4), rng.uniform(*CORRIDOR_Y), rng.uniform(-3.1, 3.1)])
     # The robot's own estimate of its start pose (its localisation), 3 cm / 0.03 rad off; it
     # then knows its motion by odometry (exact here: the drive has no wheel slip).
     start_est = start + np.array([*rng.normal(0.0, 0.03, 2), rng.normal(0.0, 0.03)])
@@ -425,7 +186,7 @@ def grasp_episode(
         if on_box is not None:
             on_box(invert_pose(T_world_arm_true) @ T_mark)
 
-    show_box(base_transform(start) @ mm.T_base_arm)
+    show_box(planar_pose(start) @ mm.T_base_arm)
 
     def fail(reason: str, vis: float, sw: int, looks: int) -> GraspEpisode:
         return GraspEpisode(
@@ -437,21 +198,21 @@ def grasp_episode(
         # Where the arm has room for the first look and its probe, not only the pre-grasp
         # pose: the nearest base that barely reaches the pre-grasp pose left the arm no
         # room to move the camera up and sideways from there (seed 102's reach failures).
-        place = _place_with_room(mm, T_prior, T_ee_cam, start_est)
+        place = place_with_room(mm, T_prior, T_ee_cam, start_est)
     except InvalidInput:
         return fail("no base placement", 0.0, 0, 0)
-    q = _look_posture(mm)
+    q = look_posture(mm)
     if on_joints is not None:
         on_joints(q)
     switch = ModeSwitch()
     seen = steps = 0
     mark_est = T_prior[:3, 3].copy()  # the mark's position as the robot believes it
     # The commanded path in the robot's belief, and the same motion from its true start.
-    offset = base_transform(start) @ invert_pose(base_transform(start_est))
+    offset = planar_pose(start) @ invert_pose(planar_pose(start_est))
 
     def gaze_once(base_est: Array) -> None:
         nonlocal q, mark_est, seen, steps
-        T_base_est = base_transform(base_est)
+        T_base_est = planar_pose(base_est)
         show_box(offset @ T_base_est @ mm.T_base_arm)
         F_est = T_base_est @ mm.T_base_arm @ mm.arm.fk(q) @ T_ee_cam
         px = eye.observe(offset @ T_base_est @ mm.T_base_arm @ mm.arm.fk(q) @ mm.T_ee_camera)
@@ -476,7 +237,7 @@ def grasp_episode(
         if on_joints is not None:
             on_joints(q)
 
-    for base_est in _drive(start_est, place.base, dt):
+    for base_est in drive_poses(start_est, place.base, dt):
         t += dt
         gaze_once(base_est)
     # Arrived: keep looking (base still) for up to 3 s until the switch fires.
@@ -487,8 +248,8 @@ def grasp_episode(
         gaze_once(place.base)
     # From here on the base stands still: the arm works in its own frame; the true frame is
     # used only to render what the camera sees and to score.
-    T_world_arm = offset @ base_transform(place.base) @ mm.T_base_arm
-    T_arm_world_est = invert_pose(base_transform(place.base) @ mm.T_base_arm)
+    T_world_arm = offset @ planar_pose(place.base) @ mm.T_base_arm
+    T_arm_world_est = invert_pose(planar_pose(place.base) @ mm.T_base_arm)
     T_arm_mark_prior = T_arm_world_est @ T_prior
     # The look pose is placed over the mark as last seen (its position), oriented by the prior.
     T_arm_mark_prior[:3, 3] = T_arm_world_est[:3, :] @ np.append(mark_est, 1.0)
@@ -524,7 +285,7 @@ def grasp_episode(
         """Camera 5 cm above the pre-grasp view (or at it, if out of reach), shifted by
         (dx, dy) in its image plane: (joints or None, camera pose, pixels or None)."""
         for back in (LOOK_BACK, 0.0):
-            look = T_arm_mark @ _pre_grasp()
+            look = T_arm_mark @ pre_grasp_pose()
             look[:3, 3] -= back * look[:3, 2]
             shift = np.eye(4)
             shift[:3, 3] = [dx, dy, 0.0]
@@ -674,42 +435,6 @@ def grasp_episode(
         gripper_opening_mm=1e3 * opening,
         frames=eye.frames,
     )
-
-
-def taught_image(
-    X_true: Array,
-    intrinsics: RenderedCalibration,
-    *,
-    renderer: Renderer | None = None,
-    rng: np.random.Generator | None = None,
-    sigma_px: float = 0.0,
-    frames: int = 30,
-) -> Array:
-    """Return the mark's taught ideal (undistorted) pixels (M, 2): recorded once, by a
-    demonstration that puts the gripper at the pre-grasp pose over a box on the dining table;
-    the camera is where the arm truly holds it (X_true, T_ee_cam). With a `renderer`, `frames`
-    images are taken while it holds still (two seconds of video), each rendered with its own
-    sensor noise, the corners detected in each plus N(0, sigma_px^2), and their mean
-    undistorted with the camera's calibrated `intrinsics` (to their K's pixels). Every episode
-    servoes to this one image, so its error is common to them all: one frame's 0.5 px gave a
-    1.3 deg median grasp error over 100 episodes (seed 8), where 30 frames' mean gives 0.37
-    deg. Without a renderer, the corners' true projections, undistorted likewise."""
-    T_mark = _mark_pose(np.array([6.3, 1.9]), 0.0)
-    T_cam = T_mark @ _pre_grasp() @ np.asarray(X_true, dtype=np.float64)
-    if renderer is None:
-        C = invert_pose(T_cam) @ T_mark  # T_cam_mark
-        px = project_points(
-            MARK_POINTS, matrix_to_rotvec(C[:3, :3]), C[:3, 3], EYE_K, EYE_DIST
-        ).points
-        return undistort_points(px, intrinsics.K, intrinsics.dist, to_pixels=True)
-    if frames < 1:
-        raise InvalidInput(f"frames must be >= 1, got {frames}")
-    eye = _Eye(T_mark, sigma_px, rng if rng is not None else np.random.default_rng(0), renderer)
-    shots = [eye.observe(T_cam) for _ in range(frames)]
-    if any(px is None for px in shots):
-        raise PatternNotFound("the taught image does not show the whole mark")
-    mean = np.mean(np.stack([px for px in shots if px is not None]), axis=0)
-    return undistort_points(mean, intrinsics.K, intrinsics.dist, to_pixels=True)
 
 
 @dataclass(frozen=True)

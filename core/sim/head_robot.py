@@ -1,10 +1,7 @@
 """The robot that reads landmarks with its head camera (spec 04 on the twin): `HeadRobot`.
 
-The head camera (spec 07: on the pan-tilt unit at about 1.1 m, 640x480) is the scene robot's
-head camera (or its onboard camera) when the scene gives one, else `HEAD_CAMERA` (600 px focal
-length, 56 deg horizontal field, barrel distortion). The robot never sees the true intrinsics:
-the camera is first calibrated (`calibrate_head_camera`: Zhang, from rendered views of a 9x6
-chessboard with the same sensor noise), and every detection uses that K and dist.
+The head camera and its calibration (core.sim.head_camera): the robot never sees the true
+intrinsics, every detection uses the calibrated K and dist.
 
 The robot is a unicycle base with wheel slip and odometry (core.sim.motion) and its head camera
 on the pan-tilt unit; frames come every FRAME_DT, rendered from the true pose with the scene's
@@ -17,10 +14,10 @@ keeps the mark in view, the base is driven to the floor pose under T* by the pol
 pose-regulation law (Astolfi 1999) and the head's pan and tilt aim at the mark; the estimate is
 refreshed every frame, and reading stops when the symbol decodes. The base gets there without
 touching furniture the way a robot with a map would: the floor plan (walls, doors, furniture
-footprints; a prior, like the installer's plan) is its occupancy grid (core.navigation,
-inflated by the base radius and PLAN_MARGIN); a route planned on it leads to a hand-over point
-on the mark's estimated normal, APPROACH_M behind the reading pose, re-planned when the
-estimate moves by REPLAN_M; from there the polar law drives straight in. The pose estimate is
+footprints; a prior, like the installer's plan) is its map (core.sim.floor_routes); a route
+planned on it leads to a hand-over point on the mark's estimated normal, APPROACH_M behind the
+reading pose, re-planned when the estimate moves by REPLAN_M; from there the polar law drives
+straight in. The pose estimate is
 the odometry fused by an extended Kalman filter (core.sim.survey_localisation) with the fixes
 a robot in this home gets without the twin's truth: a signpost (whose payload carries its
 world pose) read within RELOCALISE_M and, when a `CeilingLocaliser` is given, its top marker
@@ -38,89 +35,29 @@ import numpy as np
 from numpy.typing import NDArray
 
 from core.errors import InvalidInput
-from core.geometry.rotations import quaternion_to_matrix, wrap_angle
+from core.geometry.poses import planar_pose
+from core.geometry.rotations import wrap_angle
 from core.landmarks.ambiguity import PoseHypothesis, fuse_hypotheses, is_decided
-from core.landmarks.artwork import pattern_layout
 from core.landmarks.detect import LandmarkDetection, detect_landmarks
 from core.landmarks.maps import hypotheses_in_world
-from core.landmarks.payload import Signpost
-from core.navigation import (
-    BlockedEndpoint,
-    OccupancyGrid,
-    occupancy_grid,
-    plan_path,
-    segment_is_free,
-)
-from core.navigation import NoRoute as NoPath
-from core.sim._geometry import yaw_matrix
-from core.sim.intrinsics import NOISE, calibrate_from_board_views
+from core.sim.floor_routes import PLAN_RESOLUTION, FloorRoutes
+from core.sim.head_camera import SIZES, head_camera, reading_standoff, robot_head_pose
+from core.sim.intrinsics import NOISE
 from core.sim.motion import Pose2D, UnicycleBase
 from core.sim.occluders import scene_occluders
-from core.sim.render.landmarks import LandmarkCamera, render_scene_landmarks, scene_landmarks
-from core.sim.scene import CameraMount, HeadCamera, Scene
+from core.sim.render.landmarks import render_scene_landmarks, scene_landmarks
+from core.sim.scene import HeadCamera, Scene
 from core.sim.survey_localisation import (
     CEILING_MIN_MOVE_M,
     CeilingLocaliser,
-    kalman_update,
     propagate,
+    signpost_update,
 )
 
 Array = NDArray[np.float64]
 
-HEAD_CAMERA = LandmarkCamera(
-    np.array([[600.0, 0.0, 321.5], [0.0, 600.0, 242.0], [0.0, 0.0, 1.0]]),
-    np.array([-0.12, 0.05, 0.001, -0.0005, 0.0]),
-    640,
-    480,
-)
-SIZES = {"object": 0.10, "signpost": 0.20}
-CALIBRATION_VIEWS = 12
-
-
-def head_camera(scene: Scene | None) -> tuple[LandmarkCamera, str]:
-    """Return the true head camera: the scene robot's head camera, else its onboard camera,
-    else HEAD_CAMERA."""
-    robot = None if scene is None else scene.robot
-    mount: HeadCamera | CameraMount | None = None
-    source = "scene robot"
-    if robot is not None:
-        mount = robot.head_camera
-        if mount is None:
-            mount, source = robot.onboard_camera, "scene robot's onboard camera"
-    if mount is None:
-        return HEAD_CAMERA, "default head camera (600 px, 640x480)"
-    K = np.array(mount.intrinsics.matrix(), dtype=np.float64)
-    w, h = mount.resolution
-    return LandmarkCamera(K, np.array(mount.distortion.opencv()), int(w), int(h)), source
-
-
-def calibrate_head_camera(
-    cam: LandmarkCamera, rng: np.random.Generator, views: int = CALIBRATION_VIEWS
-) -> tuple[Array, Array, float]:
-    """Return (K, dist, rms px) of the camera calibrated from rendered chessboard views
-    (core.sim.intrinsics)."""
-    cal = calibrate_from_board_views(cam, rng, views, NOISE)
-    return cal.K, cal.dist, cal.rms
-
-
-def calibrate_scene_head_camera(
-    scene: Scene, rng: np.random.Generator, views: int = CALIBRATION_VIEWS
-) -> tuple[Array, Array, float]:
-    """Return (K, dist, rms px) of the scene's head camera (head_camera) calibrated from
-    rendered chessboard views."""
-    cam, _ = head_camera(scene)
-    return calibrate_head_camera(cam, rng, views)
-
-
-# Camera axes at pan = tilt = 0 in the robot frame: z forward (+x), x right (-y), y down (-z).
-_R_ROBOT_CAM0 = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 FRAME_DT = 0.2  # s: the head camera's frame period while reading and surveying
 BASE_DT = 0.05  # s: the base's simulation step
-# QR modules the controller assumes before a symbol is read (version 5: 37 modules, payloads
-# up to 84 bytes at level M); the reading distance puts such a module on READ_MODULE_PX pixels.
-READ_MODULES = 37
-READ_MODULE_PX = 3.3
-MIN_STANDOFF = 0.22  # m: camera-to-face horizontal distance at the reading pose, at least
 # Polar pose-regulation gains (Astolfi 1999; Siegwart & Nourbakhsh, Introduction to
 # Autonomous Mobile Robots, sec. 3.6.2.4): k_rho > 0, k_beta < 0, k_alpha > k_rho for local
 # exponential stability, and k_alpha + 5/3 k_beta - 2/pi k_rho > 0 (here 0.27) for strong
@@ -131,19 +68,10 @@ SEARCH_TILT = 0.05  # rad: the head's tilt while searching (marks at 0.8-1.5 m, 
 SEARCH_TILTS = (SEARCH_TILT, -0.3)
 MATCH_RADIUS = 0.5  # m: a detection within this of the estimate is the tracked landmark
 READ_TIMEOUT_S = 60.0
-RELOCALISE_M = 1.5  # m: a signpost read from nearer than this corrects the odometry
-RELOCALISE_GATE = (1.0, 0.35)  # m, rad: larger corrections are outliers
-RELOCALISE_CHI2 = 11.34  # chi-square, 3 degrees of freedom, 99 %: the fix's consistency gate
-# The approach: a collision-free route on the floor plan (walls and furniture footprints
-# inflated by the base radius and PLAN_MARGIN; core.navigation) to the hand-over point,
+# The approach: a collision-free route on the floor plan (core.sim.floor_routes) to the
+# hand-over point,
 # APPROACH_M behind the estimated reading pose on the mark's normal; there the base turns to
 # face the mark and the PBVS law drives the last, straight stretch.
-PLAN_RESOLUTION = 0.05  # m: the occupancy grid's cell
-PLAN_MARGIN = 0.05  # m beyond the base radius where the base may stand (reading poses)
-# m beyond the base radius along routes: the pose estimate drifts by several centimetres
-# between two signposts (10 cm measured in the survey), so routes keep off obstacles by more
-# where the floor allows (where it does not, routes fall back to PLAN_MARGIN).
-TRANSIT_MARGIN = 0.15
 APPROACH_M = 0.4  # m: the hand-over point's distance behind the reading pose, at most
 REPLAN_M = 0.15  # m: the reading pose's estimate moving more than this re-plans the route
 REPLAN_RAD = 0.3  # rad: likewise for its heading
@@ -151,39 +79,6 @@ WAYPOINT_M = 0.05  # m: a route point counts as reached within this
 TURN_IN_PLACE_RAD = 0.35  # rad: larger heading errors turn the base on the spot
 FACE_RAD = 0.05  # rad: heading error at the hand-over point below which PBVS takes over
 FOLLOW_GAIN = 2.0  # 1/s: turn rate per radian of heading error while following the route
-
-
-def _ry(a: float) -> Array:
-    c, s = np.cos(a), np.sin(a)
-    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
-
-
-def robot_head_pose(head: HeadCamera, pan: float, tilt: float) -> Array:
-    """Return T_robot_cam (4, 4) of the head camera at joint angles pan, tilt (radians)."""
-    T = np.eye(4)
-    T[:3, :3] = yaw_matrix(pan) @ _ry(tilt) @ _R_ROBOT_CAM0
-    T[:3, 3] = head.position
-    return T
-
-
-def floor_pose(x: float, y: float, yaw: float) -> Array:
-    """Return T_world_robot (4, 4) of a floor pose (x, y metres, yaw radians)."""
-    T = np.eye(4)
-    T[:3, :3] = yaw_matrix(yaw)
-    T[:3, 3] = (x, y, 0.0)
-    return T
-
-
-def reading_standoff(kind: str, focal_px: float, dz: float) -> float:
-    """Return the reading pose's horizontal distance d (m) from the camera to a vertical face
-    whose centre lies dz metres below the camera: the farthest d at which a nominal module
-    (READ_MODULES across the symbol) spans READ_MODULE_PX along the foreshortened axis,
-    f m d / (d^2 + dz^2) = px (a quadratic in d), else d = |dz| (45 deg, where that span
-    peaks); at least MIN_STANDOFF."""
-    a = focal_px * pattern_layout(kind, SIZES[kind]).qr_side / READ_MODULES
-    disc = a**2 - 4 * READ_MODULE_PX**2 * dz**2
-    d = (a + np.sqrt(disc)) / (2 * READ_MODULE_PX) if disc >= 0 else abs(dz)
-    return float(max(d, MIN_STANDOFF))
 
 
 def polar_command(robot: Array, goal: Array) -> tuple[float, float, float]:
@@ -303,12 +198,7 @@ class HeadRobot:
         self.ceiling = ceiling
         self.moved = 0.0  # metres driven since the last ceiling frame
         # The floor plan (walls, doors, furniture footprints) is the robot's map, a prior.
-        self.grid: OccupancyGrid = occupancy_grid(
-            scene, self.robot.base_radius + PLAN_MARGIN, PLAN_RESOLUTION
-        )
-        self.transit: OccupancyGrid = occupancy_grid(
-            scene, self.robot.base_radius + TRANSIT_MARGIN, PLAN_RESOLUTION
-        )
+        self.routes = FloorRoutes(scene, self.robot.base_radius)
         self.approach: _Approach | None = None
 
     @property
@@ -330,14 +220,14 @@ class HeadRobot:
     def _correct(self, x: Array, P: Array) -> None:
         """Make (x, y, yaw) the base's estimated pose now, with covariance P (a fix)."""
         W = self.T_world_odom
-        self.T_world_odom = floor_pose(*x) @ np.linalg.inv(floor_pose(*self.odom()))
+        self.T_world_odom = planar_pose(x) @ np.linalg.inv(planar_pose(self.odom()))
         self.P = P
         self.fixes.append((self.drift_clock, W, self.T_world_odom))
 
     def T_odom_cam(self) -> Array:
         """Return the head camera's pose in the odometry frame (4, 4)."""
         o = self.odom()
-        return floor_pose(*o) @ robot_head_pose(self.head, self.pan, self.tilt)
+        return planar_pose(o) @ robot_head_pose(self.head, self.pan, self.tilt)
 
     def aim(self, pan: float, tilt: float, dt: float) -> None:
         """Move the joints towards (pan, tilt) within their limits and rate for dt seconds."""
@@ -350,7 +240,9 @@ class HeadRobot:
     def look(self) -> list[LandmarkDetection]:
         """Return the detections in the head camera's frame rendered now (true pose)."""
         p = self.base.state.pose
-        T_world_cam = floor_pose(p.x, p.y, p.yaw) @ robot_head_pose(self.head, self.pan, self.tilt)
+        T_world_cam = planar_pose((p.x, p.y, p.yaw)) @ robot_head_pose(
+            self.head, self.pan, self.tilt
+        )
         view, idx = render_scene_landmarks(
             self.camera,
             T_world_cam,
@@ -405,56 +297,13 @@ class HeadRobot:
         return self.clearance(np.array([p.x, p.y])) < 0.0
 
     def relocalise(self, det: LandmarkDetection, T_odom_cam: Array) -> bool:
-        """Correct T_world_odom from a signpost read within RELOCALISE_M with its rotation
-        fixed by the symbol (its payload carries its world pose): the fix T_world_cam =
-        T_world_mark T_cam_mark^-1, kept planar (camera x, y and the odometry frame's yaw), with
-        its covariance from the detection's (first order), is fused with the pose estimate by
-        a Kalman update (core.sim.survey_localisation: the state is the base's pose now, the
-        camera a point fixed on it, P the estimate's covariance grown by the odometry's slip
-        since the last fix). A ring's yaw is its weakest direction (degrees), so the estimate
-        keeps weight there. A correction larger than RELOCALISE_GATE (m, rad), or whose
-        innovation fails the chi-square test (RELOCALISE_CHI2), is refused as an outlier.
-        Return whether it was applied."""
-        rec = det.record
-        if not isinstance(rec, Signpost) or not det.orientation_known or not det.decided:
-            return False  # (a pose the image cannot decide fixes nothing)
-        if float(np.linalg.norm(det.position)) > RELOCALISE_M:
-            return False
-        T_world_mark = np.eye(4)
-        T_world_mark[:3, :3] = quaternion_to_matrix(rec.pose[3:])
-        T_world_mark[:3, 3] = rec.pose[:3]
-        T_wc = T_world_mark @ np.linalg.inv(det.T_cam_mark)
-        M = T_wc @ np.linalg.inv(T_odom_cam)
-        W = self.T_world_odom
-        new = floor_pose(M[0, 3], M[1, 3], float(np.arctan2(M[1, 0], M[0, 0])))
-        D = new @ np.linalg.inv(W)
-        at = D @ np.append(T_odom_cam[:3, 3], 1.0) - np.append(T_odom_cam[:3, 3], 1.0)
-        dist_gate, angle_gate = RELOCALISE_GATE
-        if np.hypot(at[0], at[1]) > dist_gate or abs(np.arctan2(D[1, 0], D[0, 0])) > angle_gate:
-            return False
-        # The fix's covariance: camera position c = -R^T t in the mark frame and the camera's
-        # yaw, to first order in (rotation vector, translation) of T_cam_mark.
-        R_cm, t = det.T_cam_mark[:3, :3], det.T_cam_mark[:3, 3]
-        tx = np.array([[0.0, -t[2], t[1]], [t[2], 0.0, -t[0]], [-t[1], t[0], 0.0]])
-        J = np.zeros((3, 6))
-        J[:2] = (T_world_mark[:3, :3] @ np.hstack([-R_cm.T @ tx, -R_cm.T]))[:2]
-        J[2, :3] = -T_wc[2, :3]
-        R_fix = J @ det.cov @ J.T
-        # The measurement model: the camera where the fix saw it, c = (x, y) + R(phi) (c_odom
-        # - o), phi = yaw - yaw_odom the odometry frame's heading (the base's estimated pose
-        # x = (x, y, yaw) now, o its odometry now).
-        x = self.estimate()
-        o = self.odom()
-        phi = wrap_angle(float(x[2] - o[2]))
-        r_w = yaw_matrix(phi)[:2, :2] @ (T_odom_cam[:2, 3] - o[:2])
-        H = np.array([[1.0, 0.0, -r_w[1]], [0.0, 1.0, r_w[0]], [0.0, 0.0, 1.0]])
-        fix = np.array([T_wc[0, 3], T_wc[1, 3], np.arctan2(M[1, 0], M[0, 0])])
-        nu = fix - np.array([x[0] + r_w[0], x[1] + r_w[1], phi])
-        nu[2] = wrap_angle(float(nu[2]))
-        # A fix that disagrees with the estimate beyond their covariances (the rings' other
-        # pose, whose yaw the wide RELOCALISE_GATE still lets through) is an outlier.
-        k = kalman_update(x, self.P, nu, H, R_fix, RELOCALISE_CHI2)
-        if not k.accepted:
+        """Correct T_world_odom by the fix a signpost read from T_odom_cam gives (the Kalman
+        update of core.sim.survey_localisation.signpost_update, refused as it says); return
+        whether it was applied."""
+        k = signpost_update(
+            det, T_odom_cam, self.T_world_odom, self.estimate(), self.odom(), self.P
+        )
+        if k is None or not k.accepted:
             return False
         k.x[2] = wrap_angle(float(k.x[2]))
         self._correct(k.x, k.P)
@@ -580,7 +429,7 @@ class HeadRobot:
         v, omega = command()
         # Aim the head at the mark from where the base will be after this frame.
         o = self.odom()
-        m_r = np.linalg.inv(floor_pose(*o)) @ np.append(track.T[:3, 3], 1.0)
+        m_r = np.linalg.inv(planar_pose(o)) @ np.append(track.T[:3, 3], 1.0)
         rel = m_r[:3] - np.asarray(self.head.position)
         pan = float(np.arctan2(rel[1], rel[0]) - omega * FRAME_DT)
         tilt = float(np.arctan2(-rel[2], np.hypot(rel[0], rel[1])))
@@ -590,72 +439,14 @@ class HeadRobot:
                 v, omega = command()
             self.drive(v, omega, BASE_DT)
 
-    def _free(self, p: Array, grid: OccupancyGrid | None = None) -> bool:
-        """Return whether the world point p (x, y) lies in a free cell of `grid` (default: the
-        grid of where the base may stand)."""
-        g = self.grid if grid is None else grid
-        j = int(np.floor((p[0] - g.origin[0]) / g.resolution))
-        i = int(np.floor((p[1] - g.origin[1]) / g.resolution))
-        rows, cols = g.free.shape
-        return bool(0 <= i < rows and 0 <= j < cols and g.free[i, j])
-
-    def _sees(self, a: Array, b: Array) -> bool:
-        """Return whether the straight segment a -> b (world x, y) stays in free cells."""
-        o = np.asarray(self.grid.origin)
-        r = self.grid.resolution
-        return segment_is_free(self.grid.free, (a - o) / r, (b - o) / r)
-
-    @staticmethod
-    def _nearest_free(g: OccupancyGrid, p: Array, within: float = 0.5) -> Array | None:
-        """Return the centre of the free cell of `g` nearest the world point p (x, y) within
-        `within` metres, or None."""
-        c = g.centres()[g.free]
-        if len(c) == 0:
-            return None
-        d = np.linalg.norm(c - p, axis=1)
-        k = int(np.argmin(d))
-        return c[k] if d[k] <= within else None
-
-    def _route_on(self, g: OccupancyGrid, a: Array, b: Array) -> Array | None:
-        """Return the route (N, 2) from a to b on grid g, with straight legs from a to g's
-        nearest free cell and from g's nearest free cell to b when they lie in its margin
-        (None when there is no route or those legs cross where the base may not stand)."""
-        s = a if self._free(a, g) else self._nearest_free(g, a)
-        t = b if self._free(b, g) else self._nearest_free(g, b)
-        if s is None or t is None:
-            return None
-        try:
-            route = plan_path(g.free, s, t, resolution=g.resolution, origin=g.origin)
-        except (BlockedEndpoint, NoPath):
-            return None
-        if s is not a:
-            # Out of the margin to its nearest free cell (short; checked on the floor where
-            # the base may stand, unless it already stands in that margin too).
-            if self._free(a) and not self._sees(a, s):
-                return None
-            route = np.vstack([a, route])
-        if t is not b:
-            if not self._sees(t, b):
-                return None
-            route = np.vstack([route, b])
-        return route
-
     def plan_route(self, target_world: Array) -> Array | None:
         """Return a collision-free route (N, 2), world (x, y), from the base's estimated
-        position (odometry through T_world_odom) to `target_world`: on the grid inflated by
-        TRANSIT_MARGIN where the floor allows, else on the one inflated by PLAN_MARGIN (legs
-        in and out of a grid's margin straight; `_route_on`), or None when there is none."""
+        position (odometry through T_world_odom) to `target_world` on the floor plan
+        (FloorRoutes.route), or None when there is none."""
         W = self.T_world_odom
         o = self.odom()
         here = (W @ np.array([o[0], o[1], 0.0, 1.0]))[:2]
-        goal = np.asarray(target_world, dtype=np.float64)
-        if not self._free(goal):
-            near = self._nearest_free(self.grid, goal)
-            if near is None:
-                return None
-            goal = near
-        route = self._route_on(self.transit, here, goal)
-        return route if route is not None else self._route_on(self.grid, here, goal)
+        return self.routes.route(here, np.asarray(target_world, dtype=np.float64))
 
     def _plan_approach(self, goal: Array) -> _Approach | None:
         """Return the approach to the reading pose `goal` (x, y, yaw; odometry frame): the
@@ -668,13 +459,13 @@ class HeadRobot:
         out_w = W[:2, :2] @ -np.array([np.cos(goal[2]), np.sin(goal[2])])  # away from the mark
         g0 = (W @ np.array([goal[0], goal[1], 0.0, 1.0]))[:2]
         steps = np.arange(0.0, 0.5 + 1e-9, PLAN_RESOLUTION)
-        shift = next((s for s in steps if self._free(g0 + out_w * s)), None)
+        shift = next((s for s in steps if self.routes.free(g0 + out_w * s)), None)
         if shift is not None:
             g_w = g0 + out_w * shift
         else:
             # Nothing free on the normal (a mark beside a table's corner): the free pose nearest
             # the reading pose; the head still aims at the mark from there.
-            near = self._nearest_free(self.grid, g0)
+            near = self.routes.nearest_free(self.routes.grid, g0)
             if near is None:
                 return None
             g_w = near
@@ -682,7 +473,7 @@ class HeadRobot:
             (
                 g_w + out_w * s
                 for s in np.arange(APPROACH_M, -1e-9, -PLAN_RESOLUTION)
-                if self._free(g_w + out_w * s) and self._sees(g_w + out_w * s, g_w)
+                if self.routes.free(g_w + out_w * s) and self.routes.sees(g_w + out_w * s, g_w)
             ),
             g_w,
         )

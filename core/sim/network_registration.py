@@ -33,16 +33,17 @@ from core.calibration.network import (
     registered,
 )
 from core.errors import DegenerateConfiguration, InvalidInput
-from core.geometry.rotations import quaternion_to_matrix
+from core.geometry.poses import planar_pose, pose_from_quaternion
 from core.landmarks.payload import PayloadError, Signpost, decode_payload
 from core.localization import NetworkCamera
 from core.localization.detect import MarkerDetectorConfig, detect_marker
 from core.localization.ground import locate_monocular
+from core.sim.head_camera import (
+    calibrate_scene_head_camera,
+)
 from core.sim.head_robot import (
     HeadRobot,
     TrackedLandmark,
-    calibrate_scene_head_camera,
-    floor_pose,
 )
 from core.sim.motion import world_state
 from core.sim.render import Renderer, camera_model
@@ -105,10 +106,8 @@ def declared_signposts(scene: Scene) -> list[tuple[int, Array]]:
 
 
 def _mark_pose(rec: Signpost) -> Array:
-    T = np.eye(4)
-    T[:3, :3] = quaternion_to_matrix(rec.pose[3:])
-    T[:3, 3] = rec.pose[:3]
-    return T
+    """Return T_world_mark (4, 4) of the pose a signpost's payload carries."""
+    return pose_from_quaternion(rec.pose[:3], rec.pose[3:])
 
 
 def marker_from_read(
@@ -122,7 +121,7 @@ def marker_from_read(
     T_world_mark = _mark_pose(rec)
     mk = robot.robot.marker
     m_robot = np.array([mk.offset[0], mk.offset[1], mk.height, 1.0])
-    T_odom_robot = floor_pose(*robot.odom())
+    T_odom_robot = planar_pose(robot.odom())
     m = (np.linalg.inv(T_odom_cam) @ T_odom_robot @ m_robot)[:3]  # in the reading camera
     R, t = T_cam_mark[:3, :3], T_cam_mark[:3, 3]
     q = R.T @ (m - t)

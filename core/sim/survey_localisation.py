@@ -5,8 +5,9 @@ drives the prediction (`propagate`): each step's increment (forward, lateral, tu
 by the wheels, with the slip model's noise (variances linear in the distance driven and the
 angle turned; Thrun et al., Probabilistic Robotics, sec. 5.4 and 7.4) and the Jacobian that
 turns a heading error into a growing lateral one. Fixes correct it (`kalman_update`): a
-signpost read near by (the head camera's pose from the rings, core.sim.head_robot),
-and the robot's top marker located by the home's ceiling cameras (`CeilingLocaliser`).
+signpost read near by (`signpost_update`: the head camera's pose from the rings, read by
+core.sim.head_robot), and the robot's top marker located by the home's ceiling cameras
+(`CeilingLocaliser`).
 
 The ceiling fixes use the cameras as the home knows them (its installed network calibration,
 core.sim.installation.installed_cameras, never the twin's true cameras): about `CEILING_HZ`
@@ -28,9 +29,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from core.errors import IntspaceError, InvalidInput
+from core.geometry.poses import planar_pose, pose_from_quaternion
 from core.geometry.rotations import wrap_angle
+from core.landmarks.detect import LandmarkDetection
+from core.landmarks.payload import Signpost
 from core.localization import NetworkCamera, line_of_sight, locate_ml
 from core.localization.detect import MarkerDetectorConfig, detect_marker
+from core.sim._geometry import yaw_matrix
 from core.sim.motion import Pose2D, WorldState
 from core.sim.occluders import scene_occluders
 from core.sim.render import renderer_for
@@ -103,6 +108,65 @@ def kalman_update(x: Array, P: Array, nu: Array, H: Array, R: Array, gate: float
     K = np.linalg.solve(S, H @ P).T
     A = np.eye(len(x)) - K @ H
     return KalmanStep(x + K @ nu, A @ P @ A.T + K @ R @ K.T, chi2, True)
+
+
+# A signpost's fix (signpost_update): read from nearer than RELOCALISE_M, a correction of the
+# estimate within RELOCALISE_GATE, an innovation within the chi-square gate RELOCALISE_CHI2.
+RELOCALISE_M = 1.5  # m: a signpost read from nearer than this corrects the odometry
+RELOCALISE_GATE = (1.0, 0.35)  # m, rad: larger corrections are outliers
+RELOCALISE_CHI2 = 11.34  # chi-square, 3 degrees of freedom, 99 %: the fix's consistency gate
+
+
+def signpost_update(
+    det: LandmarkDetection, T_odom_cam: Array, T_world_odom: Array, x: Array, o: Array, P: Array
+) -> KalmanStep | None:
+    """Return the Kalman update of the pose estimate x = (x, y, yaw) (covariance P; o the
+    odometry pose now, T_world_odom the odometry frame in the world) by a signpost read from
+    the camera at T_odom_cam, or None when the read fixes nothing: not a signpost, a pose the
+    image cannot decide, read from further than RELOCALISE_M, or a correction larger than
+    RELOCALISE_GATE (m, rad).
+
+    The symbol fixes the rotation (its payload carries its world pose): the fix T_world_cam =
+    T_world_mark T_cam_mark^-1, kept planar (camera x, y and the odometry frame's yaw), with
+    its covariance from the detection's (first order), is fused with the estimate (the state
+    is the base's pose now, the camera a point fixed on it, P the estimate's covariance grown
+    by the odometry's slip since the last fix). A ring's yaw is its weakest direction
+    (degrees), so the estimate keeps weight there. The step is not `accepted` when its
+    innovation fails the chi-square test (RELOCALISE_CHI2): an outlier."""
+    rec = det.record
+    if not isinstance(rec, Signpost) or not det.orientation_known or not det.decided:
+        return None  # (a pose the image cannot decide fixes nothing)
+    if float(np.linalg.norm(det.position)) > RELOCALISE_M:
+        return None
+    T_world_mark = pose_from_quaternion(rec.pose[:3], rec.pose[3:])
+    T_wc = T_world_mark @ np.linalg.inv(det.T_cam_mark)
+    M = T_wc @ np.linalg.inv(T_odom_cam)
+    new = planar_pose((M[0, 3], M[1, 3], float(np.arctan2(M[1, 0], M[0, 0]))))
+    D = new @ np.linalg.inv(T_world_odom)
+    at = D @ np.append(T_odom_cam[:3, 3], 1.0) - np.append(T_odom_cam[:3, 3], 1.0)
+    dist_gate, angle_gate = RELOCALISE_GATE
+    if np.hypot(at[0], at[1]) > dist_gate or abs(np.arctan2(D[1, 0], D[0, 0])) > angle_gate:
+        return None
+    # The fix's covariance: camera position c = -R^T t in the mark frame and the camera's
+    # yaw, to first order in (rotation vector, translation) of T_cam_mark.
+    R_cm, t = det.T_cam_mark[:3, :3], det.T_cam_mark[:3, 3]
+    tx = np.array([[0.0, -t[2], t[1]], [t[2], 0.0, -t[0]], [-t[1], t[0], 0.0]])
+    J = np.zeros((3, 6))
+    J[:2] = (T_world_mark[:3, :3] @ np.hstack([-R_cm.T @ tx, -R_cm.T]))[:2]
+    J[2, :3] = -T_wc[2, :3]
+    R_fix = J @ det.cov @ J.T
+    # The measurement model: the camera where the fix saw it, c = (x, y) + R(phi) (c_odom
+    # - o), phi = yaw - yaw_odom the odometry frame's heading (the base's estimated pose
+    # x = (x, y, yaw) now, o its odometry now).
+    phi = wrap_angle(float(x[2] - o[2]))
+    r_w = yaw_matrix(phi)[:2, :2] @ (T_odom_cam[:2, 3] - o[:2])
+    H = np.array([[1.0, 0.0, -r_w[1]], [0.0, 1.0, r_w[0]], [0.0, 0.0, 1.0]])
+    fix = np.array([T_wc[0, 3], T_wc[1, 3], np.arctan2(M[1, 0], M[0, 0])])
+    nu = fix - np.array([x[0] + r_w[0], x[1] + r_w[1], phi])
+    nu[2] = wrap_angle(float(nu[2]))
+    # A fix that disagrees with the estimate beyond their covariances (the rings' other
+    # pose, whose yaw the wide RELOCALISE_GATE still lets through) is an outlier.
+    return kalman_update(x, P, nu, H, R_fix, RELOCALISE_CHI2)
 
 
 @dataclass(frozen=True)

@@ -96,7 +96,10 @@ def check_camera_model(row: Any, changes: dict[str, Any]) -> None:
     it will be after `changes` (to `row`, or to nothing when it is created) is implausible or
     one core cannot use."""
     keys = ("K", "dist", "width", "height")
-    merged = {key: changes[key] if key in changes else getattr(row, key, None) for key in keys}
+    # A row's and a create body's width and height are never None (both required).
+    merged: dict[str, Any] = {
+        key: changes[key] if key in changes else getattr(row, key, None) for key in keys
+    }
     problem = camera_model_problem(merged["K"], merged["dist"], merged["width"], merged["height"])
     if problem is not None:
         raise FieldProblem(422, problem[0], problem[1])

@@ -18,32 +18,26 @@ and returned, as before the tracker existed.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
 from typing import Annotated
 
-import numpy as np
 from fastapi import APIRouter, Depends, HTTPException, status
 from fastapi.responses import JSONResponse
-from sqlalchemy import select
 
-from core.localization import (
-    DuplicateView,
-    FootMeasurement,
-    NetworkCamera,
-    PointStatus,
-    box_foot,
-    cut_mask,
-    foot_on_axis,
-    locate_groups,
-)
 from server.api.deps import SessionDep, get_live_targets, get_tracking, require_write
 from server.api.errors import PROBLEM_RESPONSES, FieldProblem
 from server.api.server_time import SERVER_TIME_HEADER
-from server.db.models import Camera, Robot
 from server.schemas.localization import EmptyFrame, Observation, ObservationBatch, PositionBatch
 from server.services.auth import Principal
+from server.services.observations import (
+    ObservationRefused,
+    camera_rows,
+    detections_in,
+    drop_unseen_robots,
+    locate_labelled,
+    measure,
+)
 from server.services.targets import LiveTargets
-from server.services.tracking import DetectionIn, TrackingService
+from server.services.tracking import TrackingService
 from server.services.twin import registry_cameras
 
 router = APIRouter(tags=["localization"], responses=PROBLEM_RESPONSES)
@@ -54,13 +48,6 @@ router = APIRouter(tags=["localization"], responses=PROBLEM_RESPONSES)
 MAX_LIVE_LABELS = 256
 # How long a silent labelled target stays live (core TrackerConfig.labelled_end_after), s.
 LABEL_RETIRES_AFTER_S = 60
-
-_STATUS = {
-    PointStatus.OK: "ok",
-    PointStatus.TOO_FEW_CAMERAS: "too_few_cameras",
-    PointStatus.DEGENERATE: "degenerate",
-    PointStatus.BEHIND_CAMERA: "behind_camera",
-}
 
 
 @router.post("/observations", response_model=PositionBatch)
@@ -90,47 +77,27 @@ def post_observations(
                 f"{refused[o.camera_id]}; calibrate and pose it before sending its detections",
             )
     _check_empty_frames(obs, empty, refused, who)
-    rows = _camera_rows(session, camera_ids)
+    rows = camera_rows(session, camera_ids)
     space_of = {cid: row.space_id for cid, row in rows.items()}
-    # A space with no registered robot has no robot to see: a "robot" detection there is a red
-    # thing mistaken for its marker (spec 08, "Real footage"). Dropping a kind is filtering,
-    # not association; a frame left with nothing is an empty frame to the tracker.
-    robotless = _robotless(session, space_of)
-    ignored = [o for o in obs if o.kind == "robot" and o.camera_id in robotless]
-    if ignored:
-        obs = [o for o in obs if not (o.kind == "robot" and o.camera_id in robotless)]
-        left = {(o.camera_id, o.t) for o in obs}
-        emptied = {(o.camera_id, o.t) for o in ignored} - left
-        empty = [*empty, *(EmptyFrame(camera_id=c, t=t) for c, t in sorted(emptied))]
-    m = _measure(obs, rows, cameras, space_of, tracking)
-    if live is not None:
-        _check_labels(obs, space_of, live)
-    labelled = [i for i, o in enumerate(obs) if o.target is not None and m.keep[i] and m.tracked[i]]
-    positions = _locate_labelled(obs, labelled, cameras, m) if labelled else []
-    detections = [
-        DetectionIn(
-            camera_id=o.camera_id,
-            t=o.t,
-            pixel=(float(m.pixel[i, 0]), float(m.pixel[i, 1])),
-            cov=((m.cov[i, 0, 0], m.cov[i, 0, 1]), (m.cov[i, 1, 0], m.cov[i, 1, 1])),
-            kind=o.kind or ("person" if o.box is not None else "unknown"),
-            height=o.height,
-            label=o.target,
-            box=None if o.box is None else (o.box[0], o.box[1], o.box[2], o.box[3]),
-            score=o.score,
-            cut=None if o.box is None else tuple(o.cut or ()),
-            tracked=bool(m.tracked[i]),
-        )
-        for i, o in enumerate(obs)
-        if m.keep[i]
-    ]
+    obs, empty, ignored = drop_unseen_robots(session, obs, empty, space_of)
+    try:
+        m = measure(obs, rows, cameras, space_of, tracking)
+        if live is not None:
+            _check_labels(obs, space_of, live)
+        labelled = [
+            i for i, o in enumerate(obs) if o.target is not None and m.keep[i] and m.tracked[i]
+        ]
+        positions = locate_labelled(obs, labelled, cameras, m) if labelled else []
+    except ObservationRefused as exc:
+        raise FieldProblem(422, exc.field, str(exc)) from exc
+    detections = detections_in(obs, m)
     if tracking is not None:
         marks = [(f.camera_id, f.t) for f in empty]
         result = tracking.ingest(session, detections, space_of, empty=marks)
         stored, frames, late = result.stored, result.frames, result.late
     else:  # pragma: no cover - the app always has its tracking service once started
         stored, frames, late = 0, 0, 0
-    body = {
+    answer = {
         "stored": stored,
         "frames": frames,
         "late": late,
@@ -139,7 +106,7 @@ def post_observations(
     }
     # The service's clock to the microsecond: a camera node measures its clock offset by it
     # (the Date header has whole seconds, refreshed late when the service is loaded).
-    return JSONResponse(body, headers={SERVER_TIME_HEADER: f"{time.time():.6f}"})
+    return JSONResponse(answer, headers={SERVER_TIME_HEADER: f"{time.time():.6f}"})
 
 
 def _check_empty_frames(
@@ -181,7 +148,9 @@ def _check_empty_frames(
         seen.add(key)
 
 
-def _check_labels(obs, space_of: dict[int, int | None], live: LiveTargets) -> None:
+def _check_labels(
+    obs: list[Observation], space_of: dict[int, int | None], live: LiveTargets
+) -> None:
     """Refuse a batch whose labels would make a space hold more than MAX_LIVE_LABELS live
     labelled targets: 422 when the batch alone has more, 429 (retry once some have retired)
     when the live ones and the batch's new ones together have."""
@@ -207,161 +176,3 @@ def _check_labels(obs, space_of: dict[int, int | None], live: LiveTargets) -> No
                 f"label retires {LABEL_RETIRES_AFTER_S} s after its last detection",
                 headers={"Retry-After": str(LABEL_RETIRES_AFTER_S)},
             )
-
-
-def _cov(o) -> tuple[tuple[float, float], tuple[float, float]]:
-    if o.cov is not None:
-        (a, b), (c, d) = o.cov
-        return ((a, b), (c, d))
-    s2 = (o.sigma_px or 1.0) ** 2
-    return ((s2, 0.0), (0.0, s2))
-
-
-@dataclass(frozen=True)
-class _CameraRow:
-    space_id: int | None
-    score_threshold: float
-    width: int
-    height: int
-
-
-def _camera_rows(session, camera_ids: list[int]) -> dict[int, _CameraRow]:
-    rows = session.execute(
-        select(
-            Camera.id, Camera.space_id, Camera.score_threshold, Camera.width, Camera.height
-        ).where(Camera.id.in_(camera_ids))
-    )
-    return {r[0]: _CameraRow(r[1], float(r[2]), int(r[3]), int(r[4])) for r in rows}
-
-
-# A box may reach past the image by this fraction of its size (a detector's box around a
-# person at the edge); further, it is not a box of this camera.
-_BOX_MARGIN = 0.25
-
-
-@dataclass(frozen=True)
-class _Measured:
-    """Every observation's measured pixel (N, 2) and covariance (N, 2, 2); `keep`: not a box
-    scored under its camera's threshold; `tracked`: gives a floor position (not a box with a
-    cut bottom)."""
-
-    pixel: np.ndarray
-    cov: np.ndarray
-    keep: np.ndarray
-    tracked: np.ndarray
-
-
-def _measure(
-    obs: list[Observation],
-    rows: dict[int, _CameraRow],
-    cameras: dict[int, NetworkCamera],
-    space_of: dict[int, int | None],
-    tracking: TrackingService | None,
-) -> _Measured:
-    """Return the measured pixels of the observations: their pixels, or their boxes' feet
-    (core.localization.box_foot) moved to the body's axis by the camera's geometry and the
-    camera's space's floor plan (core.localization.foot_on_axis). Raises FieldProblem 422
-    naming a box outside its camera's image (by more than _BOX_MARGIN of the image's size)."""
-    n = len(obs)
-    pixel = np.zeros((n, 2))
-    cov = np.zeros((n, 2, 2))
-    keep = np.ones(n, dtype=bool)
-    tracked = np.ones(n, dtype=bool)
-    boxed = [i for i, o in enumerate(obs) if o.box is not None]
-    for i, o in enumerate(obs):
-        if o.pixel is not None:
-            pixel[i] = o.pixel
-            cov[i] = _cov(o)
-    if not boxed:
-        return _Measured(pixel, cov, keep, tracked)
-    boxes = np.array([obs[i].box for i in boxed], dtype=np.float64)
-    size = np.array([(rows[obs[i].camera_id].width, rows[obs[i].camera_id].height) for i in boxed])
-    lo, hi = -_BOX_MARGIN * size, (1.0 + _BOX_MARGIN) * size
-    outside = np.any(boxes[:, :2] < lo, axis=1) | np.any(boxes[:, 2:] > hi, axis=1)
-    if np.any(outside):
-        k = int(np.argmax(outside))
-        w, h = size[k]
-        raise FieldProblem(
-            422,
-            f"observations.{boxed[k]}.box",
-            f"box {boxes[k].tolist()} is outside camera {obs[boxed[k]].camera_id}'s "
-            f"{w}x{h} image; a box is in the camera's distorted pixels",
-        )
-    cut = cut_mask(obs[i].cut or () for i in boxed)
-    foot = box_foot(boxes, cut)
-    on = np.array([obs[i].camera_id for i in boxed])
-    for cid in np.unique(on).tolist():
-        mine = np.flatnonzero(on == cid)
-        plan = None if tracking is None else tracking.floor_plan(space_of.get(cid))
-        axis = foot_on_axis(
-            boxes[mine],
-            FootMeasurement(foot.pixel[mine], foot.cov[mine], foot.measured[mine]),
-            cameras[cid],
-            cut=cut[mine],
-            occluders=plan,
-        )
-        at = [boxed[k] for k in mine]
-        pixel[at], cov[at], tracked[at] = axis.pixel, axis.cov, axis.measured
-    threshold = np.array([rows[obs[i].camera_id].score_threshold for i in boxed])
-    score = np.array([1.0 if obs[i].score is None else obs[i].score for i in boxed])
-    keep[boxed] = score >= threshold
-    return _Measured(pixel, cov, keep, tracked)
-
-
-def _robotless(session, space_of: dict[int, int | None]) -> set[int]:
-    """Return the cameras (ids of `space_of`) whose space has no robot in the registry (a
-    camera in no space: when no robot is in no space either)."""
-    spaces = set(space_of.values())
-    wanted = [s for s in spaces if s is not None]
-    held: set[int | None] = set()
-    if wanted:
-        held |= set(
-            session.scalars(select(Robot.space_id).where(Robot.space_id.in_(wanted)).distinct())
-        )
-    if None in spaces:
-        stmt = select(Robot.id).where(Robot.space_id.is_(None)).limit(1)
-        if session.scalars(stmt).first() is not None:
-            held.add(None)
-    return {cid for cid, sid in space_of.items() if sid not in held}
-
-
-def _locate_labelled(every, index: list[int], cameras, measured: _Measured) -> list[dict]:
-    """Return the ML floor position of each labelled (target, t, height) group of the
-    observations `every[i]` for i in `index` (core.localization.locate_groups)."""
-    obs = [every[i] for i in index]
-    camera_ids = sorted({o.camera_id for o in obs})
-    column = {cid: k for k, cid in enumerate(camera_ids)}
-    groups: dict[tuple[str | None, float, float], int] = {}
-    group = [groups.setdefault((o.target, o.t, o.height), len(groups)) for o in obs]
-    try:
-        found = locate_groups(
-            [cameras[cid] for cid in camera_ids],
-            [column[o.camera_id] for o in obs],
-            group,
-            [key[2] for key in groups],
-            measured.pixel[index],
-            measured.cov[index],
-        )
-    except DuplicateView as exc:
-        o = obs[exc.index]
-        raise FieldProblem(
-            422,
-            f"observations.{index[exc.index]}",
-            f"camera {o.camera_id} has more than one detection of target "
-            f"{o.target!r} at t = {o.t}; send one per camera, target and time",
-        ) from exc
-    positions = []
-    for b, (target, t, _) in enumerate(groups):
-        ok = found.status[b] == PointStatus.OK
-        positions.append(
-            {
-                "target": target,
-                "t": t,
-                "xy": found.xy[b].tolist() if ok else None,
-                "cov": found.cov[b].tolist() if ok else None,
-                "n_cameras": int(found.n_cameras[b]),
-                "estimator": "ml",
-                "status": _STATUS[PointStatus(int(found.status[b]))],
-            }
-        )
-    return positions

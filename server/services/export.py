@@ -34,10 +34,10 @@ from typing import Any
 
 import numpy as np
 from mcap.writer import CompressionType, Writer
-from scipy.spatial.transform import Rotation
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
+from core.geometry.rotations import matrix_to_quaternion
 from server.db.models import Camera, Detection, Target, TrackPoint
 
 WORLD = "world"
@@ -247,7 +247,7 @@ def _camera_messages(cameras: list[Camera], since: float) -> list[Message]:
             )
         if cam.T_world_camera is not None:
             T = np.asarray(cam.T_world_camera, dtype=np.float64)
-            x, y, z, w = Rotation.from_matrix(T[:3, :3]).as_quat()
+            x, y, z, w = matrix_to_quaternion(T[:3, :3])
             out.append(
                 Message(
                     _ns(since),

@@ -27,6 +27,8 @@ import psycopg
 from psycopg import sql
 from sqlalchemy.engine import make_url
 
+from server.services._loop_thread import LoopThread
+
 log = logging.getLogger(__name__)
 
 # Bytes of one notification's payload at most (PostgreSQL refuses 8000 and more).
@@ -88,9 +90,8 @@ class Fanout:
         self.listener_name = f"intspace-fanout:{os.getpid()}:{self.origin}"
         self._handlers: dict[str, Handler] = {}
         self._on_reconnect: list[Callable[[], None]] = []
-        self._stop = threading.Event()
         self._listening = threading.Event()
-        self._thread: threading.Thread | None = None
+        self._runner = LoopThread(self._listen, "fanout", join_timeout=5)
         self._pub_lock = threading.Lock()
         self._pub: psycopg.Connection[Any] | None = None
         self.received = 0
@@ -99,7 +100,7 @@ class Fanout:
 
     def subscribe(self, channel: str, handler: Handler) -> None:
         """Call `handler(message)` for every message another process publishes on `channel`."""
-        if self._thread is not None:
+        if self._runner.started:
             raise RuntimeError("subscribe before start")
         self._handlers[channel] = handler
 
@@ -115,18 +116,13 @@ class Fanout:
 
     def start(self, timeout: float = 5.0) -> None:
         """Start the listener thread and wait up to `timeout` s until it listens."""
-        self._stop.clear()
-        self._thread = threading.Thread(target=self._listen, name="fanout", daemon=True)
-        self._thread.start()
+        self._runner.start()
         if not self._listening.wait(timeout):
             log.warning("fan-out: not listening after %.1f s; retrying in the background", timeout)
 
     def stop(self) -> None:
         """Stop listening and close both connections."""
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=5)
-            self._thread = None
+        self._runner.stop()
         with self._pub_lock:
             if self._pub is not None:
                 self._pub.close()
@@ -165,7 +161,7 @@ class Fanout:
 
     def _listen(self) -> None:
         attempt = 0
-        while not self._stop.is_set():
+        while not self._runner.stopping:
             try:
                 with psycopg.connect(
                     self._conninfo, autocommit=True, application_name=self.listener_name
@@ -178,7 +174,7 @@ class Fanout:
                         for callback in self._on_reconnect:
                             self._call(callback)
                     attempt = 0
-                    while not self._stop.is_set():
+                    while not self._runner.stopping:
                         for note in conn.notifies(timeout=_POLL_S):
                             self._dispatch(note.channel, note.payload)
             except psycopg.Error as exc:
@@ -186,7 +182,7 @@ class Fanout:
                 delay = _BACKOFF_S[min(attempt, len(_BACKOFF_S) - 1)]
                 attempt += 1
                 log.warning("fan-out: listener lost (%s); reconnecting in %.1f s", exc, delay)
-                self._stop.wait(delay)
+                self._runner.wait(delay)
         self._listening.clear()
 
     def _dispatch(self, channel: str, payload: str) -> None:

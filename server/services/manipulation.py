@@ -31,9 +31,9 @@ from core.sim.fetch import (
     GRASP_PHASES,
     GraspEpisode,
     fetch_episodes,
-    fetch_problem,
     prepare_fetch,
 )
+from core.sim.fetch_placement import fetch_problem
 from core.sim.render import Renderer
 from core.sim.scene import default_scene
 from server.db.base import utcnow
@@ -299,7 +299,7 @@ def fetch_target(
     """Return the object a fetch takes, as the space's semantic map holds it; `ref` is its id
     (int) or its name (str, any case).
     Raises FetchRefused: 404 when the map has no such object, 409 when two have that name or
-    the arm cannot fetch it from there (core.sim.fetch.fetch_problem)."""
+    the arm cannot fetch it from there (core.sim.fetch_placement.fetch_problem)."""
     query = (
         select(SemanticObject)
         .where(SemanticObject.space_id == space_id)

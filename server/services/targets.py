@@ -31,6 +31,7 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from server.db.base import utcnow
 from server.db.models import Detection, Target, TrackPoint
+from server.services._loop_thread import LoopThread
 from server.services.jobs import rows_changed
 
 log = logging.getLogger(__name__)
@@ -101,8 +102,7 @@ class LiveTargets:
         self._flush_lock = threading.Lock()
         self._targets: dict[tuple[int | None, int], LiveTarget] = {}
         self._ended: list[LiveTarget] = []
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
+        self._runner = LoopThread(self._loop, "targets-writer", join_timeout=10)
         self._last_retention = 0.0
         self._watchers: list[Callable[[], None]] = []
         self._local = threading.local()
@@ -394,20 +394,15 @@ class LiveTargets:
 
     def start(self) -> None:
         """Start the writer thread."""
-        self._stop.clear()
-        self._thread = threading.Thread(target=self._loop, name="targets-writer", daemon=True)
-        self._thread.start()
+        self._runner.start()
 
     def stop(self) -> None:
         """Stop the writer thread after a last flush."""
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=10)
-            self._thread = None
+        self._runner.stop()
         self.flush()
 
     def _loop(self) -> None:
-        while not self._stop.wait(self._period):
+        while not self._runner.wait(self._period):
             try:
                 self.flush()
                 if time.monotonic() - self._last_retention > 60.0:

@@ -38,6 +38,7 @@ from core.sim.render import camera_model, renderer_for
 from server.db.models import Camera, CameraCalibration, Landmark, Projector, Robot, Room, Space
 from server.schemas.registry import CameraHeartbeat
 from server.schemas.twin import TwinState
+from server.services._loop_thread import LoopThread
 from server.services.cameras import CameraNotPlaced, network_camera
 from server.services.tracking import DetectionIn
 
@@ -255,12 +256,11 @@ class Twin:
             else None
         )
         self._lock = threading.Lock()
-        self._stop = threading.Event()
         # Set to cut the loop's wait short (a new rate, a stop): a slow rate must not hold it.
         self._wake = threading.Event()
         self._last_step = time.monotonic()
         self._paused = threading.Event()
-        self._thread: threading.Thread | None = None
+        self._runner = LoopThread(self._loop, "twin", join_timeout=30, wake=self._wake)
         self._frames: dict[int, TwinFrame] = {}
         self._cameras: dict[int, NetworkCamera] = {}
         self._cameras_loaded = -float("inf")
@@ -309,30 +309,24 @@ class Twin:
 
     def start(self) -> None:
         """Start the simulation thread."""
-        self._stop.clear()
-        self._thread = threading.Thread(target=self._loop, name="twin", daemon=True)
-        self._thread.start()
+        self._runner.start()
 
     def stop(self) -> None:
         """Stop the simulation thread (at the end of the current frame)."""
-        self._stop.set()
-        self._wake.set()
-        if self._thread is not None:
-            self._thread.join(timeout=30)
-            self._thread = None
+        self._runner.stop()
 
     @property
     def running(self) -> bool:
         """Whether the thread runs and is not paused."""
-        return self._thread is not None and self._thread.is_alive() and not self._paused.is_set()
+        return self._runner.alive and not self._paused.is_set()
 
     @property
     def stuck(self) -> bool:
         """Whether the twin should run but has not finished a frame for 10 s or 5 periods."""
-        if self._paused.is_set() or self._thread is None:
+        if self._paused.is_set() or not self._runner.started:
             return False
         late = max(10.0, 5.0 / max(self.rate_hz, 1e-3))
-        return not self._thread.is_alive() or time.monotonic() - self._last_step > late
+        return not self._runner.alive or time.monotonic() - self._last_step > late
 
     def pause(self) -> None:
         """Hold the simulation clock (and the space's tracks) until `resume`."""
@@ -397,13 +391,13 @@ class Twin:
     def _loop(self) -> None:
         # Built here, not at start-up: the cameras' static layers take seconds to render.
         for cam in self.scene.cameras:
-            if self._stop.is_set():
+            if self._runner.stopping:
                 return
             self._detectors[cam.name] = self._learn_background(cam.name)
         next_time = time.monotonic()
         last: float | None = None
         owed = 0.0  # real time not yet simulated (s)
-        while not self._stop.is_set():
+        while not self._runner.stopping:
             period = 1.0 / max(self.rate_hz, 1e-3)
             if not self._paused.is_set():
                 # The home keeps the service's time, as real cameras do: when steps come late

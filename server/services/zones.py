@@ -30,6 +30,7 @@ from core.localization.zones import ZoneEvent, ZoneOccupancy, points_in_polygons
 from server.db.models import Room, Space
 from server.db.models import Zone as ZoneRow
 from server.schemas.zones import ZoneRead
+from server.services._loop_thread import LoopThread
 
 log = logging.getLogger(__name__)
 
@@ -167,8 +168,7 @@ class ZoneService:
         self._names: dict[int, str] = {}
         self.sinks: list[HomeSink] = []
         self._wake = threading.Event()
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
+        self._runner = LoopThread(self._loop, "zones", join_timeout=5, wake=self._wake)
         self.errors = 0
 
     def attach_tracking(self, tracking: Any) -> None:
@@ -310,23 +310,17 @@ class ZoneService:
     def start(self) -> None:
         """Load the zones and start the thread that reloads them."""
         self.reload()
-        self._stop.clear()
-        self._thread = threading.Thread(target=self._loop, name="zones", daemon=True)
-        self._thread.start()
+        self._runner.start()
 
     def stop(self) -> None:
         """Stop the thread."""
-        self._stop.set()
-        self._wake.set()
-        if self._thread is not None:
-            self._thread.join(timeout=5)
-            self._thread = None
+        self._runner.stop()
 
     def _loop(self) -> None:
-        while not self._stop.is_set():
+        while not self._runner.stopping:
             self._wake.wait(_RELOAD_S)
             self._wake.clear()
-            if self._stop.is_set():
+            if self._runner.stopping:
                 return
             try:
                 self.reload()

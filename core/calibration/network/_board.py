@@ -31,6 +31,7 @@ from core.calibration.network._records import CalibratedCamera, NetworkCalibrati
 from core.calibration.zhang import DISTORTION_MODELS, calibrate_camera
 from core.errors import ConvergenceError, DegenerateConfiguration, InvalidInput, NotEnoughPoints
 from core.geometry.camera import intrinsics_to_matrix, project_points
+from core.geometry.poses import invert_pose
 from core.geometry.rotations import matrix_to_rotvec, rotvec_to_matrix
 from core.optim import solve_sparse_lm
 
@@ -61,16 +62,6 @@ def _robot_matrices(poses: Array) -> Array:
     T[:, 0, 0], T[:, 0, 1], T[:, 1, 0], T[:, 1, 1] = c, -s, s, c
     T[:, 0, 3], T[:, 1, 3] = poses[:, 0], poses[:, 1]
     return T
-
-
-def _rigid_inverse(T: Array) -> Array:
-    """Return the inverse of rigid transforms (..., 4, 4)."""
-    R = np.swapaxes(T[..., :3, :3], -1, -2)
-    out = np.zeros_like(T)
-    out[..., :3, :3] = R
-    out[..., :3, 3] = -np.einsum("...ij,...j->...i", R, T[..., :3, 3])
-    out[..., 3, 3] = 1.0
-    return out
 
 
 def _half_turn(points: Array) -> tuple[Array, NDArray[np.int64]]:
@@ -143,7 +134,7 @@ def _init_board_camera(
         T_cb[k, :3, :3], T_cb[k, :3, 3] = p.R, p.t
     # Both corner orders as world poses of the camera (2, n, 4, 4): as detected, and turned.
     T_wb = T_world_robot[views] @ T_robot_board
-    cand = np.stack([T_wb @ _rigid_inverse(T_cb), T_wb @ F @ _rigid_inverse(T_cb)])
+    cand = np.stack([T_wb @ invert_pose(T_cb), T_wb @ F @ invert_pose(T_cb)])
     flat = cand.reshape(-1, 4, 4)
     ang, off = _pose_distance(flat[:, None], flat[None, :])
     near = (ang <= max_angle) & (off <= max_offset)
@@ -182,7 +173,7 @@ def _init_board_camera(
     T_cb = np.tile(np.eye(4), (len(cal.poses), 1, 1))
     for k, p in enumerate(cal.poses):
         T_cb[k, :3, :3], T_cb[k, :3, 3] = p.R, p.t
-    T_wc = T_world_robot[used] @ T_robot_board @ _rigid_inverse(T_cb)
+    T_wc = T_world_robot[used] @ T_robot_board @ invert_pose(T_cb)
     R_wc = _mean_rotation(T_wc[:, :3, :3])
     centre = T_wc[:, :3, 3].mean(0)
     return _BoardInit(

@@ -75,7 +75,7 @@ from core.geometry.camera import (
     left_jacobian_so3,
     project_points,
 )
-from core.geometry.rotations import matrix_to_rotvec, rotvec_to_matrix
+from core.geometry.rotations import matrix_to_rotvec, rotvec_to_matrix, wrap_angle
 from core.optim import solve_sparse_lm
 
 Array = NDArray[np.float64]
@@ -804,7 +804,7 @@ def marker_network_bound(
         [
             cp * rel[:, 0] + sp * rel[:, 1],
             -sp * rel[:, 0] + cp * rel[:, 1],
-            (P[:, 2] - prev[:, 2] + np.pi) % (2 * np.pi) - np.pi,
+            wrap_angle(P[:, 2] - prev[:, 2]),
         ]
     )
     odo = OdometryPrior(odometry.start, inc, odometry.cov)

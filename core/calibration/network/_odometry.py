@@ -33,6 +33,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from core.errors import InvalidInput
+from core.geometry.rotations import wrap_angle
 
 Array = NDArray[np.float64]
 
@@ -134,7 +135,7 @@ def odometry_prior(odometry: ArrayLike, stops: ArrayLike, slip: SlipModel) -> Od
     a, b = slip.distance_per_sqrt_m, slip.lateral_per_sqrt_m
     c, d = slip.heading_per_sqrt_m, slip.heading_per_sqrt_rad
     dp = np.diff(odo[:, :2], axis=0)
-    dyaw = (np.diff(odo[:, 2]) + np.pi) % (2 * np.pi) - np.pi
+    dyaw = wrap_angle(np.diff(odo[:, 2]))
     h = odo[:-1, 2] + 0.5 * dyaw
     ch, sh = np.cos(h), np.sin(h)
     ds = dp[:, 0] * ch + dp[:, 1] * sh
@@ -174,7 +175,7 @@ def odometry_prior(odometry: ArrayLike, stops: ArrayLike, slip: SlipModel) -> Od
         [
             np.cos(yaw0) * rel[:, 0] + np.sin(yaw0) * rel[:, 1],
             -np.sin(yaw0) * rel[:, 0] + np.cos(yaw0) * rel[:, 1],
-            (odo[idx, 2] - yaw0 + np.pi) % (2 * np.pi) - np.pi,
+            wrap_angle(odo[idx, 2] - yaw0),
         ]
     )
     # A segment without motion has zero covariance; a floor keeps the prior invertible.

@@ -27,6 +27,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from core.calibration.network._records import NetworkCalibration
 from core.errors import DegenerateConfiguration, InvalidInput
+from core.geometry.rotations import wrap_angle
 
 Array = NDArray[np.float64]
 
@@ -178,7 +179,7 @@ def registered(calibration: NetworkCalibration, reg: PlanarRegistration) -> Netw
     P = np.asarray(calibration.targets, dtype=np.float64).copy()
     if P.size:
         P[:, :2] = P[:, :2] @ Rz[:2, :2].T + tz[:2]
-        P[:, 2] = (P[:, 2] + reg.theta + np.pi) % (2 * np.pi) - np.pi
+        P[:, 2] = wrap_angle(P[:, 2] + reg.theta)
     G = np.eye(3)
     G[:2, :2] = Rz[:2, :2]
     cov = G @ np.asarray(calibration.target_cov) @ G.T if P.size else calibration.target_cov

@@ -2,7 +2,7 @@
 of the robot's head camera, beside the anchors on the same images.
 
 The head camera, calibrated before any detection (the detector never sees the true intrinsics),
-is the robot's (core.sim.head_robot: `head_camera`, `calibrate_head_camera`).
+is the robot's (core.sim.head_camera: `head_camera`, `calibrate_head_camera`).
 
 Views: for each kind (object mark 10 cm, signpost 20 cm) and each 10-degree obliquity bin of
 0-70 deg, `views_per_bin` location views at 0.5-5 m (log-uniform) and as many reading views at the
@@ -42,7 +42,7 @@ from core.geometry.camera import undistort_points
 from core.landmarks.artwork import make_artwork
 from core.landmarks.detect import detect_landmarks
 from core.landmarks.payload import ObjectMark, Signpost
-from core.sim.head_robot import (
+from core.sim.head_camera import (
     CALIBRATION_VIEWS,
     SIZES,
     calibrate_head_camera,

@@ -13,16 +13,18 @@ from numpy.typing import NDArray
 
 from core.errors import InvalidInput
 from core.geometry.polygon import points_in_polygons
+from core.geometry.poses import planar_pose
 from core.geometry.rotations import wrap_angle
 from core.localization.occluders import line_of_sight
 from core.sim._geometry import yaw_matrix
-from core.sim.head_robot import (
+from core.sim.head_camera import (
     CALIBRATION_VIEWS,
+    calibrate_scene_head_camera,
+)
+from core.sim.head_robot import (
     READ_TIMEOUT_S,
     HeadRobot,
     TrackedLandmark,
-    calibrate_scene_head_camera,
-    floor_pose,
 )
 from core.sim.scenarios.records import percent_or_none, percentile_or_none
 from core.sim.scene import Scene, default_scene
@@ -115,7 +117,7 @@ def _start_pose(
             ).any()
         ):
             continue
-        eye = floor_pose(p[0], p[1], yaw) @ np.append(head, 1.0)
+        eye = planar_pose((p[0], p[1], yaw)) @ np.append(head, 1.0)
         if not line_of_sight(eye[None, :3], m[None], robot.occluders)[0, 0]:
             continue
         return np.array([p[0], p[1], yaw]), float(r), float(np.degrees(b))

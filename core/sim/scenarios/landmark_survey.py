@@ -21,6 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from core.errors import InvalidInput
+from core.geometry.poses import planar_pose
 from core.landmarks.detect import LandmarkDetection
 from core.landmarks.maps import (
     NavigationMap,
@@ -30,14 +31,15 @@ from core.landmarks.maps import (
 )
 from core.landmarks.payload import ObjectMark, PayloadError, Signpost, decode_payload
 from core.localization import NetworkCamera
-from core.sim.head_robot import (
+from core.sim.head_camera import (
     CALIBRATION_VIEWS,
+    calibrate_scene_head_camera,
+)
+from core.sim.head_robot import (
     FRAME_DT,
     SEARCH_TILT,
     HeadRobot,
     TrackedLandmark,
-    calibrate_scene_head_camera,
-    floor_pose,
 )
 from core.sim.installation import installed_cameras
 from core.sim.scene import Scene, default_scene
@@ -152,7 +154,7 @@ def _se2_V(th: float) -> Array:
 
 def _se2_exp(x: Array) -> Array:
     """Return the planar rigid transform (4, 4) exp(theta, u) of x = (theta, u)."""
-    T = floor_pose(0.0, 0.0, float(x[0]))
+    T = planar_pose((0.0, 0.0, float(x[0])))
     T[:2, 3] = _se2_V(float(x[0])) @ x[1:]
     return T
 

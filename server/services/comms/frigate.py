@@ -70,6 +70,7 @@ from core.localization import NetworkCamera
 from core.localization.boxes import BOX_SIDES, FootMeasurement, box_foot, foot_on_axis
 from core.localization.floor_spread import floor_spread_cov
 from server.db.models import Camera
+from server.services._loop_thread import LoopThread
 from server.services.cameras import network_camera
 from server.services.comms.mqtt import Message
 from server.services.tracking import DetectionIn, TrackingService
@@ -215,8 +216,7 @@ class FrigateSource:
         self._stats: dict[int, tuple[float, float]] = {}  # camera id -> (fps, received)
         self._stats_period = _STATS_PERIOD_S
         self._last_stats: float | None = None
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
+        self._runner = LoopThread(self._loop, "frigate", join_timeout=5)
         # Whether this Frigate publishes an update at each step of an object's path (until an
         # update shows a path grown by more than one point since the last).
         self.paths_published = True
@@ -258,16 +258,11 @@ class FrigateSource:
 
     def start(self) -> None:
         """Start the thread."""
-        self._stop.clear()
-        self._thread = threading.Thread(target=self._loop, name="frigate", daemon=True)
-        self._thread.start()
+        self._runner.start()
 
     def stop(self) -> None:
         """Stop the thread (objects held are forgotten)."""
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(5)
-            self._thread = None
+        self._runner.stop()
 
     def held(self) -> list[dict[str, Any]]:
         """Return the objects Frigate keeps, for display: Frigate's id, camera, last news."""
@@ -293,7 +288,7 @@ class FrigateSource:
 
     def _loop(self) -> None:
         last_beat = 0.0
-        while not self._stop.is_set():
+        while not self._runner.stopping:
             try:
                 message = self._inbox.get(timeout=_TICK_S)
             except queue.Empty:

@@ -51,6 +51,7 @@ from sqlalchemy.orm import Session, sessionmaker
 from core.localization.tracking import TrackSnapshot
 from core.localization.zones import ZoneEvent
 from server.db.models import Camera
+from server.services._loop_thread import LoopThread
 from server.services.comms.mqtt import Message, MqttLink
 from server.services.ownership import APPLICATION_NAME, NAMESPACE
 from server.services.zones import ZoneDef, slugify
@@ -130,8 +131,7 @@ class HomePublisher:
         # AVAILABLE_KEY); one process alone always does.
         self._available_lock = available_lock
         self.available_owner = available_lock is None
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
+        self._runner = LoopThread(self._loop, "home-cameras", join_timeout=5)
 
     @property
     def available_topic(self) -> str:
@@ -390,18 +390,16 @@ class HomePublisher:
             self.link.subscribe(self.available_topic, self._on_available)
             self.claim_available()
         self.link.start()
-        self._stop.clear()
-        self._thread = threading.Thread(target=self._loop, name="home-cameras", daemon=True)
-        self._thread.start()
+        self._runner.start()
 
     def _on_available(self, message: Message) -> None:
         """Another process's last will said `offline` while this one serves: say `online`."""
-        if self.available_owner and not self._stop.is_set() and message.payload == b"offline":
+        if self.available_owner and not self._runner.stopping and message.payload == b"offline":
             log.info("MQTT: %s said offline by a last will; this process serves", message.topic)
             self.link.resend(self.available_topic)
 
     def _loop(self) -> None:
-        while not self._stop.wait(_HEALTH_POLL_S):
+        while not self._runner.wait(_HEALTH_POLL_S):
             try:
                 self.claim_available()
                 self.refresh_cameras()
@@ -411,10 +409,7 @@ class HomePublisher:
     def stop(self) -> None:
         """Stop: the availability topic's owner hands it over to another process, or, the last
         one, publishes `offline` (module docstring)."""
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(5)
-            self._thread = None
+        self._runner.stop()
         final = [(self.available_topic, OFFLINE)] if self.available_owner else []
         if self._available_lock is not None:
             if self.available_owner:

@@ -9,7 +9,6 @@ tracks it."""
 from __future__ import annotations
 
 import logging
-import threading
 import time
 from collections.abc import Sequence
 from typing import Any, cast
@@ -19,6 +18,7 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from core.localization.tracking import LIVE_STATES, TrackerConfig
 from server.db.models import Detection
+from server.services._loop_thread import LoopThread
 from server.services.fanout import Fanout
 from server.services.ownership import SpaceLocks
 from server.services.targets import LiveTargets
@@ -66,8 +66,7 @@ class TrackingService(SharedTrackers):
             shared = (Fanout(shared_database_url), SpaceLocks(shared_database_url))
         config = TrackerConfig() if config is None else config
         super().__init__(factory, live, config, latency, clock, shared, bool(separate_process))
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
+        self._runner = LoopThread(self._loop, "tracker", join_timeout=10, wake=self._wake)
         self.frames_processed = 0
         self.errors = 0
         self.delays = FrameDelays()
@@ -203,20 +202,14 @@ class TrackingService(SharedTrackers):
 
     def start(self) -> None:
         """Start the tracker thread (and, on a shared database, listening to the others)."""
-        self._stop.clear()
         if self._fanout is not None:
             self._live.publishing = True
             self._fanout.start()
-        self._thread = threading.Thread(target=self._loop, name="tracker", daemon=True)
-        self._thread.start()
+        self._runner.start()
 
     def stop(self) -> None:
         """Stop the tracker thread; on a shared database give the spaces up to the others."""
-        self._stop.set()
-        self._wake.set()
-        if self._thread is not None:
-            self._thread.join(timeout=10)
-            self._thread = None
+        if self._runner.stop():
             if len(self.delays):
                 log.info("tracker: %s", self.delays.describe())
         if self._locks is not None:
@@ -238,7 +231,7 @@ class TrackingService(SharedTrackers):
                 self._tracker_host()
             except Exception:
                 log.exception("the trackers' process did not start; trying with the first space")
-        while not self._stop.is_set():
+        while not self._runner.stopping:
             self._wake.wait(_TICK_S)
             self._wake.clear()
             try:

@@ -8,11 +8,11 @@ from itertools import combinations
 import cv2
 import numpy as np
 
+from core.geometry.poses import planar_pose
 from core.geometry.rotations import quaternion_to_matrix
 from core.landmarks import NavigationMap, ObjectMark, Signpost, decode_payload
 from core.localization.detect import detect_marker
-from core.sim.head_robot import (
-    floor_pose,
+from core.sim.head_camera import (
     head_camera,
     reading_standoff,
     robot_head_pose,
@@ -82,11 +82,11 @@ def test_every_landmark_reads_with_3px_modules_from_a_free_reading_pose() -> Non
         d_h = reading_standoff(lm.kind, cam.K[0, 0], head.position[2] - m[2])
         base = m[:2] + n[:2] * (d_h + head.position[0])
         yaw = float(np.arctan2(-n[1], -n[0]))
-        axis = np.array([*base, 0.0]) + floor_pose(0.0, 0.0, yaw)[:3, :3] @ head.position
+        axis = np.array([*base, 0.0]) + planar_pose((0.0, 0.0, yaw))[:3, :3] @ head.position
         rel = m - axis
         pan = float(np.arctan2(rel[1], rel[0])) - yaw
         tilt = float(np.arctan2(-rel[2], np.hypot(rel[0], rel[1])))
-        T = floor_pose(base[0], base[1], yaw) @ robot_head_pose(head, pan, tilt)
+        T = planar_pose((base[0], base[1], yaw)) @ robot_head_pose(head, pan, tilt)
         view, idx = render_scene_landmarks(cam, T, [lm], occ)
         assert idx == [0], f"{lm.name} is not in view from its reading pose"
         module = view.truth[0].module_px

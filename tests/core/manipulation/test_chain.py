@@ -5,8 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from core.geometry.poses import planar_pose
 from core.geometry.rotations import matrix_to_rotvec
-from core.manipulation import Unreachable, base_transform, default_manipulator, pose_error
+from core.manipulation import Unreachable, default_manipulator, pose_error
 
 MM = default_manipulator()
 
@@ -14,7 +15,7 @@ MM = default_manipulator()
 def test_chain_fk_composes_base_mount_arm_and_camera() -> None:
     x = np.concatenate([[1.0, 2.0, 0.7], MM.arm.home])
     T = MM.fk(x)
-    ref = base_transform(x[:3]) @ MM.T_base_arm @ MM.arm.fk(x[3:])
+    ref = planar_pose(x[:3]) @ MM.T_base_arm @ MM.arm.fk(x[3:])
     np.testing.assert_allclose(T, ref, atol=1e-15)
     np.testing.assert_allclose(MM.camera_pose(x), ref @ MM.T_ee_camera, atol=1e-15)
     # Batched: one call for many configurations.

@@ -10,15 +10,17 @@ import numpy as np
 import pytest
 
 from core.errors import InvalidInput
+from core.geometry.poses import planar_pose
 from core.landmarks.ambiguity import PoseHypothesis
+from core.sim.head_camera import (
+    calibrate_scene_head_camera,
+    reading_standoff,
+    robot_head_pose,
+)
 from core.sim.head_robot import (
     HeadRobot,
     TrackedLandmark,
-    calibrate_scene_head_camera,
-    floor_pose,
     polar_command,
-    reading_standoff,
-    robot_head_pose,
 )
 from core.sim.installation import installed_cameras
 from core.sim.scenarios.landmark_pose import landmark_pose
@@ -151,7 +153,7 @@ def test_reading_plans_around_the_dining_table() -> None:
     # The reading pose from the true pose (scoring the set-up only): out of sight of the start.
     d_h = reading_standoff("object", K[0, 0], robot.head.position[2] - m[2, 3])
     reading = m[:2, 3] + m[:2, 2] * (d_h + robot.head.position[0])
-    assert not robot._sees(np.array([5.4, 2.6]), reading)
+    assert not robot.routes.sees(np.array([5.4, 2.6]), reading)
     out = robot.read(None, 60.0)
     assert out.read and out.detection is not None and out.detection.text == marks[k].text
     assert not robot.collided
@@ -161,7 +163,7 @@ def test_reading_plans_around_the_dining_table() -> None:
 def test_drift_correction_is_spread_along_the_path() -> None:
     """A planar correction exp(lam log D): lam = 0 leaves the pose, lam = 1 applies D whole,
     and two halves make the whole (a one-parameter subgroup)."""
-    D = floor_pose(0.3, -0.2, 0.25)
+    D = planar_pose((0.3, -0.2, 0.25))
     x = _se2_log(D)
     np.testing.assert_allclose(_se2_exp(x), D, atol=1e-12)
     np.testing.assert_allclose(_se2_exp(0 * x), np.eye(4), atol=1e-12)
@@ -179,11 +181,11 @@ def test_a_reading_pose_with_nothing_free_on_its_normal_takes_the_nearest_free_p
     K, dist, _ = calibrate_scene_head_camera(scene, rng, 6)
     robot = HeadRobot(scene, K, dist, start=np.array([5.2, 1.0, 0.0]), rng=rng)
     goal = np.array([6.96, 2.15, 0.0])  # odometry frame = world at the start
-    assert not any(robot._free(goal[:2] - [s, 0.0]) for s in np.arange(0.0, 0.51, 0.05))
+    assert not any(robot.routes.free(goal[:2] - [s, 0.0]) for s in np.arange(0.0, 0.51, 0.05))
     ap = robot._plan_approach(goal)
     assert ap is not None
     stand = goal[:2] + ap.offset
-    assert robot._free(stand) and np.linalg.norm(ap.offset) <= 0.5
+    assert robot.routes.free(stand) and np.linalg.norm(ap.offset) <= 0.5
     np.testing.assert_allclose(ap.route[-1], stand, atol=0.08)  # the route leads there
 
 

@@ -10,7 +10,12 @@ import pytest
 
 from core.errors import InvalidInput
 from core.landmarks.payload import Signpost, decode_payload
-from core.sim.head_robot import HeadRobot, head_camera
+from core.sim.head_camera import (
+    head_camera,
+)
+from core.sim.head_robot import (
+    HeadRobot,
+)
 from core.sim.installation import installed_cameras
 from core.sim.motion import Pose2D, UnicycleBase
 from core.sim.scenarios.landmark_survey import SEPARATE_M, SURVEY_READ_TRIES, _Survey

@@ -21,18 +21,11 @@ from core.manipulation import (
 )
 from core.sim import Renderer, default_scene
 from core.sim.eye_in_hand import EYE_DIST, EYE_K, eye_camera_intrinsics, hand_eye_views
-from core.sim.fetch import (
-    GRASP_PHASES,
-    GRIPPER_OPEN,
-    JOINT_RATE,
-    T_MARK_GRASP,
-    _Eye,
-    _pre_grasp,
-    close_gripper,
-    fetch_problem,
-    grasp_episode,
-)
+from core.sim.fetch import GRASP_PHASES, JOINT_RATE, grasp_episode
+from core.sim.fetch_placement import fetch_problem
+from core.sim.gripper import GRIPPER_OPEN, T_MARK_GRASP, close_gripper, pre_grasp_pose
 from core.sim.intrinsics import RenderedCalibration
+from core.sim.mark_eye import MarkEye
 from core.sim.marked_box import BOX_SIZE, MARK_POINTS
 from core.sim.scenarios.manipulation import grasp, hand_eye
 
@@ -161,7 +154,7 @@ def test_eye_in_hand_images_show_the_mark_where_it_is() -> None:
     T_mark[:3, 3] = [6.2, 1.66, 0.85]
     X = default_manipulator().T_ee_camera
     T_cam = T_mark @ _PRE_GRASP @ X
-    px = _Eye(T_mark, 0.0, rng, renderer).observe(T_cam)
+    px = MarkEye(T_mark, 0.0, rng, renderer).observe(T_cam)
     assert px is not None
     C = invert_pose(T_cam) @ T_mark
     truth = project_points(MARK_POINTS, matrix_to_rotvec(C[:3, :3]), C[:3, 3], EYE_K, EYE_DIST)
@@ -169,7 +162,7 @@ def test_eye_in_hand_images_show_the_mark_where_it_is() -> None:
     # Looking away (the camera turned half round about its optical axis's normal): no mark.
     away = T_cam.copy()
     away[:3, :3] = away[:3, :3] @ np.diag([1.0, -1.0, -1.0])
-    assert _Eye(T_mark, 0.0, rng, renderer).observe(away) is None
+    assert MarkEye(T_mark, 0.0, rng, renderer).observe(away) is None
 
 
 def test_the_gripper_closes_on_the_box_only_when_it_straddles_it() -> None:
@@ -200,7 +193,7 @@ def test_the_gripper_closes_on_the_box_only_when_it_straddles_it() -> None:
     assert GRIPPER_OPEN > BOX_SIZE[1]
 
 
-_PRE_GRASP = _pre_grasp()
+_PRE_GRASP = pre_grasp_pose()
 
 
 def _turned(X: np.ndarray, degrees: float) -> np.ndarray:

@@ -14,7 +14,8 @@ from fastapi.testclient import TestClient
 from core.landmarks import ObjectMark, decode_payload, encode_payload
 from core.manipulation import default_manipulator
 from core.sim import Renderer
-from core.sim.fetch import GRIPPER_OPEN, GraspEpisode, grasp_episode, prepare_fetch
+from core.sim.fetch import GraspEpisode, grasp_episode, prepare_fetch
+from core.sim.gripper import GRIPPER_OPEN
 from core.sim.render.landmarks import scene_landmarks
 from core.sim.scenarios.manipulation import grasp
 from core.sim.scene import default_scene

@@ -499,13 +499,15 @@ def test_a_twin_rate_outside_its_stated_range_is_refused(case, rate):
 def test_a_new_twin_rate_takes_effect_at_once():
     from types import SimpleNamespace
 
+    from server.services._loop_thread import LoopThread
     from server.services.twin import Twin
 
     # The twin's own loop, with a frame that only counts (rendering is not the question).
     twin = Twin.__new__(Twin)
     twin.scene = SimpleNamespace(cameras=[])
-    twin._stop, twin._wake, twin._paused = threading.Event(), threading.Event(), threading.Event()
-    twin._thread, twin._last_step = None, time.monotonic()
+    twin._wake, twin._paused = threading.Event(), threading.Event()
+    twin._runner = LoopThread(twin._loop, "twin", join_timeout=30, wake=twin._wake)
+    twin._last_step = time.monotonic()
     twin.rate_hz = 0.5
     twin.dropped, twin._health = 0, None  # no health book: nothing reported
     frames: list[float] = []
