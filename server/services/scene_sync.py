@@ -97,7 +97,8 @@ def landmark_entries(session: Session, space_id: int | None = None) -> list[Land
     rows = session.scalars(stmt.order_by(Landmark.id))
     out = []
     for row in rows:
-        assert row.T_world_landmark is not None  # selected for it
+        if row.T_world_landmark is None:
+            continue  # a JSON null: not SQL's NULL, so the query lets it through
         name, kind = f"landmark {row.id}", row.kind
         try:
             record = decode_payload(row.payload)
