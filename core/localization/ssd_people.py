@@ -47,7 +47,7 @@ from core.localization.detections import FrameDetection
 Array = NDArray[np.float64]
 
 # The models shipped with the project (package data of core.localization.models): the network
-# quantized to 8-bit integers (the default: about 1.8 times faster on a CPU with 8-bit dot
+# quantized to 8-bit integers (the default: about 1.7 times faster on a CPU with 8-bit dot
 # products, as precise and as complete on PETS 2009, bench/bench_pets.py) and the float model
 # it was quantized from.
 DEFAULT_MODEL = "ssdlite_mobilenet_v2_coco_int8.onnx"

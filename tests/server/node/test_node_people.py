@@ -162,16 +162,14 @@ def test_a_file_with_a_source_fps_is_timed_from_its_start(tmp_path):
 
 # Frames 1-150 of the clip, 21 s at 7 fps: a third of the development half, same conditions.
 # Over frames 1-400 the pipeline is measured by `python -m bench.bench_pets` (spec 08's goals
-# there: MOTA >= 0.75, IDF1 >= 0.70). The detector's foot points of frames 1-150 posted to the
-# service one frame each 1/7 s score MOTA 0.64 and IDF1 0.68 (frames 1-400: 0.76 and 0.65):
-# the first seconds hold every person's start (a track is confirmed after three detections),
-# so the shortened run scores lower on MOTA. A live node skips frames rather than fall behind
-# when its core is shared (CI runs two test workers on two cores): the same tracker on frames
-# 1-150 with frames skipped at random scored MOTA 0.62-0.63, IDF1 0.63-0.67 with a quarter
-# skipped, 0.52-0.56 and 0.56-0.66 with 40 %, 0.36-0.48 and 0.50-0.58 with half (three seeds
-# each). The bounds hold up to about 40 % skipped; they are this shortened run's floor, far
-# above the background model's (MOTA -0.06, IDF1 0.05), not spec 08's goal, which is not
-# reached yet (docs/real-cameras.md).
+# there: MOTA >= 0.75, IDF1 >= 0.70; docs/real-cameras.md has the figures). A live node skips
+# frames rather than fall behind when its core is shared (CI runs two test workers on two
+# cores): with the 300 px tiles the node had before, the same tracker on frames 1-150 with
+# frames skipped at random scored MOTA 0.62-0.63, IDF1 0.63-0.67 with a quarter skipped,
+# 0.52-0.56 and 0.56-0.66 with 40 %, 0.36-0.48 and 0.50-0.58 with half (three seeds each); with
+# the 230 px tiles this run scored MOTA 0.74 and IDF1 0.80-0.81 twice on a machine loaded to
+# 6. The bounds hold up to about 40 % skipped; they are this shortened run's floor, far above
+# the background model's (MOTA -0.06, IDF1 0.05), not spec 08's goal.
 PETS_FRAMES = 150
 PETS_MIN_MOTA = 0.45
 PETS_MIN_IDF1 = 0.50
