@@ -44,9 +44,9 @@ from core.localization.ground import (
 )
 from core.localization.groups import DuplicateView, GroupPositions, locate_groups
 from core.localization.occluders import Box, DoorGap, Occluders, Wall, line_of_sight
+from core.localization.reorder import ReorderBuffer
 from core.localization.tracking import (
     FrameResult,
-    ReorderBuffer,
     Tracker,
     TrackerConfig,
     TrackSnapshot,

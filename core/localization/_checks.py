@@ -29,3 +29,14 @@ def check_height(height: float) -> float:
     if not math.isfinite(h):
         raise InvalidInput(f"height must be a finite number of metres, got {height}")
     return h
+
+
+def check_time(t: object) -> float:
+    """Return a time in seconds as a float; raise InvalidInput unless a finite number."""
+    try:
+        value = float(t)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        raise InvalidInput(f"t must be a time in seconds, got {t!r}") from None
+    if not math.isfinite(value):
+        raise InvalidInput(f"t must be a finite time in seconds, got {t}")
+    return value

@@ -73,17 +73,15 @@ Life cycle, by elapsed time (never by frame count, since cameras report at their
   anywhere); a labelled track, whose body its label names, waits `labelled_end_after`
   seconds. Ended tracks leave the tracker and are reported once.
 
-Time is Unix seconds (or any one clock): frames must come in time order; `ReorderBuffer` puts
-frames of several cameras that arrive out of order back in order within a latency window.
+Time is Unix seconds (or any one clock): frames must come in time order; core.localization.reorder
+puts frames of several cameras that arrive out of order back in order within a latency window.
 """
 
 from __future__ import annotations
 
-import heapq
-import itertools
 import math
 from collections.abc import Hashable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from enum import StrEnum
 
 import numpy as np
@@ -91,6 +89,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import linear_sum_assignment
 
 from core.errors import InvalidInput
+from core.localization._checks import check_time
 from core.localization._projection import inv2, project_plane, transposed
 from core.localization.cameras import NetworkCamera
 from core.localization.ground import locate_monocular
@@ -310,16 +309,6 @@ def cv_process_noise(dt: float, q: float) -> Array:
     return Q
 
 
-def _as_time(t: object) -> float:
-    try:
-        value = float(t)  # type: ignore[arg-type]
-    except (TypeError, ValueError):
-        raise InvalidInput(f"t must be a time in seconds, got {t!r}") from None
-    if not math.isfinite(value):
-        raise InvalidInput(f"t must be a finite time in seconds, got {t}")
-    return value
-
-
 def _as_covariances(cov: ArrayLike, n: int, name: str) -> Array:
     try:
         c = np.array(cov, dtype=np.float64)
@@ -488,7 +477,7 @@ class Tracker:
         if given (the tracker itself is not moved)."""
         x, P, when = self._x, self._P, self._t
         if t is not None:
-            t = _as_time(t)
+            t = check_time(t)
             x, P = self._predicted(t)
             when = t
         keep = None if states is None else set(states)
@@ -531,7 +520,7 @@ class Tracker:
 
     def advance(self, t: float) -> tuple[TrackSnapshot, ...]:
         """Move every track to time t (s) without a measurement; return the tracks that ended."""
-        t = _as_time(t)
+        t = check_time(t)
         self._x, self._P = self._predicted(t)
         self._t = t
         ended, _ = self._manage()
@@ -541,7 +530,7 @@ class Tracker:
         """Move the tracker's clock and every track's times on by dt seconds without any
         motion or added uncertainty: a pause of the cameras' world (the twin held still), so
         that its tracks neither coast nor end over it."""
-        dt = _as_time(dt)
+        dt = check_time(dt)
         if dt < 0:
             raise InvalidInput(f"a shift must not go back in time, got {dt} s")
         if self._t is not None:
@@ -563,7 +552,7 @@ class Tracker:
         and last update times, kind and label are kept; the ambiguity timer restarts at their
         last update. Tracks already here are predicted to t too.
         """
-        t = _as_time(t)
+        t = check_time(t)
         if self._t is not None and t < self._t:
             raise InvalidInput(
                 f"cannot restore at t = {t} s, before the tracker's time {self._t} s"
@@ -582,7 +571,7 @@ class Tracker:
                 )
             if s.kind not in KINDS:
                 raise InvalidInput(f"track {s.id} has kind {s.kind!r}, not one of {KINDS}")
-            when = _as_time(s.t)
+            when = check_time(s.t)
             if when > t:
                 raise InvalidInput(f"track {s.id} is at t = {when} s, after the restore time {t} s")
             if not s.first_seen <= s.last_seen <= t:
@@ -664,7 +653,7 @@ class Tracker:
         if camera not in self.cameras:
             known = ", ".join(repr(k) for k in self.cameras) or "none"
             raise InvalidInput(f"unknown camera {camera!r}; the tracker's cameras: {known}")
-        t = _as_time(t)
+        t = check_time(t)
         cam = self.cameras[camera]
         px, R, h, kind, lab = self._parse(pixels, pixel_cov, heights, kinds, labels, pixel_sigma)
         gap = self._frame_gap(camera, t)
@@ -1203,91 +1192,3 @@ class Tracker:
                 old = getattr(self, name)
                 setattr(self, name, [old[i] for i in idx.tolist()])
         return tuple(ended), tuple(dropped)
-
-
-@dataclass(order=True)
-class _Queued:
-    t: float
-    seq: int
-    frame: object = field(compare=False)
-
-
-class ReorderBuffer:
-    """Puts frames from several cameras back in time order within a latency window.
-
-    `push(t, frame)` queues a frame captured at time t; `pop_ready(now)` returns, oldest first,
-    the frames captured at or before now - latency, and closes the window up to that time. A
-    frame that arrives older than that (the tracker has moved past it) is refused by `push`
-    (returns False) and counted in `late`. `limit` bounds the frames held; beyond it the
-    oldest are released early.
-
-    Frames pushed with their `source` (the camera) and `arrived` time (on the clock of `now`)
-    also move a watermark: once every source heard from within the last `latency` seconds has
-    delivered a frame captured at or after t, no frame older than t can still come from them
-    (each camera's frames arrive in capture order), so frames up to t are released at once
-    instead of at the window's end. The window stays the longest wait; a camera silent for
-    longer than the window no longer holds the others back (its later frames older than the
-    released time are late). Cameras that post every frame, even with nothing detected, keep
-    the delay down to the slowest camera's own.
-    """
-
-    def __init__(self, latency: float = 0.15, limit: int = 10_000) -> None:
-        if not math.isfinite(latency) or latency < 0:
-            raise InvalidInput(f"latency must be >= 0 seconds, got {latency}")
-        if not isinstance(limit, int) or limit < 1:
-            raise InvalidInput(f"limit must be an integer >= 1, got {limit!r}")
-        self.latency = float(latency)
-        self.limit = limit
-        self._heap: list[_Queued] = []
-        self._seq = itertools.count()
-        self._released: float = -math.inf
-        # source -> (newest capture time, arrival time of that push)
-        self._sources: dict[object, tuple[float, float]] = {}
-        self.late = 0
-
-    def __len__(self) -> int:
-        return len(self._heap)
-
-    @property
-    def released(self) -> float:
-        """The time up to which frames were released (-inf before any): older ones are late."""
-        return self._released
-
-    def push(
-        self, t: float, frame: object, *, source: object = None, arrived: float | None = None
-    ) -> bool:
-        """Queue `frame` captured at time t (s) by `source`, which delivered it at `arrived`
-        (both optional: the watermark, class docstring); return False (and count it) when it
-        is late."""
-        t = _as_time(t)
-        if source is not None and arrived is not None:
-            arrived = _as_time(arrived)
-            newest = self._sources.get(source, (t, arrived))[0]
-            self._sources[source] = (max(newest, t), arrived)
-        if t < self._released:
-            self.late += 1
-            return False
-        heapq.heappush(self._heap, _Queued(t, next(self._seq), frame))
-        return True
-
-    def watermark(self, now: float) -> float:
-        """Return the capture time up to which every source heard from within the window
-        has delivered its frames (-inf when none has been heard from)."""
-        since = _as_time(now) - self.latency
-        for source in [k for k, (_, a) in self._sources.items() if a < since - self.latency]:
-            del self._sources[source]  # long silent: forgotten
-        active = [t for t, a in self._sources.values() if a >= since]
-        return min(active) if active else -math.inf
-
-    def pop_ready(self, now: float) -> list[tuple[float, object]]:
-        """Return the (t, frame) pairs captured at or before now - latency or the watermark
-        (oldest first), and the oldest beyond `limit`."""
-        now = _as_time(now)
-        horizon = max(now - self.latency, min(self.watermark(now), now))
-        out: list[tuple[float, object]] = []
-        while self._heap and (self._heap[0].t <= horizon or len(self._heap) > self.limit):
-            item = heapq.heappop(self._heap)
-            out.append((item.t, item.frame))
-            self._released = max(self._released, item.t)
-        self._released = max(self._released, horizon)
-        return out

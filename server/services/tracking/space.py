@@ -7,7 +7,8 @@ import threading
 from collections import OrderedDict
 
 from core.localization import Occluders
-from core.localization.tracking import ReorderBuffer, Tracker, TrackerConfig, TrackState
+from core.localization.reorder import ReorderBuffer
+from core.localization.tracking import Tracker, TrackerConfig, TrackState
 from server.services.tracking.process import RemoteTracker, TrackerHost
 
 # Detection ids a tracker remembers having been fed (one frame may reach it twice around a

@@ -12,9 +12,9 @@ from scipy.stats import chi2
 
 from core.errors import InvalidInput
 from core.localization.occluders import Occluders, Wall
+from core.localization.reorder import ReorderBuffer
 from core.localization.tracking import (
     CONFIRM_GAPS,
-    ReorderBuffer,
     Tracker,
     TrackerConfig,
     TrackState,
