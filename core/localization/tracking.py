@@ -64,7 +64,8 @@ Life cycle, by elapsed time (never by frame count, since cameras report at their
   passes, or it goes `tentative_timeout` seconds without an update. Both times stretch for a
   camera that reports slowly (a node on a slow machine, detecting every third frame): the
   window to `CONFIRM_GAPS` of the spacing of the frames of the camera that last saw the track
-  (a running mean of that camera's frame intervals), the timeout to `TENTATIVE_GAPS` of them,
+  (a running mean of that camera's frame intervals up to `MAX_FRAME_GAP`; a longer pause is a
+  silence, not a rate), the timeout to `TENTATIVE_GAPS` of them,
   so a body seen by a camera reporting twice a second is confirmed like one seen ten times a
   second, from its sightings' score (each weighs less: the prediction between them is vaguer);
 * a confirmed track becomes COASTING after `coast_after` seconds without an update (predicted
@@ -112,6 +113,9 @@ KINDS = ("robot", "person", "unknown")
 # a second), when those are longer than tentative_timeout and confirm_window.
 TENTATIVE_GAPS = 2.5
 CONFIRM_GAPS = 10.0
+# A pause longer than this (s) between two frames of a camera is a silence (a node restarted, a
+# stream that dropped), not its frame rate: it is left out of the camera's mean interval.
+MAX_FRAME_GAP = 1.0
 
 
 class TrackState(StrEnum):
@@ -1059,10 +1063,11 @@ class Tracker:
 
     def _frame_gap(self, camera: Hashable, t: float) -> float:
         """Record a frame of `camera` at t (s); return the running mean of its frame intervals
-        (s; 0 before its second frame): the mean of the previous mean and the newest interval."""
+        (s; 0 before its second frame): the mean of the previous mean and the newest interval,
+        intervals over MAX_FRAME_GAP left out (a silence, not a frame rate)."""
         last = self._camera_last.get(camera)
         self._camera_last[camera] = t
-        if last is not None and t > last:
+        if last is not None and 0.0 < t - last <= MAX_FRAME_GAP:
             old = self._camera_gap.get(camera)
             self._camera_gap[camera] = t - last if old is None else 0.5 * (old + t - last)
         return self._camera_gap.get(camera, 0.0)

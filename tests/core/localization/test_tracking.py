@@ -257,6 +257,16 @@ def test_a_camera_reporting_slowly_still_confirms_a_body():
     # prediction is vaguer, so each sighting weighs less and more are needed, within the
     # window's stretch (CONFIRM_GAPS intervals).
     assert cfg.confirm_hits <= needed[10.0] <= needed[2.0] <= CONFIRM_GAPS
+    # A camera silent for a minute (its node restarted) is not a slow camera: its new tentative
+    # track still times out after the default 0.4 s.
+    trk = Tracker(cams, cfg)
+    X = np.array([[3.0, 3.0, HEIGHT]])
+    for t in (0.0, 0.1):
+        trk.update(0, t, cams[0].project(X), pixel_sigma=0.5, heights=HEIGHT)
+    trk.advance(60.0)
+    r = trk.update(0, 60.1, cams[0].project(X), pixel_sigma=0.5, heights=HEIGHT)
+    assert r.started[0] and len(trk) == 1
+    assert trk.advance(60.1 + 0.5) == () and len(trk) == 0
     # Clutter at 2 Hz, two false detections per frame over the image, for a minute.
     trk = Tracker(cams, cfg)
     w, h = cams[0].image_size
