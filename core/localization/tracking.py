@@ -43,6 +43,19 @@ rest in rounds: detections with a label go to the track of that label; then conf
 coasting tracks take their detections; then tentative tracks take what is left, so a track born
 from clutter beside a target cannot take that target's detection.
 
+Appearance: a detection may come with a descriptor of its look (core.localization.appearance:
+colour histograms of a person's box). Each track keeps, per camera, the running mean of the
+descriptors of the detections that updated it unambiguously (each new one weighs
+`appearance_rate`), and a pairing's assignment cost adds `appearance_weight` times the
+Bhattacharyya distance between the detection's descriptor and the track's in that camera (only
+in the same camera: colour responses differ between cameras). The term only breaks ties between
+the pairings the gate allows: at the default 4 units, a detection whose colours share nothing
+with a track's (distance 1) must be e^2 (about 7) times likelier by position to be taken over
+one that matches, so two people side by side keep their identities while a person whose look
+changes (into shade, turning round) is still followed by position. It enters the costs that
+`ambiguity` compares, so two crossing bodies of different looks need not coast, and it never
+enters a tentative track's score, which stays the position's likelihood ratio.
+
 Life cycle, by elapsed time (never by frame count, since cameras report at their own rates):
 
 * a detection no track takes starts a TENTATIVE track at its back-projection onto Z = h (speed
@@ -92,6 +105,7 @@ from scipy.optimize import linear_sum_assignment
 from core.errors import InvalidInput
 from core.localization._checks import check_time
 from core.localization._projection import inv2, project_plane, transposed
+from core.localization.appearance import appearance_distance
 from core.localization.cameras import NetworkCamera
 from core.localization.ground import locate_monocular
 from core.localization.occluders import Occluders, line_of_sight
@@ -171,6 +185,10 @@ class TrackerConfig:
     missed by that camera) and is left out the same way.
     body_height, body_radius (m): the size of a body that can hide another from a camera; a
     tentative track hidden so (or inside the gate of a detection left out) is not missed.
+    appearance_weight: cost units (-2 ln of a likelihood) a pairing pays per unit of
+    appearance distance (core.localization.appearance, 0-1) between a detection's descriptor and
+    the track's in the same camera; appearance_rate: the weight of each new descriptor in the
+    track's running mean (module docstring, "Appearance").
     """
 
     q: float = 2.0
@@ -195,6 +213,8 @@ class TrackerConfig:
     located_std: float = 0.5
     body_height: float = 1.8
     body_radius: float = 0.25
+    appearance_weight: float = 4.0
+    appearance_rate: float = 0.2
 
     def __post_init__(self) -> None:
         for name in (
@@ -222,6 +242,13 @@ class TrackerConfig:
             value = getattr(self, name)
             if not isinstance(value, int | float) or not (math.isfinite(value) and value >= 0):
                 raise InvalidInput(f"TrackerConfig.{name} must be >= 0 metres, got {value!r}")
+        w = self.appearance_weight
+        if not isinstance(w, int | float) or not (math.isfinite(w) and w >= 0):
+            raise InvalidInput(f"TrackerConfig.appearance_weight must be >= 0, got {w!r}")
+        if not 0.0 < self.appearance_rate <= 1.0:
+            raise InvalidInput(
+                f"TrackerConfig.appearance_rate must lie in (0, 1], got {self.appearance_rate!r}"
+            )
         if not 0.0 < self.p_detect < 1.0:
             raise InvalidInput(f"TrackerConfig.p_detect must lie in (0, 1), got {self.p_detect!r}")
         if not (math.isfinite(self.confirm_score) and math.isfinite(self.drop_score)) or not (
@@ -350,6 +377,24 @@ def _as_strings(
     return out
 
 
+def _as_looks(appearances: ArrayLike | None, n: int) -> Array | None:
+    """Return the detections' appearance descriptors as (n, F) finite non-negative floats,
+    or None when none were given."""
+    if appearances is None:
+        return None
+    try:
+        look = np.array(appearances, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise InvalidInput(f"appearances must be numeric, shape (D, F): {exc}") from None
+    if look.size == 0 and n == 0:
+        return None
+    if look.ndim != 2 or look.shape[0] != n:
+        raise InvalidInput(f"appearances must have shape ({n}, F), one row per pixel")
+    if not np.all(np.isfinite(look)) or np.any(look < 0):
+        raise InvalidInput("appearances are histograms: finite and non-negative")
+    return look
+
+
 def _largest_variance(C: Array) -> Array:
     """Return the larger eigenvalue of each 2 x 2 covariance C (..., 2, 2)."""
     half = 0.5 * (C[..., 0, 0] - C[..., 1, 1])
@@ -452,6 +497,8 @@ class Tracker:
         self._camera_last: dict[Hashable, float] = {}
         self._camera_gap: dict[Hashable, float] = {}
         self._gap: list[float] = []
+        # Each track's appearance (module docstring) per camera: track id -> camera -> (F,).
+        self._looks: dict[int, dict[Hashable, Array]] = {}
 
     # -- cameras and state ---------------------------------------------------------------------
 
@@ -643,6 +690,7 @@ class Tracker:
         kinds: Sequence[str | None] | str | None = None,
         labels: Sequence[str | None] | str | None = None,
         pixel_sigma: float = 1.0,
+        appearances: ArrayLike | None = None,
     ) -> FrameResult:
         """Return what one frame of camera `camera` at time t (s) did to the tracks.
 
@@ -650,7 +698,9 @@ class Tracker:
         pixel_cov: (D, 2, 2) or (2, 2) px^2, or None for pixel_sigma^2 I; heights: (D,) or one
         value, metres above the floor of the point each pixel measures; kinds: "robot",
         "person", "unknown" or None (unknown) per detection; labels: an identity the sender is
-        sure of (e.g. "robot" for the one robot's marker), or None.
+        sure of (e.g. "robot" for the one robot's marker), or None; appearances: (D, F)
+        non-negative descriptors of the detections' looks (core.localization.appearance), a row
+        of zeros where one has none, or None (module docstring, "Appearance").
         Predicts the tracks to t, associates, updates (EKF), starts tracks, and moves the life
         cycle on (module docstring).
         """
@@ -660,6 +710,7 @@ class Tracker:
         t = check_time(t)
         cam = self.cameras[camera]
         px, R, h, kind, lab = self._parse(pixels, pixel_cov, heights, kinds, labels, pixel_sigma)
+        look = _as_looks(appearances, px.shape[0])
         gap = self._frame_gap(camera, t)
         R, floor_std = self._with_camera_error(cam, px, R, h)
         n_all = px.shape[0]
@@ -677,6 +728,7 @@ class Tracker:
             px, R, h = px[used], R[used], h[used]
             kind = [kind[j] for j in used.tolist()]
             lab = [lab[j] for j in used.tolist()]
+            look = None if look is None else look[used]
         self._x, self._P = self._predicted(t)
         self._t = t
         n = px.shape[0]
@@ -686,7 +738,7 @@ class Tracker:
         n_old = len(self._ids)
         hit = np.zeros(n_old, dtype=bool)
         if n:
-            rows, cols, loglik, ambiguous = self._associate(cam, px, R, h, kind, lab)
+            rows, cols, loglik, ambiguous = self._associate(camera, px, R, h, kind, lab, look)
             if rows.size:
                 # An ambiguous detection is skipped only while its track is fresh: past
                 # `ambiguity_coast` the track's own prediction is no better than the choice.
@@ -705,6 +757,9 @@ class Tracker:
                 hit[rows] = True
                 for i in rows[sure].tolist():
                     self._moved[i] = t
+                if look is not None:
+                    clear = ~ambiguous
+                    self._learn_looks(camera, rows[clear], look[cols[clear]])
                 gain = np.log(self.config.p_detect / self.config.clutter_density) + loglik
                 for i, j, g in zip(rows.tolist(), cols.tolist(), gain.tolist(), strict=True):
                     if self._states[i] is TrackState.TENTATIVE:
@@ -727,6 +782,8 @@ class Tracker:
                     track_ids[j] = tid
                     started[j] = True
                     touched.append(tid)
+                    if look is not None and look[j].sum() > 0:
+                        self._looks[tid] = {camera: look[j].copy()}
         ended, dropped = self._manage()
         index = {tid: i for i, tid in enumerate(self._ids)}
         updated = tuple(
@@ -870,12 +927,13 @@ class Tracker:
 
     def _associate(
         self,
-        cam: NetworkCamera,
+        camera: Hashable,
         px: Array,
         R: Array,
         h: Array,
         kind: list[str],
         lab: list[str | None],
+        look: Array | None,
     ) -> tuple[NDArray[np.intp], NDArray[np.intp], Array, NDArray[np.bool_]]:
         """Return the (track rows, detection columns) of this frame's assignment, each pair's
         log-likelihood ln N(nu; 0, S), and whether the pair is ambiguous (`_ambiguous`)."""
@@ -883,10 +941,11 @@ class Tracker:
         if T == 0:
             empty = np.zeros(0, dtype=np.intp)
             return empty, empty, np.zeros(0), np.zeros(0, dtype=bool)
+        cam = self.cameras[camera]
         u, J, front = self._project(cam, h)
         S = J @ self._P[:, None, :2, :2] @ transposed(J) + R[None]
         d2, logdet = _mahalanobis(px[None] - u, S)
-        cost = d2 + logdet
+        cost = d2 + logdet + self._look_cost(camera, look)
         tk = np.array(self._kinds, dtype=object)
         dk = np.array(kind, dtype=object)
         compatible = (tk[:, None] == dk[None, :]) | (tk[:, None] == "unknown")
@@ -927,6 +986,42 @@ class Tracker:
         rows, cols = np.concatenate(rows_out), np.concatenate(cols_out)
         loglik = -0.5 * (d2[rows, cols] + logdet[rows, cols]) - math.log(2.0 * math.pi)
         return rows, cols, loglik, np.concatenate(ambiguous_out)
+
+    def _look_cost(self, camera: Hashable, look: Array | None) -> Array | float:
+        """Return the appearance term (T, D) of the assignment costs (module docstring,
+        "Appearance"): appearance_weight times the distance between each detection's
+        descriptor and each track's in `camera`; 0 where either has none."""
+        weight = self.config.appearance_weight
+        if look is None or weight == 0:
+            return 0.0
+        extra = np.zeros((len(self._ids), look.shape[0]))
+        has = look.sum(axis=1) > 0
+        rows = [
+            i
+            for i, tid in enumerate(self._ids)
+            if camera in self._looks.get(tid, {})
+            and self._looks[tid][camera].shape == look.shape[1:]
+        ]
+        if rows and has.any():
+            models = np.array([self._looks[self._ids[i]][camera] for i in rows])
+            extra[np.ix_(np.array(rows, dtype=np.intp), np.flatnonzero(has))] = (
+                weight * appearance_distance(models, look[has])
+            )
+        return extra
+
+    def _learn_looks(self, camera: Hashable, rows: NDArray[np.intp], looks: Array) -> None:
+        """Move the appearance of tracks `rows` in `camera` towards their detections'
+        descriptors `looks` (running mean, appearance_rate); a track's first one is taken as
+        it is."""
+        rate = self.config.appearance_rate
+        for i, v in zip(rows.tolist(), looks, strict=True):
+            if not v.sum() > 0:
+                continue
+            mine = self._looks.setdefault(self._ids[i], {})
+            old = mine.get(camera)
+            mine[camera] = (
+                v.copy() if old is None or old.shape != v.shape else old + rate * (v - old)
+            )
 
     def _visible(self, cam: NetworkCamera) -> NDArray[np.bool_]:
         """Return whether `cam` has a clear line of sight (past the occluders) to some of each
@@ -1196,4 +1291,6 @@ class Tracker:
             ):
                 old = getattr(self, name)
                 setattr(self, name, [old[i] for i in idx.tolist()])
+            for tid in (*dropped, *(snap.id for snap in ended)):
+                self._looks.pop(tid, None)
         return tuple(ended), tuple(dropped)

@@ -356,6 +356,8 @@ def test_kinds_and_labels_steer_association():
         ({"pixels": [[1.0, 2.0]], "kinds": ["cat"]}, "kinds"),
         ({"pixels": [[1.0, 2.0]], "pixel_cov": [[1.0, 2.0], [2.0, 1.0]]}, "positive definite"),
         ({"pixels": [[1.0, 2.0], [3.0, 4.0]], "labels": ["a", "a"]}, "label twice"),
+        ({"pixels": [[1.0, 2.0]], "appearances": [[0.5], [0.5]]}, "one row per pixel"),
+        ({"pixels": [[1.0, 2.0]], "appearances": [[-0.5, 0.5]]}, "non-negative"),
     ],
 )
 def test_bad_frames_are_refused_by_name(kwargs, message):
@@ -377,6 +379,10 @@ def test_unknown_camera_time_backwards_and_bad_settings_are_refused():
         TrackerConfig(coast_after=2.0, end_after=1.0)
     with pytest.raises(InvalidInput, match="p_detect"):
         TrackerConfig(p_detect=1.0)
+    with pytest.raises(InvalidInput, match="appearance_weight"):
+        TrackerConfig(appearance_weight=-1.0)
+    with pytest.raises(InvalidInput, match="appearance_rate"):
+        TrackerConfig(appearance_rate=0.0)
 
 
 def test_reorder_buffer_releases_in_time_order_and_counts_late_frames():
