@@ -338,9 +338,10 @@ def track_through_service(
 ) -> TrackingRun:
     """Start `intspace serve`, register and place the camera, play `video` through
     `intspace node --source VIDEO --camera NAME --source-fps 7` with an ingest token, and
-    return the service's tracks. With `posted` (each frame's PersonBoxes, detected
-    beforehand), post every frame's boxes one frame each 1/7 s instead, as the node posts
-    them: the node's figures on a machine that would keep up with every frame."""
+    return the service's tracks. With `posted` (each frame's PersonBoxes and their
+    appearances, detected beforehand), post every frame's boxes one frame each 1/7 s
+    instead, as the node posts them: the node's figures on a machine that would keep up with
+    every frame."""
     admin = "pets-bench-admin-token"
     with running_service(
         workdir / "data", token=admin, env=WITHOUT_TWIN, log_path=workdir / "serve.log"
@@ -451,10 +452,10 @@ def _post_frames(posted: list[Any], api: str, token: str, camera_id: int) -> tup
     t0 = time.time() + 1.0
     detections = empty = 0
     with httpx.Client(headers={"Authorization": f"Bearer {token}"}, timeout=30) as client:
-        for k, found in enumerate(posted):
+        for k, (found, looks) in enumerate(posted):
             t = t0 + k / SOURCE_FPS
             time.sleep(max(0.0, t - time.time()))
-            obs = box_observations(camera_id, t, found)
+            obs = box_observations(camera_id, t, found, looks)
             body: dict[str, Any] = {"observations": obs}
             if not obs:
                 body = {"empty_frames": [{"camera_id": camera_id, "t": t}]}
@@ -574,11 +575,15 @@ def run_tracking(
     clip = clip_video(video_path(), frames, workdir / "clip.mkv")
     posted = None
     if every_frame:
+        from core.localization.appearance import box_appearance
         from core.localization.ssd_people import SsdConfig, SsdPeopleDetector
 
         config = SsdConfig(flip=flip)
         dnn = SsdPeopleDetector(config=config)
-        posted = [dnn.detect_boxes(image) for image in read_frames(clip, frames)]
+        posted = []
+        for image in read_frames(clip, frames):
+            found = dnn.detect_boxes(image)
+            posted.append((found, box_appearance(image, found.boxes)))
     node_args = ("--flip",) if flip else ()
     run = track_through_service(clip, placement, workdir, posted, node_args)
     return score_tracking(run, truth, frames), run, placement

@@ -263,7 +263,8 @@ class Detection(Timestamped, Base):
     measures, and the label when the sender knew the target. A detector's box (migration 0009):
     `box` [x0, y0, x1, y1] distorted px, its `score` (0-1) and the sides `cut` by the image's
     edge or a mask; (u, v) is then the box's foot point (core.localization.box_foot), not
-    tracked when the bottom is cut."""
+    tracked when the bottom is cut. Its `appearance` (migration 0012): the box's descriptor
+    (core.localization.appearance), when the sender gave one."""
 
     __tablename__ = "detections"
 
@@ -284,6 +285,7 @@ class Detection(Timestamped, Base):
     box: Mapped[list[float] | None] = mapped_column(JSON(none_as_null=True))
     score: Mapped[float | None] = mapped_column(Float)
     cut: Mapped[list[str] | None] = mapped_column(JSON(none_as_null=True))
+    appearance: Mapped[list[float] | None] = mapped_column(JSON(none_as_null=True))
 
 
 class SemanticObject(Timestamped, Base):

@@ -22,6 +22,7 @@ from numpy.typing import NDArray
 
 from core.errors import IntspaceError, InvalidInput
 from core.localization import NetworkCamera
+from core.localization.appearance import box_appearance
 from core.localization.boxes import BOX_SIDES
 from core.localization.detect import MarkerDetectorConfig, PersonDetector
 from core.localization.detections import FrameDetection, PeopleDetector, detect_frame
@@ -152,13 +153,17 @@ def observation(camera_id: int, t: float, d: FrameDetection) -> dict[str, Any] |
     }
 
 
-def box_observations(camera_id: int, t: float, found: PersonBoxes) -> list[dict[str, Any]]:
+def box_observations(
+    camera_id: int, t: float, found: PersonBoxes, looks: NDArray[np.float64]
+) -> list[dict[str, Any]]:
     """Return a neural detector's boxes as POST /observations takes them: each person's box,
     score and cut sides, so the service measures its foot on the body's axis
-    (core.localization.boxes.foot_on_axis, as for any detector's boxes); a box whose bottom is
-    cut is stored there but gives no floor position."""
+    (core.localization.boxes.foot_on_axis, as for any detector's boxes), and its appearance
+    `looks` (N, F) (core.localization.appearance.box_appearance of the frame), which the
+    tracker uses to tell people side by side apart; a box whose bottom is cut is stored there
+    but gives no floor position."""
     out = []
-    for box, score, cut in zip(found.boxes, found.scores, found.cut, strict=True):
+    for box, score, cut, look in zip(found.boxes, found.scores, found.cut, looks, strict=True):
         out.append(
             {
                 "camera_id": camera_id,
@@ -166,6 +171,7 @@ def box_observations(camera_id: int, t: float, found: PersonBoxes) -> list[dict[
                 "box": [float(v) for v in box],
                 "score": float(score),
                 "cut": [side for side, c in zip(BOX_SIDES, cut, strict=True) if c],
+                "appearance": [round(float(v), 6) for v in look],
                 "kind": "person",
             }
         )
@@ -437,7 +443,9 @@ class Node:
             if isinstance(run.people, SsdPeopleDetector):
                 # The boxes go to the service whole: it measures their feet on the body's
                 # axis with the camera's geometry and floor plan, as for any detector's boxes.
-                kept += box_observations(run.camera_id, t, run.people.detect_boxes(image))
+                boxes_found = run.people.detect_boxes(image)
+                looks = box_appearance(image, boxes_found.boxes)
+                kept += box_observations(run.camera_id, t, boxes_found, looks)
             if kept:
                 self.uploader.push(kept)
                 run.detections += len(kept)

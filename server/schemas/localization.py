@@ -6,6 +6,7 @@ from typing import Annotated, Literal
 
 from pydantic import Field, field_validator, model_validator
 
+from core.localization.appearance import APPEARANCE_SIZE
 from server.schemas.common import Finite, Id, ReadSchema, Schema, UtcDatetime
 
 Pixel = Annotated[list[Finite], Field(min_length=2, max_length=2)]
@@ -26,6 +27,10 @@ BoxCoordinate = Annotated[
 ]
 Box = Annotated[list[BoxCoordinate], Field(min_length=4, max_length=4)]
 BoxSide = Literal["bottom", "top", "left", "right"]
+Appearance = Annotated[
+    list[Annotated[float, Field(ge=0, le=1, allow_inf_nan=False)]],
+    Field(min_length=APPEARANCE_SIZE, max_length=APPEARANCE_SIZE),
+]
 
 
 class Observation(Schema):
@@ -52,6 +57,12 @@ class Observation(Schema):
         description="Sides of the box cut by the image's edge or a mask; a cut bottom is "
         "stored but gives no floor position.",
     )
+    appearance: Appearance | None = Field(
+        None,
+        description=f"The box's look: {APPEARANCE_SIZE} hue-saturation histogram bins of its "
+        "upper and lower body (core.localization.appearance.box_appearance), summing to at "
+        "most 1; the tracker compares it with what each target looked like in this camera.",
+    )
     kind: Kind | None = None
     target: Annotated[str, Field(min_length=1, max_length=200)] | None = None
     height: Annotated[float, Field(ge=-10, le=10, allow_inf_nan=False)] = 0.0
@@ -71,8 +82,17 @@ class Observation(Schema):
                 if self.pixel is not None
                 else "an observation needs a pixel or a box; it has neither"
             )
-        if self.box is None and (self.score is not None or self.cut is not None):
-            raise ValueError("score and cut describe a box; send them with box, not pixel")
+        if self.box is None and (
+            self.score is not None or self.cut is not None or self.appearance is not None
+        ):
+            raise ValueError(
+                "score, cut and appearance describe a box; send them with box, not pixel"
+            )
+        if self.appearance is not None and sum(self.appearance) > 1.0 + 1e-3:
+            raise ValueError(
+                "an appearance is histograms that sum to at most 1 "
+                f"(core.localization.appearance), got {sum(self.appearance):.6g}"
+            )
         if self.box is not None:
             if self.sigma_px is not None or self.cov is not None:
                 raise ValueError(

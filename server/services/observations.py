@@ -255,6 +255,7 @@ def detections_in(obs: Sequence[Observation], m: Measured) -> list[DetectionIn]:
             box=None if o.box is None else (o.box[0], o.box[1], o.box[2], o.box[3]),
             score=o.score,
             cut=None if o.box is None else tuple(o.cut or ()),
+            appearance=None if o.appearance is None else tuple(o.appearance),
             tracked=bool(m.tracked[i]),
         )
         for i, o in enumerate(obs)

@@ -16,8 +16,9 @@ from server.delays import StageDelays
 class DetectionIn:
     """One detection to ingest: camera id, capture time (s), distorted pixel (2,), its 2x2
     covariance px^2, kind, height (m) of the measured point, label or None; a detector's box
-    (x0, y0, x1, y1), score and cut sides when it came as a box, and whether it measures a
-    floor position (`tracked` False: a box whose bottom is cut, stored only)."""
+    (x0, y0, x1, y1), score, cut sides and appearance descriptor
+    (core.localization.appearance) when it came as a box, and whether it measures a floor
+    position (`tracked` False: a box whose bottom is cut, stored only)."""
 
     camera_id: int
     t: float
@@ -29,12 +30,15 @@ class DetectionIn:
     box: tuple[float, float, float, float] | None = None
     score: float | None = None
     cut: tuple[str, ...] | None = None
+    appearance: tuple[float, ...] | None = None
     tracked: bool = True
 
 
 @dataclass(frozen=True)
 class CameraFrame:
-    """One camera frame's detections, ready for the tracker."""
+    """One camera frame's detections, ready for the tracker; `appearances` (D, F): their
+    appearance descriptors, a row of zeros for a detection without one, or None when none has
+    one."""
 
     camera_id: int
     t: float
@@ -44,6 +48,7 @@ class CameraFrame:
     kinds: list[str]
     labels: list[str | None]
     ids: tuple[int, ...] = ()
+    appearances: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -97,6 +102,21 @@ def camera_frames(
                 kinds=[d.kind for d in dets],
                 labels=[d.label for d in dets],
                 ids=tuple(row_ids.get((camera_id, t), ())),
+                appearances=appearances_of(dets),
             )
         )
     return frames
+
+
+def appearances_of(detections: Sequence[DetectionIn]) -> np.ndarray | None:
+    """Return the detections' appearance descriptors (D, F), zeros for those without one (or
+    of another length than the first), or None when none has one."""
+    given = [d.appearance for d in detections if d.appearance is not None]
+    if not given:
+        return None
+    size = len(given[0])
+    out = np.zeros((len(detections), size))
+    for k, d in enumerate(detections):
+        if d.appearance is not None and len(d.appearance) == size:
+            out[k] = d.appearance
+    return out

@@ -109,6 +109,7 @@ class TrackingService(SharedTrackers):
                 "box": None if d.box is None else list(d.box),
                 "score": d.score,
                 "cut": None if d.cut is None else list(d.cut),
+                "appearance": None if d.appearance is None else list(d.appearance),
             }
             for d in detections
         ]

@@ -191,6 +191,8 @@ class SharedTrackers(SpaceTrackers):
         stmt = select(Detection).where(same, *conditions).order_by(Detection.t, Detection.id)
         with self._factory() as session:
             rows = session.scalars(stmt.limit(limit) if limit else stmt).all()
+        # A box whose bottom is cut is stored but gives no floor position (ingest).
+        rows = [r for r in rows if not (r.cut and "bottom" in r.cut)]
         if not rows:
             return []
         detections = [
@@ -202,6 +204,7 @@ class SharedTrackers(SpaceTrackers):
                 kind=r.kind,
                 height=r.height,
                 label=r.label,
+                appearance=None if r.appearance is None else tuple(r.appearance),
             )
             for r in rows
         ]

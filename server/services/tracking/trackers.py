@@ -170,6 +170,7 @@ class SpaceTrackers:
                 heights=f.heights,
                 kinds=f.kinds,
                 labels=f.labels,
+                appearances=f.appearances,
             )
         except IntspaceError as exc:
             log.warning("camera %s frame at %.3f refused by the tracker: %s", f.camera_id, f.t, exc)

@@ -25,7 +25,8 @@ _FRAME_ITEM_BYTES = PAYLOAD_LIMIT - 200
 def frame_item(f: CameraFrame) -> dict[str, Any] | None:
     """Return a camera frame as a notification item: {"c": camera, "t": time} for an empty
     frame, with its stored rows' "ids", pixels, covariances (xx, xy, yy), heights, kinds and
-    labels for the others; None when it is too large for one notification."""
+    labels (and appearance descriptors "a", when they have some) for the others; None when it
+    is too large for one notification."""
     item: dict[str, Any] = {"c": f.camera_id, "t": f.t}
     if not f.pixels.shape[0]:
         return item
@@ -37,6 +38,8 @@ def frame_item(f: CameraFrame) -> dict[str, Any] | None:
         k=list(f.kinds),
         l=list(f.labels),
     )
+    if f.appearances is not None:
+        item["a"] = f.appearances.tolist()
     if len(json.dumps(item, separators=(",", ":"))) > _FRAME_ITEM_BYTES:
         return None
     return item
@@ -57,6 +60,7 @@ def frame_of_item(item: dict[str, Any]) -> CameraFrame:
         kinds=[str(k) for k in item["k"]],
         labels=[None if v is None else str(v) for v in item["l"]],
         ids=tuple(int(i) for i in item["ids"]),
+        appearances=None if "a" not in item else np.asarray(item["a"], dtype=np.float64),
     )
 
 

@@ -12,6 +12,7 @@ import pytest
 from sqlalchemy import create_engine, text
 
 from core.localization import NetworkCamera, box_foot, cut_mask, foot_on_axis
+from core.localization.appearance import APPEARANCE_SIZE
 
 K = [[600.0, 0.0, 319.5], [0.0, 600.0, 239.5], [0.0, 0.0, 1.0]]
 SIZE = (640, 480)
@@ -161,8 +162,11 @@ def test_boxes_are_stored_with_score_and_cut_and_refused_when_bad(client, admin,
     # A standing person about 2.6 m from the camera, as a detector boxes them: 0.4 m wide, feet
     # at (320, 260), the head above the image (this camera looks down), so the box stops at 0.
     box = {"camera_id": cid, "t": now, "box": [275.0, 0.0, 365.0, 260.0], "score": 0.9}
+    # The box's look (core.localization.appearance): two parts' histograms, half each.
+    look = [0.0] * APPEARANCE_SIZE
+    look[3] = look[APPEARANCE_SIZE // 2 + 7] = 0.5
     batch = [
-        box,
+        {**box, "appearance": look},
         {**box, "score": 0.3},  # under the camera's 0.4: dropped
         {**box, "t": now + 0.1, "cut": ["bottom"]},  # stored, not tracked
         {**box, "t": now + 0.2, "cut": ["left", "top"]},
@@ -176,8 +180,10 @@ def test_boxes_are_stored_with_score_and_cut_and_refused_when_bad(client, admin,
         rows = connection.execute(
             text("SELECT u, v, cxx, cyy, kind, box, score, cut FROM detections ORDER BY t")
         ).all()
+        looks = connection.execute(text("SELECT appearance FROM detections ORDER BY t")).all()
     engine.dispose()
     assert len(rows) == 3
+    assert _json(looks[0][0]) == look and [r[0] for r in looks[1:]] == [None, None]
     u, v, cxx, cyy, kind, stored_box, score, _ = rows[0]
     assert (kind, score) == ("person", 0.9)
     # The foot the service measured: the one core function's (box_foot, then moved to the
@@ -203,6 +209,13 @@ def test_boxes_are_stored_with_score_and_cut_and_refused_when_bad(client, admin,
         "both": ({**box, "pixel": [320.0, 260.0]}, "observations.0"),
         "neither": ({"camera_id": cid, "t": now}, "observations.0"),
         "score": ({**box, "score": 1.5}, "observations.0.score"),
+        "look length": ({**box, "appearance": look[:-1]}, "observations.0.appearance"),
+        "look sign": ({**box, "appearance": [-0.5, *look[1:]]}, "observations.0.appearance.0"),
+        "look sum": ({**box, "appearance": [0.5] * APPEARANCE_SIZE}, "observations.0"),
+        "look pixel": (
+            {"camera_id": cid, "t": now, "pixel": [320.0, 260.0], "appearance": look},
+            "observations.0",
+        ),
     }
     for name, (observation, field) in bad.items():
         refused = client.post(

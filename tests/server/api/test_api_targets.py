@@ -391,6 +391,7 @@ def test_empty_frames_travel_to_the_process_that_tracks_their_space():
         ["person", "robot"],
         [None, "r1"],
         ids=(7, 8),
+        appearances=rng.dirichlet(np.ones(64), 2),
     )
     late = service.submit([seen, empty_frame(4, 12.5)], {3: 1, 4: 1})
     assert late == 0
@@ -401,9 +402,10 @@ def test_empty_frames_travel_to_the_process_that_tracks_their_space():
     got = frame_of_item(json.loads(json.dumps(items[0])))
     assert (got.camera_id, got.t, got.ids) == (3, seen.t, (7, 8))
     assert (got.kinds, got.labels) == (["person", "robot"], [None, "r1"])
-    for name in ("pixels", "cov", "heights"):
+    for name in ("pixels", "cov", "heights", "appearances"):
         assert np.array_equal(getattr(got, name), getattr(seen, name)), name
     assert frame_of_item(items[1]).pixels.shape == (0, 2)
+    assert frame_of_item(items[1]).appearances is None
     # A frame of 200 detections exceeds a notification: its 200 rows go by their ids.
     crowd = CameraFrame(
         3,
