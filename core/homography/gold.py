@@ -198,6 +198,19 @@ class _GoldGaussNewton:
         out += P[2:4] * z[1]
         out += self.ps
 
+    def rhs_weights(self, iw: Array, uv: Array, c: Array) -> float:
+        """Return c^T Omega c summed, having written the right-hand side's weights into W[6:9]:
+        rho = M^-1 c / w (rows 6-7) and (u, v) . rho (row 8)."""
+        O, W = self.O, self.W
+        rho = W[6:8]
+        np.multiply(O[0:2], c[0], out=rho)
+        rho += O[1:3] * c[1]
+        c_omega_c = self.ws2 * dot(c, rho)
+        rho *= iw
+        np.multiply(uv[0], rho[0], out=W[8])
+        W[8] += uv[1] * rho[1]
+        return c_omega_c
+
     def reduced_system(
         self, iw: Array, uv: Array, c: Array, xh: Array
     ) -> tuple[Array, Array, float]:
@@ -211,13 +224,7 @@ class _GoldGaussNewton:
         alpha *= iw2
         np.multiply(uv[0], alpha[0], out=W[5])
         W[5] += uv[1] * alpha[1]
-        rho = W[6:8]
-        np.multiply(O[0:2], c[0], out=rho)
-        rho += O[1:3] * c[1]
-        c_omega_c = self.ws2 * dot(c, rho)
-        rho *= iw
-        np.multiply(uv[0], rho[0], out=W[8])
-        W[8] += uv[1] * rho[1]
+        c_omega_c = self.rhs_weights(iw, uv, c)
         x, y = xh[0], xh[1]
         np.multiply(x, x, out=E[0])
         np.multiply(x, y, out=E[1])
@@ -231,14 +238,8 @@ class _GoldGaussNewton:
     def gradient(self, iw: Array, uv: Array, c: Array, xh: Array) -> tuple[Array, float]:
         """Return (rhs (8,), c^T Omega c summed) of `reduced_system` alone (its weights 6-8
         against the monomials (x, y, 1)), with the current M^-1."""
-        O, W, E = self.O, self.W, self.E
-        rho = W[6:8]
-        np.multiply(O[0:2], c[0], out=rho)
-        rho += O[1:3] * c[1]
-        c_omega_c = self.ws2 * dot(c, rho)
-        rho *= iw
-        np.multiply(uv[0], rho[0], out=W[8])
-        W[8] += uv[1] * rho[1]
+        W, E = self.W, self.E
+        c_omega_c = self.rhs_weights(iw, uv, c)
         E[3:5] = xh[:2]
         t = (W[6:9] @ E[3:6].T).ravel()[_GRAD_IDX]
         t *= _GOLD_SIGN[64:]
