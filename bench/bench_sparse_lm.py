@@ -20,12 +20,10 @@ from scipy.optimize import least_squares
 from scipy.sparse import csr_matrix
 
 from bench._common import best_of, print_table
-from core.homography.estimate import (
-    _dlt_normalized,
-    _GoldStandardProblem,
-    _normalize_t,
-    _sampson_src,
-)
+from core.homography.dlt import _dlt_normalized
+from core.homography.gold import _sampson_src
+from core.homography.normalization import _normalize_t
+from core.homography.problems import _GoldStandardProblem
 from core.optim import solve_sparse_lm
 
 H_TRUE = np.array([[2.0, 0.2, 60.0], [0.1, 2.2, 20.0], [6e-3, 2e-3, 1.0]])

@@ -52,7 +52,7 @@ from core.geometry.camera import (
     undistort_points,
 )
 from core.geometry.rotations import matrix_to_rotvec, rotvec_to_matrix
-from core.homography.estimate import _four_point_homographies
+from core.homography.ransac import _four_point_homographies
 from core.optim import solve_sparse_lm
 
 Array = NDArray[np.float64]

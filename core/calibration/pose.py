@@ -18,7 +18,7 @@ from core._validate import as_matrix, as_points
 from core.errors import DegenerateConfiguration, InvalidInput
 from core.geometry.camera import Pose, ReprojectionProblem, as_distortion, undistort_points
 from core.geometry.rotations import matrix_to_rotvec, nearest_rotation, rotvec_to_matrix
-from core.homography.estimate import dlt_homography
+from core.homography.dlt import dlt_homography
 from core.optim import solve_sparse_lm
 
 Array = NDArray[np.float64]

@@ -33,7 +33,7 @@ from core.geometry.camera import (
     undistort_points,
 )
 from core.geometry.rotations import matrix_to_rotvec, rotvec_to_matrix
-from core.homography.estimate import dlt_homography
+from core.homography.dlt import dlt_homography
 from core.optim import solve_sparse_lm
 
 Array = NDArray[np.float64]

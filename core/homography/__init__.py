@@ -10,13 +10,8 @@ from core.homography.decompose import (
     decompose_homography,
     decompose_homography_batch,
 )
-from core.homography.estimate import (
-    HomographyFit,
-    check_homography_configuration,
-    dlt_homography,
-    fit_homography,
-    transfer_covariance,
-)
+from core.homography.dlt import dlt_homography
+from core.homography.estimate import HomographyFit, fit_homography, transfer_covariance
 from core.homography.moments import (
     MomentAffine,
     Moments,
@@ -29,6 +24,7 @@ from core.homography.moments import (
     polygon_moments,
     transform_moments,
 )
+from core.homography.normalization import check_homography_configuration
 
 __all__ = [
     "CASE_ALONG_NORMAL",

@@ -51,7 +51,7 @@ from core.geometry.camera import (
     undistort_points,
 )
 from core.geometry.rotations import rotvec_to_matrix
-from core.homography.estimate import dlt_homography
+from core.homography.dlt import dlt_homography
 from core.landmarks.ambiguity import (
     DECIDED_PROBABILITY,
     PoseHypothesis,

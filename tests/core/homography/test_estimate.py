@@ -11,7 +11,7 @@ import pytest
 
 from core.errors import DegenerateConfiguration, InvalidInput, NotEnoughPoints
 from core.homography import dlt_homography, fit_homography, transfer_covariance
-from core.homography.estimate import _GoldStandardProblem, _TransferProblem
+from core.homography.problems import _GoldStandardProblem, _TransferProblem
 from core.optim._sparse_lm import _normal_blocks
 
 # A plane-induced homography with strong perspective (local scale varies ~10x across the
@@ -452,13 +452,16 @@ def test_ransac_agrees_with_opencv_usac() -> None:
 def _tight_gold(src: np.ndarray, dst: np.ndarray):  # type: ignore[no-untyped-def]
     """The generic sparse LM on the same problem, run to machine precision (no ptol)."""
     from core.homography import estimate as est
+    from core.homography.dlt import _dlt_normalized, _unit_h22
+    from core.homography.gold import _sampson_src
+    from core.homography.normalization import _normalize_t
     from core.optim import solve_sparse_lm
 
-    Ts, ps = est._normalize_t(src, "src")
-    Td, pd = est._normalize_t(dst, "dst")
-    hn = est._unit_h22(est._dlt_normalized(ps, pd))
+    Ts, ps = _normalize_t(src, "src")
+    Td, pd = _normalize_t(dst, "dst")
+    hn = _unit_h22(_dlt_normalized(ps, pd))
     prob = _GoldStandardProblem(ps, pd, Ts[0, 0], Td[0, 0])
-    x0 = est._sampson_src(hn, ps, pd, Ts[0, 0], Td[0, 0])
+    x0 = _sampson_src(hn, ps, pd, Ts[0, 0], Td[0, 0])
     lm = solve_sparse_lm(prob, hn.ravel()[:8], x0, max_iterations=100, ftol=1e-15, xtol=1e-15)
     H, cov = est._denormalize(lm.x_global, lm.global_covariance(), Ts, Td)
     return lm, H, cov
@@ -489,14 +492,14 @@ def test_gold_reaches_the_sparse_lm_optimum(seed: int) -> None:
 def test_gold_hands_over_to_the_damped_lm(monkeypatch: pytest.MonkeyPatch) -> None:
     # With one undamped step allowed the closed form cannot converge; the sparse LM must
     # finish from its iterate and reach the same minimum.
-    from core.homography import estimate as est
+    from core.homography import gold
 
     rng = np.random.default_rng(42)
     x = image_points(80, rng)
     src = x + rng.normal(0, SIGMA, x.shape)
     dst = project(H_PLANE, x) + rng.normal(0, SIGMA, x.shape)
     ref = fit_homography(src, dst, method="gold")
-    monkeypatch.setattr(est, "_GOLD_GN_STEPS", 1)
+    monkeypatch.setattr(gold, "_GOLD_GN_STEPS", 1)
     handed = fit_homography(src, dst, method="gold")
     assert handed.iterations > 1
     e = (handed.H - ref.H).ravel()[:8]

@@ -16,12 +16,8 @@ import pytest
 
 from core.errors import InvalidInput
 from core.localization import NetworkCamera, locate_monocular
-from core.localization.detect import (
-    MarkerDetectorConfig,
-    PersonDetector,
-    _hue_mask,
-    detect_marker,
-)
+from core.localization.detect import MarkerDetectorConfig, PersonDetector, detect_marker
+from core.localization.detect.marker import _hue_mask
 from core.localization.detections import detect_frame
 from core.sim import Pose2D, Renderer, SensorNoise, WorldState, default_scene, world_state
 from core.sim.render.landmarks import scene_landmarks
