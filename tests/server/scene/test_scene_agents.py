@@ -12,7 +12,7 @@ import pytest
 
 from core.errors import InvalidInput
 from server.scene import MAX_TRACK_POINTS, CameraEntry, SceneService
-from server.scene import _service as scene_service
+from server.scene import _cameras as scene_cameras
 from server.scene._geometry import matrix_from_quaternion
 
 # Poses are computed in float64 (half-angle quaternion about +Z) and stored as float64 by the
@@ -220,7 +220,7 @@ def test_camera_images_are_throttled_per_camera(scene, monkeypatch):
     # The service's clock, stopped and moved by hand: the interval is tested exactly, however
     # slow the machine (a real 0.2 s could pass between two calls on a loaded runner).
     now = [1000.0]
-    monkeypatch.setattr(scene_service.time, "monotonic", lambda: now[0])
+    monkeypatch.setattr(scene_cameras.time, "monotonic", lambda: now[0])
     frames = [np.full((48, 64, 3), v, np.uint8) for v in (10, 20, 30)]
     assert scene.set_camera_image(1, frames[0])
     now[0] += 0.19
