@@ -42,3 +42,38 @@ def inside_polygon(P: Array, poly: Array) -> NDArray[np.bool_]:
     rule (points_in_polygons); points on an edge may fall either way."""
     inside: NDArray[np.bool_] = points_in_polygons(P, [poly])[:, 0]
     return inside
+
+
+def _shoelace_terms(polygons: ArrayLike) -> tuple[Array, Array, Array, Array, Array]:
+    """Return x, y (..., N), their next vertices x1, y1 and the cross terms x y1 - x1 y."""
+    p = np.asarray(polygons, dtype=np.float64)
+    x, y = p[..., 0], p[..., 1]
+    x1, y1 = np.roll(x, -1, axis=-1), np.roll(y, -1, axis=-1)
+    return x, y, x1, y1, x * y1 - x1 * y
+
+
+def signed_area(polygons: ArrayLike) -> Array:
+    """Return the signed areas (...) of polygons (..., N, 2), positive when counter-clockwise.
+
+    The shoelace formula, A = 1/2 sum_i (x_i y_(i+1) - x_(i+1) y_i) (Green's theorem over the
+    boundary); each polygon is closed implicitly. Units are those of the vertices, squared."""
+    *_, cross = _shoelace_terms(polygons)
+    area: Array = 0.5 * cross.sum(axis=-1)
+    return area
+
+
+def area_centroid(polygons: ArrayLike) -> Array:
+    """Return the area centroids (..., 2) of simple polygons (..., N, 2), either orientation.
+
+    The shoelace formula's first moments, c = 1 / (6 A) sum_i (p_i + p_(i+1)) (x_i y_(i+1) -
+    x_(i+1) y_i); a polygon whose |A| is below 1e-12 (no area to weigh) gets its vertex mean."""
+    x, y, x1, y1, cross = _shoelace_terms(polygons)
+    a = 0.5 * cross.sum(axis=-1)
+    flat = np.abs(a) < 1e-12
+    safe = np.where(flat, 1.0, a)
+    c = np.stack([((x + x1) * cross).sum(axis=-1), ((y + y1) * cross).sum(axis=-1)], axis=-1)
+    centroid: Array = c / (6.0 * safe[..., None])
+    if np.any(flat):
+        mean = np.asarray(polygons, dtype=np.float64).mean(axis=-2)
+        centroid = np.where(flat[..., None], mean, centroid)
+    return centroid

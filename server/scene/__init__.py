@@ -22,6 +22,7 @@ scene.stop()
 
 from server.scene._agents import MAX_TRACK_POINTS, AgentView
 from server.scene._arm import ArmView
+from server.scene._cameras import CameraView
 from server.scene._entries import (
     ArmEntry,
     CameraEntry,
@@ -31,10 +32,11 @@ from server.scene._entries import (
     RoomEntry,
     SemanticObjectEntry,
 )
+from server.scene._floor import RoomView
 from server.scene._geometry import Frustum, Pose
 from server.scene._landmarks import LandmarkView, NavigationGraphView, PlaceView, SemanticObjectView
 from server.scene._navigation import ProjectorView
-from server.scene._service import CameraView, RoomView, SceneService
+from server.scene._service import SceneService
 
 __all__ = [
     "MAX_TRACK_POINTS",

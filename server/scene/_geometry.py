@@ -1,4 +1,5 @@
-"""Small geometry for drawing the scene: poses as quaternions, frusta from K, floor polygons."""
+"""Small geometry for drawing the scene: poses as quaternions, frusta from K, floor polygons
+(checked and triangulated here; their areas and centroids are core.geometry.polygon's)."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from core.errors import InvalidInput
+from core.geometry.polygon import signed_area
 from core.geometry.rotations import matrix_to_quaternion, quaternion_to_matrix
 
 Array = NDArray[np.float64]
@@ -109,24 +111,6 @@ def as_polygon(points: object, name: str) -> Array:
     if np.allclose(p[0], p[-1]):  # a closed ring repeats its first vertex
         p = p[:-1]
     return p
-
-
-def signed_area(polygon: Array) -> float:
-    """Return the shoelace area of an (N, 2) polygon, positive when counter-clockwise."""
-    x, y = polygon[:, 0], polygon[:, 1]
-    return 0.5 * float(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y))
-
-
-def polygon_centroid(polygon: Array) -> Array:
-    """Return the area centroid (2,) of a simple polygon (vertex mean if it has no area)."""
-    x, y = polygon[:, 0], polygon[:, 1]
-    cross = x * np.roll(y, -1) - np.roll(x, -1) * y
-    a = 0.5 * np.sum(cross)
-    if abs(a) < 1e-12:
-        return polygon.mean(axis=0)
-    cx = np.sum((x + np.roll(x, -1)) * cross) / (6.0 * a)
-    cy = np.sum((y + np.roll(y, -1)) * cross) / (6.0 * a)
-    return np.array([cx, cy])
 
 
 def triangulate_polygon(polygon: Array) -> NDArray[np.int64]:

@@ -18,7 +18,7 @@ from pathlib import Path
 import paho.mqtt.client as paho
 import pytest
 
-from tests.support.service import free_port
+from tests.support.ports import free_port
 
 MOSQUITTO = shutil.which("mosquitto") or "/usr/sbin/mosquitto"
 MOSQUITTO_PASSWD = shutil.which("mosquitto_passwd") or "/usr/bin/mosquitto_passwd"

@@ -16,7 +16,6 @@ from __future__ import annotations
 import contextlib
 import os
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -25,6 +24,8 @@ from pathlib import Path
 from typing import Any
 
 import httpx
+
+from tests.support.ports import free_port
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 # Neither the twin nor the 3D scene: a service that only stores and tracks what it is sent.
@@ -36,13 +37,6 @@ FALSE_WORDS = ("0", "off", "f", "false", "n", "no")
 class ServiceError(RuntimeError):
     """The service exited during start-up, did not answer, or did not stop; the message holds
     its log."""
-
-
-def free_port() -> int:
-    """Return a TCP port of 127.0.0.1 that nothing listened on a moment ago."""
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def clean_env() -> dict[str, str]:

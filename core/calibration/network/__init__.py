@@ -15,11 +15,10 @@ Both return a `NetworkCalibration` of `CalibratedCamera`s and `RejectedCamera`s;
 """
 
 from core.calibration.network._board import calibrate_network_board
-from core.calibration.network._marker import (
-    INTRINSIC_PARAMETERS,
+from core.calibration.network._intrinsics_prior import INTRINSIC_PARAMETERS, IntrinsicsPrior
+from core.calibration.network._marker import calibrate_network_marker
+from core.calibration.network._marker_bound import (
     CameraBound,
-    IntrinsicsPrior,
-    calibrate_network_marker,
     centre_rotation_jacobian,
     floor_gauge_projector,
     marker_network_bound,

@@ -55,346 +55,25 @@ Units: metres, radians, pixels.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from core.calibration.network._odometry import (
-    OdometryPrior,
-    compose_increments,
-    increment_jacobian,
-)
+from core.calibration.network._intrinsics_prior import IntrinsicsPrior
+from core.calibration.network._marker_image import disc_centre_offset, disc_image_area
+from core.calibration.network._marker_layout import MarkerLayout, check_detections, marker_places
+from core.calibration.network._marker_problem import MarkerProblem, ProblemCamera, chol_whitener
+from core.calibration.network._odometry import OdometryPrior, compose_increments, increment_jacobian
 from core.calibration.network._records import CalibratedCamera, NetworkCalibration, RejectedCamera
 from core.calibration.pose import estimate_plane_pose
-from core.calibration.zhang import CameraCalibration
 from core.errors import ConvergenceError, DegenerateConfiguration, InvalidInput, NotEnoughPoints
-from core.geometry.camera import (
-    DISTORTION_NAMES,
-    intrinsics_to_matrix,
-    left_jacobian_so3,
-    project_points,
-)
-from core.geometry.rotations import matrix_to_rotvec, rotvec_to_matrix, wrap_angle
+from core.geometry.camera import project_points
+from core.geometry.rotations import matrix_to_rotvec, rotvec_to_matrix
 from core.optim import solve_sparse_lm
 
 Array = NDArray[np.float64]
 
-#: The intrinsic parameters a camera's own calibration may supply, in the order used here.
-INTRINSIC_PARAMETERS: tuple[str, ...] = ("fx", "fy", "cx", "cy", *DISTORTION_NAMES)
 _POSE_NAMES = ("rx", "ry", "rz", "tx", "ty", "tz")
-
-
-@dataclass(frozen=True)
-class IntrinsicsPrior:
-    """A camera's own calibration as a prior: K (3, 3) pixels, dist (5,) OpenCV coefficients,
-    `names` the estimated parameters among INTRINSIC_PARAMETERS (the others are held at their
-    values) and `cov` (p, p) their covariance (pixels^2; unitless for distortion)."""
-
-    K: Array
-    dist: Array
-    names: tuple[str, ...]
-    cov: Array
-
-    @classmethod
-    def from_calibration(cls, cal: CameraCalibration) -> IntrinsicsPrior:
-        """Return the prior of a Zhang calibration (its estimate and covariance; skew, when it
-        was estimated, is held at its value)."""
-        names = tuple(n for n in INTRINSIC_PARAMETERS if n in cal.parameter_names)
-        idx = [cal.parameter_names.index(n) for n in names]
-        return cls(cal.K.copy(), cal.dist.copy(), names, cal.covariance[np.ix_(idx, idx)].copy())
-
-    @property
-    def values(self) -> Array:
-        """The estimated parameters' values (p,), in the order of `names`."""
-        full = np.concatenate([[self.K[0, 0], self.K[1, 1], self.K[0, 2], self.K[1, 2]], self.dist])
-        return full[[INTRINSIC_PARAMETERS.index(n) for n in self.names]]
-
-
-@dataclass(frozen=True)
-class CameraBound:
-    """The Cramer-Rao bound of one camera's calibration: standard deviation of the focal length
-    (fx + fy) / 2 in percent, root mean square position error (sqrt of the trace of the
-    centre's covariance) metres and root mean square orientation error degrees, in the world
-    frame the start pose defines; `aligned_position_m`, `aligned_rotation_deg` the same after
-    the floor rigid motion that best aligns all the cameras' centres is removed
-    (`floor_gauge_projector`: the network's own geometry; NaN with fewer than 2 cameras)."""
-
-    name: str
-    focal_pct: float
-    position_m: float
-    rotation_deg: float
-    aligned_position_m: float
-    aligned_rotation_deg: float
-
-
-@dataclass(frozen=True)
-class _Cam:
-    name: str
-    index: int  # into the caller's cameras
-    prior: IntrinsicsPrior
-    rvec: Array
-    t: Array
-    seen: NDArray[np.bool_]
-
-
-def _chol_whitener(cov: Array) -> Array:
-    """Return W (..., n, n) with W^T W = cov^-1."""
-    return np.swapaxes(np.linalg.cholesky(np.linalg.inv(cov)), -1, -2)
-
-
-def centre_rotation_jacobian(R: Array, t: Array) -> Array:
-    """Return d (c, phi) / d (rvec, t) (6, 6) of a camera with R_camera_world = exp(rvec) = R
-    and t_camera_world = t: c = -R^T t its centre (metres) and phi its orientation error as a
-    world-frame rotation vector (R_world_camera_est = exp(phi) R_world_camera). A perturbed
-    rotation exp(rvec + d) is exp(J_l d) R (J_l the left Jacobian of SO(3)), so
-    d c = -R^T [t]x J_l d - R^T dt and phi = -R^T J_l d."""
-    Jl = left_jacobian_so3(matrix_to_rotvec(R))
-    tx = np.array([[0.0, -t[2], t[1]], [t[2], 0.0, -t[0]], [-t[1], t[0], 0.0]])
-    F = np.zeros((6, 6))
-    F[:3, :3] = -R.T @ tx @ Jl
-    F[:3, 3:] = -R.T
-    F[3:, :3] = -R.T @ Jl
-    return F
-
-
-def floor_gauge_projector(centres: ArrayLike) -> Array:
-    """Return T (6 C, 6 C) that removes from per-camera errors (centre (3), world rotation
-    vector (3), camera by camera) the floor rigid motion (x, y, yaw) that best aligns the
-    centres (least squares over their x, y): the errors of the network's own geometry, free of
-    where its world frame was put. First order; needs C >= 2 cameras (a 2D Procrustes fit)."""
-    c = np.asarray(centres, dtype=np.float64).reshape(-1, 3)
-    C = len(c)
-    G = np.zeros((6 * C, 3))
-    B = np.zeros((2 * C, 6 * C))
-    for k in range(C):
-        G[6 * k : 6 * k + 3] = [[1.0, 0.0, -c[k, 1]], [0.0, 1.0, c[k, 0]], [0.0, 0.0, 0.0]]
-        G[6 * k + 5, 2] = 1.0
-        B[2 * k, 6 * k] = B[2 * k + 1, 6 * k + 1] = 1.0
-    return np.eye(6 * C) - G @ np.linalg.pinv(B @ G) @ B
-
-
-def _disc_rim_image(
-    X: Array, rvec: Array, t: Array, K: Array, dist: Array, radius: Array, n: int
-) -> Array:
-    """Return the distorted images (M, n, 2) of n points evenly spread on the rim of each
-    horizontal disc of `radius` (M,) metres centred at X (M, 3)."""
-    phi = np.linspace(0.0, 2.0 * np.pi, n, endpoint=False)
-    rim = np.stack([np.cos(phi), np.sin(phi), np.zeros(n)], axis=1)
-    pts = X[:, None, :] + radius[:, None, None] * rim[None]  # (M, n, 3)
-    return project_points(pts.reshape(-1, 3), rvec, t, K, dist).points.reshape(len(X), n, 2)
-
-
-def _polygon_moments(uv: Array) -> tuple[Array, Array]:
-    """Return the areas (M,) and area centroids (M, 2) of closed polygons (M, n, 2) (the
-    shoelace formula and its first moments)."""
-    x, y = uv[..., 0], uv[..., 1]
-    x1, y1 = np.roll(x, -1, axis=1), np.roll(y, -1, axis=1)
-    cross = x * y1 - x1 * y
-    a = 0.5 * cross.sum(axis=1)
-    safe = np.where(a == 0.0, 1.0, a)
-    c = np.stack([((x + x1) * cross).sum(axis=1), ((y + y1) * cross).sum(axis=1)], axis=1)
-    return np.abs(a), c / (6.0 * safe[:, None])
-
-
-def disc_centre_offset(
-    X: Array, rvec: Array, t: Array, K: Array, dist: Array, radius: ArrayLike, n: int = 48
-) -> Array:
-    """Return the pixel offset (M, 2) of the area centroid of a horizontal disc's image from
-    the image of its centre, for discs of `radius` metres (one value, or (M,)) centred at
-    X (M, 3): what a blob detector's centroid measures (core.localization.detect).
-
-    Two effects move it, both second order in the disc's size. Perspective: the disc's ideal
-    image is an ellipse whose centre is not the image of the disc's centre (Hartley & Zisserman
-    eq. 2.13; ~0.1 px for the twin's 5 cm marker at 3 m). Lens distortion: the image of that
-    ellipse through a curved map is no ellipse, and its area centroid is not the distorted
-    centre; with the default home's k1 = -0.28 it is c + k1 f x rho^2 off (x the normalised
-    distance from the axis, rho the disc's radius in focal units): 0.2-0.6 px for the mast's
-    8 cm disc at 1.5-2.5 m, off the axis. Both are in the area centroid of the distorted
-    image of the rim, here an inscribed polygon of n points (an affine image of a regular
-    polygon has its ellipse's centre; what the map adds beyond affine is O(n^-2) of the
-    offset)."""
-    r = np.broadcast_to(np.asarray(radius, dtype=np.float64), (len(X),))
-    out = np.zeros((len(X), 2))
-    on = r > 0
-    if not np.any(on):
-        return out
-    uv = _disc_rim_image(X[on], rvec, t, K, dist, r[on], n)
-    _, centroid = _polygon_moments(uv)
-    out[on] = centroid - project_points(X[on], rvec, t, K, dist).points
-    return out
-
-
-def disc_image_area(
-    X: Array, rvec: Array, t: Array, K: Array, dist: Array, radius: ArrayLike, n: int = 48
-) -> Array:
-    """Return the image area (M,) in pixels of horizontal discs of `radius` (metres; one
-    value, or (M,)) centred at X (M, 3), seen by the camera (rvec, t world-to-camera, K,
-    dist): the area of the distorted images of n points on each rim (shoelace formula; the
-    inscribed polygon's area, short of the ellipse's by about 2 pi^2 / (3 n^2), 0.3 % for
-    n = 48)."""
-    r = np.broadcast_to(np.asarray(radius, dtype=np.float64), (len(X),))
-    area, _ = _polygon_moments(_disc_rim_image(X, rvec, t, K, dist, r, n))
-    return area
-
-
-@dataclass(frozen=True)
-class _Layout:
-    """Where each observation column's marker is: the robot carries K markers, and column
-    n = j K + k holds marker k at stop j: `stop` (N,) the stop, `offset` (N, 2) and `height`
-    (N,) the marker's place on the robot, `radius` (N,) its disc's radius, `first` (N,) the
-    columns of marker 0 (one height: what a camera's plane pose starts from)."""
-
-    stop: NDArray[np.intp]
-    offset: Array
-    height: Array
-    radius: Array
-    first: NDArray[np.bool_]
-    markers: int
-
-    @classmethod
-    def of(cls, stops: int, offsets: Array, heights: Array, radii: Array) -> _Layout:
-        k = len(heights)
-        return cls(
-            stop=np.repeat(np.arange(stops), k),
-            offset=np.tile(offsets, (stops, 1)),
-            height=np.tile(heights, stops),
-            radius=np.tile(radii, stops),
-            first=np.tile(np.arange(k) == 0, stops),
-            markers=k,
-        )
-
-    def head(self, stops: int) -> _Layout:
-        """The layout of the first `stops` stops."""
-        n = stops * self.markers
-        return _Layout(
-            self.stop[:n],
-            self.offset[:n],
-            self.height[:n],
-            self.radius[:n],
-            self.first[:n],
-            self.markers,
-        )
-
-    def points(self, poses: Array) -> tuple[Array, Array]:
-        """Return the markers' world points (N, 3) at the robot poses (M, 3) and d X / d pose
-        of their stops (N, 3, 3)."""
-        P = poses[self.stop]
-        c, s = np.cos(P[:, 2]), np.sin(P[:, 2])
-        o = self.offset
-        ro = np.stack([c * o[:, 0] - s * o[:, 1], s * o[:, 0] + c * o[:, 1]], 1)
-        X = np.column_stack([P[:, :2] + ro, self.height])
-        dX = np.zeros((len(P), 3, 3))
-        dX[:, 0, 0] = dX[:, 1, 1] = 1.0
-        dX[:, 0, 2] = -ro[:, 1]
-        dX[:, 1, 2] = ro[:, 0]
-        return X, dX
-
-
-class _MarkerProblem:
-    """The joint refinement (module docstring, step 2) for core.optim.solve_sparse_lm, as one
-    dense block: global = every camera's (free intrinsics, rvec, t), then eps (3 M)."""
-
-    def __init__(
-        self,
-        cams: Sequence[_Cam],
-        pixels: Array,
-        whiten: Array,
-        used: NDArray[np.bool_],
-        odometry: OdometryPrior,
-        layout: _Layout,
-    ) -> None:
-        self.cams = cams
-        self.layout = layout
-        self.uv = pixels  # (C, N, 2)
-        self.W = whiten  # (C, N, 2, 2)
-        self.used = used  # (C, N)
-        self.odo = odometry
-        sizes = [len(c.prior.names) + 6 for c in cams]
-        self.start = np.concatenate([[0], np.cumsum(sizes)]).astype(int)
-        self.M = len(odometry.increments)
-        self.N = len(layout.stop)
-        self.n_cam = int(self.start[-1])
-        self.n = self.n_cam + 3 * self.M
-        self.Lc = [_chol_whitener(c.prior.cov) if len(c.prior.names) else None for c in cams]
-        self.Lj = _chol_whitener(odometry.cov)  # (M, 3, 3)
-
-    def x0(self) -> Array:
-        parts = [np.concatenate([c.prior.values, c.rvec, c.t]) for c in self.cams]
-        return np.concatenate([*parts, np.zeros(3 * self.M)])
-
-    def unpack(self, g: Array, k: int) -> tuple[Array, Array, Array, Array]:
-        """Return K (3, 3), dist (5,), rvec (3,), t (3,) of camera k."""
-        c = self.cams[k]
-        p = g[self.start[k] : self.start[k + 1]]
-        full = np.concatenate(
-            [[c.prior.K[0, 0], c.prior.K[1, 1], c.prior.K[0, 2], c.prior.K[1, 2]], c.prior.dist]
-        )
-        full[[INTRINSIC_PARAMETERS.index(n) for n in c.prior.names]] = p[:-6]
-        K = intrinsics_to_matrix([full[0], full[1], full[2], full[3], c.prior.K[0, 1]])
-        return K, full[4:9].copy(), p[-6:-3], p[-3:]
-
-    def poses(self, g: Array) -> Array:
-        """Return the robot poses (M, 3) for the corrected increments."""
-        eps = g[self.n_cam :].reshape(self.M, 3)
-        return compose_increments(self.odo.start, self.odo.increments + eps)
-
-    def marker(self, poses: Array) -> tuple[Array, Array]:
-        """Return the markers' world points (N, 3) and d X / d pose (N, 3, 3) (`_Layout`)."""
-        return self.layout.points(poses)
-
-    def jacobians(self, g: Array, loc: Array) -> tuple[Array, Array, Array]:
-        C, M, N = len(self.cams), self.M, self.N
-        poses = self.poses(g)
-        X, dX = self.marker(poses)
-        eps = g[self.n_cam :].reshape(M, 3)
-        D = increment_jacobian(self.odo.start, self.odo.increments + eps).reshape(M, 3, 3 * M)
-        D = D[self.layout.stop]  # (N, 3, 3 M)
-        n_int = [len(c.prior.names) for c in self.cams]
-        rows = 2 * C * N + sum(n_int) + 3 * M
-        res = np.zeros(rows)
-        J = np.zeros((rows, self.n))
-        r = 0
-        for k, cam in enumerate(self.cams):
-            K, d, rv, t = self.unpack(g, k)
-            pr = project_points(X, rv, t, K, d, jacobians=True)
-            assert pr.d_intrinsics is not None and pr.d_distortion is not None
-            assert pr.d_pose is not None
-            w = self.used[k][:, None, None] * self.W[k]  # (N, 2, 2)
-            # The area-centroid offset is second order in the disc's size: it enters the
-            # prediction, its derivatives are left out of the Jacobian.
-            pred = pr.points + disc_centre_offset(X, rv, t, K, d, self.layout.radius)
-            res[r : r + 2 * N] = np.einsum("mij,mj->mi", w, pred - self.uv[k]).ravel()
-            d_all = np.concatenate([pr.d_intrinsics[..., :4], pr.d_distortion], axis=-1)
-            sel = [INTRINSIC_PARAMETERS.index(n) for n in cam.prior.names]
-            jc = np.concatenate([d_all[..., sel], pr.d_pose], axis=-1)  # (N, 2, P)
-            J[r : r + 2 * N, self.start[k] : self.start[k + 1]] = (w @ jc).reshape(2 * N, -1)
-            # Xc = R X + t: d pixel / d X = (d pixel / d t) R.
-            dpix = pr.d_pose[..., 3:6] @ rotvec_to_matrix(rv) @ dX  # (N, 2, 3)
-            J[r : r + 2 * N, self.n_cam :] = np.einsum("mab,mbk->mak", w @ dpix, D).reshape(
-                2 * N, -1
-            )
-            r += 2 * N
-        for k, cam in enumerate(self.cams):
-            L = self.Lc[k]
-            if L is None:
-                continue
-            p = g[self.start[k] : self.start[k] + n_int[k]]
-            res[r : r + n_int[k]] = L @ (p - cam.prior.values)
-            J[r : r + n_int[k], self.start[k] : self.start[k] + n_int[k]] = L
-            r += n_int[k]
-        res[r:] = np.einsum("mij,mj->mi", self.Lj, eps).ravel()
-        for j in range(M):
-            J[r + 3 * j : r + 3 * j + 3, self.n_cam + 3 * j : self.n_cam + 3 * j + 3] = self.Lj[j]
-        return res[None], J[None], np.zeros((1, rows, 0))
-
-    def residuals(self, g: Array, loc: Array) -> Array:
-        return self.jacobians(g, loc)[0]
-
-    def pixel_rows(self, res: Array) -> Array:
-        """Return the whitened pixel residuals (C, N, 2) from a residual vector."""
-        C = len(self.cams)
-        return res.ravel()[: 2 * C * self.N].reshape(C, self.N, 2)
 
 
 def _init_camera(
@@ -407,7 +86,7 @@ def _init_camera(
     height: float,
     min_poses: int,
     min_spread: float,
-) -> _Cam | RejectedCamera:
+) -> ProblemCamera | RejectedCamera:
     n = int(seen.sum())
     if n < min_poses:
         return RejectedCamera(name, f"too few poses: saw {n}, needs at least {min_poses}", n)
@@ -426,7 +105,7 @@ def _init_camera(
         return RejectedCamera(name, f"the camera's pose could not be initialised: {exc}", n)
     # The plane frame is the world shifted up by h: Xc = R (X - h e3) + t.
     t = pose.t - pose.R[:, 2] * height
-    return _Cam(name, index, prior, matrix_to_rotvec(pose.R), t, seen.copy())
+    return ProblemCamera(name, index, prior, matrix_to_rotvec(pose.R), t, seen.copy())
 
 
 def _grow(
@@ -436,12 +115,12 @@ def _grow(
     vis: NDArray[np.bool_],
     cov: Array,
     odometry: OdometryPrior,
-    layout: _Layout,
+    layout: MarkerLayout,
     min_poses: int,
     min_spread: float,
     max_iterations: int,
     window: int = 15,
-) -> tuple[list[_Cam], list[RejectedCamera], Array]:
+) -> tuple[list[ProblemCamera], list[RejectedCamera], Array]:
     """Return the cameras that can be calibrated, those rejected and a starting point for the
     joint refinement, found stop by stop: the odometry drifts (metres and degrees over a long
     drive), so cameras initialised from the raw odometry can start too far from each other for
@@ -453,7 +132,7 @@ def _grow(
     C, M = len(names), len(odometry.increments)
     eps = np.zeros((M, 3))
     state: dict[int, Array] = {}  # camera index -> its global parameters
-    cams: dict[int, _Cam] = {}
+    cams: dict[int, ProblemCamera] = {}
     last_reject: dict[int, RejectedCamera] = {}
     ends = [*range(window, M, window), M]
     for end in ends:
@@ -487,10 +166,10 @@ def _grow(
             continue
         order = sorted(cams)
         in_cams = [cams[k] for k in order]
-        problem = _MarkerProblem(
+        problem = MarkerProblem(
             in_cams,
             np.where(vis[order, :n, None], uv[order, :n], 0.0),
-            _chol_whitener(cov[order, :n]),
+            chol_whitener(cov[order, :n]),
             vis[order, :n],
             sub,
             lay,
@@ -503,81 +182,6 @@ def _grow(
     order = sorted(cams)
     g = np.concatenate([*(state[k] for k in order), eps.ravel()]) if order else eps.ravel()
     return [cams[k] for k in order], [last_reject[k] for k in sorted(last_reject)], g
-
-
-def _markers(height: ArrayLike, offset: ArrayLike, radius: ArrayLike) -> tuple[Array, Array, Array]:
-    """Return the K markers' heights (K,), offsets (K, 2) and radii (K,) from one value each
-    or one per marker; InvalidInput when they disagree or are not finite."""
-    try:
-        h = np.atleast_1d(np.asarray(height, dtype=np.float64)).reshape(-1)
-        o = np.asarray(offset, dtype=np.float64)
-        r = np.atleast_1d(np.asarray(radius, dtype=np.float64)).reshape(-1)
-    except (TypeError, ValueError):
-        raise InvalidInput("marker heights, offsets and radii must be numbers (metres)") from None
-    k = len(h)
-    if k == 0 or o.size != 2 * k or len(r) not in (1, k):
-        raise InvalidInput(
-            f"need one (x, y) offset per marker height and one radius or one per marker: "
-            f"{k} heights, offsets {o.shape}, {len(r)} radii"
-        )
-    o = o.reshape(k, 2)
-    r = np.broadcast_to(r, (k,)).copy()
-    if not (np.all(np.isfinite(h)) and np.all(np.isfinite(o)) and np.all(np.isfinite(r))):
-        raise InvalidInput("marker heights, offsets and radii must be finite")
-    if np.any(r < 0):
-        raise InvalidInput("marker radii must be >= 0 metres")
-    return h, o, r
-
-
-def _check_inputs(
-    names: Sequence[str],
-    intrinsics: Sequence[IntrinsicsPrior],
-    pixels: ArrayLike,
-    visible: ArrayLike,
-    odometry: OdometryPrior,
-    pixel_cov: ArrayLike | None,
-    pixel_sigma: float,
-    markers: int = 1,
-) -> tuple[Array, NDArray[np.bool_], Array]:
-    """Return pixels (C, N, 2), visibility (C, N) and covariances (C, N, 2, 2) with N = M K
-    columns, column j K + k marker k at stop j (`_Layout`), from pixels (C, M, 2) and visible
-    (C, M) for one marker or (C, M, K, 2) and (C, M, K) for K."""
-    C, K = len(names), markers
-    M = len(odometry.increments)
-    N = M * K
-    try:
-        uv = np.asarray(pixels, dtype=np.float64)
-        vis = np.asarray(visible, dtype=bool)
-    except (TypeError, ValueError):
-        raise InvalidInput("pixels must be numbers and visible booleans") from None
-    if K == 1 and uv.shape == (C, M, 2):
-        uv = uv.reshape(C, M, 1, 2)
-    if K == 1 and vis.shape == (C, M):
-        vis = vis.reshape(C, M, 1)
-    if len(intrinsics) != C or uv.shape != (C, M, K, 2) or vis.shape != (C, M, K):
-        shape = "(C, M, 2) and (C, M)" if K == 1 else f"(C, M, {K}, 2) and (C, M, {K})"
-        raise InvalidInput(
-            f"need one intrinsics prior per camera, pixels and visible {shape} for C = {C} "
-            f"names, M = {M} odometry stops and {K} marker(s); got {len(intrinsics)} priors, "
-            f"{uv.shape}, {vis.shape}"
-        )
-    uv = uv.reshape(C, N, 2)
-    vis = vis.reshape(C, N)
-    if not np.all(np.isfinite(uv[vis])):
-        raise InvalidInput("the visible pixels must be finite")
-    if pixel_cov is None:
-        if not pixel_sigma > 0:
-            raise InvalidInput(f"pixel_sigma must be > 0 pixels, got {pixel_sigma}")
-        cov = np.broadcast_to(pixel_sigma**2 * np.eye(2), (C, N, 2, 2)).copy()
-    else:
-        try:
-            cov = np.asarray(pixel_cov, dtype=np.float64).reshape(C, N, 2, 2).copy()
-        except (TypeError, ValueError):
-            raise InvalidInput(f"pixel_cov must be 2 x 2 px^2 per pixel, {C * N} of them") from None
-        cov[~vis] = np.eye(2)
-        if not np.all(np.isfinite(cov)) or np.any(np.linalg.eigvalsh(cov)[..., 0] <= 0):
-            raise InvalidInput("pixel_cov must be positive definite where visible")
-    return uv, vis, cov
 
 
 def calibrate_network_marker(
@@ -623,9 +227,9 @@ def calibrate_network_marker(
     A camera that cannot be calibrated is listed in `rejected`, never raised; InvalidInput for
     inconsistent shapes or values.
     """
-    heights, offsets, radii = _markers(height, offset, radius)
+    heights, offsets, radii = marker_places(height, offset, radius)
     n_markers = len(heights)
-    uv, vis, cov = _check_inputs(
+    uv, vis, cov = check_detections(
         names, intrinsics, pixels, visible, odometry, pixel_cov, pixel_sigma, n_markers
     )
     if not (0.0 <= hidden_fraction < 1.0 and hidden_px >= 0.0):
@@ -642,7 +246,7 @@ def calibrate_network_marker(
         if np.any(area[vis] < 0):
             raise InvalidInput("areas must be >= 0 pixels (NaN where unknown)")
     M = len(odometry.increments)
-    layout = _Layout.of(M, offsets, heights, radii)
+    layout = MarkerLayout.of(M, offsets, heights, radii)
     recorded = odometry.poses
     cams, rejected, g_init = _grow(
         names,
@@ -663,13 +267,13 @@ def calibrate_network_marker(
         return NetworkCalibration((), tuple(rejected), recorded, tcov, nan, nan, nan, 0)
     idx = [cm.index for cm in cams]
     used = vis[idx].copy()
-    W = _chol_whitener(cov[idx])
+    W = chol_whitener(cov[idx])
     pix = np.where(vis[idx][..., None], uv[idx], 0.0)
     g = g_init
     iterations = 0
     rounds = 5
     for round_ in range(rounds):
-        problem = _MarkerProblem(cams, pix, W, used, odometry, layout)
+        problem = MarkerProblem(cams, pix, W, used, odometry, layout)
         start = g
         n_res = int(2 * used.sum() + sum(len(cm.prior.names) for cm in cams) + 3 * M)
         sol = solve_sparse_lm(
@@ -753,103 +357,3 @@ def calibrate_network_marker(
         residual_variance=float(s2),
         iterations=iterations,
     )
-
-
-def marker_network_bound(
-    names: Sequence[str],
-    intrinsics: Sequence[IntrinsicsPrior],
-    true_K: ArrayLike,
-    true_dist: ArrayLike,
-    true_R: ArrayLike,
-    true_t: ArrayLike,
-    true_poses: ArrayLike,
-    visible: ArrayLike,
-    odometry: OdometryPrior,
-    height: ArrayLike,
-    *,
-    offset: ArrayLike = (0.0, 0.0),
-    pixel_cov: ArrayLike | None = None,
-    pixel_sigma: float = 0.5,
-) -> tuple[CameraBound, ...]:
-    """Return the Cramer-Rao bound of each camera's calibration by `calibrate_network_marker`.
-
-    The inverse of the problem's Gauss-Newton information (unit-variance whitened residuals)
-    at the true parameters: true_K (C, 3, 3), true_dist (C, 5), true_R (C, 3, 3) and true_t
-    (C, 3) (R_camera_world, t_camera_world), true_poses (M, 3) the robot's true stops; the
-    priors (intrinsics' and odometry increments' covariances) and the detections' visibility
-    and covariance as the calibration has them. For scoring and planning (which drive length
-    and pixel noise reach a target): it needs the truth. Several markers as in
-    `calibrate_network_marker` (`height` (K,), `offset` (K, 2), visible (C, M, K)).
-    """
-    C = len(names)
-    Ks = np.asarray(true_K, dtype=np.float64).reshape(C, 3, 3)
-    ds = np.asarray(true_dist, dtype=np.float64).reshape(C, 5)
-    Rs = np.asarray(true_R, dtype=np.float64).reshape(C, 3, 3)
-    ts = np.asarray(true_t, dtype=np.float64).reshape(C, 3)
-    P = np.asarray(true_poses, dtype=np.float64).reshape(-1, 3)
-    M = len(odometry.increments)
-    if len(P) != M:
-        raise InvalidInput(f"true_poses must be (M, 3) with M = {M}; got {P.shape}")
-    heights, offsets, radii = _markers(height, offset, 0.0)
-    n_markers = len(heights)
-    shape = (C, M, 2) if n_markers == 1 else (C, M, n_markers, 2)
-    uv, vis, cov = _check_inputs(
-        names, intrinsics, np.zeros(shape), visible, odometry, pixel_cov, pixel_sigma, n_markers
-    )
-    # Linearise at the truth: increments that compose to the true poses, priors centred on it.
-    prev = np.vstack([odometry.start, P[:-1]])
-    rel = P[:, :2] - prev[:, :2]
-    cp, sp = np.cos(prev[:, 2]), np.sin(prev[:, 2])
-    inc = np.column_stack(
-        [
-            cp * rel[:, 0] + sp * rel[:, 1],
-            -sp * rel[:, 0] + cp * rel[:, 1],
-            wrap_angle(P[:, 2] - prev[:, 2]),
-        ]
-    )
-    odo = OdometryPrior(odometry.start, inc, odometry.cov)
-    cams = []
-    for k in range(C):
-        pr = intrinsics[k]
-        truth = IntrinsicsPrior(Ks[k], ds[k], pr.names, pr.cov)
-        cams.append(_Cam(names[k], k, truth, matrix_to_rotvec(Rs[k]), ts[k], vis[k]))
-    problem = _MarkerProblem(
-        cams, uv, _chol_whitener(cov), vis, odo, _Layout.of(M, offsets, heights, radii)
-    )
-    _, J, _ = problem.jacobians(problem.x0(), np.zeros((1, 0)))
-    info = J[0].T @ J[0]
-    cov_all = np.linalg.inv(info)
-    F = np.zeros((6 * C, problem.n))
-    focal_rows = np.zeros((C, problem.n))
-    for k in range(C):
-        end = problem.start[k + 1]
-        F[6 * k : 6 * k + 6, end - 6 : end] = centre_rotation_jacobian(Rs[k], ts[k])
-        names_k = cams[k].prior.names
-        f = 0.5 * (Ks[k, 0, 0] + Ks[k, 1, 1])
-        for n in ("fx", "fy"):
-            if n in names_k:
-                focal_rows[k, problem.start[k] + names_k.index(n)] = 0.5 * 100 / f
-    Y = F @ cov_all @ F.T
-    centres = np.einsum("kji,kj->ki", Rs, -ts)
-    Ya = np.full_like(Y, np.nan)
-    if C >= 2:
-        T = floor_gauge_projector(centres)
-        Ya = T @ Y @ T.T
-    fvar = np.einsum("ki,ij,kj->k", focal_rows, cov_all, focal_rows)
-
-    def rt(a: Array, k: int, i: int) -> float:
-        return float(np.sqrt(np.trace(a[6 * k + i : 6 * k + i + 3, 6 * k + i : 6 * k + i + 3])))
-
-    out = []
-    for k, name in enumerate(names):
-        out.append(
-            CameraBound(
-                name=name,
-                focal_pct=float(np.sqrt(fvar[k])),
-                position_m=rt(Y, k, 0),
-                rotation_deg=float(np.degrees(rt(Y, k, 3))),
-                aligned_position_m=rt(Ya, k, 0),
-                aligned_rotation_deg=float(np.degrees(rt(Ya, k, 3))),
-            )
-        )
-    return tuple(out)

@@ -18,7 +18,7 @@ from core.calibration.network import (
     marker_network_bound,
     odometry_prior,
 )
-from core.calibration.network._marker import disc_centre_offset, disc_image_area
+from core.calibration.network._marker_image import disc_centre_offset, disc_image_area
 from core.errors import InvalidInput
 from core.geometry.rotations import matrix_to_rotvec, rotvec_to_matrix
 from core.localization import NetworkCamera

@@ -16,7 +16,8 @@ from typing import Any
 
 import pytest
 
-from tests.support.service import WITHOUT_TWIN, Service, free_port, running_service
+from tests.support.ports import free_port
+from tests.support.service import WITHOUT_TWIN, Service, running_service
 
 TOKEN = "hostile-input-admin-token-0123456789"
 AUTH = {"Authorization": f"Bearer {TOKEN}", "Content-Type": "application/json"}

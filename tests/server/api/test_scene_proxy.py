@@ -23,7 +23,8 @@ from websockets.exceptions import ConnectionClosed
 
 from server.app import create_app
 from server.scene import SceneService
-from tests.support.service import free_port, start_service
+from tests.support.ports import free_port
+from tests.support.service import start_service
 
 VISER_PROTOCOL = f"viser-v{viser.__version__}"
 

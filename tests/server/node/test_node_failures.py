@@ -23,7 +23,8 @@ from core.sim import Scene, WorldState, default_scene
 from core.sim.installation import installed_calibration
 from core.sim.motion import Pose2D
 from core.sim.render import renderer_for
-from tests.support.service import WITHOUT_TWIN, clean_env, free_port, running_service
+from tests.support.ports import free_port
+from tests.support.service import WITHOUT_TWIN, clean_env, running_service
 
 TOKEN = "node-failures-test-admin-token"
 HEADERS = {"Authorization": f"Bearer {TOKEN}"}

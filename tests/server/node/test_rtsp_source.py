@@ -27,7 +27,8 @@ from core.sim import WorldState, default_scene
 from core.sim.installation import installed_calibration
 from core.sim.motion import Pose2D
 from core.sim.render import renderer_for
-from tests.support.service import WITHOUT_TWIN, clean_env, free_port, start_service
+from tests.support.ports import free_port
+from tests.support.service import WITHOUT_TWIN, clean_env, start_service
 
 TOKEN = "rtsp-test-admin-token"
 HEADERS = {"Authorization": f"Bearer {TOKEN}"}

@@ -2,23 +2,17 @@
 
 from __future__ import annotations
 
-import socket
 from collections.abc import Iterator
 
 import pytest
 
 from server.scene import SceneService
-
-
-def _free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+from tests.support.ports import free_port
 
 
 @pytest.fixture
 def scene() -> Iterator[SceneService]:
-    service = SceneService("127.0.0.1", _free_port())
+    service = SceneService("127.0.0.1", free_port())
     service.start()
     yield service
     service.stop()

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-import socket
 import threading
 import time
 
@@ -12,19 +11,14 @@ import pytest
 
 from core.errors import InvalidInput
 from server.scene import MAX_TRACK_POINTS, CameraEntry, SceneService
-from server.scene import _service as scene_service
+from server.scene import _cameras as scene_cameras
 from server.scene._geometry import matrix_from_quaternion
+from tests.support.ports import free_port
 
 # Poses are computed in float64 (half-angle quaternion about +Z) and stored as float64 by the
 # handles; the round trip keeps ~1e-16, so 1e-9 still catches a float32 step or a wrong axis.
 POSE_TOL = 1e-9
 K = [[600.0, 0.0, 320.0], [0.0, 600.0, 240.0], [0.0, 0.0, 1.0]]
-
-
-def free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 @pytest.fixture
@@ -220,7 +214,7 @@ def test_camera_images_are_throttled_per_camera(scene, monkeypatch):
     # The service's clock, stopped and moved by hand: the interval is tested exactly, however
     # slow the machine (a real 0.2 s could pass between two calls on a loaded runner).
     now = [1000.0]
-    monkeypatch.setattr(scene_service.time, "monotonic", lambda: now[0])
+    monkeypatch.setattr(scene_cameras.time, "monotonic", lambda: now[0])
     frames = [np.full((48, 64, 3), v, np.uint8) for v in (10, 20, 30)]
     assert scene.set_camera_image(1, frames[0])
     now[0] += 0.19

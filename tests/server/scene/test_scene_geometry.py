@@ -10,14 +10,13 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from core.errors import InvalidInput
+from core.geometry.polygon import signed_area
 from server.scene._geometry import (
     as_polygon,
     frustum_from_intrinsics,
     matrix_from_quaternion,
-    polygon_centroid,
     pose_from_transform,
     quaternion_from_matrix,
-    signed_area,
     triangulate_polygon,
 )
 
@@ -92,11 +91,3 @@ def test_triangulation_covers_the_polygon_exactly(polygon):
     contour = p.astype(np.float32).reshape(-1, 1, 2)
     for x, y in centroids:
         assert cv2.pointPolygonTest(contour, (float(x), float(y)), False) > 0
-
-
-def test_centroid_of_an_l_shape():
-    # Two rectangles: 6x3 centred (3, 1.5) and 3x2 centred (4.5, 4); area-weighted mean.
-    p = np.array([[0, 0], [6, 0], [6, 5], [3, 5], [3, 3], [0, 3]], dtype=float)
-    np.testing.assert_allclose(
-        polygon_centroid(p), [(18 * 3 + 6 * 4.5) / 24, (18 * 1.5 + 6 * 4) / 24]
-    )

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import contextlib
 import math
-import socket
 import threading
 import time
 import types
@@ -16,6 +15,7 @@ import pytest
 from core.errors import InvalidInput
 from server.scene import CameraEntry, RoomEntry, SceneService
 from server.scene._geometry import matrix_from_quaternion
+from tests.support.ports import free_port
 
 # Poses go through float64 end to end (quaternion via Shepperd, handle stores float64), so the
 # round trip T -> (wxyz, position) -> R keeps ~1e-15; 1e-9 leaves room and still catches any
@@ -24,12 +24,6 @@ POSE_TOL = 1e-9
 
 K_ZHANG = [[832.5, 0.204494, 303.959], [0.0, 832.53, 206.585], [0.0, 0.0, 1.0]]
 L_SHAPED_FLAT = [[0, 0], [6, 0], [6, 5], [3, 5], [3, 3], [0, 3]]
-
-
-def free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def random_pose(rng: np.random.Generator) -> np.ndarray:

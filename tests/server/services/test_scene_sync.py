@@ -2,25 +2,18 @@
 
 from __future__ import annotations
 
-import socket
-
 import pytest
 from fastapi.testclient import TestClient
 
 from server.app import create_app
+from tests.support.ports import free_port
 
 K = [[800.0, 0.0, 320.0], [0.0, 800.0, 240.0], [0.0, 0.0, 1.0]]
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 @pytest.mark.parametrize("database_url", ["sqlite"], indirect=True)
 def test_registry_changes_reach_the_scene(make_settings, admin):
-    port = _free_port()
+    port = free_port()
     settings = make_settings(viser_enabled=True, viser_port=port)
     with TestClient(create_app(settings)) as client:
         scene = client.app.state.runtime.scene_sync.scene
@@ -61,7 +54,7 @@ def test_scene_is_loaded_from_the_database_at_start(make_settings, admin):
         client.post(
             "/api/v1/cameras", json={"name": "c", "width": 640, "height": 480}, headers=admin
         )
-    settings = make_settings(viser_enabled=True, viser_port=_free_port())
+    settings = make_settings(viser_enabled=True, viser_port=free_port())
     with TestClient(create_app(settings)) as client:
         scene = client.app.state.runtime.scene_sync.scene
         assert scene.flush(10.0)
@@ -70,7 +63,7 @@ def test_scene_is_loaded_from_the_database_at_start(make_settings, admin):
 
 @pytest.mark.parametrize("database_url", ["sqlite"], indirect=True)
 def test_the_scene_shows_one_space_at_a_time(make_settings, admin):
-    settings = make_settings(viser_enabled=True, viser_port=_free_port())
+    settings = make_settings(viser_enabled=True, viser_port=free_port())
     with TestClient(create_app(settings)) as client:
         scene = client.app.state.runtime.scene_sync.scene
         polygons = {"home": [[0, 0], [5, 0], [5, 4], [0, 4]], "flat": [[0, 0], [3, 0], [3, 9.6]]}
