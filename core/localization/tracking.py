@@ -56,6 +56,15 @@ changes (into shade, turning round) is still followed by position. It enters the
 `ambiguity` compares, so two crossing bodies of different looks need not coast, and it never
 enters a tentative track's score, which stays the position's likelihood ratio.
 
+A body is also recognised by its look after it was lost (behind a pillar, a passer-by, out of
+the detector's reach for a few seconds). A coasting track with a look that grows vaguer than
+`max_position_std` does not end there: it is lost, takes no detection and blocks no birth, and
+waits up to `end_after` seconds. When a new track is confirmed, a lost track whose look in a
+camera both were seen by lies within `recognition_distance` of the new one's, and which could
+have walked to the new track's position since its last update (at WALKING_SPEED, plus three
+standard deviations of the new position), goes on as that body: it takes the new track's state,
+and the new track is dropped. A track without a look ends as before.
+
 Life cycle, by elapsed time (never by frame count, since cameras report at their own rates):
 
 * a detection no track takes starts a TENTATIVE track at its back-projection onto Z = h (speed
@@ -84,8 +93,9 @@ Life cycle, by elapsed time (never by frame count, since cameras report at their
 * a confirmed track becomes COASTING after `coast_after` seconds without an update (predicted
   only; an update makes it confirmed again), and ENDED after `end_after` seconds without one,
   or earlier when its position standard deviation exceeds `max_position_std` (it could be
-  anywhere); a labelled track, whose body its label names, waits `labelled_end_after`
-  seconds. Ended tracks leave the tracker and are reported once.
+  anywhere; a track with a look is lost instead, to be recognised: "Appearance" above); a
+  labelled track, whose body its label names, waits `labelled_end_after` seconds. Ended
+  tracks leave the tracker and are reported once.
 
 Time is Unix seconds (or any one clock): frames must come in time order; core.localization.reorder
 puts frames of several cameras that arrive out of order back in order within a latency window.
@@ -130,6 +140,9 @@ CONFIRM_GAPS = 10.0
 # A pause longer than this (s) between two frames of a camera is a silence (a node restarted, a
 # stream that dropped), not its frame rate: it is left out of the camera's mean interval.
 MAX_FRAME_GAP = 1.0
+# A lost body recognised by its look (module docstring) must have walked to where it is seen
+# again at no more than this speed (m/s): a brisk walk, faster than people move indoors.
+WALKING_SPEED = 2.0
 
 
 class TrackState(StrEnum):
@@ -169,7 +182,8 @@ class TrackerConfig:
     their velocities; 0 turns it off), for at most ambiguity_coast seconds since the track's
     last update. coast_after, end_after (s): time without an update
     before a confirmed track coasts and ends; max_position_std (m): a coasting track whose
-    position standard deviation (the larger axis) exceeds it ends. camera_error_std (m): the
+    position standard deviation (the larger axis) exceeds it ends (one with a look is lost
+    instead: module docstring). camera_error_std (m): the
     error on the floor each detection inherits from its camera's calibration, added to its
     pixel covariance through the camera's floor Jacobian. A calibrated camera places points a
     centimetre or two from where another calibrated camera places them (the network
@@ -188,7 +202,8 @@ class TrackerConfig:
     appearance_weight: cost units (-2 ln of a likelihood) a pairing pays per unit of
     appearance distance (core.localization.appearance, 0-1) between a detection's descriptor and
     the track's in the same camera; appearance_rate: the weight of each new descriptor in the
-    track's running mean (module docstring, "Appearance").
+    track's running mean (module docstring, "Appearance"); recognition_distance: the largest
+    appearance distance at which a newly confirmed track is a lost track's body.
     """
 
     q: float = 2.0
@@ -215,6 +230,7 @@ class TrackerConfig:
     body_radius: float = 0.25
     appearance_weight: float = 4.0
     appearance_rate: float = 0.2
+    recognition_distance: float = 0.5
 
     def __post_init__(self) -> None:
         for name in (
@@ -245,6 +261,11 @@ class TrackerConfig:
         w = self.appearance_weight
         if not isinstance(w, int | float) or not (math.isfinite(w) and w >= 0):
             raise InvalidInput(f"TrackerConfig.appearance_weight must be >= 0, got {w!r}")
+        if not 0.0 <= self.recognition_distance <= 1.0:
+            raise InvalidInput(
+                "TrackerConfig.recognition_distance must lie in [0, 1], "
+                f"got {self.recognition_distance!r}"
+            )
         if not 0.0 < self.appearance_rate <= 1.0:
             raise InvalidInput(
                 f"TrackerConfig.appearance_rate must lie in (0, 1], got {self.appearance_rate!r}"
@@ -499,6 +520,10 @@ class Tracker:
         self._gap: list[float] = []
         # Each track's appearance (module docstring) per camera: track id -> camera -> (F,).
         self._looks: dict[int, dict[Hashable, Array]] = {}
+        # Lost tracks recognised in the current frame (`_take_over`), and where each track
+        # with a look was when it was last updated (track id -> (2,)).
+        self._recognised_ids: list[int] = []
+        self._last_xy: dict[int, Array] = {}
 
     # -- cameras and state ---------------------------------------------------------------------
 
@@ -767,6 +792,8 @@ class Tracker:
                     self._height[i] = float(h[j])
                     self._hits[i] += 1
                     self._last[i] = t
+                    if self._ids[i] in self._looks:
+                        self._last_xy[self._ids[i]] = self._x[i, :2].copy()
                     self._gap[i] = gap
                     if self._states[i] is TrackState.COASTING:
                         self._states[i] = TrackState.CONFIRMED
@@ -784,7 +811,10 @@ class Tracker:
                     touched.append(tid)
                     if look is not None and look[j].sum() > 0:
                         self._looks[tid] = {camera: look[j].copy()}
+                        self._last_xy[tid] = self._x[-1, :2].copy()
+        self._recognised_ids = []
         ended, dropped = self._manage()
+        touched += self._recognised_ids
         index = {tid: i for i, tid in enumerate(self._ids)}
         updated = tuple(
             self._snapshot(index[tid], self._x, self._P, t) for tid in touched if tid in index
@@ -1200,7 +1230,10 @@ class Tracker:
                 continue
             if self._ids and lab[j] is None:
                 # Only a body this camera can see may have made this blob as its outlier.
-                near = self._visible(cam) if self.occluders is not None else slice(None)
+                T = len(self._ids)
+                near = self._visible(cam) if self.occluders is not None else np.ones(T, bool)
+                # A lost track waiting to be recognised (module docstring) stands nowhere.
+                near &= ~self._waiting(np.arange(T))
                 diff = xy[j] - self._x[near, :2]
                 if np.any(np.einsum("ij,ij->i", diff, diff) < cfg.min_separation**2):
                     continue
@@ -1237,6 +1270,62 @@ class Tracker:
         self._gap.append(gap)
         return tid
 
+    def _waiting(self, rows: NDArray[np.intp]) -> NDArray[np.bool_]:
+        """Return whether each track of `rows` is lost and waiting to be recognised by its
+        look: unlabelled, with a look, too vague to say where its body is."""
+        has_look = np.array(
+            [self._ids[i] in self._looks and self._labels[i] is None for i in rows.tolist()],
+            dtype=bool,
+        )
+        return has_look & self._vague(rows)
+
+    def _recognised(self, i: int) -> int | None:
+        """Return the lost track (`_waiting`) that the newly confirmed track i is the body
+        of, or None: of those whose look in a camera both were seen by lies within
+        recognition_distance of track i's and whose position's uncertainty holds track i's
+        position (squared Mahalanobis distance within the gate), the nearest in look."""
+        mine = self._looks.get(self._ids[i])
+        if not mine:
+            return None
+        rows = np.arange(len(self._ids))
+        waiting = self._waiting(rows)
+        best, best_d = None, self.config.recognition_distance
+        for j in np.flatnonzero(waiting).tolist():
+            if j == i or self._kinds[j] not in (self._kinds[i], "unknown"):
+                continue
+            theirs = self._looks[self._ids[j]]
+            common = [c for c in mine if c in theirs and theirs[c].shape == mine[c].shape]
+            if not common:
+                continue
+            d = min(
+                float(appearance_distance(mine[c][None], theirs[c][None])[0, 0]) for c in common
+            )
+            was = self._last_xy.get(self._ids[j])
+            if was is None or d > best_d:
+                continue
+            # A walker covers at most WALKING_SPEED in each second since the lost track's last
+            # update, plus three standard deviations of where the new track puts them.
+            reach = WALKING_SPEED * (self._first[i] - self._last[j]) + 3.0 * math.sqrt(
+                float(_largest_variance(self._P[i, :2, :2]))
+            )
+            if float(np.linalg.norm(self._x[i, :2] - was)) <= reach:
+                best, best_d = j, d
+        return best
+
+    def _take_over(self, j: int, i: int) -> None:
+        """Let lost track j go on as the newly confirmed track i, which it is the body of
+        (`_recognised`): track j takes track i's state, sightings and looks."""
+        self._x[j] = self._x[i]
+        self._P[j] = self._P[i]
+        self._states[j] = TrackState.CONFIRMED
+        self._hits[j] += self._hits[i]
+        self._last[j] = self._last[i]
+        self._moved[j] = self._moved[i]
+        self._height[j] = self._height[i]
+        self._gap[j] = self._gap[i]
+        self._looks[self._ids[j]].update(self._looks.get(self._ids[i], {}))
+        self._recognised_ids.append(self._ids[j])
+
     def _manage(self) -> tuple[tuple[TrackSnapshot, ...], tuple[int, ...]]:
         """Move the life cycle on at the tracker's time; return (ended, dropped ids)."""
         cfg = self.config
@@ -1250,6 +1339,11 @@ class Tracker:
             if st is TrackState.TENTATIVE:
                 if self._hits[i] >= cfg.confirm_hits and self._score[i] >= cfg.confirm_score:
                     self._states[i] = TrackState.CONFIRMED
+                    j = self._recognised(i)
+                    if j is not None:
+                        self._take_over(j, i)
+                        keep[i] = False
+                        dropped.append(self._ids[i])
                 elif (
                     t - self._first[i] > max(cfg.confirm_window, CONFIRM_GAPS * gap[i])
                     or silent > max(cfg.tentative_timeout, TENTATIVE_GAPS * gap[i])
@@ -1266,6 +1360,9 @@ class Tracker:
                     # A labelled body is known by its label, not found by its position: its
                     # track waits for the label to come back however vague it has become.
                     over = silent > cfg.labelled_end_after
+                elif self._ids[i] in self._looks:
+                    # A body with a look may be recognised by it (module docstring).
+                    over = silent > cfg.end_after
                 else:
                     over = silent > cfg.end_after or worst > cfg.max_position_std**2
                 if over:
@@ -1293,4 +1390,5 @@ class Tracker:
                 setattr(self, name, [old[i] for i in idx.tolist()])
             for tid in (*dropped, *(snap.id for snap in ended)):
                 self._looks.pop(tid, None)
+                self._last_xy.pop(tid, None)
         return tuple(ended), tuple(dropped)

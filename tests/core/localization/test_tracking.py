@@ -381,6 +381,8 @@ def test_unknown_camera_time_backwards_and_bad_settings_are_refused():
         TrackerConfig(p_detect=1.0)
     with pytest.raises(InvalidInput, match="appearance_weight"):
         TrackerConfig(appearance_weight=-1.0)
+    with pytest.raises(InvalidInput, match="recognition_distance"):
+        TrackerConfig(recognition_distance=1.5)
     with pytest.raises(InvalidInput, match="appearance_rate"):
         TrackerConfig(appearance_rate=0.0)
 
