@@ -121,6 +121,13 @@ export function panelHead(title, subtitle, ...actions) {
   );
 }
 
+/** A Unix time (s) as the local clock's time of day, or an en dash when missing. */
+export function clockTime(t) {
+  return t === null || t === undefined
+    ? "–"
+    : new Date(t * 1000).toLocaleTimeString([], { hour12: false });
+}
+
 /** A number with fixed decimals, or an en dash when missing. */
 export function fmt(x, digits = 2) {
   if (x === null || x === undefined || Number.isNaN(Number(x))) return "–";
