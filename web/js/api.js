@@ -6,6 +6,10 @@
 const BASE = "/api/v1";
 const SAFE = new Set(["GET", "HEAD", "OPTIONS"]);
 
+/** Return the address of the service's `path` ("/landmarks/3/print.svg"), for a link the
+ * browser follows itself with the session cookie. */
+export const apiUrl = (path) => BASE + path;
+
 /** An HTTP error carrying the service's problem-details body ({type,title,status,detail,errors}). */
 export class ApiError extends Error {
   constructor(status, problem) {
