@@ -142,7 +142,7 @@ function spacePanel(spaces) {
     body = h(
       "div",
       { testid: "space" },
-      h("h3", { style: { fontSize: "1.05rem", color: "var(--ink)" } }, space.name),
+      h("h3", { class: "space-name" }, space.name),
       space.description ? h("p", { class: "muted small" }, space.description) : null,
       others.length
         ? h(
