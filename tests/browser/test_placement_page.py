@@ -69,6 +69,8 @@ def test_a_camera_is_placed_by_clicking_its_image_and_the_plan(service, browser_
     sign_in(page, service.base_url, service.token)
     page.goto(f"{service.base_url}/#/cameras/{camera['id']}")
     expect(page.get_by_test_id("place-image")).to_have_attribute("data-loaded", "1")
+    # The live image says when the node's frame reached the service (X-Frame-Received).
+    expect(page.get_by_test_id("camera-live-status")).to_contain_text("received at")
     tf = json.loads(page.get_by_test_id("place-floor").get_attribute("data-transform"))
     wrong = 5
     clicked = pixels.copy()

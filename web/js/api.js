@@ -6,6 +6,10 @@
 const BASE = "/api/v1";
 const SAFE = new Set(["GET", "HEAD", "OPTIONS"]);
 
+/** Return the address of the service's `path` ("/landmarks/3/print.svg"), for a link the
+ * browser follows itself with the session cookie. */
+export const apiUrl = (path) => BASE + path;
+
 /** An HTTP error carrying the service's problem-details body ({type,title,status,detail,errors}). */
 export class ApiError extends Error {
   constructor(status, problem) {
@@ -84,13 +88,15 @@ async function problemFrom(response) {
 /**
  * Call the API and return the decoded JSON (null for 204). Throws ApiError on any non-2xx,
  * and a plain Error with a readable message when the service cannot be reached.
- * options: {method, json, form, raw, checkingToken} - json is sent as a JSON body, form (a
- * FormData or the fields formData() takes) as multipart; checkingToken: a 401 is the answer sought, not a sign that the session ended.
+ * options: {method, json, form, raw, accept, checkingToken} - json is sent as a JSON body, form
+ * (a FormData or the fields formData() takes) as multipart; raw: return the Response itself
+ * (an image, a file); accept: the media type asked for (JSON by default); checkingToken: a 401
+ * is the answer sought, not a sign that the session ended.
  * Writes carry the session's CSRF token (X-CSRF-Token).
  */
 export async function api(path, options = {}) {
   const method = (options.method || "GET").toUpperCase();
-  const headers = { Accept: "application/json" };
+  const headers = { Accept: options.accept || "application/json" };
   if (!SAFE.has(method) && session.csrf_token) headers["X-CSRF-Token"] = session.csrf_token;
   let body;
   if (options.json !== undefined) {

@@ -1,18 +1,10 @@
-// The dashboard's entry point: hash router, sign-in, service badge.
+// The dashboard's entry point: the hash router, the space picker, the service's health badge;
+// the header's sign-in is signin.js.
 
-import {
-  api,
-  chooseSpace,
-  currentSession,
-  loadSession,
-  leavePage,
-  loadSpaces,
-  poll,
-  signIn,
-  signOut,
-} from "./api.js";
+import { api, chooseSpace, loadSession, leavePage, loadSpaces, poll } from "./api.js";
 import { choice } from "./forms.js";
-import { errorBox, h, mount } from "./ui.js";
+import { renderAuth } from "./signin.js";
+import { errorBox, h, mount, s } from "./ui.js";
 import { renderOverview } from "./pages/overview.js";
 import { renderCameras } from "./pages/cameras.js";
 import { renderCamera } from "./pages/cameras/camera.js";
@@ -137,84 +129,6 @@ function renderSpacePicker({ spaces, space }) {
   mount(box, h("label", { for: "space-select", class: "small muted" }, "Space"), select);
 }
 
-function renderAuth(notice = "") {
-  const box = document.getElementById("auth");
-  const session = currentSession();
-  if (session.authenticated) {
-    const scope = (session.scopes || []).join(", ");
-    mount(
-      box,
-      h(
-        "span",
-        { class: "who", testid: "auth-status", title: session.name || "" },
-        h("span", { class: "dot ok", "aria-hidden": "true" }),
-        scope ? `Signed in (${scope})` : "Signed in",
-      ),
-      h(
-        "button",
-        {
-          class: "btn small",
-          type: "button",
-          testid: "sign-out",
-          onClick: () => signOut().catch(() => {}),
-        },
-        "Sign out",
-      ),
-    );
-    return;
-  }
-  const input = h("input", {
-    type: "password",
-    id: "token-input",
-    name: "token",
-    autocomplete: "current-password",
-    placeholder: "Access token",
-    "aria-label": "Access token",
-    required: true,
-    testid: "token-input",
-  });
-  // Password managers expect a user name next to a password field; the token has none.
-  const user = h("input", {
-    type: "text",
-    name: "username",
-    autocomplete: "username",
-    value: "token",
-    hidden: true,
-    "aria-hidden": "true",
-    tabindex: "-1",
-  });
-  const status = h(
-    "span",
-    { class: notice ? "small badge bad" : "small muted", testid: "auth-status" },
-    notice || "Not signed in",
-  );
-  const form = h(
-    "form",
-    {
-      testid: "token-form",
-      onSubmit: async (ev) => {
-        ev.preventDefault();
-        const token = input.value.trim();
-        if (!token) return;
-        // The token goes to the service once, in a POST body; the page keeps only the cookie
-        // the service sets (which it cannot read) and the session's CSRF token.
-        try {
-          await signIn(token);
-        } catch (err) {
-          status.textContent =
-            err.status === 401 || err.status === 403 ? "Token refused" : err.message;
-          status.className = "small badge bad";
-          input.select();
-        }
-      },
-    },
-    user,
-    input,
-    h("button", { class: "btn primary small", type: "submit", testid: "token-submit" }, "Sign in"),
-  );
-  mount(box, status, form);
-}
-
 /** Show the service's health in the sidebar, read again every 15 s on every page. */
 function followServiceHealth() {
   const dot = document.getElementById("service-dot");
@@ -241,11 +155,7 @@ function decorateNav() {
   for (const a of document.querySelectorAll(".nav a")) {
     const d = ICONS[a.dataset.route];
     if (!d) continue;
-    const svg = document.createElementNS("http://www.w3.org/2000/svg", "svg");
-    svg.setAttribute("viewBox", "0 0 24 24");
-    svg.setAttribute("aria-hidden", "true");
-    svg.innerHTML = `<path d="${d}" fill="none" stroke="currentColor" stroke-width="1.8" stroke-linejoin="round" stroke-linecap="round"/>`;
-    a.prepend(svg);
+    a.prepend(s("svg", { viewBox: "0 0 24 24", "aria-hidden": "true" }, s("path", { d })));
   }
 }
 

@@ -101,23 +101,31 @@ export function statusBadge(status, testid) {
 }
 
 export function panel(title, subtitle, ...children) {
+  const head = title || subtitle ? panelHead(title, subtitle) : null;
+  return h("section", { class: "panel" }, head, ...children);
+}
+
+/** A panel's head: its title (text, or a heading element of its own) over its subtitle, and
+ * `actions` (buttons, badges) beside them. */
+export function panelHead(title, subtitle, ...actions) {
   return h(
-    "section",
-    { class: "panel" },
-    title || subtitle
-      ? h(
-          "div",
-          { class: "panel-head" },
-          h(
-            "div",
-            null,
-            title ? h("h2", null, title) : null,
-            subtitle ? h("p", null, subtitle) : null,
-          ),
-        )
-      : null,
-    ...children,
+    "div",
+    { class: "panel-head" },
+    h(
+      "div",
+      null,
+      title instanceof Node ? title : title ? h("h2", null, title) : null,
+      subtitle ? h("p", null, subtitle) : null,
+    ),
+    ...actions,
   );
+}
+
+/** A Unix time (s) as the local clock's time of day, or an en dash when missing. */
+export function clockTime(t) {
+  return t === null || t === undefined
+    ? "–"
+    : new Date(t * 1000).toLocaleTimeString([], { hour12: false });
 }
 
 /** A number with fixed decimals, or an en dash when missing. */

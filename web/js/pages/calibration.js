@@ -18,35 +18,43 @@ import {
 import { networkPanel } from "./calibration/network.js";
 import { startForm } from "./calibration/start.js";
 
+/** A calibration run's cells, by column: its number (a link to its page), its camera (a link,
+ * named from `cameras`), its status, RMS and fx (px) and when it was created. The Overview's
+ * recent runs show them too. */
+export function runCells(r, cameras) {
+  const name = cameras.find((c) => c.id === r.camera_id)?.name || `camera ${r.camera_id}`;
+  return {
+    run: h("td", null, h("a", { href: `#/calibration/runs/${r.id}` }, `#${r.id}`)),
+    camera: h("td", null, r.camera_id ? h("a", { href: `#/cameras/${r.camera_id}` }, name) : "–"),
+    status: h("td", null, statusBadge(r.status)),
+    rms: h("td", { class: "num" }, fmt(r.result?.rms, 4)),
+    fx: h("td", { class: "num" }, r.result?.K ? fmt(r.result.K[0][0], 2) : "–"),
+    created: h("td", { class: "small muted" }, when(r.created_at)),
+  };
+}
+
 function runsTable(runs, cameras) {
-  const name = (id) => cameras.find((c) => c.id === id)?.name || (id ? `camera ${id}` : "–");
   const head = ["Run", "Camera", "Kind", "Status", "RMS (px)", "fx", "Created", "Duration"];
   const columns = head.map((t, i) => [t, { class: i === 4 || i === 5 ? "num" : null }]);
-  return table(
-    { testid: "run-table" },
-    columns,
-    runs.map((r) =>
-      linkRow(
-        `#/calibration/runs/${r.id}`,
-        { testid: `run-row-${r.id}` },
-        h("td", null, h("a", { href: `#/calibration/runs/${r.id}` }, `#${r.id}`)),
-        h(
-          "td",
-          null,
-          r.camera_id ? h("a", { href: `#/cameras/${r.camera_id}` }, name(r.camera_id)) : "–",
-        ),
-        h("td", null, [
-          r.kind,
-          r.source ? h("span", { class: "muted small" }, ` · ${r.source}`) : null,
-        ]),
-        h("td", null, statusBadge(r.status)),
-        h("td", { class: "num" }, fmt(r.result?.rms, 4)),
-        h("td", { class: "num" }, r.result?.K ? fmt(r.result.K[0][0], 2) : "–"),
-        h("td", { class: "small muted" }, when(r.created_at)),
-        h("td", { class: "small muted" }, duration(r.started_at, r.finished_at)),
-      ),
-    ),
-  );
+  const row = (r) => {
+    const cells = runCells(r, cameras);
+    return linkRow(
+      `#/calibration/runs/${r.id}`,
+      { testid: `run-row-${r.id}` },
+      cells.run,
+      cells.camera,
+      h("td", null, [
+        r.kind,
+        r.source ? h("span", { class: "muted small" }, ` · ${r.source}`) : null,
+      ]),
+      cells.status,
+      cells.rms,
+      cells.fx,
+      cells.created,
+      h("td", { class: "small muted" }, duration(r.started_at, r.finished_at)),
+    );
+  };
+  return table({ testid: "run-table" }, columns, runs.map(row));
 }
 
 export async function renderCalibration(main, _params, query) {

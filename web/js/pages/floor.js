@@ -12,7 +12,7 @@ import {
   planSvg,
   planTransform,
 } from "../plan.js";
-import { h, mount, panel, s } from "../ui.js";
+import { h, mount, panel, panelHead, s } from "../ui.js";
 import { coverageLayer } from "./floor/coverage.js";
 import { liveTargets, targetsOf } from "./floor/targets.js";
 import { twinPanel } from "./floor/twin.js";
@@ -114,15 +114,9 @@ function planPanel(svg, live, coverage) {
   return panel(
     null,
     null,
-    h(
-      "div",
-      { class: "panel-head" },
-      h(
-        "div",
-        null,
-        h("h2", null, "Live positions on the plan"),
-        h("p", null, "Located by the camera network; tracks and 2σ covariance ellipses"),
-      ),
+    panelHead(
+      "Live positions on the plan",
+      "Located by the camera network; tracks and 2σ covariance ellipses",
       h("div", { class: "form-actions", style: { marginTop: 0 } }, live.clock, live.badge),
     ),
     h("div", { class: "floor-wrap" }, svg),

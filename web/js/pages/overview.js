@@ -3,19 +3,8 @@
 
 import { api, currentSpace, inSpace, list, settled } from "../api.js";
 import { drawCameras, drawRooms, drawScaleBar, planSvg, planTransform } from "../plan.js";
-import {
-  badge,
-  errorBox,
-  facts,
-  fmt,
-  h,
-  mount,
-  panel,
-  s,
-  statusBadge,
-  table,
-  when,
-} from "../ui.js";
+import { badge, errorBox, facts, h, mount, panel, s, table } from "../ui.js";
+import { runCells } from "./calibration.js";
 import { cameraCounts } from "./cameras.js";
 
 // [registry path, label, link, whether devices of no space count too]: the Cameras and
@@ -142,7 +131,7 @@ function spacePanel(spaces) {
     body = h(
       "div",
       { testid: "space" },
-      h("h3", { style: { fontSize: "1.05rem", color: "var(--ink)" } }, space.name),
+      h("h3", { class: "space-name" }, space.name),
       space.description ? h("p", { class: "muted small" }, space.description) : null,
       others.length
         ? h(
@@ -173,23 +162,10 @@ function recentRunsPanel(runs, cameras) {
 
 function recentRunsTable(runs, cameras) {
   const head = ["Run", "Camera", "Status", "RMS (px)", "fx (px)", "Created"];
-  const row = (r) =>
-    h(
-      "tr",
-      null,
-      h("td", null, h("a", { href: `#/calibration/runs/${r.id}` }, `#${r.id}`)),
-      h(
-        "td",
-        null,
-        r.camera_id
-          ? h("a", { href: `#/cameras/${r.camera_id}` }, cameraName(cameras, r.camera_id))
-          : "–",
-      ),
-      h("td", null, statusBadge(r.status)),
-      h("td", { class: "num" }, fmt(r.result?.rms, 4)),
-      h("td", { class: "num" }, r.result?.K ? fmt(r.result.K[0][0], 2) : "–"),
-      h("td", { class: "small muted" }, when(r.created_at)),
-    );
+  const row = (r) => {
+    const cells = runCells(r, cameras);
+    return h("tr", null, cells.run, cells.camera, cells.status, cells.rms, cells.fx, cells.created);
+  };
   const columns = head.map((t, i) => [
     t,
     { class: i === 3 || i === 4 ? "num" : null, scope: "col" },
@@ -244,11 +220,6 @@ function homePanel(home) {
             : [h("dd", { testid: "frigate-state" }, "off")]),
         ),
   );
-}
-
-function cameraName(cameras, id) {
-  const c = cameras.find((x) => x.id === id);
-  return c ? c.name : `camera ${id}`;
 }
 
 function describeDatabase(db) {

@@ -5,7 +5,7 @@
 
 import { api, currentSession, currentSpace, spaceById } from "../api.js";
 import { cssVar } from "../colours.js";
-import { h, infoBox, mount, panel } from "../ui.js";
+import { h, infoBox, mount, panel, panelHead } from "../ui.js";
 
 /** Return the viewer's address as a same-origin path (the iframe must share the cookie). */
 export function viewerUrl(reported) {
@@ -50,23 +50,13 @@ export async function renderScene(main) {
     panel(
       null,
       null,
-      h(
-        "div",
-        { class: "panel-head" },
+      panelHead(
         h(
-          "div",
-          null,
-          h(
-            "h2",
-            { testid: "scene-space", "data-space-id": scene.space_id ?? "" },
-            shown ? `${shown} in 3D` : "Floor plan and cameras in 3D",
-          ),
-          h(
-            "p",
-            null,
-            "Drag to orbit, scroll to zoom. Frusta follow calibrations within a second.",
-          ),
+          "h2",
+          { testid: "scene-space", "data-space-id": scene.space_id ?? "" },
+          shown ? `${shown} in 3D` : "Floor plan and cameras in 3D",
         ),
+        "Drag to orbit, scroll to zoom. Frusta follow calibrations within a second.",
         h(
           "a",
           { class: "btn", href: url, target: "_blank", rel: "noopener", testid: "scene-open" },

@@ -223,14 +223,7 @@ export function startForm(cameras, preselect) {
     toast(`Calibration run #${run.id} started`);
     location.hash = `#/calibration/runs/${run.id}`;
   };
-  const label = h(
-    "span",
-    {
-      class: "small",
-      style: { display: "block", marginBottom: "5px", fontWeight: 550, color: "var(--ink-2)" },
-    },
-    "Input",
-  );
+  const label = h("span", { class: "small group-label" }, "Input");
   return h(
     "form",
     {

@@ -2,7 +2,7 @@
 // of the camera page, read again while the page is shown.
 
 import { api, poll } from "../../api.js";
-import { facts, fmt, h, mount, panel } from "../../ui.js";
+import { clockTime, facts, fmt, h, mount, panel } from "../../ui.js";
 
 const HEALTH_MS = 2000; // the camera's health is read again this often
 
@@ -20,12 +20,6 @@ function ago(t) {
   if (s < 90) return `${s.toFixed(s < 10 ? 1 : 0)} s ago`;
   if (s < 5400) return `${(s / 60).toFixed(0)} min ago`;
   return `${(s / 3600).toFixed(1)} h ago`;
-}
-
-function clockTime(t) {
-  return t === null || t === undefined
-    ? "–"
-    : new Date(t * 1000).toLocaleTimeString([], { hour12: false });
 }
 
 /** The camera's health facts: status since when, frame rate, stalls, reconnects, drops and the

@@ -1,8 +1,8 @@
 // The camera page's live image: the latest frame with its detections drawn, read about twice a
 // second while the page is shown.
 
-import { poll } from "../../api.js";
-import { h, mount, panel } from "../../ui.js";
+import { api, poll } from "../../api.js";
+import { clockTime, h, mount, panel } from "../../ui.js";
 
 const LIVE_MS = 500; // about 2 frames a second
 const LIVE_RETRY_MS = 5000; // when there is no frame (no twin): look again now and then
@@ -24,7 +24,7 @@ export function liveView(id) {
   let url = null;
   let frames = 0;
   // A frame decoded from the blob before it is shown, so the image never flickers half-loaded.
-  const show = async ({ blob, t }) => {
+  const show = async ({ blob, received }) => {
     const next = URL.createObjectURL(blob);
     await new Promise((resolve) => {
       img.onload = resolve;
@@ -39,36 +39,23 @@ export function liveView(id) {
     mount(missing);
     status.textContent =
       `Refreshed ${new Date().toLocaleTimeString()}` +
-      (t ? ` · sim time ${Number(t).toFixed(1)} s` : "");
+      (received ? ` · received at ${clockTime(received)}` : "");
   };
-  const frame = async () => {
-    if (document.visibilityState === "hidden") return null;
-    const response = await fetch(`/api/v1/cameras/${id}/frame.jpg?overlay=true`, {
-      headers: { Accept: "image/jpeg" },
-      credentials: "same-origin",
-    });
-    if (!response.ok) {
-      throw Object.assign(new Error("no frame"), {
-        status: response.status,
-        reason: await reasonOf(response),
-      });
-    }
-    const t = response.headers.get("x-sim-time") || response.headers.get("x-frame-time");
-    return { blob: await response.blob(), t };
-  };
+  const frame = () =>
+    document.visibilityState === "hidden" ? null : cameraFrame(id, { overlay: true });
   // No frame (no twin, no node yet): look again less and less often, up to LIVE_RETRY_MS.
   const live = poll(frame, {
     interval: LIVE_MS,
     maxInterval: LIVE_RETRY_MS,
     onValue: (got) => (got ? show(got) : undefined),
     onError: (err) => {
-      if (err.reason === undefined) {
-        status.textContent = `The service did not answer (${err.message}).`;
+      if (err.status === undefined) {
+        status.textContent = err.message;
         return;
       }
       img.hidden = true;
       status.textContent = "";
-      mount(missing, noImage(err.status, err.reason));
+      mount(missing, noImage(err.status, err.detail));
     },
   });
   return {
@@ -86,14 +73,19 @@ export function liveView(id) {
   };
 }
 
-/** The service's reason for an answer without an image (its problem detail), or "". */
-async function reasonOf(response) {
-  try {
-    const body = await response.json();
-    return typeof body.detail === "string" ? body.detail : "";
-  } catch {
-    return "";
-  }
+/**
+ * Return the camera's latest frame (GET /cameras/{id}/frame.jpg, its detections drawn when
+ * `overlay`) as {blob, received}: the JPEG, and when a camera node's frame reached the service
+ * (Unix s; null for the twin's renders). Throws ApiError (its detail says why) when there is none.
+ */
+export async function cameraFrame(id, { overlay = false } = {}) {
+  const query = overlay ? "?overlay=true" : "";
+  const response = await api(`/cameras/${id}/frame.jpg${query}`, {
+    raw: true,
+    accept: "image/jpeg",
+  });
+  const received = response.headers.get("x-frame-received");
+  return { blob: await response.blob(), received: received ? Number(received) : null };
 }
 
 function noImage(status, reason) {

@@ -6,6 +6,7 @@ import { api, list } from "../../api.js";
 import { sending } from "../../forms.js";
 import { drawRooms, eventToWorld, planSvg, planTransform } from "../../plan.js";
 import { errorBox, facts, fmt, h, mount, panel, s, table, toast } from "../../ui.js";
+import { cameraFrame } from "./live.js";
 
 const PLAN_W = 560;
 // Residual arrows are drawn this many times longer than they are, so a pixel shows.
@@ -39,25 +40,23 @@ function imageView(cam) {
   );
   const status = h("span", { class: "small muted", testid: "place-image-status" });
   async function load() {
+    let frame;
     try {
-      const response = await fetch(`/api/v1/cameras/${cam.id}/frame.jpg`, {
-        credentials: "same-origin",
-      });
-      if (!response.ok) {
-        status.textContent =
-          "No image of this camera yet: run `intspace node` on it (it sends one a second).";
-        return;
-      }
-      const reader = new FileReader();
-      reader.onload = () => {
-        image.setAttribute("href", reader.result);
-        overlay.dataset.loaded = "1";
-        status.textContent = `Image of ${new Date().toLocaleTimeString()}`;
-      };
-      reader.readAsDataURL(await response.blob());
+      frame = await cameraFrame(cam.id);
     } catch (err) {
-      status.textContent = `The service did not answer (${err.message}).`;
+      status.textContent =
+        err.status === undefined
+          ? err.message
+          : "No image of this camera yet: run `intspace node` on it (it sends one a second).";
+      return;
     }
+    const reader = new FileReader();
+    reader.onload = () => {
+      image.setAttribute("href", reader.result);
+      overlay.dataset.loaded = "1";
+      status.textContent = `Image of ${new Date().toLocaleTimeString()}`;
+    };
+    reader.readAsDataURL(frame.blob);
   }
   return { overlay, marks, status, load };
 }
