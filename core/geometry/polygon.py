@@ -42,3 +42,12 @@ def inside_polygon(P: Array, poly: Array) -> NDArray[np.bool_]:
     rule (points_in_polygons); points on an edge may fall either way."""
     inside: NDArray[np.bool_] = points_in_polygons(P, [poly])[:, 0]
     return inside
+
+
+def signed_area(polygon: Array) -> float:
+    """Return the signed area of a polygon (N, 2) by the shoelace formula (Gauss's area
+    formula): positive when its vertices run counter-clockwise in x right, y up."""
+    x, y = polygon[:, 0], polygon[:, 1]
+    # Each vertex's successor by two slices (np.roll's wrapper costs more calls than the rest).
+    x1, y1 = np.concatenate((x[1:], x[:1])), np.concatenate((y[1:], y[:1]))
+    return 0.5 * float(x @ y1 - x1 @ y)

@@ -46,10 +46,10 @@ from core.calibration.pose import pose_from_homography
 from core.errors import ConvergenceError, DegenerateConfiguration, InvalidInput
 from core.geometry.camera import (
     as_distortion,
-    distortion_jacobian,
     distortion_model,
     undistort_points,
 )
+from core.geometry.polygon import signed_area
 from core.geometry.rotations import rotvec_to_matrix
 from core.homography.estimate import dlt_homography
 from core.landmarks.ambiguity import (
@@ -66,6 +66,7 @@ from core.landmarks.conics import (
     circle_normals,
     concentric_centre,
     conic_matrix,
+    conic_points,
     fit_ellipse,
     fit_ellipses,
 )
@@ -375,10 +376,6 @@ def _undistort_from_grid(px: Array, K: Array, dist: Array, grid: Array) -> Array
     undistort_points (Newton on the same model, stopped at a step of 1e-10), started from the
     grid's bilinear interpolation instead of the distorted point, so two iterations converge.
     Raises ConvergenceError where Newton does not converge."""
-    fx, s, cx = K[0, 0], K[0, 1], K[0, 2]
-    fy, cy = K[1, 1], K[1, 2]
-    yd = (px[:, 1] - cy) / fy
-    xd = (px[:, 0] - cx - s * yd) / fx
     gh, gw = grid.shape[1:]
     u, v = px[:, 0] / _GRID_STEP, px[:, 1] / _GRID_STEP
     # (a point off the image extrapolates from the nearest cell: a start all the same)
@@ -387,25 +384,7 @@ def _undistort_from_grid(px: Array, K: Array, dist: Array, grid: Array) -> Array
     b, a = u - j, v - i
     k = i * gw + j
     x, y = (_bilinear(g.ravel(), k, gw, a, b) for g in grid)
-    scale = max(1.0, float(np.max(np.abs(xd), initial=0.0)), float(np.max(np.abs(yd), initial=0.0)))
-    step = np.inf
-    for _ in range(20):
-        fx_d, fy_d, rad, r2 = distortion_model(x, y, dist)
-        ex, ey = fx_d - xd, fy_d - yd
-        a11, a12, a21, a22 = distortion_jacobian(x, y, rad, r2, dist)
-        det = a11 * a22 - a12 * a21
-        dx = (a22 * ex - a12 * ey) / det
-        dy = (a11 * ey - a21 * ex) / det
-        x -= dx
-        y -= dy
-        step = max(float(np.max(np.abs(dx), initial=0.0)), float(np.max(np.abs(dy), initial=0.0)))
-        if not np.isfinite(step) or step <= 1e-10 * scale:
-            break
-    if not np.isfinite(step) or step > 1e-9 * scale:
-        raise ConvergenceError(
-            "undistortion did not converge; the distortion is not invertible at these pixels"
-        )
-    return np.stack([fx * x + s * y + cx, fy * y + cy], -1)
+    return undistort_points(px, K, dist, to_pixels=True, tol=1e-10, start=(x, y))
 
 
 def _undistort_each(ctx: _Context, points: list[Array]) -> list[Array | None]:
@@ -575,13 +554,6 @@ def _quad(contour: Image) -> Array | None:
 _NEXT = np.array([1, 2, 3, 0])  # the next corner of a quadrilateral
 
 
-def _signed_area(p: Array) -> float:
-    """Return the signed area of a quadrilateral p (4, 2) (positive counter-clockwise in x right,
-    y up)."""
-    x, y = p[:, 0], p[:, 1]
-    return 0.5 * float(x @ y[_NEXT] - x[_NEXT] @ y)
-
-
 @dataclass(frozen=True)
 class _Lines:
     """Lines normal . x = rho, one row each."""
@@ -715,7 +687,7 @@ def _frame_edges(score: Image, outer: Image, hole: Image) -> _FrameCurves | None
         q = _quad(hulls[k])
         if q is None:
             return None
-        if _signed_area(q) > 0:
+        if signed_area(q) > 0:
             q = q[::-1].copy()
         if quads:
             # Inner corner k: the cyclic order (both quadrilaterals run the same way) that best
@@ -1093,27 +1065,11 @@ def _rings(
     ctx: _Context, rf: _RingFit, cands: _Candidates, size: float
 ) -> LandmarkDetection | None:
     """Locate and read a signpost from its ellipses and candidate poses."""
-    outline = ctx.distort(_conic_points(rf.fits[0].C, _OUTLINE_ANGLES))
+    outline = ctx.distort(conic_points(rf.fits[0].C, _OUTLINE_ANGLES))
     return _finish_rings(ctx, rf, cands, outline, size)
 
 
 _OUTLINE_ANGLES = np.linspace(0, 2 * np.pi, 36, endpoint=False)
-
-
-def _conic_points(C: Array, angles: Array) -> Array:
-    """Return points (N, 2) of the ellipse C at parametric angles."""
-    # The centre by Cramer's rule, its value in plain floats (numpy's solve and products cost
-    # tens of calls on a 2 x 2 system).
-    (a, b, d), (_, e, f), (_, _, g) = C.tolist()
-    det = a * e - b * b
-    cx, cy = (b * f - e * d) / det, (b * d - a * f) / det
-    k = -(cx * (a * cx + b * cy + d) + cy * (b * cx + e * cy + f) + (d * cx + f * cy + g))
-    w, V = np.linalg.eigh(C[:2, :2] / k)
-    ax = 1.0 / np.sqrt(w)
-    unit = np.empty((len(angles), 2))
-    np.multiply(np.cos(angles), ax[0], out=unit[:, 0])
-    np.multiply(np.sin(angles), ax[1], out=unit[:, 1])
-    return unit @ V.T + [cx, cy]
 
 
 def _ring_pose(
