@@ -46,12 +46,11 @@ from core.calibration.pose import pose_from_homography
 from core.errors import ConvergenceError, DegenerateConfiguration, InvalidInput
 from core.geometry.camera import (
     as_distortion,
-    distortion_model,
-    undistort_points,
 )
 from core.geometry.polygon import signed_area
 from core.geometry.rotations import rotvec_to_matrix
 from core.homography.estimate import dlt_homography
+from core.landmarks._view import ImageView, undistort_each
 from core.landmarks.ambiguity import (
     DECIDED_PROBABILITY,
     PoseHypothesis,
@@ -208,7 +207,7 @@ def detect_landmarks(
     cv2.split(img, [b, g, r])
     cv2.max(b, g, dst=bg)
     cv2.max(bg, r, dst=grey)
-    ctx = _Context(img, grey, Km, d, upv, decode)
+    ctx = ImageView(img, grey, Km, d, upv, decode)
     blue = cv2.subtract(b, cv2.max(g, r, dst=g), dst=b)
     red = cv2.subtract(r, bg, dst=r)
     mask = bg  # (free from here: the thresholded scores' scratch plane)
@@ -236,7 +235,7 @@ def detect_landmarks(
             rings.append(rc)
     # One undistortion for the frames' edge points and the curves each signpost's pose tries
     # first (its outer and innermost edges: about half its points); the others on demand.
-    ideals = _undistort_each(
+    ideals = undistort_each(
         ctx,
         [e.points for e in frame_edges]
         + [np.concatenate([rc.distorted[k] for k in rc.first_choices()]) for rc in rings],
@@ -292,118 +291,6 @@ def _scratch_planes(shape: tuple[int, ...]) -> NDArray[np.uint8]:
         planes = np.empty((5, *shape), np.uint8)
         _SCRATCH.planes = planes
     return planes
-
-
-@dataclass(frozen=True)
-class _Context:
-    image: Image
-    grey: Image  # the per-pixel maximum of the channels: the blue frame and red rings white
-    K: Array
-    dist: Array
-    up: Array | None
-    decode: bool
-
-    @functools.cached_property
-    def distorted(self) -> bool:
-        """Whether the lens model has any non-zero coefficient."""
-        return bool(np.any(self.dist))
-
-    def undistort(self, px: Array) -> Array:
-        if not self.distorted:
-            return px
-        h, w = self.image.shape[:2]
-        grid = _ideal_grid(self.K.tobytes(), self.dist.tobytes(), w, h)
-        if grid is None:
-            return undistort_points(px, self.K, self.dist, to_pixels=True, tol=1e-10)
-        return _undistort_from_grid(px, self.K, self.dist, grid)
-
-    def distort(self, ideal: Array) -> Array:
-        if not self.distorted:
-            return ideal
-        # K^-1 of the ideal pixels (K upper triangular, K[2] = (0, 0, 1)).
-        (fx, s, cx), (_, fy, cy), _ = self.K.tolist()
-        y = (ideal[:, 1] - cy) / fy
-        return self._pixels(*distortion_model((ideal[:, 0] - cx - s * y) / fx, y, self.dist)[:2])
-
-    def project(self, P: Array) -> Array:
-        """Return the distorted pixels (N, 2) of camera-frame points P (N, 3) in front of it."""
-        x, y = P[:, 0] / P[:, 2], P[:, 1] / P[:, 2]
-        if self.distorted:
-            x, y, _, _ = distortion_model(x, y, self.dist)
-        return self._pixels(x, y)
-
-    def _pixels(self, x: Array, y: Array) -> Array:
-        """Return the pixels (N, 2) of normalised (distorted) coordinates x, y (N,)."""
-        (fx, s, cx), (_, fy, cy), _ = self.K.tolist()
-        out = np.empty((len(x), 2))
-        np.add(fx * x + s * y, cx, out=out[:, 0])
-        np.add(fy * y, cy, out=out[:, 1])
-        return out
-
-
-# The undistortion of the edge points starts from the ideal coordinates of a grid of pixels
-# this far apart, interpolated (bilinear: at most 4e-3 px off over bench_landmarks' image, 6e-3
-# px over the head camera's), where Newton from the distorted point takes two more iterations.
-_GRID_STEP = 8
-
-
-@functools.lru_cache(maxsize=8)
-def _ideal_grid(K: bytes, dist: bytes, width: int, height: int) -> Array | None:
-    """Return the ideal normalised coordinates (2, gh, gw) (x, then y) of the distorted pixels
-    (j, i) * _GRID_STEP covering a width x height image (once per camera: a few ms), or None
-    where the distortion is not invertible on it."""
-    xs = np.arange(0, width + _GRID_STEP, _GRID_STEP, dtype=np.float64)
-    ys = np.arange(0, height + _GRID_STEP, _GRID_STEP, dtype=np.float64)
-    uv = np.stack(np.meshgrid(xs, ys), -1)
-    try:
-        ideal = undistort_points(uv, np.frombuffer(K).reshape(3, 3), np.frombuffer(dist))
-    except ConvergenceError:
-        return None
-    return np.ascontiguousarray(np.moveaxis(ideal, -1, 0))
-
-
-def _bilinear(g: Array, k: NDArray[np.intp], width: int, a: Array, b: Array) -> Array:
-    """Return the bilinear interpolation of the raveled grid g (rows of `width`) in the cells
-    whose top-left nodes are k, at fractions a (down) and b (across)."""
-    g00, g01 = g.take(k), g.take(k + 1)
-    top = g00 + b * (g01 - g00)
-    g10, g11 = g.take(k + width), g.take(k + width + 1)
-    return top + a * (g10 + b * (g11 - g10) - top)
-
-
-def _undistort_from_grid(px: Array, K: Array, dist: Array, grid: Array) -> Array:
-    """Return the ideal pixels (N, 2) of distorted pixels px (N, 2): core.geometry.camera's
-    undistort_points (Newton on the same model, stopped at a step of 1e-10), started from the
-    grid's bilinear interpolation instead of the distorted point, so two iterations converge.
-    Raises ConvergenceError where Newton does not converge."""
-    gh, gw = grid.shape[1:]
-    u, v = px[:, 0] / _GRID_STEP, px[:, 1] / _GRID_STEP
-    # (a point off the image extrapolates from the nearest cell: a start all the same)
-    j = np.clip(u.astype(np.intp), 0, gw - 2)
-    i = np.clip(v.astype(np.intp), 0, gh - 2)
-    b, a = u - j, v - i
-    k = i * gw + j
-    x, y = (_bilinear(g.ravel(), k, gw, a, b) for g in grid)
-    return undistort_points(px, K, dist, to_pixels=True, tol=1e-10, start=(x, y))
-
-
-def _undistort_each(ctx: _Context, points: list[Array]) -> list[Array | None]:
-    """Return the ideal pixels of each candidate's edge points (one undistortion for all; a
-    candidate where the distortion is not invertible gets None)."""
-    if not points:
-        return []
-    try:
-        ideal = ctx.undistort(np.concatenate(points))
-        ends = list(accumulate(len(p) for p in points))
-        return [ideal[e - len(p) : e] for p, e in zip(points, ends, strict=True)]
-    except ConvergenceError:
-        out: list[Array | None] = []
-        for p in points:
-            try:
-                out.append(ctx.undistort(p))
-            except ConvergenceError:
-                out.append(None)
-        return out
 
 
 def _holed_components(
@@ -764,7 +651,7 @@ def _frame_sides(frames: list[_FrameCurves]) -> list[_FrameEdges | None]:
 
 
 def _frames(
-    ctx: _Context, edges: list[_FrameEdges], ideals: list[Array], size: float
+    ctx: ImageView, edges: list[_FrameEdges], ideals: list[Array], size: float
 ) -> list[LandmarkDetection]:
     """Locate and read frames from their edge points' ideal pixels: the lines, corners and
     poses of all of them computed together."""
@@ -997,7 +884,7 @@ class _RingCurves:
         ks = [self.matched[0][0], self.matched[-1][0]]
         return ks[:1] if ks[0] == ks[1] else ks
 
-    def fit(self, ctx: _Context, k: int) -> ConicFit | None:
+    def fit(self, ctx: ImageView, k: int) -> ConicFit | None:
         if k not in self.fits:
             try:
                 if k not in self.ideal:
@@ -1026,7 +913,7 @@ def _ring_curves(edges: _RingEdges) -> _RingCurves:
     return _RingCurves(curves, matched, float(ref))
 
 
-def _ring_fit(ctx: _Context, rc: _RingCurves, size: float) -> _RingFit | None:
+def _ring_fit(ctx: ImageView, rc: _RingCurves, size: float) -> _RingFit | None:
     """Return a signpost's ellipses its pose uses, from its matched edge curves (None when they
     do not fit)."""
     lay = pattern_layout("signpost", size)
@@ -1062,7 +949,7 @@ def _ring_fit(ctx: _Context, rc: _RingCurves, size: float) -> _RingFit | None:
 
 
 def _rings(
-    ctx: _Context, rf: _RingFit, cands: _Candidates, size: float
+    ctx: ImageView, rf: _RingFit, cands: _Candidates, size: float
 ) -> LandmarkDetection | None:
     """Locate and read a signpost from its ellipses and candidate poses."""
     outline = ctx.distort(conic_points(rf.fits[0].C, _OUTLINE_ANGLES))
@@ -1255,7 +1142,7 @@ def _rotation(n: Array, psi: float) -> Array:
 
 
 def _finish_rings(
-    ctx: _Context, rf: _RingFit, cands: _Candidates, outline: Array, size: float
+    ctx: ImageView, rf: _RingFit, cands: _Candidates, outline: Array, size: float
 ) -> LandmarkDetection | None:
     lay = pattern_layout("signpost", size)
     poses = [
@@ -1391,7 +1278,7 @@ class _Read:
 
 
 def _rectify(
-    ctx: _Context, R: Array, t: Array, half: float, px: int, *, grey: bool = False
+    ctx: ImageView, R: Array, t: Array, half: float, px: int, *, grey: bool = False
 ) -> Image:
     """Return the mark plane's square [-half, half]^2 resampled fronto-parallel to px x px,
     rows running down the mark's y axis, through the lens model: of the colour image, or with
@@ -1411,7 +1298,7 @@ def _rectify(
     )
 
 
-def _module_px(ctx: _Context, R: Array, t: Array, side: float) -> float:
+def _module_px(ctx: ImageView, R: Array, t: Array, side: float) -> float:
     """Return the image extent (pixels) of `side` metres at the mark centre, along its most
     foreshortened direction."""
     # J = K[:2, :2] (R[:2, :2] z - t[:2] R[2, :2]) / z^2, in plain floats (numpy's per-call
@@ -1433,7 +1320,7 @@ def _module_px(ctx: _Context, R: Array, t: Array, side: float) -> float:
 
 
 def _read_symbol(
-    ctx: _Context,
+    ctx: ImageView,
     R: Array,
     t: Array,
     half: float,
@@ -1561,7 +1448,9 @@ _BLOCKS_PATCH_PX = 96
 _CORNER_BLOCKS = _corner_blocks(_BLOCKS_PATCH_PX)
 
 
-def _symbol_angle(ctx: _Context, R: Array, t: Array, qr_side: float, *, free: bool) -> float | None:
+def _symbol_angle(
+    ctx: ImageView, R: Array, t: Array, qr_side: float, *, free: bool
+) -> float | None:
     """Return the rotation psi about the normal that puts x along the symbol's rows, from the
     three finder patterns (no decoding): the symbol's axes from the dark modules' minimum-area
     rectangle (`free`, for the rings) or from the pose's own axes (frames), then the corner
@@ -1606,7 +1495,7 @@ def _symbol_angle(ctx: _Context, R: Array, t: Array, qr_side: float, *, free: bo
 
 
 def _finish(
-    ctx: _Context,
+    ctx: ImageView,
     kind: str,
     R: Array,
     t: Array,
@@ -1638,7 +1527,7 @@ def _finish(
 
 
 def _result(
-    ctx: _Context,
+    ctx: ImageView,
     kind: str,
     R: Array,
     t: Array,
@@ -1684,7 +1573,7 @@ def _result(
 _decode_record = functools.lru_cache(maxsize=256)(decode_payload)
 
 
-def _why_unread(ctx: _Context, R: Array, t: Array, qr_side: float) -> str:
+def _why_unread(ctx: ImageView, R: Array, t: Array, qr_side: float) -> str:
     ray = t / np.linalg.norm(t)
     obliquity = np.degrees(np.arccos(np.clip(-ray @ R[:, 2], -1, 1)))
     if _module_px(ctx, R, t, qr_side) / _NOMINAL_MODULES < MIN_READ_MODULE_PX:
