@@ -42,14 +42,11 @@ import zxingcpp
 from numpy.typing import ArrayLike, NDArray
 
 from core._validate import as_matrix
-from core.calibration.pose import pose_from_homography
 from core.errors import ConvergenceError, DegenerateConfiguration, InvalidInput
 from core.geometry.camera import (
     as_distortion,
 )
 from core.geometry.polygon import signed_area
-from core.geometry.rotations import rotvec_to_matrix
-from core.homography.estimate import dlt_homography
 from core.landmarks._edges import (
     SCORE_THRESHOLD,
     bounding_roi,
@@ -57,6 +54,7 @@ from core.landmarks._edges import (
     iso_points,
 )
 from core.landmarks._lines import Lines, fit_lines, line_corners
+from core.landmarks._plane_pose import plane_poses, project_plane, rot_z, rvec_cov
 from core.landmarks._view import ImageView, undistort_each
 from core.landmarks.ambiguity import (
     DECIDED_PROBABILITY,
@@ -456,14 +454,14 @@ def _frames(
     poses: dict[int, tuple[Array, Array, float, int]] = {}
     for n in (8, 4):
         idx = [i for i, e in enumerate(edges) if valid[i] and e.count == n]
-        found = _plane_poses(obj8[:n], [corners[span[i]] for i in idx], ctx.K)
+        found = plane_poses(obj8[:n], [corners[span[i]] for i in idx], ctx.K)
         for i, pose in zip(idx, found, strict=True):
             if pose is not None:
                 poses[i] = (*pose, n)
     # The hole's edges disagree with the outline (a frame seen nearly edge-on, its band
     # unresolved): the outline alone.
     redo = [i for i, p in poses.items() if p[2] > MAX_CORNER_RMS_PX and p[3] == 8]
-    found = _plane_poses(obj8[:4], [corners[span[i]][:4] for i in redo], ctx.K)
+    found = plane_poses(obj8[:4], [corners[span[i]][:4] for i in redo], ctx.K)
     for i, pose in zip(redo, found, strict=True):
         if pose is None:
             del poses[i]
@@ -507,91 +505,6 @@ def _frames(
     return out
 
 
-def _project_plane(
-    obj: Array, R: Array, t: Array, K: Array, jacobian: bool = False
-) -> tuple[Array, Array, Array | None]:
-    """Return the ideal pixels (F, N, 2) of plane points obj (N, 2) under F poses (R (F, 3, 3),
-    t (F, 3)), their depths (F, N) and, with `jacobian`, d pixels / d (left rotation
-    perturbation, t) (F, N, 2, 6) (R <- exp([d theta]x) R: d Xc / d theta = -[R X]x)."""
-    # (R X, as two products and a sum: einsum's parsing costs more than the arithmetic)
-    RX = R[:, None, :, 0] * obj[:, :1] + R[:, None, :, 1] * obj[:, 1:]
-    Pc = RX + t[:, None, :]
-    z = Pc[..., 2]
-    xn = Pc[..., :2] / z[..., None]
-    uv = xn @ K[:2, :2].T + K[:2, 2]
-    if not jacobian:
-        return uv, z, None
-    shape = z.shape
-    # d normalised / d Pc (F, N, 2, 3), then through K's upper-left block.
-    dn = np.zeros((*shape, 2, 3))
-    dn[..., 0, 0] = dn[..., 1, 1] = 1.0 / z
-    dn[..., :, 2] = -xn / z[..., None]
-    du = K[:2, :2] @ dn
-    # -[RX]x, (F, N, 3, 3).
-    ns = np.zeros((*shape, 3, 3))
-    ns[..., 0, 1], ns[..., 0, 2] = RX[..., 2], -RX[..., 1]
-    ns[..., 1, 0], ns[..., 1, 2] = -RX[..., 2], RX[..., 0]
-    ns[..., 2, 0], ns[..., 2, 1] = RX[..., 1], -RX[..., 0]
-    J = np.empty((*shape, 2, 6))
-    J[..., :3] = du @ ns
-    J[..., 3:] = du
-    return uv, z, J
-
-
-def _plane_poses(
-    obj: Array, ideal: list[Array], K: Array, iterations: int = 6
-) -> list[tuple[Array, Array, float] | None]:
-    """Return (R, t, rms px) of planes from their points' ideal pixels (one (N, 2) array per
-    plane; None where the points are degenerate): the closed-form pose
-    (core.calibration.pose.pose_from_homography) of the first four points' homography, then
-    Gauss-Newton on all the points' reprojection error over (rotation, t), all planes at once
-    (the estimate_plane_pose criterion, without its general-purpose machinery)."""
-    if not ideal:
-        return []
-    ok = np.ones(len(ideal), bool)
-    target = np.array(ideal)
-    # The start: the outline's four corners' exact homography (the refinement below makes every
-    # corner count); the normalised DLT when there are more and these are degenerate.
-    corners = target[:, :4].astype(np.float32)
-    src = obj[:4].astype(np.float32)
-    Hs = np.array([cv2.getPerspectiveTransform(src, uv) for uv in corners], dtype=np.float64)
-    finite = np.isfinite(Hs).all((1, 2))
-    Hs[~finite] = 0.0
-    for f in (~(finite & (np.abs(np.linalg.det(Hs)) > 1e-12))).nonzero()[0].tolist():
-        try:
-            Hs[f] = dlt_homography(obj, ideal[f])
-        except DegenerateConfiguration:
-            ok[f] = False
-            Hs[f] = np.eye(3)
-    pose = pose_from_homography(Hs, K, obj)
-    R, t = np.asarray(pose.R, dtype=np.float64), np.asarray(pose.t, dtype=np.float64)
-    for _ in range(iterations):
-        uv, _, J = _project_plane(obj, R, t, K, jacobian=True)
-        assert J is not None
-        res = (uv - target).reshape(len(R), -1)
-        A = J.reshape(len(R), -1, 6)
-        At = np.swapaxes(A, 1, 2)
-        N = At @ A
-        singular = np.abs(np.linalg.det(N)) < 1e-300
-        ok &= ~singular
-        N[singular] = np.eye(6)
-        step = np.linalg.solve(N, -(At @ res[..., None]))[..., 0]
-        R = rotvec_to_matrix(step[:, :3]) @ R
-        t = t + step[:, 3:]
-        # Converged far below the corners' noise (a 1e-7 relative step moves a 10 cm mark by
-        # nanometres).
-        scale = np.maximum(1.0, np.linalg.norm(t, axis=1))
-        if np.all(np.max(np.abs(step), 1) < 1e-7 * scale):
-            break
-    uv, z, _ = _project_plane(obj, R, t, K)
-    ok &= np.all(z > 0, 1)  # else the pose puts the plane behind the camera
-    rms = np.sqrt(np.mean(np.sum((uv - target) ** 2, -1), 1))
-    return [
-        (R[f], t[f], float(rms[f])) if ok[f] and np.isfinite(rms[f]) else None
-        for f in range(len(R))
-    ]
-
-
 def _frame_covariance(lines: Lines, JL: Array, obj: Array, R: Array, t: Array, K: Array) -> Array:
     """Return the (F, 6, 6) covariances of (left rotation perturbation, t) of F frames' least-
     squares poses (R (F, 3, 3), t (F, 3)) of their n corners obj (n, 2), from their lines'
@@ -602,7 +515,7 @@ def _frame_covariance(lines: Lines, JL: Array, obj: Array, R: Array, t: Array, K
     F = len(R)
     var = np.stack([lines.var_phi, lines.var_rho], 1).reshape(F, 1, -1)
     Sc = (JL * var) @ np.swapaxes(JL, 1, 2)
-    _, _, Jp = _project_plane(obj, R, t, K, jacobian=True)
+    _, _, Jp = project_plane(obj, R, t, K, jacobian=True)
     assert Jp is not None
     A = Jp.reshape(F, -1, 6)
     At = np.swapaxes(A, 1, 2)
@@ -990,13 +903,13 @@ def _finish_rings(
         psi_known = False
         var_psi = _UNKNOWN_ANGLE_VAR
         if read is not None and read.psi is not None:
-            R = R @ _rz(read.psi)
+            R = R @ rot_z(read.psi)
             psi_known = True
             var_psi = read.var_psi
         elif ctx.decode and read is None and (rank == 0 or not decided):
             psi = _symbol_angle(ctx, R, t, lay.qr_side, free=True)
             if psi is not None:
-                R = R @ _rz(psi)
+                R = R @ rot_z(psi)
                 psi_known = True
                 var_psi = (1.0 / _NOMINAL_MODULES) ** 2
         cov_theta = cands.cov[j].copy()
@@ -1012,38 +925,13 @@ def _finish_rings(
     if not decided:
         cov_theta = covering_covariance(left)
     hypotheses = tuple(
-        PoseHypothesis(h.T, _rvec_cov(h.T[:3, :3], h.cov), h.probability) for h in left
+        PoseHypothesis(h.T, rvec_cov(h.T[:3, :3], h.cov), h.probability) for h in left
     )
-    cov = _rvec_cov(R, cov_theta)
+    cov = rvec_cov(R, cov_theta)
     rms = float(np.mean([f.rms for f in rf.fits]))
     return _result(
         ctx, "signpost", R, t, cov, outline, lay.qr_side, read, psi_known, rms, hypotheses
     )
-
-
-def _rvec_cov(R: Array, cov_theta: Array) -> Array:
-    """Convert a covariance of (left rotation perturbation, t) to one of (rvec, t): d rvec =
-    J_l(rvec)^-1 d theta, with the closed form J_l^-1 = I - [v]x / 2 + b [v]x^2,
-    b = 1 / t^2 - cot(t / 2) / (2 t), t = |v| (Barfoot, "State Estimation for Robotics",
-    eq. 7.79; the inverse of core.geometry.camera.left_jacobian_so3)."""
-    # (in plain floats: numpy's per-call cost is most of the time on 3 x 3 matrices)
-    v0, v1, v2 = cv2.Rodrigues(R)[0].ravel().tolist()
-    t = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
-    b = 1 / 12 + t * t / 720 if t < 1e-3 else 1 / t**2 - 1 / (2 * t * math.tan(t / 2))
-    # I - [v]x / 2 + b [v]x^2, with [v]x^2 = v v^T - |v|^2 I.
-    s2 = v0 * v0 + v1 * v1 + v2 * v2
-    M = np.eye(6)
-    M[:3, :3] = [
-        [1 + b * (v0 * v0 - s2), 0.5 * v2 + b * v0 * v1, -0.5 * v1 + b * v0 * v2],
-        [-0.5 * v2 + b * v1 * v0, 1 + b * (v1 * v1 - s2), 0.5 * v0 + b * v1 * v2],
-        [0.5 * v1 + b * v2 * v0, -0.5 * v0 + b * v2 * v1, 1 + b * (v2 * v2 - s2)],
-    ]
-    return M @ cov_theta @ M.T
-
-
-def _rz(psi: float) -> Array:
-    c, s = math.cos(psi), math.sin(psi)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
 # --------------------------------------------------------------------------------------------
@@ -1259,7 +1147,7 @@ def _symbol_angle(
             return None
         # Patch angles run clockwise (y down); the mark plane's counter-clockwise.
         psi0 = -np.radians(ang)
-    Rs = R @ _rz(psi0)
+    Rs = R @ rot_z(psi0)
     px = _BLOCKS_PATCH_PX
     grey = cv2.cvtColor(_rectify(ctx, Rs, t, qr_side / 2, px), cv2.COLOR_BGR2GRAY)
     # The four corner blocks, each turned so that its corner is the top-left: one gather.
@@ -1298,15 +1186,15 @@ def _finish(
     known = False
     if read is not None and read.psi is not None:
         k = round(read.psi / (math.pi / 2))  # (half to even, as np.round)
-        R = R @ _rz(k * np.pi / 2)
+        R = R @ rot_z(k * np.pi / 2)
         known = True
     elif ctx.decode:
         psi = _symbol_angle(ctx, R, t, lay.qr_side, free=False)
         if psi is not None:
-            R = R @ _rz(psi)
+            R = R @ rot_z(psi)
             known = True
     # cov is of the left rotation perturbation, invariant under the turn about z.
-    return _result(ctx, kind, R, t, _rvec_cov(R, cov), outline, lay.qr_side, read, known, rms, ())
+    return _result(ctx, kind, R, t, rvec_cov(R, cov), outline, lay.qr_side, read, known, rms, ())
 
 
 def _result(
