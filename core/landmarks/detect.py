@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import math
 import threading
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from itertools import accumulate
 from typing import Any
 
@@ -46,10 +46,7 @@ from core.geometry.camera import (
 )
 from core.landmarks._detection import LandmarkDetection, make_detection
 from core.landmarks._edges import (
-    SCORE_THRESHOLD,
-    bounding_roi,
     holed_components,
-    iso_points,
 )
 from core.landmarks._frames import (
     FrameCurves,
@@ -58,6 +55,7 @@ from core.landmarks._frames import (
     locate_frames,
 )
 from core.landmarks._plane_pose import rot_z, rvec_cov
+from core.landmarks._rings import RingCurves, RingFit, ring_curves, ring_edges, ring_fit
 from core.landmarks._symbol import (
     NOMINAL_MODULES,
     SymbolRead,
@@ -72,7 +70,7 @@ from core.landmarks.ambiguity import (
     covering_covariance,
     probabilities,
 )
-from core.landmarks.artwork import RING_RADII, pattern_layout
+from core.landmarks.artwork import pattern_layout
 from core.landmarks.conics import (
     ConicFit,
     circle_distance,
@@ -80,7 +78,6 @@ from core.landmarks.conics import (
     concentric_centre,
     conic_matrix,
     conic_points,
-    fit_ellipse,
     fit_ellipses,
 )
 
@@ -160,13 +157,13 @@ def detect_landmarks(
         if fc is not None:
             frame_curves.append(fc)
     frame_edges = [e for e in frame_sides(frame_curves) if e is not None]
-    rings: list[_RingCurves] = []
+    rings: list[RingCurves] = []
     for outer, _hole in holed_components(red, mask):
         try:
-            edges = _ring_edges(red, outer)
+            edges = ring_edges(red, outer)
         except skip:
             edges = None
-        rc = None if edges is None else _ring_curves(edges)
+        rc = None if edges is None else ring_curves(edges)
         if rc is not None and rc.matched:  # (else no ring edge to fit)
             rings.append(rc)
     # One undistortion for the frames' edge points and the curves each signpost's pose tries
@@ -196,10 +193,10 @@ def detect_landmarks(
         batch = []  # (LAPACK failed on one of them: each ring fits its own below)
     for (i, k), fit in zip(wanted, batch, strict=False):
         rings[i].fits[k] = fit if isinstance(fit, ConicFit) else None
-    ring_fits: list[_RingFit] = []
+    ring_fits: list[RingFit] = []
     for rc in rings:
         try:
-            rf = _ring_fit(ctx, rc, ring_size)
+            rf = ring_fit(ctx, rc, ring_size)
         except skip:
             rf = None
         if rf is not None:
@@ -229,138 +226,8 @@ def _scratch_planes(shape: tuple[int, ...]) -> NDArray[np.uint8]:
     return planes
 
 
-def _hull_area(p: Array) -> float:
-    """Return the area (pixels^2) of the convex hull of points p (N, 2), from the points on a
-    1/256-pixel lattice (OpenCV's integer hull takes two thirds of its floating-point one's
-    time; the area moves by at most 3.5e-5 of itself on the 204 ring edges of 26 rendered
-    frames, where it only sizes the curve against the rings' radii, at 4.5 % tolerance)."""
-    q = np.rint(p * 256.0).astype(np.int32)
-    return float(cv2.contourArea(cv2.convexHull(q))) / 65536.0
-
-
-# --------------------------------------------------------------------------------------------
-# Rings
-
-
-@dataclass(frozen=True)
-class _RingFit:
-    fits: tuple[ConicFit, ...]
-    radii: tuple[float, ...]
-
-
-@dataclass(frozen=True)
-class _RingEdges:
-    """A signpost's edge curves (distorted pixels, all stacked in `points`) and their sizes
-    (square root of their hulls' areas)."""
-
-    points: Array
-    lengths: list[int]
-    sizes: Array
-
-
-def _ring_edges(score: Image, outer: Image) -> _RingEdges | None:
-    if len(outer) < 8:
-        return None
-    _, (ea, eb), _ = cv2.fitEllipse(outer)
-    if ea <= 0 or eb <= 0 or cv2.contourArea(outer) < 0.85 * np.pi * ea * eb / 4:
-        return None
-    roi = bounding_roi(outer, score.shape)
-    x0, y0, x1, y1 = roi
-    mask = np.zeros((y1 - y0, x1 - x0), np.uint8)
-    cv2.drawContours(mask, [outer - [x0, y0]], -1, 1, -1)
-    mask &= (score[y0:y1, x0:x1] > SCORE_THRESHOLD).astype(np.uint8)
-    iso = [c for c in iso_points(score, roi, mask) if len(c) >= 12]
-    if not iso:
-        return None
-    sizes = np.array([np.sqrt(_hull_area(c)) for c in iso])
-    return _RingEdges(np.concatenate(iso), [len(c) for c in iso], sizes)
-
-
-@dataclass(frozen=True)
-class _RingCurves:
-    """A signpost's edge curves (distorted pixels), the ring edge each one matches ((curve,
-    edge index in RING_RADII), largest curve first), the outer curve's size, the curves' ideal
-    pixels undistorted so far, and the ellipses fitted so far (None: not an ellipse)."""
-
-    distorted: list[Array]
-    matched: list[tuple[int, int]]
-    ref: float
-    ideal: dict[int, Array] = field(default_factory=dict)
-    fits: dict[int, ConicFit | None] = field(default_factory=dict)
-
-    def first_choices(self) -> list[int]:
-        """Return the curves _rings tries first: the largest matched one and the smallest."""
-        if not self.matched:
-            return []
-        ks = [self.matched[0][0], self.matched[-1][0]]
-        return ks[:1] if ks[0] == ks[1] else ks
-
-    def fit(self, ctx: ImageView, k: int) -> ConicFit | None:
-        if k not in self.fits:
-            try:
-                if k not in self.ideal:
-                    self.ideal[k] = ctx.undistort(self.distorted[k])
-                self.fits[k] = fit_ellipse(self.ideal[k])
-            except (DegenerateConfiguration, ConvergenceError):
-                self.fits[k] = None
-        return self.fits[k]
-
-
-def _ring_curves(edges: _RingEdges) -> _RingCurves:
-    """Return a signpost's edge curves matched to the ring edges."""
-    ends = np.cumsum(edges.lengths).tolist()
-    curves = [edges.points[a:b] for a, b in zip([0, *ends[:-1]], ends, strict=True)]
-    sizes = edges.sizes
-    order = np.argsort(-sizes)
-    ref = sizes[order[0]]
-    # Each ring edge's curve (the largest one whose size ratio to the outer edge matches it).
-    ratios = (sizes[order] / ref).tolist()
-    matched: list[tuple[int, int]] = []
-    for k, ratio in zip(order.tolist(), ratios, strict=True):
-        miss = [abs(ratio - r / RING_RADII[0]) for r in RING_RADII]
-        j = miss.index(min(miss))
-        if miss[j] <= 0.045 and all(j != i for _, i in matched):
-            matched.append((k, j))
-    return _RingCurves(curves, matched, float(ref))
-
-
-def _ring_fit(ctx: ImageView, rc: _RingCurves, size: float) -> _RingFit | None:
-    """Return a signpost's ellipses its pose uses, from its matched edge curves (None when they
-    do not fit)."""
-    lay = pattern_layout("signpost", size)
-    matched, ref = rc.matched, rc.ref
-    # The pose needs only the outer edge (normal, distance, centre) and the innermost one that
-    # fits (the centre from the pencil of the two).
-    fits: list[ConicFit] = []
-    radii: list[float] = []
-    for n, (k, j) in enumerate(matched):
-        fit = rc.fit(ctx, k)
-        if fit is None:
-            continue
-        if j != 0:
-            return None
-        fits.append(fit)
-        radii.append(lay.ring_radii[0])
-        matched = matched[n + 1 :]
-        break
-    if not fits:
-        return None
-    centre0 = fits[0].centre
-    for k, j in matched[::-1]:
-        fit = rc.fit(ctx, k)
-        if fit is None:
-            continue
-        if np.linalg.norm(fit.centre - centre0) <= 0.2 * ref:
-            fits.append(fit)
-            radii.append(lay.ring_radii[j])
-            break
-    if len(fits) < 2:
-        return None
-    return _RingFit(tuple(fits), tuple(radii))
-
-
 def _rings(
-    ctx: ImageView, rf: _RingFit, cands: _Candidates, size: float
+    ctx: ImageView, rf: RingFit, cands: _Candidates, size: float
 ) -> LandmarkDetection | None:
     """Locate and read a signpost from its ellipses and candidate poses."""
     outline = ctx.distort(conic_points(rf.fits[0].C, _OUTLINE_ANGLES))
@@ -400,7 +267,7 @@ class _Candidates:
     centre_loglik: Array
 
 
-def _ring_candidates(rfs: list[_RingFit], K: Array) -> list[_Candidates | None]:
+def _ring_candidates(rfs: list[RingFit], K: Array) -> list[_Candidates | None]:
     """Return each signpost's candidates (None where its conics are degenerate): the poses of
     all signposts' nominal and perturbed conic pairs in one batch."""
     if not rfs:
@@ -435,7 +302,7 @@ def _ring_candidates(rfs: list[_RingFit], K: Array) -> list[_Candidates | None]:
     ]
 
 
-def _sigma_pairs(rf: _RingFit, K: Array, w: Array, U: Array) -> tuple[Array, Array, Array]:
+def _sigma_pairs(rf: RingFit, K: Array, w: Array, U: Array) -> tuple[Array, Array, Array]:
     """Return a signpost's normalised conic pairs (outer, innermost) (S, 3, 3) each, the
     nominal pair first, then each sigma point of either conic's covariance (eigenvalues w (2,
     6), eigenvectors U (2, 6, 6)) with the other nominal, and the points of the fit each one
@@ -457,7 +324,7 @@ def _sigma_pairs(rf: _RingFit, K: Array, w: Array, U: Array) -> tuple[Array, Arr
 
 
 def _candidates(
-    rf: _RingFit,
+    rf: RingFit,
     K: Array,
     Q0s: Array,
     Qns: Array,
@@ -553,7 +420,7 @@ def _rotation(n: Array, psi: float) -> Array:
 
 
 def _finish_rings(
-    ctx: ImageView, rf: _RingFit, cands: _Candidates, outline: Array, size: float
+    ctx: ImageView, rf: RingFit, cands: _Candidates, outline: Array, size: float
 ) -> LandmarkDetection | None:
     lay = pattern_layout("signpost", size)
     poses = [
