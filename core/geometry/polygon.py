@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 
 import numpy as np
@@ -44,10 +45,18 @@ def inside_polygon(P: Array, poly: Array) -> NDArray[np.bool_]:
     return inside
 
 
+@functools.lru_cache(maxsize=64)
+def _successors(n: int) -> NDArray[np.intp]:
+    """Return the index (n,) of each vertex's successor in a polygon of n vertices (read-only:
+    kept from one call to the next, as the landmark reader's quadrilaterals ask for it)."""
+    nxt = np.roll(np.arange(n), -1)
+    nxt.flags.writeable = False
+    return nxt
+
+
 def signed_area(polygon: Array) -> float:
     """Return the signed area of a polygon (N, 2) by the shoelace formula (Gauss's area
     formula): positive when its vertices run counter-clockwise in x right, y up."""
     x, y = polygon[:, 0], polygon[:, 1]
-    # Each vertex's successor by two slices (np.roll's wrapper costs more calls than the rest).
-    x1, y1 = np.concatenate((x[1:], x[:1])), np.concatenate((y[1:], y[:1]))
-    return 0.5 * float(x @ y1 - x1 @ y)
+    nxt = _successors(polygon.shape[0])
+    return 0.5 * float(x @ y[nxt] - x[nxt] @ y)
