@@ -446,6 +446,7 @@ def undistort_points(
     to_pixels: bool = False,
     max_iterations: int = 20,
     tol: float = 1e-15,
+    start: tuple[Array, Array] | None = None,
 ) -> Array:
     """Return ideal (undistorted) normalised coordinates (..., 2) of distorted pixels (..., 2).
 
@@ -456,7 +457,9 @@ def undistort_points(
     when Newton does not converge (distortion so strong that D is not invertible there).
     Newton stops once its largest step is under `tol` times the largest coordinate (at least 1);
     convergence being quadratic, what is left then is of the order of that step's square, so
-    1e-10 already gives machine precision, one iteration sooner than the default.
+    1e-10 already gives machine precision, one iteration sooner than the default. Newton starts
+    from the distorted coordinates, or from `start` (x, y) (each (...)): ideal coordinates known
+    to be near (interpolated from a grid, say), from which it needs fewer iterations.
     """
     uv = np.asarray(pixels, dtype=np.float64)
     Km = np.asarray(K, dtype=np.float64)
@@ -467,7 +470,10 @@ def undistort_points(
     d = as_distortion_model(dist)
     yd = (uv[..., 1] - cy) / fy
     xd = (uv[..., 0] - cx - s * yd) / fx
-    x, y = xd.copy(), yd.copy()
+    if start is None:
+        x, y = xd.copy(), yd.copy()
+    else:
+        x, y = (np.array(v, dtype=np.float64) for v in start)
     if np.any(d):
         scale = max(1.0, float(np.max(np.abs(xd), initial=0.0)))
         scale = max(scale, float(np.max(np.abs(yd), initial=0.0)))

@@ -2,7 +2,8 @@
 
 * `core.landmarks.payload`: the versioned text schema (`encode_payload`, `decode_payload`).
 * `core.landmarks.artwork`: SVG, PDF and PNG at true size (`make_artwork`, `to_svg`, ...).
-* `core.landmarks.detect`: `detect_landmarks(image, K, dist)`.
+* `core.landmarks.detect`: `detect_landmarks(image, K, dist)`, made of one private module per
+  part (the lens maps, edges, frames, rings, the rings' pose, the symbol; its docstring lists them).
 * `core.landmarks.conics`: ellipse fits and the circle geometry the rings use.
 * `core.landmarks.ambiguity`: the two poses of a signpost's rings, their probabilities, the
   decision and their fusion over views (`PoseHypothesis`, `fuse_hypotheses`).

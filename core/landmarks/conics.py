@@ -269,6 +269,22 @@ def _centre(C: Array) -> Array:
     return np.array([(b * e - c * d) / det, (b * d - a * e) / det])
 
 
+def conic_points(C: Array, angles: Array) -> Array:
+    """Return points (N, 2) of the ellipse C (3, 3) at parametric angles (N,) radians, measured
+    along its axes (x^T C x = 0 at each)."""
+    (a, b, d), (_, e, f), (_, _, g) = C.tolist()
+    cx, cy = _centre(C).tolist()
+    # The conic's value at the centre, in plain floats (numpy's products cost more calls than
+    # the arithmetic on a 3 x 3 matrix): the axes' lengths scale by it.
+    k = -(cx * (a * cx + b * cy + d) + cy * (b * cx + e * cy + f) + (d * cx + f * cy + g))
+    w, V = np.linalg.eigh(C[:2, :2] / k)
+    ax = 1.0 / np.sqrt(w)
+    unit = np.empty((len(angles), 2))
+    np.multiply(np.cos(angles), ax[0], out=unit[:, 0])
+    np.multiply(np.sin(angles), ax[1], out=unit[:, 1])
+    return unit @ V.T + [cx, cy]
+
+
 def _conic_at_centre(C: Array) -> float:
     x = np.array([*_centre(C), 1.0])
     return float(x @ C @ x)

@@ -9,8 +9,9 @@ from core.errors import InvalidInput
 from core.geometry.camera import as_distortion, undistort_points
 from core.geometry.rotations import rotvec_to_matrix
 from core.landmarks import ObjectMark, Signpost
+from core.landmarks._view import ImageView
 from core.landmarks.artwork import make_artwork
-from core.landmarks.detect import _Context, detect_landmarks
+from core.landmarks.detect import detect_landmarks
 from core.sim.render import SensorNoise
 from core.sim.render.landmarks import (
     LandmarkCamera,
@@ -169,12 +170,12 @@ def test_edge_points_undistorted_from_the_grid_as_by_newton_alone() -> None:
         ]
     )
     image = np.zeros((CAM.height, CAM.width, 3), np.uint8)
-    ctx = _Context(image, image[..., 0], CAM.K, as_distortion(CAM.dist), None, True)
+    ctx = ImageView(image, image[..., 0], CAM.K, as_distortion(CAM.dist), None, True)
     ideal = ctx.undistort(px)
     reference = undistort_points(px, CAM.K, CAM.dist, to_pixels=True)
     assert np.max(np.abs(ideal - reference)) < 1e-9
     # Without distortion there is nothing to undo.
-    plain = _Context(image, image[..., 0], CAM.K, np.zeros(5), None, True)
+    plain = ImageView(image, image[..., 0], CAM.K, np.zeros(5), None, True)
     assert np.array_equal(plain.undistort(px), px)
 
 
