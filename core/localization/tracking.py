@@ -105,260 +105,56 @@ from __future__ import annotations
 
 import math
 from collections.abc import Hashable, Mapping, Sequence
-from dataclasses import dataclass
-from enum import StrEnum
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.optimize import linear_sum_assignment
 
 from core.errors import InvalidInput
 from core.localization._checks import check_time
 from core.localization._projection import inv2, project_plane, transposed
-from core.localization.appearance import appearance_distance
+from core.localization.association import (
+    ambiguous_pairs,
+    assign_pairs,
+    largest_variance,
+    mahalanobis,
+)
 from core.localization.cameras import NetworkCamera
 from core.localization.ground import locate_monocular
+from core.localization.looks import TrackLooks
+from core.localization.motion import cv_process_noise, cv_transition
 from core.localization.occluders import Occluders, line_of_sight
+from core.localization.tracker_config import (
+    CHI2_2DOF_99,
+    CHI2_2DOF_999,
+    CHI2_2DOF_999999,
+    CONFIRM_GAPS,
+    MAX_FRAME_GAP,
+    TENTATIVE_GAPS,
+    WALKING_SPEED,
+    TrackerConfig,
+)
+from core.localization.tracks import KINDS, LIVE_STATES, FrameResult, TrackSnapshot, TrackState
 
 Array = NDArray[np.float64]
 
-# Chi-square quantiles with 2 degrees of freedom: -2 ln(1 - p).
-CHI2_2DOF_99 = 9.2103
-CHI2_2DOF_999 = 13.816
-CHI2_2DOF_999999 = 27.631
-# Cost of a forbidden pairing: above any allowed cost, which is clipped below it.
-_FORBIDDEN = 1e9
-_MAX_COST = 1e8
-
-KINDS = ("robot", "person", "unknown")
-# A tentative track is dropped after this many frame intervals of the camera that last saw it
-# without an update (two frames without it, and half an interval of jitter), and must be
-# confirmed within this many (what the default one-second window holds of a camera at 10 frames
-# a second), when those are longer than tentative_timeout and confirm_window.
-TENTATIVE_GAPS = 2.5
-CONFIRM_GAPS = 10.0
-# A pause longer than this (s) between two frames of a camera is a silence (a node restarted, a
-# stream that dropped), not its frame rate: it is left out of the camera's mean interval.
-MAX_FRAME_GAP = 1.0
-# A lost body recognised by its look (module docstring) must have walked to where it is seen
-# again at no more than this speed (m/s): a brisk walk, faster than people move indoors.
-WALKING_SPEED = 2.0
-
-
-class TrackState(StrEnum):
-    """A track's stage in its life cycle."""
-
-    TENTATIVE = "tentative"
-    CONFIRMED = "confirmed"
-    COASTING = "coasting"
-    ENDED = "ended"
-
-
-LIVE_STATES = (TrackState.CONFIRMED, TrackState.COASTING)
-
-
-def _positive(name: str, value: object) -> None:
-    if not isinstance(value, int | float) or not math.isfinite(value) or value <= 0:
-        raise InvalidInput(f"TrackerConfig.{name} must be a positive number, got {value!r}")
-
-
-@dataclass(frozen=True)
-class TrackerConfig:
-    """Settings of a `Tracker`.
-
-    q: acceleration power spectral density, m^2 / s^3 (about the squared change of speed per
-    second a target makes: people start, stop and turn). gate: squared Mahalanobis gate on the
-    pixel innovation (chi-square, 2 dof). birth_gate: squared Mahalanobis distance on the floor
-    within which a free detection is an existing track's outlier, not a new body;
-    min_separation: metres, the same in plain distance. initial_speed_std: prior speed standard
-    deviation per axis of a new track, m/s. Confirmation: a tentative track's score (module
-    docstring) must reach confirm_score with at least confirm_hits updates within
-    confirm_window (s) of its birth; below drop_score, or not updated for tentative_timeout (s),
-    it is dropped (both stretched for a camera reporting slowly: module docstring). p_detect:
-    probability that a camera detects a body it has in view; clutter_density: false detections
-    per pixel per frame. ambiguity: a confirmed track's
-    detection that another track explains within this many log-likelihood units counts as a
-    sighting but does not update the state (crossing bodies coast through the crossing on
-    their velocities; 0 turns it off), for at most ambiguity_coast seconds since the track's
-    last update. coast_after, end_after (s): time without an update
-    before a confirmed track coasts and ends; max_position_std (m): a coasting track whose
-    position standard deviation (the larger axis) exceeds it ends (one with a look is lost
-    instead: module docstring). camera_error_std (m): the
-    error on the floor each detection inherits from its camera's calibration, added to its
-    pixel covariance through the camera's floor Jacobian. A calibrated camera places points a
-    centimetre or two from where another calibrated camera places them (the network
-    calibration's bound within its frame, 1-2 cm and 0.1-0.4 deg per camera); without this
-    term two cameras a few milliseconds apart, each sure of its pixel to 0.05 px, would make
-    the filter explain their disagreement by a speed of metres per second. located_std (m): an
-    unlabelled detection whose floor position has a standard deviation (larger axis) above it
-    does not say where a body stands (a blob of two people, one behind the other; a head seen
-    past a door jamb): such blobs also come with a biased bearing, so the tracker leaves them out
-    (they neither update nor start a track; their track id is -1) and the tracks coast through
-    them on their own velocities, as through a crossing (0: every detection counts). A "person"
-    detection within body_radius of a robot's confirmed track is that robot's body (its marker
-    missed by that camera) and is left out the same way.
-    body_height, body_radius (m): the size of a body that can hide another from a camera; a
-    tentative track hidden so (or inside the gate of a detection left out) is not missed.
-    appearance_weight: cost units (-2 ln of a likelihood) a pairing pays per unit of
-    appearance distance (core.localization.appearance, 0-1) between a detection's descriptor and
-    the track's in the same camera; appearance_rate: the weight of each new descriptor in the
-    track's running mean (module docstring, "Appearance"); recognition_distance: the largest
-    appearance distance at which a newly confirmed track is a lost track's body.
-    """
-
-    q: float = 2.0
-    gate: float = CHI2_2DOF_999
-    birth_gate: float = CHI2_2DOF_999999
-    min_separation: float = 0.45
-    initial_speed_std: float = 1.0
-    confirm_hits: int = 3
-    confirm_score: float = 20.0
-    drop_score: float = -6.0
-    p_detect: float = 0.9
-    clutter_density: float = 1e-5
-    confirm_window: float = 1.0
-    tentative_timeout: float = 0.4
-    ambiguity: float = 3.0
-    ambiguity_coast: float = 0.3
-    coast_after: float = 0.5
-    end_after: float = 5.0
-    max_position_std: float = 2.0
-    labelled_end_after: float = 60.0
-    camera_error_std: float = 0.02
-    located_std: float = 0.5
-    body_height: float = 1.8
-    body_radius: float = 0.25
-    appearance_weight: float = 4.0
-    appearance_rate: float = 0.2
-    recognition_distance: float = 0.5
-
-    def __post_init__(self) -> None:
-        for name in (
-            "q",
-            "gate",
-            "birth_gate",
-            "initial_speed_std",
-            "confirm_window",
-            "tentative_timeout",
-            "coast_after",
-            "end_after",
-            "max_position_std",
-            "clutter_density",
-            "ambiguity_coast",
-            "labelled_end_after",
-        ):
-            _positive(name, getattr(self, name))
-        for name in (
-            "min_separation",
-            "camera_error_std",
-            "located_std",
-            "body_height",
-            "body_radius",
-        ):
-            value = getattr(self, name)
-            if not isinstance(value, int | float) or not (math.isfinite(value) and value >= 0):
-                raise InvalidInput(f"TrackerConfig.{name} must be >= 0 metres, got {value!r}")
-        w = self.appearance_weight
-        if not isinstance(w, int | float) or not (math.isfinite(w) and w >= 0):
-            raise InvalidInput(f"TrackerConfig.appearance_weight must be >= 0, got {w!r}")
-        if not 0.0 <= self.recognition_distance <= 1.0:
-            raise InvalidInput(
-                "TrackerConfig.recognition_distance must lie in [0, 1], "
-                f"got {self.recognition_distance!r}"
-            )
-        if not 0.0 < self.appearance_rate <= 1.0:
-            raise InvalidInput(
-                f"TrackerConfig.appearance_rate must lie in (0, 1], got {self.appearance_rate!r}"
-            )
-        if not 0.0 < self.p_detect < 1.0:
-            raise InvalidInput(f"TrackerConfig.p_detect must lie in (0, 1), got {self.p_detect!r}")
-        if not (math.isfinite(self.confirm_score) and math.isfinite(self.drop_score)) or not (
-            self.drop_score < 0.0 < self.confirm_score
-        ):
-            raise InvalidInput(
-                "TrackerConfig needs drop_score < 0 < confirm_score (log-likelihood ratios), "
-                f"got {self.drop_score!r} and {self.confirm_score!r}"
-            )
-        if not isinstance(self.confirm_hits, int) or self.confirm_hits < 1:
-            raise InvalidInput(
-                f"TrackerConfig.confirm_hits must be an integer >= 1, got {self.confirm_hits!r}"
-            )
-        if self.end_after < self.coast_after:
-            raise InvalidInput(
-                f"end_after ({self.end_after} s) cannot be shorter than coast_after "
-                f"({self.coast_after} s): a track would end before it coasts"
-            )
-
-
-@dataclass(frozen=True)
-class TrackSnapshot:
-    """A track at time t: id, kind, label (None unless a labelled detection started it), life
-    cycle state, state (4,) = (x, y, vx, vy) in m and m/s with cov (4, 4), number of updates
-    (`hits`), time of the first and of the last update (`first_seen`, `last_seen`)."""
-
-    id: int
-    kind: str
-    label: str | None
-    state: TrackState
-    t: float
-    x: Array
-    cov: Array
-    hits: int
-    first_seen: float
-    last_seen: float
-
-    @property
-    def xy(self) -> Array:
-        """Position (2,), metres."""
-        return self.x[:2]
-
-    @property
-    def xy_cov(self) -> Array:
-        """Covariance of the position (2, 2), m^2."""
-        return self.cov[:2, :2]
-
-    @property
-    def velocity(self) -> Array:
-        """Velocity (2,), m/s."""
-        return self.x[2:]
-
-
-@dataclass(frozen=True)
-class FrameResult:
-    """What one camera frame did: `track_ids` (D,) the id of the track each detection updated
-    or started (-1: none took it and it started none); `started` (D,) whether it started that
-    track; `updated` the snapshots, after the update, of the tracks this frame updated (new
-    tentative tracks included); `ended` the tracks that ended at this frame's time; `dropped`
-    the ids of tentative tracks dropped unconfirmed."""
-
-    t: float
-    camera: Hashable
-    track_ids: NDArray[np.int64]
-    started: NDArray[np.bool_]
-    updated: tuple[TrackSnapshot, ...]
-    ended: tuple[TrackSnapshot, ...]
-    dropped: tuple[int, ...]
-
-
-def cv_transition(dt: float) -> Array:
-    """Return F(dt) (4, 4) of the constant-velocity model on (x, y, vx, vy): x <- x + dt vx."""
-    F = np.eye(4)
-    F[0, 2] = F[1, 3] = dt
-    return F
-
-
-def cv_process_noise(dt: float, q: float) -> Array:
-    """Return Q(dt) (4, 4), m^2, m^2/s, m^2/s^2, of white acceleration of density q (m^2/s^3).
-
-    Q = integral_0^dt F(s) G q G^T F(s)^T ds with G = [0 I]^T, which per axis is
-    q [[dt^3/3, dt^2/2], [dt^2/2, dt]] (Bar-Shalom, Li & Kirubarajan 2001, sec. 6.2.2).
-    """
-    Q = np.zeros((4, 4))
-    a, b, c = q * dt**3 / 3.0, q * dt**2 / 2.0, q * dt
-    Q[0, 0] = Q[1, 1] = a
-    Q[0, 2] = Q[2, 0] = Q[1, 3] = Q[3, 1] = b
-    Q[2, 2] = Q[3, 3] = c
-    return Q
+__all__ = [
+    "CHI2_2DOF_99",
+    "CHI2_2DOF_999",
+    "CHI2_2DOF_999999",
+    "CONFIRM_GAPS",
+    "KINDS",
+    "LIVE_STATES",
+    "MAX_FRAME_GAP",
+    "TENTATIVE_GAPS",
+    "WALKING_SPEED",
+    "FrameResult",
+    "TrackSnapshot",
+    "TrackState",
+    "Tracker",
+    "TrackerConfig",
+    "cv_process_noise",
+    "cv_transition",
+]
 
 
 def _as_covariances(cov: ArrayLike, n: int, name: str) -> Array:
@@ -416,56 +212,6 @@ def _as_looks(appearances: ArrayLike | None, n: int) -> Array | None:
     return look
 
 
-def _largest_variance(C: Array) -> Array:
-    """Return the larger eigenvalue of each 2 x 2 covariance C (..., 2, 2)."""
-    half = 0.5 * (C[..., 0, 0] - C[..., 1, 1])
-    return 0.5 * (C[..., 0, 0] + C[..., 1, 1]) + np.hypot(half, C[..., 0, 1])
-
-
-def _mahalanobis(nu: Array, S: Array) -> tuple[Array, Array]:
-    """Return (nu^T S^-1 nu, ln det S), both (...), for nu (..., 2) and S (..., 2, 2)."""
-    S_inv, det = inv2(S)
-    d2 = np.einsum("...i,...ij,...j->...", nu, S_inv, nu)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return d2, np.log(det)
-
-
-def _ambiguous(
-    cost: Array,
-    allowed: NDArray[np.bool_],
-    rows: NDArray[np.intp],
-    cols: NDArray[np.intp],
-    margin: float,
-) -> NDArray[np.bool_]:
-    """Return, for each assigned pair (rows[k], cols[k]), whether another track could take its
-    detection almost as likely: that pairing's cost (a negative log-likelihood) within `margin`
-    of the pair's. Two bodies that cross stand inside each other's gates; an
-    update with a detection that may be the other body's would bend a track towards it and,
-    repeated, swap the two."""
-    if margin <= 0 or rows.size == 0:
-        return np.zeros(rows.size, dtype=bool)
-    c = np.where(allowed, cost, np.inf)
-    own = c[rows, cols]
-    other_track = c[:, cols].copy()
-    other_track[rows, np.arange(rows.size)] = np.inf
-    return other_track.min(axis=0) - own < margin
-
-
-def _assign(cost: Array, allowed: NDArray[np.bool_]) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
-    """Return the (rows, cols) of the minimum-cost assignment using allowed pairs only."""
-    rows_any = np.flatnonzero(allowed.any(axis=1))
-    cols_any = np.flatnonzero(allowed.any(axis=0))
-    if rows_any.size == 0:
-        empty = np.zeros(0, dtype=np.intp)
-        return empty, empty
-    sub_ok = allowed[np.ix_(rows_any, cols_any)]
-    sub = np.where(sub_ok, np.clip(cost[np.ix_(rows_any, cols_any)], -_MAX_COST, _MAX_COST), 0.0)
-    sub = np.where(sub_ok, sub, _FORBIDDEN)
-    r, c = linear_sum_assignment(sub)
-    keep = sub_ok[r, c]
-    return rows_any[r[keep]], cols_any[c[keep]]
-
-
 class Tracker:
     """Tracks bodies on the floor from the detections of unsynchronised cameras (see module).
 
@@ -518,12 +264,10 @@ class Tracker:
         self._camera_last: dict[Hashable, float] = {}
         self._camera_gap: dict[Hashable, float] = {}
         self._gap: list[float] = []
-        # Each track's appearance (module docstring) per camera: track id -> camera -> (F,).
-        self._looks: dict[int, dict[Hashable, Array]] = {}
-        # Lost tracks recognised in the current frame (`_take_over`), and where each track
-        # with a look was when it was last updated (track id -> (2,)).
+        # Each track's look (module docstring, "Appearance"), and the lost tracks recognised
+        # in the current frame (`_take_over`).
+        self._looks = TrackLooks(self.config.appearance_rate)
         self._recognised_ids: list[int] = []
-        self._last_xy: dict[int, Array] = {}
 
     # -- cameras and state ---------------------------------------------------------------------
 
@@ -784,7 +528,8 @@ class Tracker:
                     self._moved[i] = t
                 if look is not None:
                     clear = ~ambiguous
-                    self._learn_looks(camera, rows[clear], look[cols[clear]])
+                    for i, j in zip(rows[clear].tolist(), cols[clear].tolist(), strict=True):
+                        self._looks.learn(self._ids[i], camera, look[j], self._x[i])
                 gain = np.log(self.config.p_detect / self.config.clutter_density) + loglik
                 for i, j, g in zip(rows.tolist(), cols.tolist(), gain.tolist(), strict=True):
                     if self._states[i] is TrackState.TENTATIVE:
@@ -792,8 +537,7 @@ class Tracker:
                     self._height[i] = float(h[j])
                     self._hits[i] += 1
                     self._last[i] = t
-                    if self._ids[i] in self._looks:
-                        self._last_xy[self._ids[i]] = self._x[i, :2].copy()
+                    self._looks.moved(self._ids[i], self._x[i])
                     self._gap[i] = gap
                     if self._states[i] is TrackState.COASTING:
                         self._states[i] = TrackState.CONFIRMED
@@ -809,9 +553,8 @@ class Tracker:
                     track_ids[j] = tid
                     started[j] = True
                     touched.append(tid)
-                    if look is not None and look[j].sum() > 0:
-                        self._looks[tid] = {camera: look[j].copy()}
-                        self._last_xy[tid] = self._x[-1, :2].copy()
+                    if look is not None:
+                        self._looks.learn(tid, camera, look[j], self._x[-1])
         self._recognised_ids = []
         ended, dropped = self._manage()
         touched += self._recognised_ids
@@ -917,7 +660,7 @@ class Tracker:
             xy = est.xy
             # A pixel whose ray misses the plane has no floor point: nothing to add there.
             ok = np.all(np.isfinite(xy), axis=1)
-            worst = _largest_variance(est.cov)
+            worst = largest_variance(est.cov)
             floor_std[sel[ok]] = np.sqrt(np.maximum(worst[ok], 0.0))
             if sigma <= 0:
                 continue
@@ -974,7 +717,7 @@ class Tracker:
         cam = self.cameras[camera]
         u, J, front = self._project(cam, h)
         S = J @ self._P[:, None, :2, :2] @ transposed(J) + R[None]
-        d2, logdet = _mahalanobis(px[None] - u, S)
+        d2, logdet = mahalanobis(px[None] - u, S)
         cost = d2 + logdet + self._look_cost(camera, look)
         tk = np.array(self._kinds, dtype=object)
         dk = np.array(kind, dtype=object)
@@ -1003,13 +746,13 @@ class Tracker:
         ambiguous_out: list[NDArray[np.bool_]] = []
         for k, allowed in enumerate(rounds):
             allowed = allowed & free_rows[:, None] & free_cols[None, :]
-            r, c = _assign(cost, allowed)
+            r, c = assign_pairs(cost, allowed)
             free_rows[r] = False
             free_cols[c] = False
             rows_out.append(r)
             cols_out.append(c)
             ambiguous_out.append(
-                _ambiguous(cost, rounds[1], r, c, self.config.ambiguity)
+                ambiguous_pairs(cost, rounds[1], r, c, self.config.ambiguity)
                 if k == 1
                 else np.zeros(r.size, dtype=bool)
             )
@@ -1024,34 +767,7 @@ class Tracker:
         weight = self.config.appearance_weight
         if look is None or weight == 0:
             return 0.0
-        extra = np.zeros((len(self._ids), look.shape[0]))
-        has = look.sum(axis=1) > 0
-        rows = [
-            i
-            for i, tid in enumerate(self._ids)
-            if camera in self._looks.get(tid, {})
-            and self._looks[tid][camera].shape == look.shape[1:]
-        ]
-        if rows and has.any():
-            models = np.array([self._looks[self._ids[i]][camera] for i in rows])
-            extra[np.ix_(np.array(rows, dtype=np.intp), np.flatnonzero(has))] = (
-                weight * appearance_distance(models, look[has])
-            )
-        return extra
-
-    def _learn_looks(self, camera: Hashable, rows: NDArray[np.intp], looks: Array) -> None:
-        """Move the appearance of tracks `rows` in `camera` towards their detections'
-        descriptors `looks` (running mean, appearance_rate); a track's first one is taken as
-        it is."""
-        rate = self.config.appearance_rate
-        for i, v in zip(rows.tolist(), looks, strict=True):
-            if not v.sum() > 0:
-                continue
-            mine = self._looks.setdefault(self._ids[i], {})
-            old = mine.get(camera)
-            mine[camera] = (
-                v.copy() if old is None or old.shape != v.shape else old + rate * (v - old)
-            )
+        return np.nan_to_num(weight * self._looks.distances(self._ids, camera, look), nan=0.0)
 
     def _visible(self, cam: NetworkCamera) -> NDArray[np.bool_]:
         """Return whether `cam` has a clear line of sight (past the occluders) to some of each
@@ -1068,7 +784,7 @@ class Tracker:
                 for k, hh in zip(self._kinds, self._height, strict=True)
             ]
         )
-        spread = 2.0 * np.sqrt(np.maximum(_largest_variance(self._P[:, :2, :2]), 0.0))
+        spread = 2.0 * np.sqrt(np.maximum(largest_variance(self._P[:, :2, :2]), 0.0))
         r = self.config.body_radius + np.minimum(spread, 0.3)
         ring = np.array([[0.0, 0.0], [1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]])
         xy = self._x[:, None, :2] + r[:, None, None] * ring[None]  # (T, 5, 2)
@@ -1079,7 +795,7 @@ class Tracker:
     def _vague(self, rows: NDArray[np.intp]) -> NDArray[np.bool_]:
         """Return whether each track's position standard deviation (larger axis) exceeds
         `max_position_std`."""
-        return _largest_variance(self._P[rows, :2, :2]) > self.config.max_position_std**2
+        return largest_variance(self._P[rows, :2, :2]) > self.config.max_position_std**2
 
     def _restart(
         self,
@@ -1128,7 +844,7 @@ class Tracker:
                 assert proj.jacobian is not None
                 J = proj.jacobian
                 S = J[:, None] @ self._P[look][:, None, :2, :2] @ transposed(J)[:, None]
-                d2, _ = _mahalanobis(v_px[sel][None] - proj.pixels[:, None], S + v_R[sel][None])
+                d2, _ = mahalanobis(v_px[sel][None] - proj.pixels[:, None], S + v_R[sel][None])
                 inside = np.any(np.nan_to_num(d2, nan=np.inf) <= self.config.gate, axis=1)
                 seen[np.flatnonzero(seen)[inside]] = False
         miss = math.log(1.0 - self.config.p_detect)
@@ -1237,7 +953,7 @@ class Tracker:
                 diff = xy[j] - self._x[near, :2]
                 if np.any(np.einsum("ij,ij->i", diff, diff) < cfg.min_separation**2):
                     continue
-                d2, _ = _mahalanobis(diff, self._P[near, :2, :2] + C[j])
+                d2, _ = mahalanobis(diff, self._P[near, :2, :2] + C[j])
                 if np.any(d2 <= cfg.birth_gate):
                     continue
             out.append((j, self._birth(xy[j], C[j], kind[j], lab[j], float(h[j]), gap)))
@@ -1284,8 +1000,7 @@ class Tracker:
         of, or None: of those whose look in a camera both were seen by lies within
         recognition_distance of track i's and whose position's uncertainty holds track i's
         position (squared Mahalanobis distance within the gate), the nearest in look."""
-        mine = self._looks.get(self._ids[i])
-        if not mine:
+        if self._ids[i] not in self._looks:
             return None
         rows = np.arange(len(self._ids))
         waiting = self._waiting(rows)
@@ -1293,20 +1008,14 @@ class Tracker:
         for j in np.flatnonzero(waiting).tolist():
             if j == i or self._kinds[j] not in (self._kinds[i], "unknown"):
                 continue
-            theirs = self._looks[self._ids[j]]
-            common = [c for c in mine if c in theirs and theirs[c].shape == mine[c].shape]
-            if not common:
-                continue
-            d = min(
-                float(appearance_distance(mine[c][None], theirs[c][None])[0, 0]) for c in common
-            )
-            was = self._last_xy.get(self._ids[j])
-            if was is None or d > best_d:
+            d = self._looks.distance(self._ids[i], self._ids[j])
+            was = self._looks.last_position(self._ids[j])
+            if d is None or was is None or d > best_d:
                 continue
             # A walker covers at most WALKING_SPEED in each second since the lost track's last
             # update, plus three standard deviations of where the new track puts them.
             reach = WALKING_SPEED * (self._first[i] - self._last[j]) + 3.0 * math.sqrt(
-                float(_largest_variance(self._P[i, :2, :2]))
+                float(largest_variance(self._P[i, :2, :2]))
             )
             if float(np.linalg.norm(self._x[i, :2] - was)) <= reach:
                 best, best_d = j, d
@@ -1323,7 +1032,7 @@ class Tracker:
         self._moved[j] = self._moved[i]
         self._height[j] = self._height[i]
         self._gap[j] = self._gap[i]
-        self._looks[self._ids[j]].update(self._looks.get(self._ids[i], {}))
+        self._looks.inherit(self._ids[j], self._ids[i])
         self._recognised_ids.append(self._ids[j])
 
     def _manage(self) -> tuple[tuple[TrackSnapshot, ...], tuple[int, ...]]:
@@ -1355,7 +1064,7 @@ class Tracker:
             if silent > cfg.coast_after:
                 self._states[i] = TrackState.COASTING
             if self._states[i] is TrackState.COASTING:
-                worst = float(_largest_variance(self._P[i, :2, :2]))
+                worst = float(largest_variance(self._P[i, :2, :2]))
                 if self._labels[i] is not None:
                     # A labelled body is known by its label, not found by its position: its
                     # track waits for the label to come back however vague it has become.
@@ -1388,7 +1097,5 @@ class Tracker:
             ):
                 old = getattr(self, name)
                 setattr(self, name, [old[i] for i in idx.tolist()])
-            for tid in (*dropped, *(snap.id for snap in ended)):
-                self._looks.pop(tid, None)
-                self._last_xy.pop(tid, None)
+            self._looks.forget((*dropped, *(snap.id for snap in ended)))
         return tuple(ended), tuple(dropped)
