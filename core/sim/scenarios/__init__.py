@@ -28,7 +28,8 @@ import math
 from collections.abc import Callable
 
 from core.errors import InvalidInput
-from core.sim.network_drive import MarkerDrive, PoseErrors, calibration_errors
+from core.sim.network_drive import MarkerDrive
+from core.sim.network_errors import PoseErrors, calibration_errors
 from core.sim.scenarios.floor_localization import localization, localization_images
 from core.sim.scenarios.landmark_pose import LandmarkPoseResult, landmark_pose
 from core.sim.scenarios.landmark_reading import LandmarkReadingResult, landmark_reading
