@@ -719,7 +719,7 @@ def projector_calibration(
     truth = twin_projector(scene, seed)
     nominal = nominal_projector(scene)
     if cameras is None:
-        from core.sim.scenarios.multi_target_tracking import calibrated_cameras
+        from core.sim.network_cameras import calibrated_cameras
 
         cameras = list(calibrated_cameras(scene, seed).cameras)
     grid = occupancy_grid(scene, 0.1, PLAN_RESOLUTION)
@@ -746,7 +746,7 @@ def projector_calibration(
     ok = located.valid
     calib = calibrate_projector(nominal, q_cmd[ok], located.xy[ok], estimate_tilt_offset=True)
     pos_err, rot_err = mount_errors(calib.T_world_base, truth.T_world_base)
-    from core.sim.scenarios.multi_target_tracking import frame_alignment
+    from core.sim.network_cameras import frame_alignment
 
     T2 = frame_alignment(cameras, _true_cameras(scene, names))
     T4 = np.eye(4)
