@@ -7,6 +7,7 @@ how many cameras see a body's point (`cameras_seeing`, `seen_by_any`).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -19,10 +20,13 @@ from core.sim.scene import Scene
 Array = NDArray[np.float64]
 
 
-def true_cameras(scene: Scene) -> list[NetworkCamera]:
-    """Return the twin's true cameras, for simulating what they see and for scoring only."""
+def true_cameras(scene: Scene, names: Sequence[str] | None = None) -> list[NetworkCamera]:
+    """Return the twin's true cameras (the scene's, or those called `names` in that order), for
+    simulating what they see and for scoring only: the true lenses form the images (physics,
+    not an estimate)."""
+    specs = scene.cameras if names is None else [scene.camera(n) for n in names]
     out = []
-    for spec in scene.cameras:
+    for spec in specs:
         m = camera_model(spec)
         out.append(
             NetworkCamera.from_pose(m.K, m.dist, m.T_world_camera, (m.width, m.height), m.name)
