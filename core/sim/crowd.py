@@ -23,6 +23,9 @@ the walk is a deterministic function of time: `positions(times)` steps the grid 
 needed and interpolates between grid instants. The crowd keeps `keep_s` seconds of history
 behind the newest step it took (a twin may run for days); a query older than that starts the
 walk again from time 0, which gives the same answer.
+
+`crowd_around` puts the scene's robot, driving a given drive, into the crowd with right of way
+(the walkers give way to it); `robot_poses` is where it then is.
 """
 
 from __future__ import annotations
@@ -299,6 +302,8 @@ def crowd_of(people: Sequence[Walker]) -> Crowd:
 
 
 def walkers_at(scene: Scene, times: Array) -> Array:
+    """Return the scene's walkers' floor positions (N, B, 2) at `times` (N,) s, as their shared
+    crowd walks them (no robot among them)."""
     return crowd_of(scene.people).positions(times)
 
 
