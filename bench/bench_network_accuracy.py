@@ -28,13 +28,10 @@ import numpy as np
 
 from core.calibration.network import OdometryPrior
 from core.sim import Renderer, default_scene
-from core.sim.network_drive import (
-    Drive,
-    MarkerObservations,
-    bound_for,
-    drive_and_observe,
-    show_chessboard,
-)
+from core.sim.board_session import show_chessboard
+from core.sim.calibration_drive import Drive
+from core.sim.marker_observations import MarkerObservations
+from core.sim.network_drive import bound_for, drive_and_observe
 from core.sim.scenarios.network import accuracy_study, network_calibration
 from core.sim.scenarios.records import AccuracyRow
 from core.sim.scene import raise_mast

@@ -23,6 +23,9 @@ the walk is a deterministic function of time: `positions(times)` steps the grid 
 needed and interpolates between grid instants. The crowd keeps `keep_s` seconds of history
 behind the newest step it took (a twin may run for days); a query older than that starts the
 walk again from time 0, which gives the same answer.
+
+`crowd_around` puts the scene's robot, driving a given drive, into the crowd with right of way
+(the walkers give way to it); `robot_poses` is where it then is.
 """
 
 from __future__ import annotations
@@ -36,7 +39,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from core.errors import InvalidInput
-from core.sim.scene import Walker
+from core.sim.scene import Scene, Walker
 
 Array = NDArray[np.float64]
 
@@ -296,3 +299,28 @@ def crowd_of(people: Sequence[Walker]) -> Crowd:
     """Return the (shared, cached) crowd of these walkers: scenarios, the renderer's callers and
     the scoring all ask it for the same walk."""
     return _crowd(tuple(w.model_dump_json() for w in people))
+
+
+def walkers_at(scene: Scene, times: Array) -> Array:
+    """Return the scene's walkers' floor positions (N, B, 2) at `times` (N,) s, as their shared
+    crowd walks them (no robot among them)."""
+    return crowd_of(scene.people).positions(times)
+
+
+def crowd_around(scene: Scene, drive: Array) -> Crowd:
+    """Return the scene's walkers and its robot, which drives `drive` (poses (N, 3) every
+    0.05 s from time 0), as one crowd: the robot first (right of way; it stops only for
+    someone in its way), then the walkers, giving way to it and to each other."""
+    if scene.robot is None:
+        return crowd_of(scene.people)
+    tt = np.arange(len(drive)) * 0.05
+    return Crowd(scene.people, vehicles=[(tt, drive[:, :2], scene.robot.base_radius)])
+
+
+def robot_poses(crowd: Crowd, drive: Array, times: Array) -> Array:
+    """Return the robot's poses (N, 3) at `times` in a crowd_around crowd: its drive's poses
+    at its script times (the drive held while it waits for somebody)."""
+    s = crowd.script_times(times)[:, 0]
+    tt = np.arange(len(drive)) * 0.05
+    yaw = np.unwrap(drive[:, 2])
+    return np.column_stack([np.interp(s, tt, c) for c in (drive[:, 0], drive[:, 1], yaw)])

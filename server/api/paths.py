@@ -16,6 +16,7 @@ from typing import Annotated
 from fastapi import APIRouter, Path, Query, status
 from sqlalchemy import select
 
+from core.sim.spot_following import PLAN_MARGIN
 from server.api._crud import get_or_404, paginate
 from server.api.deps import (
     FollowTasksDep,
@@ -114,7 +115,7 @@ def get_floor_plan(
         walls=drawing.walls,
         furniture=drawing.furniture,
         robot_radius_m=radius,
-        clearance_m=radius + service.nav.PLAN_MARGIN,
+        clearance_m=radius + PLAN_MARGIN,
     )
 
 

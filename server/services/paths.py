@@ -11,7 +11,7 @@ as the pan-tilt base pose T_world_base and the tilt offset of its applied calibr
 projector without a pose is uncalibrated.
 
 Following. A follow task runs the closed loop of the twin's `path-following` scenario
-(core.sim.scenarios.navigation.simulate_following) for one law on the path's trajectory, in a
+(core.sim.spot_following.simulate_following) for one law on the path's trajectory, in a
 background thread: the twin's true projector (its seeded mounting error) draws the spot from
 the commanded angles, the robot's floor camera sees it at 15 Hz with 100 ms latency (every
 frame rendered from the robot's true pose and the spot detected in it), and the
@@ -47,14 +47,29 @@ from core.navigation import (
     Limits,
     NoRoute,
     OccupancyGrid,
+    SpotFollower,
     occupancy_grid,
     plan_path,
     wall_spans,
 )
 from core.projector import JointTrajectory, PanTiltProjector, project_path
 from core.sim import Scene
+from core.sim.floor_camera import calibrate_floor_camera
+from core.sim.projector import nominal_projector, twin_projector
 from core.sim.render import Renderer
-from core.sim.scenarios import navigation as nav
+from core.sim.spot_following import (
+    CAMERA_LATENCY,
+    CAMERA_RATE,
+    CONTROL_DT,
+    CORNER_RADIUS,
+    PLAN_MARGIN,
+    PLAN_RESOLUTION,
+    SPOT_ACCELERATION,
+    SPOT_SPEED,
+    make_laws,
+    simulate_following,
+    start_pose,
+)
 from server.db.models import (
     PlannedPath,
     Projector,
@@ -187,8 +202,8 @@ def robot_radius_of(session: Session, space_id: int) -> float:
 def _grid(plan: Any, radius: float) -> OccupancyGrid:
     corners = np.array([p for r in plan.rooms for p in r.polygon], dtype=np.float64)
     area = float(np.prod(corners.max(0) - corners.min(0)))
-    resolution = max(nav.PLAN_RESOLUTION, math.sqrt(area / MAX_GRID_CELLS))
-    return occupancy_grid(plan, radius + nav.PLAN_MARGIN, resolution)
+    resolution = max(PLAN_RESOLUTION, math.sqrt(area / MAX_GRID_CELLS))
+    return occupancy_grid(plan, radius + PLAN_MARGIN, resolution)
 
 
 def _check_endpoint(plan: Any, grid: OccupancyGrid, p: np.ndarray, name: str, clear: float):
@@ -247,7 +262,7 @@ def projector_model(
     theta = np.array([0.0, tilt_offset_of(session, row)])
     try:
         if scene is not None and scene.projector is not None:
-            model = nav.nominal_projector(scene).with_pose(row.T_world_projector)
+            model = nominal_projector(scene).with_pose(row.T_world_projector)
         else:
             model = PanTiltProjector(np.asarray(row.T_world_projector, dtype=np.float64))
         return replace(model, theta=theta)
@@ -286,8 +301,8 @@ def draw(model: PanTiltProjector, points: np.ndarray, spot_speed: float) -> Join
         model,
         points,
         spot_speed,
-        spot_acceleration=nav.SPOT_ACCELERATION,
-        corner_radius=nav.CORNER_RADIUS,
+        spot_acceleration=SPOT_ACCELERATION,
+        corner_radius=CORNER_RADIUS,
     )
 
 
@@ -312,7 +327,7 @@ def plan(
     *,
     robot_radius: float,
     projector: Projector | None = None,
-    spot_speed: float = nav.SPOT_SPEED,
+    spot_speed: float = SPOT_SPEED,
 ) -> PlannedPath:
     """Plan, draw (with a projector) and store a path; return its row.
 
@@ -324,7 +339,7 @@ def plan(
     )
     grid = _grid(choice.plan, robot_radius)
     s, g = np.asarray(start, dtype=np.float64), np.asarray(goal, dtype=np.float64)
-    clear = robot_radius + nav.PLAN_MARGIN
+    clear = robot_radius + PLAN_MARGIN
     _check_endpoint(choice.plan, grid, s, "start", clear)
     _check_endpoint(choice.plan, grid, g, "goal", clear)
     try:
@@ -427,8 +442,8 @@ def follow_view(row: PlannedPath, now: datetime | None = None) -> FollowRead:
     )
 
 
-def _law(name: str, limits: Limits) -> nav.SpotFollower:
-    for law in nav.make_laws(limits):
+def _law(name: str, limits: Limits) -> SpotFollower:
+    for law in make_laws(limits):
         if law.name == name:
             return law
     raise PathProblem(422, "law", f"unknown law {name!r}; one of {', '.join(LAWS)}")
@@ -515,21 +530,21 @@ class FollowTasks(JobEngine):
         robot = scene.robot
         assert robot is not None  # checked by start()
         traj = draw(model, points, speed)
-        truth = nav.twin_projector(scene, seed)
+        truth = twin_projector(scene, seed)
         renderer = Renderer(scene, supersample=1)
-        plane = nav.calibrate_floor_camera(np.random.default_rng([seed, 7]), renderer)
+        plane = calibrate_floor_camera(np.random.default_rng([seed, 7]), renderer)
         law = _law(law_name, Limits(robot.limits.max_speed, robot.limits.max_turn_rate))
 
         def report(progress: float, series: dict[str, list[float]]) -> None:
             lease.write(follow_progress=progress, follow_series=series)
 
         live = LiveSeries(traj.duration, report)
-        run = nav.simulate_following(
+        run = simulate_following(
             law,
             traj,
             truth,
             plane,
-            nav.start_pose(traj),
+            start_pose(traj),
             scene,
             seed,
             on_step=live.step,
@@ -545,8 +560,8 @@ class FollowTasks(JobEngine):
             lost_events=run.lost_events,
             duration_s=traj.duration,
             drawing_error_max_m=float(np.max(np.linalg.norm(drawn - traj.spot, axis=1))),
-            camera_hz=nav.CAMERA_RATE,
-            latency_s=nav.CAMERA_LATENCY,
+            camera_hz=CAMERA_RATE,
+            latency_s=CAMERA_LATENCY,
         )
         return result, series_of(run.time, run.error, run.pose, run.spot)
 
@@ -556,7 +571,7 @@ class FollowTasks(JobEngine):
         return super().shutdown(reason)
 
 
-SERIES_STEP = max(1, round(SERIES_DT / nav.CONTROL_DT))  # control steps between samples
+SERIES_STEP = max(1, round(SERIES_DT / CONTROL_DT))  # control steps between samples
 
 
 def series_of(
@@ -579,7 +594,7 @@ def series_of(
 
 
 class LiveSeries:
-    """The `on_step` of a follow run (core.sim.scenarios.navigation.simulate_following): keeps
+    """The `on_step` of a follow run (core.sim.spot_following.simulate_following): keeps
     the samples the stored series will hold and hands the series so far, with the progress
     (simulated time over the trajectory's `duration`, at most 1), to `report` at most every
     `every_s` seconds of wall time (default: the heartbeat's), so that `GET /paths/{id}` shows

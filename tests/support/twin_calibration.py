@@ -1,5 +1,5 @@
 """The `tracking` scene's network calibration, computed once by the project's own calibration
-(core.sim.scenarios.multi_target_tracking.calibrated_cameras: each camera's chessboard
+(core.sim.network_cameras.calibrated_cameras: each camera's chessboard
 calibration, the robot's marker drive, the registration by the signposts) and stored as test
 data, so a test that needs calibrated cameras does not redo a ~45 s drive.
 
@@ -19,6 +19,7 @@ import json
 from pathlib import Path
 
 from core.localization import NetworkCamera
+from core.sim.network_cameras import CalibratedCameras, calibrated_cameras
 from core.sim.scenarios import multi_target_tracking as ts
 from core.sim.scene import Scene
 
@@ -36,7 +37,7 @@ def scene_digest(scene: Scene) -> str:
     return hashlib.sha256(scene.model_dump_json().encode()).hexdigest()
 
 
-def stored_calibrated_cameras(scene: Scene, seed: int) -> ts.CalibratedCameras:
+def stored_calibrated_cameras(scene: Scene, seed: int) -> CalibratedCameras:
     """Return the stored calibration of `scene` for `seed`, exactly as calibrated_cameras
     returned it when it was stored (floats are written with repr, which round-trips)."""
     path = calibration_path(seed)
@@ -59,14 +60,14 @@ def stored_calibrated_cameras(scene: Scene, seed: int) -> ts.CalibratedCameras:
         )
         for c in data["cameras"]
     ]
-    return ts.CalibratedCameras(cameras, list(data["index"]), tuple(data["rejected"]))
+    return CalibratedCameras(cameras, list(data["index"]), tuple(data["rejected"]))
 
 
 def store_calibrated_cameras(scene: Scene, seed: int) -> Path:
     """Run the network calibration of `scene` for `seed` and store it; return the file."""
-    calibrated = ts.calibrated_cameras(scene, seed)
+    calibrated = calibrated_cameras(scene, seed)
     data = {
-        "made_by": "core.sim.scenarios.multi_target_tracking.calibrated_cameras",
+        "made_by": "core.sim.network_cameras.calibrated_cameras",
         "scene": "core.sim.scenarios.multi_target_tracking.tracking_scene()",
         "seed": seed,
         "scene_sha256": scene_digest(scene),

@@ -9,7 +9,7 @@
   shortens them.
 * `path-following`, `projector-calibration`: the projector drawing a planned path that the
   robot follows by three control laws, and the projector's mount calibrated from spots seen by
-  the ceiling cameras (core.sim.scenarios.navigation).
+  the ceiling cameras (core.sim.scenarios.path_following, projector_calibration).
 * `landmark-pose`, `landmark-reading`, `landmark-survey`: object marks and signposts located
   and read by the robot's head camera, reading by PBVS, and the survey that builds the maps
   (core.sim.scenarios.landmark_pose, landmark_reading, landmark_survey).
@@ -28,25 +28,25 @@ import math
 from collections.abc import Callable
 
 from core.errors import InvalidInput
-from core.sim.network_drive import MarkerDrive, PoseErrors, calibration_errors
+from core.sim.network_drive import MarkerDrive
+from core.sim.network_errors import PoseErrors, calibration_errors
 from core.sim.scenarios.floor_localization import localization, localization_images
 from core.sim.scenarios.landmark_pose import LandmarkPoseResult, landmark_pose
 from core.sim.scenarios.landmark_reading import LandmarkReadingResult, landmark_reading
 from core.sim.scenarios.landmark_survey import LandmarkSurveyResult, landmark_survey
 from core.sim.scenarios.manipulation import grasp, hand_eye
 from core.sim.scenarios.multi_target_tracking import TrackingResult, tracking, tracking_async
-from core.sim.scenarios.navigation import (
-    PathFollowingResult,
-    ProjectorCalibrationResult,
-    path_following,
-    projector_calibration,
-)
 from core.sim.scenarios.network import (
     accuracy_study,
     board_mounting,
     mount_board,
     network_calibration,
     network_calibration_board,
+)
+from core.sim.scenarios.path_following import PathFollowingResult, path_following
+from core.sim.scenarios.projector_calibration import (
+    ProjectorCalibrationResult,
+    projector_calibration,
 )
 from core.sim.scenarios.records import (
     AccuracyRow,

@@ -9,7 +9,7 @@ Both give the estimators the twin's *true* cameras (their records say `"cameras_
 "truth"`): they measure the estimators alone, against the Cramer-Rao bound of the same
 cameras, with no calibration error in the way. What a calibrated home achieves is measured by
 the scenarios that locate on the installed calibration (`tracking`, `tracking-async`,
-`projector-calibration`: core.sim.scenarios.multi_target_tracking.calibrated_cameras).
+`projector-calibration`: core.sim.network_cameras.calibrated_cameras).
 """
 
 from __future__ import annotations

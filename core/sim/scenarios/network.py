@@ -35,18 +35,16 @@ from core.calibration.network import (
 from core.errors import InvalidInput, PatternNotFound
 from core.geometry.camera import distort_normalized, undistort_points
 from core.sim._floor import free_floor_grid, inside
+from core.sim.board_session import BoardSession, show_chessboard
+from core.sim.marker_observations import robot_markers
 from core.sim.motion import Pose2D, WorldState, world_state
 from core.sim.network_drive import (
-    BoardSession,
     MarkerDrive,
-    aligned_errors,
     bound_for,
-    calibration_errors,
     drive_and_observe,
     drive_marker_calibration,
-    robot_markers,
-    show_chessboard,
 )
+from core.sim.network_errors import aligned_errors, calibration_errors
 from core.sim.network_registration import (
     SignpostRegistration,
     can_register,

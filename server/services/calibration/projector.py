@@ -101,17 +101,17 @@ def calibrate_projector_run(
 ) -> ProjectorRunResult:
     """Return the result of a projector calibration run (its inputs and options are the run's
     JSON columns): the twin's
-    `projector-calibration` scenario (core.sim.scenarios.navigation.projector_calibration)
+    `projector-calibration` scenario (core.sim.scenarios.projector_calibration)
     with the registry's calibrated cameras locating the spots."""
     # Imported here: a worker loads the twin's navigation scenarios only when it needs them.
     from core.sim import default_scene
-    from core.sim.scenarios import navigation as nav
+    from core.sim.scenarios.projector_calibration import projector_calibration
 
     scene = default_scene()
     cams = inputs["cameras"]
     progress("locating the spots", 0.1)
     cameras = [network_camera(c) for c in cams]
-    fit = nav.projector_calibration(
+    fit = projector_calibration(
         scene,
         int(options.get("seed", 0)),
         cameras=cameras,

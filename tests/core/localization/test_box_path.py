@@ -12,6 +12,7 @@ from core.calibration import place_camera
 from core.localization import DEFAULT_BOX_NOISE, box_foot, foot_on_axis
 from core.localization.detect import BodyModel
 from core.localization.detections import FrameDetection
+from core.sim.camera_frames import rendered_frames
 from core.sim.occluders import scene_occluders
 from core.sim.scenarios import multi_target_tracking as ts
 from tests.support.twin_calibration import stored_calibrated_cameras
@@ -24,7 +25,7 @@ MINUTES = 0.15
 
 def test_boxes_of_the_twins_walkers_track_like_the_pixel_path():
     scene = ts.tracking_scene()
-    # The home's network calibration for seed 17 as ts.calibrated_cameras computes it (the
+    # The home's network calibration for seed 17 as calibrated_cameras computes it (the
     # robot's marker drive and the signposts' registration, ~45 s), stored once by
     # tests/support/twin_calibration.py; the values are the ones computed here before (same
     # floats, so the same figures below). Nothing is easier for it: both paths still run on
@@ -32,7 +33,7 @@ def test_boxes_of_the_twins_walkers_track_like_the_pixel_path():
     # the same rendered walkers and the same tracker, and the bounds are unchanged. The file
     # is refused if the scene changes.
     calibrated = stored_calibrated_cameras(scene, SEED)
-    frames, drive = ts.rendered_frames(scene, SEED, calibrated, minutes=MINUTES)
+    frames, drive = rendered_frames(scene, SEED, calibrated, minutes=MINUTES)
     pixel_path = ts.track_rendered(scene, SEED, frames, drive, calibrated, minutes=MINUTES)
     # The same people as a box detector would give them: each person blob's box only (4
     # numbers, no silhouette), through the one box function and the camera's geometry, with

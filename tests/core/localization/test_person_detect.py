@@ -24,7 +24,7 @@ from core.localization.detect import BodyModel, PersonDetector, locate_body_axis
 from core.localization.ground import locate_ml, locate_monocular
 from core.sim import WorldState, default_scene, renderer_for, world_state
 from core.sim.installation import installed_calibration
-from core.sim.scenarios.multi_target_tracking import frame_alignment
+from core.sim.network_cameras import frame_alignment
 
 # The twin's walkers are rigid vertical cylinders: a whole cylinder's silhouette edges are
 # exactly the model's, so the shape and posture terms (which stand for real bodies) are zero.

@@ -12,26 +12,22 @@ from core.errors import InvalidInput
 from core.localization import NetworkCamera
 from core.navigation import AdaptiveLaw, Limits, detect_laser_spot, occupancy_grid, segment_is_free
 from core.projector import project_path
+from core.sim.floor_camera import FLOOR_CAMERA_EXPOSURE, calibrate_floor_camera, floor_camera_at
 from core.sim.motion import WorldState
+from core.sim.projector import nominal_projector, twin_projector
 from core.sim.render import Renderer, camera_model
-from core.sim.scenarios.navigation import (
+from core.sim.scenarios.path_following import path_following, plan_tour
+from core.sim.scenarios.projector_calibration import projector_calibration
+from core.sim.scene import default_scene
+from core.sim.spot_following import (
     CONTROL_DT,
     CORNER_RADIUS,
-    FLOOR_CAMERA_EXPOSURE,
     LOOKAHEAD,
     PLAN_MARGIN,
     SPOT_ACCELERATION,
-    calibrate_floor_camera,
-    floor_camera_at,
-    nominal_projector,
-    path_following,
-    plan_tour,
-    projector_calibration,
     simulate_following,
     start_pose,
-    twin_projector,
 )
-from core.sim.scene import default_scene
 
 
 @pytest.fixture(scope="module")

@@ -8,12 +8,9 @@ import pytest
 from core.calibration.detect import find_chessboard_on_background
 from core.errors import InvalidInput, PatternNotFound
 from core.sim import Pose2D, Renderer, SensorNoise, WorldState, default_scene
-from core.sim.network_drive import (
-    drive_and_observe,
-    drive_stops,
-    plan_stops,
-    show_chessboard,
-)
+from core.sim.board_session import show_chessboard
+from core.sim.calibration_drive import drive_stops, plan_stops
+from core.sim.network_drive import drive_and_observe
 from core.sim.scenarios import (
     SCENARIOS,
     board_mounting,

@@ -333,7 +333,7 @@ def test_non_convex_room_seen_from_straight_above() -> None:
 
 def test_a_shown_board_is_rendered_where_its_pose_puts_it(home: Renderer) -> None:
     from core.calibration.detect import Chessboard, board_object_points, find_chessboard
-    from core.sim.network_drive import HANDHELD_BOARD
+    from core.sim.board_session import HANDHELD_BOARD
 
     cam = home.camera("cam_kitchen")
     board = HANDHELD_BOARD

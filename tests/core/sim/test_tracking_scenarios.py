@@ -11,9 +11,11 @@ import pytest
 from core.errors import InvalidInput
 from core.localization.tracking import TrackerConfig
 from core.sim import crowd
+from core.sim.crowd import crowd_around, robot_poses
 from core.sim.motion import simulate_patrol, walker_positions
 from core.sim.scenarios import multi_target_tracking as ts
 from core.sim.scene import Walker
+from core.sim.tracking_score import TrackLog, score_tracks
 
 # Seeds 0 and 3 chose the tracker's settings; this one was not looked at before (more seeds,
 # ten minutes each, come from `intspace sim run tracking-async --json`).
@@ -72,13 +74,13 @@ def test_score_counts_a_swap_and_a_false_track():
     b = np.column_stack([t, np.full_like(t, 2.0)])
     truth = np.stack([a, b], axis=1)
     half = t < 1.0
-    log = ts.TrackLog()
+    log = TrackLog()
     log.points[1] = [(ti, *(a[i] if half[i] else b[i])) for i, ti in enumerate(t)]
     log.points[2] = [(ti, *(b[i] if half[i] else a[i])) for i, ti in enumerate(t)]
     log.points[3] = [(ti, 10.0, 10.0) for ti in t]
     for k in (1, 2, 3):
         log.confirmed_at[k] = 0.0
-    score = ts.score_tracks(t, truth, log)
+    score = score_tracks(t, truth, log)
     assert score.id_switches == 2
     assert score.false_positives == t.size and score.misses == 0
     assert score.max_live_targets == 3 and score.rmse_m == 0.0
@@ -134,7 +136,7 @@ def test_the_scenario_people_and_robot_cross_without_touching():
     assert scene.robot is not None
     t = np.arange(0.0, 300.0, 0.1)
     drive = np.asarray(simulate_patrol(scene.robot, 301.0, dt=0.05, rng=4).pose)
-    walk = ts.crowd_around(scene, drive)
+    walk = crowd_around(scene, drive)
     xy = walk.positions(t)  # the robot, then the walkers
     r = np.array([scene.robot.base_radius] + [w.radius for w in scene.people])
     for i, j in itertools.combinations(range(len(r)), 2):
@@ -144,5 +146,5 @@ def test_the_scenario_people_and_robot_cross_without_touching():
     d_alone = np.linalg.norm(alone[:, 0] - alone[:, 1], axis=1)
     assert d_alone.min() < r[1] + r[2]  # the scripts alone do collide: the test can fail
     assert walk.overlap_s == 0.0
-    robot = ts.robot_poses(walk, drive, t)
+    robot = robot_poses(walk, drive, t)
     np.testing.assert_allclose(robot[:, :2], xy[:, 0], rtol=0, atol=1e-12)

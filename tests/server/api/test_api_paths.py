@@ -12,10 +12,20 @@ from shapely.geometry import LineString, Point, Polygon
 
 from core.calibration.projector import mount_errors
 from core.localization import NetworkCamera
-from core.navigation import Limits
-from core.projector import PanTiltProjector
+from core.navigation import AdaptiveLaw, Limits
+from core.projector import PanTiltProjector, project_path
 from core.sim import Renderer, default_scene
-from core.sim.scenarios import navigation as nav
+from core.sim.floor_camera import calibrate_floor_camera
+from core.sim.projector import nominal_projector, twin_projector
+from core.sim.scenarios.projector_calibration import projector_calibration
+from core.sim.spot_following import (
+    CORNER_RADIUS,
+    LOOKAHEAD,
+    PLAN_MARGIN,
+    SPOT_ACCELERATION,
+    simulate_following,
+    start_pose,
+)
 from server.db.models import PlannedPath
 from server.services import paths as paths_service
 from server.services.paths import FOLLOW_LEASES, follow_view
@@ -110,7 +120,7 @@ def test_plan_in_the_twin_home_with_the_projector_trajectory(client, admin):
     # The robot's radius (the scene's robot, 0.2 m) plus the 5 cm planning margin: every
     # segment keeps that far from every wall surface and furniture footprint, checked by
     # shapely on the scene's own geometry (independent of the planner's grid).
-    clearance = SCENE.robot.base_radius + nav.PLAN_MARGIN
+    clearance = SCENE.robot.base_radius + PLAN_MARGIN
     assert path["robot_radius_m"] == SCENE.robot.base_radius
     line = LineString(points)
     for geometry, half in _obstacles():
@@ -297,28 +307,28 @@ def test_follow_on_the_twin(client, admin, monkeypatch):
     # The service runs the core's closed loop: the same run straight from core (same seed, same
     # trajectory) gives the same errors.
     scene = SCENE
-    model = nav.nominal_projector(scene).with_pose(
+    model = nominal_projector(scene).with_pose(
         client.get(f"/api/v1/projectors/{projector}", headers=admin).json()["T_world_projector"]
     )
-    traj = nav.project_path(
+    traj = project_path(
         model,
         np.asarray(path["points"]),
         0.3,
-        spot_acceleration=nav.SPOT_ACCELERATION,
-        corner_radius=nav.CORNER_RADIUS,
+        spot_acceleration=SPOT_ACCELERATION,
+        corner_radius=CORNER_RADIUS,
     )
-    law = nav.AdaptiveLaw(
-        nav.LOOKAHEAD, Limits(scene.robot.limits.max_speed, scene.robot.limits.max_turn_rate)
+    law = AdaptiveLaw(
+        LOOKAHEAD, Limits(scene.robot.limits.max_speed, scene.robot.limits.max_turn_rate)
     )
     # Both render every floor-camera frame (a renderer of their own: the same images).
     renderer = Renderer(scene, supersample=1)
-    plane = nav.calibrate_floor_camera(np.random.default_rng([3, 7]), renderer)
-    run = nav.simulate_following(
+    plane = calibrate_floor_camera(np.random.default_rng([3, 7]), renderer)
+    run = simulate_following(
         law,
         traj,
-        nav.twin_projector(scene, 3),
+        twin_projector(scene, 3),
         plane,
-        nav.start_pose(traj),
+        start_pose(traj),
         scene,
         3,
         renderer=renderer,
@@ -384,7 +394,7 @@ def test_projector_calibration_run_on_the_twin(client, admin, run_waiter):
         )
         for c in listed
     ]
-    direct = nav.projector_calibration(SCENE, 2, cameras=cameras, images=False)
+    direct = projector_calibration(SCENE, 2, cameras=cameras, images=False)
     assert np.allclose(result["T_world_projector"], direct.model.T_world_base, atol=1e-9)
     assert result["spots"] == direct.spots >= 12
     # Against the twin's true mount (seed 2 puts it 5.2 cm and 2.19 deg off the nominal): the
@@ -392,10 +402,8 @@ def test_projector_calibration_run_on_the_twin(client, admin, run_waiter):
     # error (the installed camera calibration's, twice the 1 cm of the spec's bound), most of
     # it a common frame error of the cameras' own calibration; with that removed (aligned), the
     # mount is within 2 cm and 0.2 deg of the truth.
-    truth = nav.twin_projector(SCENE, 2)
-    _, nominal_rotation = mount_errors(
-        nav.nominal_projector(SCENE).T_world_base, truth.T_world_base
-    )
+    truth = twin_projector(SCENE, 2)
+    _, nominal_rotation = mount_errors(nominal_projector(SCENE).T_world_base, truth.T_world_base)
     errors = result["twin_errors"]
     assert errors["rotation_deg"] < nominal_rotation / 2
     assert errors["aligned_position_m"] < 0.02 and errors["aligned_rotation_deg"] < 0.2

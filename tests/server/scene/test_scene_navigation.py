@@ -8,7 +8,7 @@ import pytest
 
 from core.errors import InvalidInput
 from core.sim import default_scene
-from core.sim.scenarios.navigation import nominal_projector
+from core.sim.projector import nominal_projector
 from server.scene import ProjectorEntry
 from server.scene._geometry import matrix_from_quaternion
 

@@ -7,7 +7,7 @@ import numpy as np
 
 from core.manipulation import default_arm
 from core.sim import default_scene
-from core.sim.scenarios.navigation import nominal_projector
+from core.sim.projector import nominal_projector
 from server.db.models import CalibrationRun
 from server.scene import ProjectorEntry
 from server.scene._geometry import matrix_from_quaternion

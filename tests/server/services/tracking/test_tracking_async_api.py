@@ -16,7 +16,17 @@ from collections import Counter
 import numpy as np
 import pytest
 
+from core.sim.camera_frames import ASYNC_HEIGHT_M, ASYNC_NOISE_PX, async_camera_frames
+from core.sim.crowd import walkers_at
+from core.sim.network_cameras import calibrated_cameras, frame_alignment, seen_by_any, true_cameras
 from core.sim.scenarios import multi_target_tracking as ts
+from core.sim.tracking_score import (
+    POINT_TOLERANCE_S,
+    TrackLog,
+    score_tracks,
+    transformed,
+    truth_instants,
+)
 
 MINUTES = 2.0
 SEED = 17  # not a seed the tracker's settings were chosen on (those were 0 and 3)
@@ -48,9 +58,9 @@ def _register(client, admin, cameras) -> list[int]:
     return ids
 
 
-def _stored_tracks(client, admin) -> ts.TrackLog:
+def _stored_tracks(client, admin) -> TrackLog:
     """Return every target's stored track, paged back with `until`."""
-    log = ts.TrackLog()
+    log = TrackLog()
     targets = []
     offset = 0
     while True:
@@ -78,7 +88,7 @@ def _stored_tracks(client, admin) -> ts.TrackLog:
         log.points[target["id"]] = [(p["t"], p["xy"][0], p["xy"][1]) for p in points]
         log.confirmed_at[target["id"]] = points[0]["t"]
         if target["state"] == "ended":
-            log.ended_at[target["id"]] = points[-1]["t"] + ts.POINT_TOLERANCE_S
+            log.ended_at[target["id"]] = points[-1]["t"] + POINT_TOLERANCE_S
     return log
 
 
@@ -87,19 +97,19 @@ def test_unlabelled_detections_from_unsynchronised_cameras_become_tracks(client,
     scene = ts.tracking_scene()
     # The service knows the cameras as their network calibration placed them; the twin's true
     # cameras only make the images' points and score.
-    calibrated = ts.calibrated_cameras(scene, SEED).first(ts.ASYNC_CAMERAS)
-    truth = ts.true_cameras(scene)
+    calibrated = calibrated_cameras(scene, SEED).first(ts.ASYNC_CAMERAS)
+    truth = true_cameras(scene)
     ids = dict(zip(calibrated.index, _register(client, admin, calibrated.cameras), strict=True))
     rng = np.random.default_rng(SEED)
     duration = 60.0 * MINUTES
-    frames = [f for f in ts.async_camera_frames(scene, truth, duration, rng) if f.camera in ids]
+    frames = [f for f in async_camera_frames(scene, truth, duration, rng) if f.camera in ids]
 
     tracking = client.app.state.runtime.tracking
     t0 = float(np.ceil(time.time())) + 1.0  # the capture times: Unix seconds from now on
     clock = _Clock(t0 - 1.0)
     tracking._clock = clock
     live_counts = []
-    sigma = ts.ASYNC_NOISE_PX
+    sigma = ASYNC_NOISE_PX
     submitted = tracking.frames_processed
     start = 0
     for batch_end in np.arange(BATCH_S, duration + BATCH_S, BATCH_S):
@@ -113,7 +123,7 @@ def test_unlabelled_detections_from_unsynchronised_cameras_become_tracks(client,
                 "pixel": px.tolist(),
                 "sigma_px": sigma,
                 "kind": "person",
-                "height": ts.ASYNC_HEIGHT_M,
+                "height": ASYNC_HEIGHT_M,
             }
             for f in frames[start:stop]
             for px in f.pixels
@@ -137,19 +147,19 @@ def test_unlabelled_detections_from_unsynchronised_cameras_become_tracks(client,
     client.app.state.runtime.targets.flush()
     log = _stored_tracks(client, admin)
 
-    truth_t, truth_xy = ts.truth_instants(scene, duration)
-    visible = ts._seen_by_any([truth[i] for i in ids], truth_xy, ts.ASYNC_HEIGHT_M)
+    truth_t, truth_xy = truth_instants(scene, duration)
+    visible = seen_by_any([truth[i] for i in ids], truth_xy, ASYNC_HEIGHT_M)
     truth_xy = np.where(visible[..., None], truth_xy, np.nan)
-    shifted = ts.TrackLog(
+    shifted = TrackLog(
         points={k: [(t - t0, x, y) for t, x, y in v] for k, v in log.points.items()},
         confirmed_at={k: v - t0 for k, v in log.confirmed_at.items()},
         ended_at={k: v - t0 for k, v in log.ended_at.items()},
     )
     # Scored in the calibrated frame: the frame's own rigid error (the calibration's gauge,
     # measured against the twin for scoring only) is the calibration's, not the service's.
-    T = ts.frame_alignment(calibrated.cameras, [truth[i] for i in ids])
-    shifted = ts.transformed(shifted, T)
-    score = ts.score_tracks(truth_t, truth_xy, shifted, truth_at=lambda t: ts._walkers_at(scene, t))
+    T = frame_alignment(calibrated.cameras, [truth[i] for i in ids])
+    shifted = transformed(shifted, T)
+    score = score_tracks(truth_t, truth_xy, shifted, truth_at=lambda t: walkers_at(scene, t))
     walkers = len(scene.people)
     # Spec 08's bars, at the scenario's conditions.
     assert score.idf1 >= 0.95, score
