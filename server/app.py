@@ -55,7 +55,7 @@ from server.services.comms.home import HomePublisher
 from server.services.comms.mqtt import BrokerUrl, MqttLink
 from server.services.jobs import LeasePolicy
 from server.services.ownership import SpaceLocks
-from server.services.paths import FollowTasks
+from server.services.path_following import FollowTasks
 from server.services.runs import RunExecutor
 from server.services.scene_sync import SceneSync
 from server.services.survey import TwinTaskRunner

@@ -16,7 +16,7 @@ from server.security import AuthFailureLimiter
 from server.services.auth import TokenCache
 from server.services.camera_health import CameraHealthBook
 from server.services.frames import LatestFrames
-from server.services.paths import FollowTasks
+from server.services.path_following import FollowTasks
 from server.services.scene_sync import SceneSync
 from server.services.targets import LiveTargets
 from server.settings import Settings

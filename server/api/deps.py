@@ -38,7 +38,7 @@ from server.services.comms.frigate import FrigateSource
 from server.services.comms.home import HomePublisher
 from server.services.frames import LatestFrames
 from server.services.manipulation import TaskRunner
-from server.services.paths import FollowTasks
+from server.services.path_following import FollowTasks
 from server.services.runs import RunExecutor
 from server.services.scene_sync import SceneSync
 from server.services.targets import LiveTargets

@@ -5,7 +5,8 @@ draws it (core.projector); `POST /paths/{id}/follow` starts the follow task on t
 twin, whose status, progress, metrics and series (tracking error, robot pose, spot)
 `GET /paths/{id}` returns, the series so far while the task runs (poll it).
 `GET /projectors/{id}/calibrations` lists a projector's history, beside the paths it draws.
-server.services.paths has the rules.
+server.services.paths (planning) and server.services.path_following (follow tasks) have the
+rules.
 """
 
 from __future__ import annotations
@@ -42,6 +43,7 @@ from server.schemas.paths import (
 )
 from server.services import paths as service
 from server.services.floor_plan import twin_scene_of
+from server.services.path_following import follow_view
 from server.services.scene_sync import SceneSync
 
 log = logging.getLogger(__name__)
@@ -71,7 +73,7 @@ def path_read(row: PlannedPath) -> PathRead:
         "spot_speed_mps": row.spot_speed_mps,
         "projector_model": row.projector_model,
         "trajectory": row.trajectory,
-        "follow": service.follow_view(row),
+        "follow": follow_view(row),
         "created_at": row.created_at,
     }
     return PathRead.model_validate(view)

@@ -347,7 +347,7 @@ class NavigationEdge(Timestamped, Base):
     via: Mapped[str] = mapped_column(String(20))
 
 
-# Status values of a path's follow task (server.services.paths).
+# Status values of a path's follow task (server.services.path_following).
 FOLLOW_STATUSES = ("idle", "running", "succeeded", "failed", "interrupted")
 
 

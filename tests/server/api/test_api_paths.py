@@ -27,8 +27,8 @@ from core.sim.spot_following import (
     start_pose,
 )
 from server.db.models import PlannedPath
-from server.services import paths as paths_service
-from server.services.paths import FOLLOW_LEASES, follow_view
+from server.services import path_following
+from server.services.path_following import FOLLOW_LEASES, follow_view
 from server.services.twin import bootstrap_space
 from tests.support.waiting import task_progress, wait_while_advancing
 
@@ -293,7 +293,7 @@ def _follow(client, admin, path_id: int, law: str, live: list | None = None) -> 
 def test_follow_on_the_twin(client, admin, monkeypatch):
     # The series so far is written every 0.5 s of wall time; every 50 ms here, so that the
     # polls below see the run's partial series however fast the machine runs it.
-    monkeypatch.setattr(paths_service, "_HEARTBEAT_S", 0.05)
+    monkeypatch.setattr(path_following, "_HEARTBEAT_S", 0.05)
     space, projector = _register_home(client, admin)
     # A straight 2.7 m across the living room (a short run keeps the test quick).
     body = {"space_id": space, "start": START, "goal": [3.5, 1.6], "projector_id": projector}

@@ -17,7 +17,7 @@ from server.db.models import PlannedPath, Space, Task
 from server.db.session import make_engine, make_session_factory
 from server.services.jobs import JobCancelled, Lease, LeasePolicy, lease_expired, release_expired
 from server.services.manipulation import TaskRunner
-from server.services.paths import FOLLOW_LEASES, FOLLOWS, claim_follow
+from server.services.path_following import FOLLOW_LEASES, FOLLOWS, claim_follow
 
 
 @pytest.fixture
