@@ -856,9 +856,11 @@ class Tracker:
         sees it: on the floor, the other is nearer the camera, within two body radii of the
         line of sight at its own range, and near enough that its body (body_height tall) hides
         some of this one (from a camera at height H, a body at range d covers the floor out to
-        d H / (H - body_height)). Robots are too low to hide anybody."""
+        d H / (H - body_height)). Robots are too low to hide anybody, and a lost track
+        (`_waiting`) stands nowhere."""
         cfg = self.config
         others = np.array([k != "robot" for k in self._kinds], dtype=bool)
+        others &= ~self._waiting(np.arange(len(self._ids)))
         out = np.zeros(rows.size, dtype=bool)
         if others.sum() == 0:
             return out

@@ -79,7 +79,7 @@ def test_people_who_meet_and_turn_back_keep_their_identities():
     # Position alone cannot tell them apart where they turn: the case needs the cue (the
     # tracker swaps about half of these meetings without it).
     assert sum(by_position) >= 3, by_position
-    # A weight of 0 turns the cue off.
+    # A weight of 0 turns the cue off in association (recognition after a loss stays).
     off = [_swapped(s, TrackerConfig(appearance_weight=0.0)) for s in SEEDS]
     assert off == by_position
 
