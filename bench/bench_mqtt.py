@@ -192,11 +192,12 @@ def run_light(broker: Broker, seconds: float, rate_hz: float = 5.0, seed: int = 
     from core.sim import default_scene
     from core.sim.motion import world_state
     from server.db.session import make_engine, make_session_factory
+    from server.services.cameras import registry_cameras
     from server.services.comms.home import HomePublisher
     from server.services.comms.mqtt import BrokerUrl, MqttLink
     from server.services.targets import LiveTargets
     from server.services.tracking import DetectionIn, TrackingService
-    from server.services.twin import bootstrap_space, registry_cameras
+    from server.services.twin_home import bootstrap_space
     from server.services.zones import ZoneService, slugify
 
     folder = Path(tempfile.mkdtemp(prefix="bench-mqtt-light-"))
@@ -306,11 +307,12 @@ class _SoakService:
     def __init__(self, broker: Broker, top: int) -> None:
         from core.sim import default_scene
         from server.db.session import make_engine, make_session_factory
+        from server.services.cameras import registry_cameras
         from server.services.comms.home import HomePublisher
         from server.services.comms.mqtt import BrokerUrl, MqttLink
         from server.services.targets import LiveTargets
         from server.services.tracking import TrackingService
-        from server.services.twin import bootstrap_space, registry_cameras
+        from server.services.twin_home import bootstrap_space
         from server.services.zones import ZoneService
 
         self.folder = Path(tempfile.mkdtemp(prefix="bench-mqtt-soak-"))

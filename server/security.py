@@ -12,7 +12,9 @@ from collections.abc import Iterable
 from limits import RateLimitItem, parse
 from limits.storage import MemoryStorage
 from limits.strategies import MovingWindowRateLimiter
-from starlette.types import ASGIApp, Message, Receive, Scope, Send
+from starlette.types import Message, Receive, Scope, Send
+
+from server.middleware import HttpMiddleware
 
 # The proxied 3D scene (viser's single-file client) runs inline scripts, evaluates strings and
 # compiles WebAssembly; every other page, the dashboard and the API docs included, runs only
@@ -36,18 +38,12 @@ _COMMON = (
 )
 
 
-class SecurityHeaders:
+class SecurityHeaders(HttpMiddleware):
     """ASGI middleware adding X-Content-Type-Options, Referrer-Policy and a
     Content-Security-Policy (frame-ancestors 'self': only the service may frame its pages) to
     every HTTP response that does not set them itself."""
 
-    def __init__(self, app: ASGIApp) -> None:
-        self.app = app
-
-    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        if scope["type"] != "http":
-            await self.app(scope, receive, send)
-            return
+    async def http(self, scope: Scope, receive: Receive, send: Send) -> None:
         csp = SCENE_CSP if scope["path"].startswith(SCENE_PATH) else DASHBOARD_CSP
         extra = (*_COMMON, (b"content-security-policy", csp.encode("ascii")))
 

@@ -85,6 +85,15 @@ def paginate(session: Session, stmt: Select[Any], page: Pagination) -> dict[str,
     return {"items": items, "total": total or 0, "limit": page.limit, "offset": page.offset}
 
 
+def page_of(
+    session: Session, model: type[Base], column: Any, owner_id: int, page: Pagination
+) -> dict[str, Any]:
+    """Return a page of `model`'s rows whose `column` is `owner_id` (a camera's calibrations,
+    an arm's runs), newest first."""
+    stmt = select(model).where(column == owner_id).order_by(model.id.desc())  # type: ignore[attr-defined]
+    return paginate(session, stmt, page)
+
+
 def apply_changes(row: Base, changes: dict[str, Any]) -> None:
     """Set the given attributes on `row`."""
     for key, value in changes.items():

@@ -9,7 +9,7 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Path, Query, status
 from sqlalchemy import select
 
-from server.api._crud import apply_changes, check_references, get_or_404, paginate
+from server.api._crud import apply_changes, check_references, get_or_404, page_of, paginate
 from server.api.deps import PageDep, ReadAccess, SessionDep, WriteAccess
 from server.api.errors import PROBLEM_RESPONSES, FieldProblem
 from server.db.models import Arm, CalibrationRun, Camera, HandEyeCalibration, Robot
@@ -124,12 +124,7 @@ def delete_arm(arm_id: ArmId, session: SessionDep) -> None:
 def list_hand_eye_calibrations(arm_id: ArmId, session: SessionDep, page: PageDep):
     """Return the arm's hand-eye history (the runs applied to it), newest first."""
     get_or_404(session, Arm, arm_id, "arm")
-    stmt = (
-        select(HandEyeCalibration)
-        .where(HandEyeCalibration.arm_id == arm_id)
-        .order_by(HandEyeCalibration.id.desc())
-    )
-    return paginate(session, stmt, page)
+    return page_of(session, HandEyeCalibration, HandEyeCalibration.arm_id, arm_id, page)
 
 
 @router.get(
@@ -140,9 +135,4 @@ def list_hand_eye_calibrations(arm_id: ArmId, session: SessionDep, page: PageDep
 def list_arm_runs(arm_id: ArmId, session: SessionDep, page: PageDep):
     """Return the arm's hand-eye calibration runs, newest first."""
     get_or_404(session, Arm, arm_id, "arm")
-    stmt = (
-        select(CalibrationRun)
-        .where(CalibrationRun.arm_id == arm_id)
-        .order_by(CalibrationRun.id.desc())
-    )
-    return paginate(session, stmt, page)
+    return page_of(session, CalibrationRun, CalibrationRun.arm_id, arm_id, page)

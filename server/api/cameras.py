@@ -17,6 +17,7 @@ from server.api._crud import (
     check_unique_name,
     get_or_404,
     in_space,
+    page_of,
     paginate,
 )
 from server.api.deps import (
@@ -148,12 +149,7 @@ def delete_camera(
 def list_camera_calibrations(camera_id: CameraId, session: SessionDep, page: PageDep):
     """Return the camera's calibration history, newest first."""
     get_or_404(session, Camera, camera_id, "camera")
-    stmt = (
-        select(CameraCalibration)
-        .where(CameraCalibration.camera_id == camera_id)
-        .order_by(CameraCalibration.id.desc())
-    )
-    return paginate(session, stmt, page)
+    return page_of(session, CameraCalibration, CameraCalibration.camera_id, camera_id, page)
 
 
 @router.get(

@@ -21,10 +21,11 @@ from fastapi.responses import JSONResponse
 from sqlalchemy.exc import DBAPIError, IntegrityError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.routing import Match, Mount
-from starlette.types import ASGIApp, Message, Receive, Scope, Send
+from starlette.types import Receive, Scope, Send
 
 from core.errors import IntspaceError
 from server.db.session import StorageFailure
+from server.middleware import HttpMiddleware, StartWatch
 from server.schemas.common import FieldError, Problem
 
 log = logging.getLogger(__name__)
@@ -163,30 +164,17 @@ def storage_problem(exc: BaseException) -> JSONResponse | None:
     return None
 
 
-class UnhandledErrors:
+class UnhandledErrors(HttpMiddleware):
     """ASGI middleware answering every unhandled error with a problem-details 500 carrying a
     request id (also in the X-Request-ID header), its traceback logged once under that id, and
     storage errors with 507/503 naming them; the connection stays open."""
 
-    def __init__(self, app: ASGIApp) -> None:
-        self.app = app
-
-    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        if scope["type"] != "http":
-            await self.app(scope, receive, send)
-            return
-        started = False
-
-        async def tracking_send(message: Message) -> None:
-            nonlocal started
-            if message["type"] == "http.response.start":
-                started = True
-            await send(message)
-
+    async def http(self, scope: Scope, receive: Receive, send: Send) -> None:
+        watch = StartWatch(send)
         try:
-            await self.app(scope, receive, tracking_send)
+            await self.app(scope, receive, watch)
         except Exception as exc:
-            if started:
+            if watch.started:
                 # Half an answer is out: nothing better than letting the server close it.
                 raise
             response = storage_problem(exc)

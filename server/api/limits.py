@@ -12,6 +12,7 @@ from fastapi import HTTPException
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from server.api.errors import FieldProblem, problem_response
+from server.middleware import HttpMiddleware, StartWatch
 
 MiB = 2**20
 
@@ -51,21 +52,18 @@ def _too_large(max_bytes: int) -> str:
     return f"the request body exceeds this endpoint's limit of {max_bytes} bytes"
 
 
-class RequestSizeLimit:
+class RequestSizeLimit(HttpMiddleware):
     """ASGI middleware answering 413 (problem JSON) to bodies over the endpoint's limit
     (`body_limit`, at most `max_bytes`). The refused body is read and dropped, up to
     `drain_bytes` (default `max_bytes`), so that the client's keep-alive connection stays
     usable; past that the server closes it."""
 
     def __init__(self, app: ASGIApp, max_bytes: int, drain_bytes: int | None = None) -> None:
-        self.app = app
+        super().__init__(app)
         self.max_bytes = max_bytes
         self.drain_bytes = max_bytes if drain_bytes is None else drain_bytes
 
-    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        if scope["type"] != "http":
-            await self.app(scope, receive, send)
-            return
+    async def http(self, scope: Scope, receive: Receive, send: Send) -> None:
         limit = body_limit(scope["method"], scope["path"], self.max_bytes)
         declared = dict(scope["headers"]).get(b"content-length")
         if declared is not None:
@@ -78,7 +76,6 @@ class RequestSizeLimit:
                 return
 
         received = 0
-        started = False
         ended = False
 
         async def limited_receive() -> Message:
@@ -91,16 +88,11 @@ class RequestSizeLimit:
                     raise _TooLarge(limit)
             return message
 
-        async def tracking_send(message: Message) -> None:
-            nonlocal started
-            if message["type"] == "http.response.start":
-                started = True
-            await send(message)
-
+        watch = StartWatch(send)
         try:
-            await self.app(scope, limited_receive, tracking_send)
+            await self.app(scope, limited_receive, watch)
         except _TooLarge:
-            if started:
+            if watch.started:
                 raise
             await self._reject(limit, received, scope, receive, send, ended=ended)
 

@@ -28,6 +28,7 @@ from server.api.errors import PROBLEM_RESPONSES, FieldProblem
 from server.api.server_time import SERVER_TIME_HEADER
 from server.schemas.localization import EmptyFrame, Observation, ObservationBatch, PositionBatch
 from server.services.auth import Principal
+from server.services.cameras import registry_cameras
 from server.services.observations import (
     ObservationRefused,
     camera_rows,
@@ -38,7 +39,6 @@ from server.services.observations import (
 )
 from server.services.targets import LiveTargets
 from server.services.tracking import TrackingService
-from server.services.twin import registry_cameras
 
 router = APIRouter(tags=["localization"], responses=PROBLEM_RESPONSES)
 

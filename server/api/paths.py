@@ -18,7 +18,7 @@ from fastapi import APIRouter, Path, Query, status
 from sqlalchemy import select
 
 from core.sim.spot_following import PLAN_MARGIN
-from server.api._crud import get_or_404, paginate
+from server.api._crud import get_or_404, page_of, paginate
 from server.api.deps import (
     FollowTasksDep,
     PageDep,
@@ -244,9 +244,6 @@ def list_projector_calibrations(
 ):
     """Return the projector's calibration history, newest first."""
     get_or_404(session, Projector, projector_id, "projector")
-    stmt = (
-        select(ProjectorCalibration)
-        .where(ProjectorCalibration.projector_id == projector_id)
-        .order_by(ProjectorCalibration.id.desc())
+    return page_of(
+        session, ProjectorCalibration, ProjectorCalibration.projector_id, projector_id, page
     )
-    return paginate(session, stmt, page)

@@ -11,23 +11,19 @@ from __future__ import annotations
 
 import time
 
-from starlette.types import ASGIApp, Message, Receive, Scope, Send
+from starlette.types import Message, Receive, Scope, Send
+
+from server.middleware import HttpMiddleware
 
 SERVER_TIME_HEADER = "X-Server-Time"
 _NAME = SERVER_TIME_HEADER.lower().encode("ascii")
 
 
-class ServerTime:
+class ServerTime(HttpMiddleware):
     """ASGI middleware adding X-Server-Time (the service's clock when the answer starts) to every
     HTTP response that does not set it itself."""
 
-    def __init__(self, app: ASGIApp) -> None:
-        self.app = app
-
-    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        if scope["type"] != "http":
-            await self.app(scope, receive, send)
-            return
+    async def http(self, scope: Scope, receive: Receive, send: Send) -> None:
 
         async def send_with_time(message: Message) -> None:
             if message["type"] == "http.response.start":

@@ -3,6 +3,7 @@ frame of its cameras."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Annotated
 
 import cv2
@@ -19,15 +20,17 @@ from server.services.twin import Twin
 router = APIRouter(tags=["twin"], responses=PROBLEM_RESPONSES)
 
 
-def _running(twin: Twin | None) -> Twin:
-    """Return the twin, refusing with 409 when it does not run."""
+def _control(twin: Twin | None, act: Callable[[Twin], object]) -> TwinState:
+    """Do `act` to the twin and return its state after, refusing with 409 when it does not
+    run."""
     if twin is None:
         raise HTTPException(
             status.HTTP_409_CONFLICT,
             detail="the digital twin is not running; start the service with "
             "INTSPACE_SIMULATION=true",
         )
-    return twin
+    act(twin)
+    return twin.state()
 
 
 @router.get("/twin", response_model=TwinState, dependencies=[ReadAccess])
@@ -39,33 +42,25 @@ def get_twin(twin: TwinDep) -> TwinState:
 @router.post("/twin/pause", response_model=TwinState, dependencies=[WriteAccess])
 def pause_twin(running: TwinDep) -> TwinState:
     """Hold the simulation."""
-    twin = _running(running)
-    twin.pause()
-    return twin.state()
+    return _control(running, Twin.pause)
 
 
 @router.post("/twin/resume", response_model=TwinState, dependencies=[WriteAccess])
 def resume_twin(running: TwinDep) -> TwinState:
     """Continue the simulation."""
-    twin = _running(running)
-    twin.resume()
-    return twin.state()
+    return _control(running, Twin.resume)
 
 
 @router.post("/twin/reset", response_model=TwinState, dependencies=[WriteAccess])
 def reset_twin(running: TwinDep) -> TwinState:
     """Put the robot at its start, the clock at zero and clear the live tracks."""
-    twin = _running(running)
-    twin.reset()
-    return twin.state()
+    return _control(running, Twin.reset)
 
 
 @router.post("/twin/rate", response_model=TwinState, dependencies=[WriteAccess])
 def set_twin_rate(body: TwinRate, running: TwinDep) -> TwinState:
     """Set the twin's frame rate (frames per second of every camera)."""
-    twin = _running(running)
-    twin.set_rate(body.rate_hz)
-    return twin.state()
+    return _control(running, lambda twin: twin.set_rate(body.rate_hz))
 
 
 @router.get("/twin/scenarios", response_model=list[Scenario], dependencies=[ReadAccess])

@@ -147,19 +147,16 @@ def _polygon(text: str) -> list[list[float]]:
     return vertices
 
 
+# The flags that set one camera's settings (a camera of a --config file has its own), copied as
+# given onto the camera of --source and --camera; --mask is one too, parsed first.
+_CAMERA_FLAGS = ("detector", "score_threshold", "min_person_px", "flip", "tile_px", "source_fps")
+
+
 def _config(args: argparse.Namespace):
     from server.node.config import CameraConfig, NodeConfig, load_config, parse_source
 
     if args.config is not None:
-        per_camera = (
-            "detector",
-            "score_threshold",
-            "min_person_px",
-            "flip",
-            "tile_px",
-            "source_fps",
-            "mask",
-        )
+        per_camera = (*_CAMERA_FLAGS, "mask")
         if args.source or args.camera or any(getattr(args, n) is not None for n in per_camera):
             raise InvalidInput(
                 "give --config, or --source and --camera (with their camera's flags), not both"
@@ -182,14 +179,7 @@ def _config(args: argparse.Namespace):
             "realtime": not args.fast,
             "masks": [_polygon(text) for text in args.mask or []],
         }
-        for name in (
-            "detector",
-            "score_threshold",
-            "min_person_px",
-            "flip",
-            "tile_px",
-            "source_fps",
-        ):
+        for name in _CAMERA_FLAGS:
             if getattr(args, name) is not None:
                 fields[name] = getattr(args, name)
         try:

@@ -1,11 +1,15 @@
 """A camera of the registry as the core camera the localisation takes: the one place a camera
 row (server.db.models.Camera, or the same fields stored in a run's inputs or sent as JSON)
-becomes a core.localization.NetworkCamera."""
+becomes a core.localization.NetworkCamera; and the registry's cameras of given ids as those
+core cameras, with the reason each unusable one cannot measure."""
 
 from __future__ import annotations
 
 from collections.abc import Mapping
 from typing import Any
+
+from sqlalchemy import select
+from sqlalchemy.orm import Session
 
 from core.errors import InvalidInput
 from core.localization import NetworkCamera
@@ -47,3 +51,23 @@ def network_camera(row: Camera | Mapping[str, Any]) -> NetworkCamera:
         (fields["width"], fields["height"]),
         name,
     )
+
+
+def registry_cameras(
+    session: Session, ids: list[int]
+) -> tuple[dict[int, NetworkCamera], dict[int, str]]:
+    """Return the NetworkCamera of each camera of `ids` that has K and a pose, and the reason
+    for each one that cannot be used."""
+    usable: dict[int, NetworkCamera] = {}
+    refused: dict[int, str] = {}
+    found = {c.id: c for c in session.scalars(select(Camera).where(Camera.id.in_(ids)))}
+    for camera_id in ids:
+        camera = found.get(camera_id)
+        if camera is None:
+            refused[camera_id] = f"no camera with id {camera_id}"
+            continue
+        try:
+            usable[camera_id] = network_camera(camera)
+        except CameraNotPlaced as exc:
+            refused[camera_id] = f"camera {camera_id} ({camera.name}) has no {exc.missing}"
+    return usable, refused

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 from sqlalchemy import delete, select
@@ -199,14 +199,21 @@ def navigation_map(session: Session, space_id: int) -> NavigationMap:
     return nav
 
 
+_Marked = TypeVar("_Marked", SemanticObject, NavigationPlace)
+
+
+def _stored_mark(
+    session: Session, model: type[_Marked], space_id: int, mark_id: int
+) -> _Marked | None:
+    """Return the row of `model` (an object or a place of the map) of mark `mark_id` in space
+    `space_id`, None when the map has none yet."""
+    return session.scalar(select(model).where(model.space_id == space_id, model.mark_id == mark_id))
+
+
 def _observe_object(session: Session, space_id: int, obs: MapObservation) -> str:
     record = obs.record
     assert isinstance(record, ObjectMark)
-    row = session.scalar(
-        select(SemanticObject).where(
-            SemanticObject.space_id == space_id, SemanticObject.mark_id == record.id
-        )
-    )
+    row = _stored_mark(session, SemanticObject, space_id, record.id)
     semantic = SemanticMap()
     if row is not None:
         # The stored entry enters as one read at its fused pose; the new read fuses into it
@@ -242,11 +249,7 @@ def _observe_object(session: Session, space_id: int, obs: MapObservation) -> str
 def _observe_place(session: Session, space_id: int, obs: MapObservation) -> str:
     record = obs.record
     assert isinstance(record, Signpost)
-    row = session.scalar(
-        select(NavigationPlace).where(
-            NavigationPlace.space_id == space_id, NavigationPlace.mark_id == record.id
-        )
-    )
+    row = _stored_mark(session, NavigationPlace, space_id, record.id)
     values = {
         "name": record.name,
         "room": record.room,

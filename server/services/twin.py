@@ -11,7 +11,8 @@ service's camera health book, as a camera node's heartbeat does for its cameras 
 frames skipped, the newest frame's time): a paused twin's cameras are stalled, a dead loop's
 offline.
 
-The twin's scene is also the calibration object of the "network" calibration runs.
+The twin's scene is also the calibration object of the "network" calibration runs. Its home's
+space in the registry is set up by server.services.twin_home.
 """
 
 from __future__ import annotations
@@ -24,23 +25,21 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from sqlalchemy import select
 from sqlalchemy.orm import Session, sessionmaker
 
 from core.localization import NetworkCamera
 from core.localization.detect import MarkerDetectorConfig, PersonDetector
 from core.localization.detections import detect_frame
 from core.sim import Scene, UnicycleBase, WorldState, world_state
-from core.sim.installation import installed_calibration
 from core.sim.motion import Patrol
 from core.sim.occluders import scene_occluders
-from core.sim.render import camera_model, renderer_for
-from server.db.models import Camera, CameraCalibration, Landmark, Projector, Robot, Room, Space
+from core.sim.render import renderer_for
 from server.schemas.registry import CameraHeartbeat
 from server.schemas.twin import TwinState
 from server.services._loop_thread import LoopThread
-from server.services.cameras import CameraNotPlaced, network_camera
+from server.services.cameras import registry_cameras
 from server.services.tracking import DetectionIn
+from server.services.twin_home import bootstrap_space, register_devices
 
 if TYPE_CHECKING:
     from server.services.camera_health import CameraHealthBook
@@ -50,8 +49,6 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-CAMERA_CALIBRATED = "calibrated"
-CAMERA_UNCALIBRATED = "uncalibrated"
 # Physics step of the robot base (s); the twin steps it as often as a frame period needs.
 _BASE_DT = 0.05
 # Pushes to the 3D scene (agents, tracks) and camera images, at most this often (Hz).
@@ -64,134 +61,6 @@ MAX_CATCH_UP_S = 1.0
 _IMAGE_HZ = 1.0
 # The frame rate reported as the cameras' health is measured over this many recent frames.
 _FPS_FRAMES = 10
-
-
-# --------------------------------------------------------------------------------------------
-# Registry bootstrap
-
-
-def bootstrap_space(session: Session, scene: Scene) -> tuple[int, dict[str, int]]:
-    """Create the space, rooms, cameras and robot of `scene` when the registry has no space
-    yet; return (space id, camera name -> id) of the space holding the scene's cameras.
-
-    The cameras get the home's installed calibration (core.sim.installation: each camera's own
-    chessboard calibration, then the robot's marker drive), status "calibrated", with the
-    entry in their history; a camera the drive could not place is registered uncalibrated.
-    The twin's true cameras never enter the registry."""
-    space = session.scalar(select(Space).order_by(Space.id).limit(1))
-    if space is None:
-        # Before the first write: a home that is not the shipped one is calibrated by its drive
-        # (minutes), which must not hold the database's write lock meanwhile.
-        session.rollback()
-        installed = {c.name: c for c in installed_calibration(scene).cameras}
-        space = Space(name=scene.name, description="the digital twin's home")
-        session.add(space)
-        session.flush()
-        for room in scene.rooms:
-            polygon = [[float(x), float(y)] for x, y in room.polygon]
-            session.add(Room(space_id=space.id, name=room.name, polygon=polygon))
-        for spec in scene.cameras:
-            # The resolution is the camera's own, known without calibration.
-            model = camera_model(spec)
-            cal = installed.get(spec.name)
-            camera = Camera(
-                space_id=space.id,
-                name=spec.name,
-                width=model.width,
-                height=model.height,
-                K=cal.K.tolist() if cal else None,
-                dist=cal.dist.tolist() if cal else None,
-                T_world_camera=cal.T_world_camera.tolist() if cal else None,
-                status=CAMERA_CALIBRATED if cal else CAMERA_UNCALIBRATED,
-            )
-            session.add(camera)
-            if cal is not None:
-                session.flush()
-                session.add(
-                    CameraCalibration(
-                        camera_id=camera.id,
-                        K=cal.K.tolist(),
-                        dist=cal.dist.tolist(),
-                        rms=None,
-                        image_width=model.width,
-                        image_height=model.height,
-                    )
-                )
-        if scene.robot is not None:
-            session.add(
-                Robot(
-                    space_id=space.id,
-                    name=scene.robot.name,
-                    kinematic_model={
-                        "model": "unicycle",
-                        "base_radius": scene.robot.base_radius,
-                        "base_height": scene.robot.base_height,
-                        "limits": scene.robot.limits.model_dump(),
-                    },
-                )
-            )
-        session.commit()
-    names = [c.name for c in scene.cameras]
-    rows = session.execute(
-        select(Camera.id, Camera.name).where(Camera.space_id == space.id, Camera.name.in_(names))
-    ).all()
-    return space.id, {name: id for id, name in rows}
-
-
-def register_devices(session: Session, space_id: int, scene: Scene) -> None:
-    """Register the scene's projector and printed landmarks in space `space_id` where they are
-    missing (a projector by name, a landmark by payload), so a restart adds nothing twice and
-    what a user changed stays.
-
-    What an installer knows is entered, not the twin's truth: the projector without a pose
-    (uncalibrated until a projector calibration run is applied) and the landmarks with their
-    kind, payload and printed size but no world pose (the survey locates them)."""
-    projector = scene.projector
-    if projector is not None:
-        known = session.scalar(
-            select(Projector.id).where(
-                Projector.space_id == space_id, Projector.name == projector.name
-            )
-        )
-        if known is None:
-            # A laser spot has no image: the registry's projector-as-camera is 1 x 1 pixels.
-            session.add(Projector(space_id=space_id, name=projector.name, width=1, height=1))
-    payloads = set(
-        session.scalars(select(Landmark.payload).where(Landmark.space_id == space_id)).all()
-    )
-    for landmark in scene.landmarks:
-        if landmark.payload and landmark.payload not in payloads:
-            session.add(
-                Landmark(
-                    space_id=space_id, kind="qr", payload=landmark.payload, size_m=landmark.size
-                )
-            )
-            payloads.add(landmark.payload)
-    session.commit()
-
-
-def registry_cameras(
-    session: Session, ids: list[int]
-) -> tuple[dict[int, NetworkCamera], dict[int, str]]:
-    """Return the NetworkCamera of each camera of `ids` that has K and a pose, and the reason
-    for each one that cannot be used."""
-    usable: dict[int, NetworkCamera] = {}
-    refused: dict[int, str] = {}
-    found = {c.id: c for c in session.scalars(select(Camera).where(Camera.id.in_(ids)))}
-    for camera_id in ids:
-        camera = found.get(camera_id)
-        if camera is None:
-            refused[camera_id] = f"no camera with id {camera_id}"
-            continue
-        try:
-            usable[camera_id] = network_camera(camera)
-        except CameraNotPlaced as exc:
-            refused[camera_id] = f"camera {camera_id} ({camera.name}) has no {exc.missing}"
-    return usable, refused
-
-
-# --------------------------------------------------------------------------------------------
-# The running twin
 
 
 @dataclass

@@ -29,7 +29,7 @@ from core.sim.spot_following import (
 from server.db.models import PlannedPath
 from server.services import path_following
 from server.services.path_following import FOLLOW_LEASES, follow_view
-from server.services.twin import bootstrap_space
+from server.services.twin_home import bootstrap_space
 from tests.support.waiting import task_progress, wait_while_advancing
 
 SCENE = default_scene()

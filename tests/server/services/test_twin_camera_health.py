@@ -14,7 +14,7 @@ from fastapi.testclient import TestClient
 from core.sim import default_scene
 from server.app import create_app
 from server.services.camera_health import STALLED_AFTER_S
-from server.services.twin import bootstrap_space, register_devices
+from server.services.twin_home import bootstrap_space, register_devices
 
 RATE_HZ = 4.0
 
