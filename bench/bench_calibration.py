@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -22,18 +21,7 @@ import numpy as np
 from core.calibration import calibrate_camera, intrinsics_from_homographies, pose_from_homography
 from core.geometry.camera import ReprojectionProblem, project_points
 from core.homography import dlt_homography
-
-DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "zhang1998"
-
-PUBLISHED = {
-    "alpha": (832.5, 1),
-    "gamma": (0.204494, 6),
-    "beta": (832.53, 2),
-    "u0": (303.959, 3),
-    "v0": (206.585, 3),
-    "k1": (-0.228601, 6),
-    "k2": (0.190353, 6),
-}
+from tests.support.zhang import DATA, PUBLISHED, decimals, read_zhang, zhang_values
 
 
 def synthetic_views(
@@ -135,20 +123,12 @@ def zhang_real_data() -> None:
     if not DATA.is_dir():
         print(f"Zhang's data not found at {DATA}; skipped")
         return
-    model = np.loadtxt(DATA / "Model.txt").reshape(-1, 2)
-    img = [np.loadtxt(DATA / f"data{i}.txt").reshape(-1, 2) for i in range(1, 6)]
+    model, img = read_zhang()
     c = calibrate_camera([model] * 5, img, (640, 480), skew=True, distortion="k1k2")
-    ours = {
-        "alpha": c.K[0, 0],
-        "gamma": c.K[0, 1],
-        "beta": c.K[1, 1],
-        "u0": c.K[0, 2],
-        "v0": c.K[1, 2],
-        "k1": c.dist[0],
-        "k2": c.dist[1],
-    }
+    ours = zhang_values(c)
     print("Zhang's real data (5 views x 256 points), skew and k1 k2, vs published")
-    for name, (pub, digits) in PUBLISHED.items():
+    for name, text in PUBLISHED.items():
+        pub, digits = float(text), decimals(text)
         mark = "ok" if round(ours[name], digits) == pub else "differs in the last digit"
         print(f"  {name:6s} ours {ours[name]:14.8f}  published {pub:<10}  {mark}")
     print(f"  rms {c.rms:.6f} px per point;  LM iterations {c.iterations}")

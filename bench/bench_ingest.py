@@ -22,30 +22,24 @@ from pathlib import Path
 import httpx
 import numpy as np
 
-from bench.bench_api import HEADERS, start_server
+from bench.bench_api import HEADERS, TOKEN
 from core.localization import NetworkCamera
+from tests.support.cameras import register_cameras
+from tests.support.room import ceiling_cameras
+from tests.support.service import running_service
 
 TARGET_PER_S = 5000.0
-K = [[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]]
 POSITIONS = ([0.0, 0.0, 2.8], [4.0, 0.0, 2.8], [4.0, 3.0, 2.8], [0.0, 3.0, 2.8])
 
 
 def register(base: str) -> tuple[list[int], list[NetworkCamera]]:
-    """Create the 4 cameras in the registry; return their ids and models."""
-    cams = [NetworkCamera.looking_at(K, None, p, [2.0, 1.5, 0.0], (640, 480)) for p in POSITIONS]
-    ids = []
-    with httpx.Client(headers=HEADERS) as client:
-        for k, cam in enumerate(cams):
-            body = {
-                "name": f"ingest-{k}",
-                "width": 640,
-                "height": 480,
-                "K": K,
-                "T_world_camera": cam.T_world_camera.tolist(),
-            }
-            response = client.post(f"{base}/cameras", json=body)
-            response.raise_for_status()
-            ids.append(response.json()["id"])
+    """Create the 4 cameras in the registry (no distortion known); return their ids and
+    models."""
+    cams = ceiling_cameras(POSITIONS, dist=None)
+    with httpx.Client() as client:
+        ids = register_cameras(
+            client, HEADERS, cams, prefix="ingest-", url=f"{base}/cameras", with_dist=False
+        )
     return ids, cams
 
 
@@ -74,49 +68,53 @@ def main() -> None:
     parser.add_argument("--duration", type=float, default=10.0, help="seconds of load")
     args = parser.parse_args()
 
-    with tempfile.TemporaryDirectory() as tmp:
-        process, base = start_server(Path(tmp))
-        try:
-            ids, cams = register(base)
-            rng = np.random.default_rng(0)
-            batches = [make_batch(ids, cams, args.batch, rng) for _ in range(8)]
-            latencies: list[float] = []
-            errors: list[float] = []
-            failures = [0]
-            lock = threading.Lock()
-            stop = time.monotonic() + args.duration
+    with (
+        tempfile.TemporaryDirectory() as tmp,
+        running_service(
+            Path(tmp),
+            token=TOKEN,
+            env={"INTSPACE_VISER_ENABLED": "false"},
+            args=("--log-level", "warning"),
+        ) as service,
+    ):
+        base = service.api
+        ids, cams = register(base)
+        rng = np.random.default_rng(0)
+        batches = [make_batch(ids, cams, args.batch, rng) for _ in range(8)]
+        latencies: list[float] = []
+        errors: list[float] = []
+        failures = [0]
+        lock = threading.Lock()
+        stop = time.monotonic() + args.duration
 
-            def client_loop(k: int) -> None:
-                headers = {**HEADERS, "Content-Type": "application/json"}
-                with httpx.Client(headers=headers, timeout=60) as client:
-                    i = k
-                    while time.monotonic() < stop:
-                        body, truth = batches[i % len(batches)]
-                        t0 = time.perf_counter()
-                        response = client.post(f"{base}/observations", content=body)
-                        dt = time.perf_counter() - t0
-                        with lock:
-                            if response.status_code != 200:
-                                failures[0] += 1
-                            else:
-                                latencies.append(dt)
-                                if i < len(batches):
-                                    xy = np.array([p["xy"] for p in response.json()["positions"]])
-                                    errors.extend(np.linalg.norm(xy - truth, axis=1).tolist())
-                        i += args.clients
+        def client_loop(k: int) -> None:
+            headers = {**HEADERS, "Content-Type": "application/json"}
+            with httpx.Client(headers=headers, timeout=60) as client:
+                i = k
+                while time.monotonic() < stop:
+                    body, truth = batches[i % len(batches)]
+                    t0 = time.perf_counter()
+                    response = client.post(f"{base}/observations", content=body)
+                    dt = time.perf_counter() - t0
+                    with lock:
+                        if response.status_code != 200:
+                            failures[0] += 1
+                        else:
+                            latencies.append(dt)
+                            if i < len(batches):
+                                xy = np.array([p["xy"] for p in response.json()["positions"]])
+                                errors.extend(np.linalg.norm(xy - truth, axis=1).tolist())
+                    i += args.clients
 
-            # Warm-up: the first request builds the camera cache.
-            httpx.post(f"{base}/observations", content=batches[0][0], headers=HEADERS, timeout=60)
-            t_start = time.monotonic()
-            threads = [threading.Thread(target=client_loop, args=(k,)) for k in range(args.clients)]
-            for t in threads:
-                t.start()
-            for t in threads:
-                t.join()
-            elapsed = time.monotonic() - t_start
-        finally:
-            process.terminate()
-            process.wait(timeout=20)
+        # Warm-up: the first request builds the camera cache.
+        httpx.post(f"{base}/observations", content=batches[0][0], headers=HEADERS, timeout=60)
+        t_start = time.monotonic()
+        threads = [threading.Thread(target=client_loop, args=(k,)) for k in range(args.clients)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+        elapsed = time.monotonic() - t_start
 
     per_batch = (args.batch // len(cams)) * len(cams)
     rate = len(latencies) * per_batch / elapsed

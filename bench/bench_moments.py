@@ -23,31 +23,14 @@ import cv2
 import numpy as np
 
 from core.homography.moments import affine_from_moments, mask_moments
+from tests.support.letters import LETTER_F, raster_polygon
 
 SIZE = 300
-# Letter "F", ~60 x 100 px, centred on the origin.
-LETTER_F = np.array(
-    [
-        [0, 0],
-        [60, 0],
-        [60, 14],
-        [16, 14],
-        [16, 40],
-        [48, 40],
-        [48, 54],
-        [16, 54],
-        [16, 100],
-        [0, 100],
-    ],
-    dtype=np.float64,
-) - [30.0, 50.0]
 
 
 def raster(poly: np.ndarray, centre: np.ndarray) -> np.ndarray:
     """Return a uint8 mask of the polygon translated to `centre` (1/16 px vertex precision)."""
-    mask = np.zeros((SIZE, SIZE), np.uint8)
-    cv2.fillPoly(mask, [np.round((poly + centre) * 16).astype(np.int32)], 1, shift=4)
-    return mask
+    return raster_polygon(poly + centre, SIZE)
 
 
 def random_affine(rng: np.random.Generator) -> np.ndarray:

@@ -125,25 +125,10 @@ def run_twin(broker: Broker, seconds: float) -> dict[str, float]:
         for t_arr, topic, p, _ in rec.messages
         if topic == f"{prefix}/events" or topic.startswith(f"{prefix}/targets/")
     ]
-    # Pair each true event with the nearest published one of its room and type.
-    offsets = []
-    unmatched = 0
-    for kind, zone, t in true_events:
-        cands = [abs(te - t) for k, z, te in est_events if k == kind and z == zone]
-        if cands and min(cands) < 3.0:
-            offsets.append(min(cands))
-        else:
-            unmatched += 1
-    extra = len([e for e in est_events if e[0] in ("enter", "leave")]) - len(offsets)
     lat = np.array(latency) if latency else np.array([np.nan])
     out = {
         "instants": len(stamps),
-        "true enter/leave": len(true_events),
-        "published enter/leave": len([e for e in est_events if e[0] in ("enter", "leave")]),
-        "matched": len(offsets),
-        "missed": unmatched,
-        "extra": extra,
-        "event time offset median s": float(np.median(offsets)) if offsets else float("nan"),
+        **score_events(true_events, est_events),
         "latency messages": int(lat.size),
         "latency p50 s": float(np.nanpercentile(lat, 50)),
         "latency p95 s": float(np.nanpercentile(lat, 95)),

@@ -47,18 +47,14 @@ from sqlalchemy import create_engine, text
 from sqlalchemy.engine import make_url
 
 from core.localization import NetworkCamera
+from tests.support.cameras import register_cameras
+from tests.support.room import CAPTURE_DELAY_S, HEIGHT, SIGMA_PX, ceiling_cameras
 from tests.support.service import WITHOUT_TWIN, Service, clean_env, start_service
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 TOKEN = "bench-soak-admin-token"
 HEADERS = {"Authorization": f"Bearer {TOKEN}"}
-K = [[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]]
-DIST = [-0.1, 0.01, 0.0005, -0.0003, 0.0]
-HEIGHT = 1.0
-SIGMA_PX = 0.5
 NODE_HZ = 10.0
-# A node posts a frame this long after its capture (reading, detecting, HTTP).
-CAPTURE_DELAY_S = 0.05
 
 
 def make_database(server_url: str) -> str:
@@ -132,8 +128,7 @@ def tracker_owners(database_url: str, pids: list[int]) -> list[int]:
 
 def make_cameras() -> list[NetworkCamera]:
     """Four ceiling cameras at the corners of a 4 m x 3 m room, looking at its middle."""
-    corners = ([0.0, 0.0, 2.8], [4.0, 0.0, 2.8], [4.0, 3.0, 2.8], [0.0, 3.0, 2.8])
-    return [NetworkCamera.looking_at(K, DIST, c, (2.0, 1.5, 0.0), (640, 480)) for c in corners]
+    return ceiling_cameras(([0.0, 0.0, 2.8], [4.0, 0.0, 2.8], [4.0, 3.0, 2.8], [0.0, 3.0, 2.8]))
 
 
 def walkers(t: float) -> np.ndarray:
@@ -147,21 +142,8 @@ def walkers(t: float) -> np.ndarray:
 
 
 def register(base: str, cameras: list[NetworkCamera]) -> list[int]:
-    ids = []
-    with httpx.Client(headers=HEADERS, timeout=10) as client:
-        for k, cam in enumerate(cameras):
-            body = {
-                "name": f"soak-{k}",
-                "width": 640,
-                "height": 480,
-                "K": K,
-                "dist": DIST,
-                "T_world_camera": cam.T_world_camera.tolist(),
-            }
-            response = client.post(f"{base}/cameras", json=body)
-            response.raise_for_status()
-            ids.append(response.json()["id"])
-    return ids
+    with httpx.Client(timeout=10) as client:
+        return register_cameras(client, HEADERS, cameras, prefix="soak-", url=f"{base}/cameras")
 
 
 class Results:

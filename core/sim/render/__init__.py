@@ -37,7 +37,8 @@ from core.sim.render._camera import (
     camera_model,
 )
 from core.sim.render._raster import _clip_near
-from core.sim.render._renderer import Renderer, _disc_image_centre, render, renderer_for
+from core.sim.render._renderer import Renderer, render, renderer_for
+from core.sim.render._visibility import _disc_image_centre
 
 __all__ = [
     "CameraModel",

@@ -23,6 +23,7 @@ from core.sim.render._textures import (
     _Texture,
     _tile_texture,
 )
+from core.sim.render.landmarks import scene_landmarks
 from core.sim.scene import Board, Robot, Scene, TopMarker
 
 Array = NDArray[np.float64]
@@ -210,3 +211,26 @@ def _board_geometry(
 
 def _in_world(tex: _Texture, R: Array, p: Array) -> _Texture:
     return _Texture(tex.levels, R @ tex.o + p, R @ tex.u, R @ tex.v)
+
+
+def _landmark_faces(scene: Scene) -> list[_StaticFace]:
+    """Return the scene's landmarks as textured faces: each printed page (artwork PNG,
+    core.sim.render.landmarks.scene_landmarks) on its mark plane, facing along the mark's +z.
+
+    A page texel (row i, column j) has its centre at ((j + 0.5) / ppm - cx, cy - (i + 0.5) /
+    ppm) in the mark frame (x right, y up the page), so texel (s, t) of level 0 lies at
+    o + s u + t v with u = R e_x / ppm, v = -R e_y / ppm.
+    """
+    faces = []
+    for lm in scene_landmarks(scene):
+        tex = lm.texture
+        R, p = lm.T_world_mark[:3, :3], lm.T_world_mark[:3, 3]
+        h, w = tex.image.shape[:2]
+        cx, cy = tex.centre
+        x0, x1, y0, y1 = -cx, w / tex.ppm - cx, cy - h / tex.ppm, cy
+        page = np.array([[x0, y1, 0.0], [x1, y1, 0.0], [x1, y0, 0.0], [x0, y0, 0.0]])
+        o = R @ np.array([0.5 / tex.ppm - cx, cy - 0.5 / tex.ppm, 0.0]) + p
+        u, v = R[:, 0] / tex.ppm, -R[:, 1] / tex.ppm
+        texture = _Texture(tex.pyramid, o, u, v)
+        faces.append(_StaticFace(page @ R.T + p, R[:, 2].copy(), None, texture, True))
+    return faces

@@ -13,26 +13,24 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from core.errors import InvalidInput
-from core.geometry.camera import distort_normalized
 from core.sim._geometry import yaw_matrix
 from core.sim.motion import Pose2D, WorldState
 from core.sim.render._camera import CameraModel, Frame, SensorNoise, camera_model
+from core.sim.render._drawing import _draw_box, _draw_spot
 from core.sim.render._layers import (
     _board_geometry,
     _in_world,
+    _landmark_faces,
     _lens_maps,
     _robot_geometry,
     _static_faces,
     _StaticFace,
     _View,
 )
-from core.sim.render._raster import _shade, _Target
+from core.sim.render._raster import Array, Image, _Target
 from core.sim.render._textures import _bgr, _Texture
-from core.sim.render.landmarks import scene_landmarks
+from core.sim.render._visibility import _all_seen, _disc_image_centre, _unoccluded
 from core.sim.scene import Board, CeilingCamera, Scene, TopMarker
-
-Array = NDArray[np.float64]
-Image = NDArray[Any]  # uint8 images; typed loosely because cv2 returns its own array type
 
 # The radius (m) of the rod that holds the robot's mast marker.
 MAST_RADIUS = 0.012
@@ -252,14 +250,7 @@ class Renderer:
             raise InvalidInput(f"exposure must be in (0, 1], got {exposure!r}")
         view = self._view(camera)
         cam = view.camera
-        tgt = _Target(
-            img=view.static_img.copy(),
-            depth=view.static_depth.copy(),
-            K=view.Kc,
-            R=cam.R_camera_world,
-            t=cam.t_camera_world,
-            near=self.near,
-        )
+        tgt = self._canvas(view)
         if len(state.people) != len(self.scene.people):
             raise InvalidInput(
                 f"state has {len(state.people)} people, the scene {len(self.scene.people)}"
@@ -313,14 +304,7 @@ class Renderer:
             raise InvalidInput(f"T_world_board must be a finite (4, 4) pose, got {T.shape}")
         view = self._view(camera)
         cam = view.camera
-        tgt = _Target(
-            img=view.static_img.copy(),
-            depth=view.static_depth.copy(),
-            K=view.Kc,
-            R=cam.R_camera_world,
-            t=cam.t_camera_world,
-            near=self.near,
-        )
+        tgt = self._canvas(view)
         if people:
             if len(people) != len(self.scene.people):
                 raise InvalidInput(
@@ -338,12 +322,7 @@ class Renderer:
             _draw_box(tgt, cam.position, centre, R, box)
         px = cam.project(corners)
         front = float(normal @ (cam.position - poly.mean(0))) > 0
-        visible = bool(
-            front
-            and np.all(cam.depth(corners) > self.near)
-            and np.all(_in_image(cam, px))
-            and np.all(_unoccluded(tgt, corners))
-        )
+        visible = front and _all_seen(cam, tgt, corners)
         if front:
             tgt.textured(poly, tex, supersample=self.object_supersample)
         else:
@@ -359,6 +338,18 @@ class Renderer:
             board_corner_pixels=px,
             board_visible=visible,
             gain=gain,
+        )
+
+    def _canvas(self, view: _View) -> _Target:
+        """Return a canvas to draw a frame on: a copy of the view's static layer and its depth."""
+        cam = view.camera
+        return _Target(
+            img=view.static_img.copy(),
+            depth=view.static_depth.copy(),
+            K=view.Kc,
+            R=cam.R_camera_world,
+            t=cam.t_camera_world,
+            near=self.near,
         )
 
     def _develop(
@@ -399,11 +390,7 @@ class Renderer:
         ang = np.linspace(0.0, 2 * np.pi, 16, endpoint=False)
         rim = centre + m.radius * np.stack([np.cos(ang), np.sin(ang), 0 * ang], 1)
         pts = np.vstack([centre, rim])
-        seen = bool(
-            np.all(cam.depth(pts) > self.near)
-            and np.all(_in_image(cam, cam.project(pts)))
-            and np.all(_unoccluded(tgt, pts))
-        )
+        seen = _all_seen(cam, tgt, pts)
         world = _in_world(tex, R, p)
         n = world.levels[0].shape[0]
         o0 = world.o - (world.u + world.v) / 2
@@ -448,12 +435,7 @@ class Renderer:
             corners = g.board_corners @ R.T + p
             px = cam.project(corners)
             front = float(normal @ (cam.position - poly.mean(0))) > 0
-            truth["board_visible"] = bool(
-                front
-                and np.all(cam.depth(corners) > self.near)
-                and np.all(_in_image(cam, px))
-                and np.all(_unoccluded(tgt, corners))
-            )
+            truth["board_visible"] = front and _all_seen(cam, tgt, corners)
             if front:
                 tgt.textured(
                     poly, _in_world(g.board_tex, R, p), supersample=self.object_supersample
@@ -467,144 +449,6 @@ class Renderer:
                 c = truth["marker_world"][None]
                 truth["marker_visible"] = bool(_unoccluded(tgt, c, tol=0.05)[0])
         return truth
-
-
-# The laser spot: a red dot of this radius (m) on the floor, whose glare spans at least
-# SPOT_GLARE_PX pixels (standard deviation of its Gaussian image) however far it is; its peak
-# adds this much red light (the red channel saturates on a bright floor) and a little green.
-SPOT_RADIUS = 0.004
-SPOT_GLARE_PX = 1.2
-_SPOT_RED = 300.0
-_SPOT_GREEN = 10.0
-
-
-def _draw_spot(tgt: _Target, cam: CameraModel, spot: ArrayLike) -> tuple[Array, bool]:
-    """Add the laser spot's light to the ideal canvas where the camera sees it (in front,
-    inside the image, not hidden by what is drawn so far by more than 1 cm); return its
-    projection with distortion (2,) and whether it was seen. The blob is drawn on the canvas
-    before the lens remap, so it is distorted like everything else."""
-    X = np.asarray(spot, dtype=np.float64)
-    if X.size != 3 or not np.all(np.isfinite(X)):
-        raise InvalidInput(f"spot must be a finite world point (3,), got {spot!r}")
-    X = X.reshape(1, 3)
-    px = cam.project(X)[0]
-    Pc = tgt.to_camera(X)[0]
-    seen = bool(Pc[2] > tgt.near and _in_image(cam, px[None])[0])
-    if seen:
-        uv = tgt.to_pixels(Pc[None])[0]
-        ui, vi = math.floor(uv[0] + 0.5), math.floor(uv[1] + 0.5)
-        seen = 0 <= ui < tgt.w and 0 <= vi < tgt.h and Pc[2] <= tgt.depth[vi, ui] + 0.01
-    if not seen:
-        return px, False
-    sigma = max(SPOT_GLARE_PX, float(tgt.K[0, 0]) * SPOT_RADIUS / 2 / float(Pc[2]))
-    r = math.ceil(5 * sigma)
-    x0, y0 = max(int(uv[0]) - r, 0), max(int(uv[1]) - r, 0)
-    x1, y1 = min(int(uv[0]) + r + 1, tgt.w), min(int(uv[1]) + r + 1, tgt.h)
-    yy, xx = np.mgrid[y0:y1, x0:x1]
-    g = np.exp(-((xx - uv[0]) ** 2 + (yy - uv[1]) ** 2) / (2 * sigma**2))
-    roi = tgt.img[y0:y1, x0:x1].astype(np.float32)
-    roi[..., 2] += _SPOT_RED * g
-    roi[..., 1] += _SPOT_GREEN * g
-    tgt.img[y0:y1, x0:x1] = np.clip(np.rint(roi), 0, 255).astype(np.uint8)
-    return px, True
-
-
-# A box carrying a printed mark: cardboard sides, a white top around the print.
-_BOX_SIDE = (176, 140, 98)
-_BOX_TOP = (236, 236, 230)
-
-
-def _draw_box(
-    tgt: _Target, eye: Array, top_centre: Array, R: Array, size: tuple[float, float, float]
-) -> None:
-    """Draw the faces of a box that face the camera at `eye`: its top face centred at
-    `top_centre`, edges along R's x and y columns, extending size[2] along R's z (behind the
-    top). The top is drawn 0.5 mm behind `top_centre`, so a print on that plane wins the
-    depth test."""
-    sx, sy, sz = (float(v) for v in size)
-    if not (sx > 0 and sy > 0 and sz > 0):
-        raise InvalidInput(f"box must be three positive sizes in metres, got {size}")
-    x, y, z = R[:, 0], R[:, 1], R[:, 2]
-    c = top_centre + 5e-4 * z
-    corners = np.array(
-        [c + a * sx / 2 * x + b * sy / 2 * y for a, b in ((-1, -1), (1, -1), (1, 1), (-1, 1))]
-    )
-    bottom = corners + sz * z
-    faces = [(corners, -z, _BOX_TOP)]
-    for i in range(4):
-        j = (i + 1) % 4
-        side = np.array([corners[i], corners[j], bottom[j], bottom[i]])
-        out = side.mean(0) - (c + sz / 2 * z)
-        faces.append((side, out / np.linalg.norm(out), _BOX_SIDE))
-    for poly, n, colour in faces:
-        if float(n @ (eye - poly.mean(0))) > 0:
-            tgt.fill(poly, _shade(colour, n))
-
-
-def _landmark_faces(scene: Scene) -> list[_StaticFace]:
-    """Return the scene's landmarks as textured faces: each printed page (artwork PNG,
-    core.sim.render.landmarks.scene_landmarks) on its mark plane, facing along the mark's +z.
-
-    A page texel (row i, column j) has its centre at ((j + 0.5) / ppm - cx, cy - (i + 0.5) /
-    ppm) in the mark frame (x right, y up the page), so texel (s, t) of level 0 lies at
-    o + s u + t v with u = R e_x / ppm, v = -R e_y / ppm.
-    """
-    faces = []
-    for lm in scene_landmarks(scene):
-        tex = lm.texture
-        R, p = lm.T_world_mark[:3, :3], lm.T_world_mark[:3, 3]
-        h, w = tex.image.shape[:2]
-        cx, cy = tex.centre
-        x0, x1, y0, y1 = -cx, w / tex.ppm - cx, cy - h / tex.ppm, cy
-        page = np.array([[x0, y1, 0.0], [x1, y1, 0.0], [x1, y0, 0.0], [x0, y0, 0.0]])
-        o = R @ np.array([0.5 / tex.ppm - cx, cy - 0.5 / tex.ppm, 0.0]) + p
-        u, v = R[:, 0] / tex.ppm, -R[:, 1] / tex.ppm
-        texture = _Texture(tex.pyramid, o, u, v)
-        faces.append(_StaticFace(page @ R.T + p, R[:, 2].copy(), None, texture, True))
-    return faces
-
-
-def _in_image(cam: CameraModel, px: Array) -> NDArray[np.bool_]:
-    """Return whether pixels (N, 2) lie inside the camera's image."""
-    return (
-        (px[:, 0] >= 0)
-        & (px[:, 0] <= cam.width - 1)
-        & (px[:, 1] >= 0)
-        & (px[:, 1] <= cam.height - 1)
-    )
-
-
-def _unoccluded(tgt: _Target, X: Array, tol: float = 0.0) -> NDArray[np.bool_]:
-    """Return whether world points (N, 3) lie in front of tgt's z-buffer (+ tol metres)."""
-    Pc = tgt.to_camera(X)
-    uv = np.rint(tgt.to_pixels(Pc)).astype(int)
-    inside = (uv[:, 0] >= 0) & (uv[:, 0] < tgt.w) & (uv[:, 1] >= 0) & (uv[:, 1] < tgt.h)
-    uvc = np.clip(uv, 0, [tgt.w - 1, tgt.h - 1])
-    return inside & (Pc[:, 2] <= tgt.depth[uvc[:, 1], uvc[:, 0]] + tol)
-
-
-def _disc_image_centre(cam: CameraModel, centre: Array, radius: float) -> Array:
-    """Return the distorted pixel (2,) of the centre of a horizontal disc's image ellipse.
-
-    The disc x^2 + y^2 <= r^2 in its plane maps by H = K [R e1, R e2, R c + t] to the conic
-    C' = H^-T diag(1, 1, -r^2) H^-1 (Hartley & Zisserman eq. 2.13), whose centre -A^-1 b (A its
-    upper-left 2x2 block, b its last column's top) is the area centroid of the ideal image of
-    the disc; it is mapped through the lens distortion like any ideal point.
-    """
-    H = cam.K @ np.stack(
-        [
-            cam.R_camera_world[:, 0],
-            cam.R_camera_world[:, 1],
-            cam.R_camera_world @ centre + cam.t_camera_world,
-        ],
-        1,
-    )
-    Hi = np.linalg.inv(H)
-    C = Hi.T @ np.diag([1.0, 1.0, -(radius**2)]) @ Hi
-    c = -np.linalg.solve(C[:2, :2], C[:2, 2])
-    xn = np.linalg.solve(cam.K, np.array([c[0], c[1], 1.0]))
-    xd = distort_normalized(xn[:2] / xn[2], cam.dist)
-    return (cam.K @ np.array([xd[0], xd[1], 1.0]))[:2]
 
 
 _RENDERERS: OrderedDict[int, tuple[Scene, Renderer]] = OrderedDict()

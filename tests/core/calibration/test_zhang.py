@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import dataclasses
 import os
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -22,8 +21,15 @@ from core.geometry.camera import ReprojectionProblem, project_points
 from core.geometry.rotations import matrix_to_rotvec, rotvec_to_matrix
 from core.homography import dlt_homography
 from core.optim import solve_sparse_lm
-
-DATA = Path(__file__).resolve().parents[3] / ".." / "shared" / "data" / "zhang1998"
+from tests.support.zhang import (
+    DATA,
+    PUBLISHED,
+    PUBLISHED_R1,
+    PUBLISHED_T1,
+    decimals,
+    read_zhang,
+    zhang_values,
+)
 
 K_TRUE = np.array([[1000.0, 0.0, 645.0], [0.0, 1005.0, 355.0], [0.0, 0.0, 1.0]])
 DIST_TRUE = np.array([-0.28, 0.12, 0.0008, -0.0005, -0.03])
@@ -133,26 +139,6 @@ def test_closed_form_is_exact_without_distortion() -> None:
 # ---------------------------------------------------------------------------------------------
 # Zhang's real data (MSR-TR-98-71): published values.
 
-PUBLISHED = {  # name: printed value as text (the number of digits is the comparison precision)
-    "alpha": "832.5",
-    "gamma": "0.204494",
-    "beta": "832.53",
-    "u0": "303.959",
-    "v0": "206.585",
-    "k1": "-0.228601",
-    "k2": "0.190353",
-}
-PUBLISHED_R1 = [
-    ["0.992759", "-0.026319", "0.117201"],
-    ["0.0139247", "0.994339", "0.105341"],
-    ["-0.11931", "-0.102947", "0.987505"],
-]
-PUBLISHED_T1 = ["-3.84019", "3.65164", "12.791"]
-
-
-def decimals(text: str) -> int:
-    return len(text.split(".")[1]) if "." in text else 0
-
 
 def load_zhang() -> tuple[np.ndarray, list[np.ndarray]]:
     if not DATA.is_dir():
@@ -161,22 +147,9 @@ def load_zhang() -> tuple[np.ndarray, list[np.ndarray]]:
         if os.environ.get("CI", "").strip().lower() == "true":
             pytest.fail(f"{reason} (CI=true requires the published data sets)")
         pytest.skip(reason)
-    model = np.loadtxt(DATA / "Model.txt").reshape(-1, 2)
-    images = [np.loadtxt(DATA / f"data{i}.txt").reshape(-1, 2) for i in range(1, 6)]
+    model, images = read_zhang()
     assert model.shape == (256, 2) and all(i.shape == (256, 2) for i in images)
     return model, images
-
-
-def zhang_values(c: CameraCalibration) -> dict[str, float]:
-    return {
-        "alpha": c.K[0, 0],
-        "gamma": c.K[0, 1],
-        "beta": c.K[1, 1],
-        "u0": c.K[0, 2],
-        "v0": c.K[1, 2],
-        "k1": c.dist[0],
-        "k2": c.dist[1],
-    }
 
 
 @pytest.fixture(scope="module")

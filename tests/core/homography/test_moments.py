@@ -18,34 +18,14 @@ from core.homography.moments import (
     polygon_moments,
     transform_moments,
 )
+from tests.support.letters import LETTER_F, LETTER_L, raster_polygon
 
 SIZE = 200
-# Letter-like shapes, ~60 x 100 px, centred on the origin: no symmetry of any kind.
-LETTER_F = np.array(
-    [
-        [0, 0],
-        [60, 0],
-        [60, 14],
-        [16, 14],
-        [16, 40],
-        [48, 40],
-        [48, 54],
-        [16, 54],
-        [16, 100],
-        [0, 100],
-    ],
-    dtype=np.float64,
-) - [30.0, 50.0]
-LETTER_L = np.array(
-    [[0, 0], [18, 0], [18, 80], [55, 80], [55, 100], [0, 100]], dtype=np.float64
-) - [25.0, 50.0]
 CENTRE = np.array([SIZE / 2.0, SIZE / 2.0])
 
 
 def _raster(poly: np.ndarray, size: int = SIZE) -> np.ndarray:
-    mask = np.zeros((size, size), np.uint8)
-    cv2.fillPoly(mask, [np.round(poly * 16).astype(np.int32)], 1, shift=4)
-    return mask
+    return raster_polygon(poly, size)
 
 
 def _random_affine(rng: np.random.Generator) -> np.ndarray:

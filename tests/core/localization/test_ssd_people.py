@@ -188,7 +188,7 @@ def test_the_8_bit_model_finds_what_the_float_model_finds(detector):
         b = float_model.detect_boxes(image).boxes
         total_int8, total_float = total_int8 + len(a), total_float + len(b)
         if len(a) and len(b):
-            iou = bench_pets._iou(a, b)
+            iou = bench_pets.box_iou(a, b)
             r, c = linear_sum_assignment(-iou)
             ok = iou[r, c] >= 0.5
             matched += int(ok.sum())
@@ -241,7 +241,7 @@ def _found(truth: np.ndarray, boxes: np.ndarray) -> np.ndarray:
     """Return which of the truth's boxes a box matches one to one at IoU 0.5."""
     hit = np.zeros(len(truth), dtype=bool)
     if len(truth) and len(boxes):
-        iou = bench_pets._iou(truth, boxes)
+        iou = bench_pets.box_iou(truth, boxes)
         r, c = linear_sum_assignment(-iou)
         hit[r[iou[r, c] >= 0.5]] = True
     return hit

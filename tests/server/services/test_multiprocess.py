@@ -20,19 +20,15 @@ from websockets.sync.client import connect
 from core.localization import NetworkCamera
 from server.services.fanout import PAYLOAD_LIMIT, Fanout, chunk_payloads
 from server.services.ownership import APPLICATION_NAME, NAMESPACE
+from tests.support.cameras import register_cameras
+from tests.support.room import CAPTURE_DELAY_S, HEIGHT, SIGMA_PX, ceiling_cameras
 from tests.support.service import WITHOUT_TWIN, start_service
 
 TOKEN = "multi-process-admin-token"
 ADMIN = {"Authorization": f"Bearer {TOKEN}"}
-K = [[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]]
-DIST = [-0.1, 0.01, 0.0005, -0.0003, 0.0]
-HEIGHT = 1.0
-SIGMA_PX = 0.5
-# A camera node posts a frame once it has read and detected it: its capture time is some tens
-# of milliseconds before the post (detection takes ~30 ms at 30 fps, then HTTP on the LAN).
-# The service holds each frame until every camera it hears from has delivered one as recent
-# (at most tracker_latency_s after its capture), to put unsynchronised cameras in order.
-CAPTURE_DELAY_S = 0.05
+# A node posts each frame CAPTURE_DELAY_S after its capture (tests/support/room.py). The
+# service holds each frame until every camera it hears from has delivered one as recent (at most
+# tracker_latency_s after its capture), to put unsynchronised cameras in order.
 FRAME_PERIOD_S = 0.05
 
 
@@ -89,10 +85,7 @@ class Stream:
 
 
 def _cameras() -> list[NetworkCamera]:
-    return [
-        NetworkCamera.looking_at(K, DIST, pos, (2.0, 1.5, 0.0), (640, 480))
-        for pos in ([0.0, 0.0, 2.8], [4.0, 3.0, 2.8], [4.0, 0.0, 2.8])
-    ]
+    return ceiling_cameras(([0.0, 0.0, 2.8], [4.0, 3.0, 2.8], [4.0, 0.0, 2.8]))
 
 
 def _walker(t: float) -> np.ndarray:
@@ -228,19 +221,7 @@ def test_processes_share_live_targets_and_survive_a_kill(database_url, tmp_path)
             p.wait_ready()
         print(f"three processes ready in {time.monotonic() - start:.1f} s")
         cameras = _cameras()
-        ids = []
-        for k, cam in enumerate(cameras):
-            body = {
-                "name": f"mp{k}",
-                "width": 640,
-                "height": 480,
-                "K": K,
-                "dist": DIST,
-                "T_world_camera": cam.T_world_camera.tolist(),
-            }
-            response = procs[0].http.post("/api/v1/cameras", json=body)
-            assert response.status_code == 201, response.text
-            ids.append(response.json()["id"])
+        ids = register_cameras(procs[0].http, ADMIN, cameras, prefix="mp")
         streams = {p.port: Stream(p) for p in procs}
         sender = Sender(ids, cameras, seed=3)
         # The first post makes a tracker owner: the process it reached, or another.
