@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from core.manipulation import METHODS, calibrate_hand_eye, pose_error
+from core.manipulation import METHODS, pose_error
 from core.sim.eye_in_hand import eye_camera_intrinsics, hand_eye_views
 
 VENV = Path(os.environ.get("INTSPACE_OPENCV4_VENV", "/tmp/intspace-opencv4-venv"))
@@ -91,19 +91,11 @@ def main() -> None:
         X_true.append(v.true_X)
         for m in METHODS:
             t0 = time.perf_counter()
-            r = calibrate_hand_eye(v.T_base_ee, v.T_cam_target, method=m)
+            r = v.calibrate(m)
             t_lin += time.perf_counter() - t0
             ours[m].append(pose_error(r.X, v.true_X))
         t0 = time.perf_counter()
-        r = calibrate_hand_eye(
-            v.T_base_ee,
-            v.T_cam_target,
-            method="park",
-            object_points=v.object_points,
-            image_points=v.image_points,
-            K=v.K,
-            dist=v.dist,
-        )
+        r = v.calibrate("park", refine=True)
         t_ref += time.perf_counter() - t0
         ours["park+refine"].append(pose_error(r.X, v.true_X))
 

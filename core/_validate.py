@@ -8,6 +8,16 @@ from numpy.typing import ArrayLike, NDArray
 from core.errors import InvalidInput, NotEnoughPoints
 
 
+def as_numeric(x: ArrayLike, name: str, shapes: str) -> NDArray[np.float64]:
+    """Return a float64 copy of `x`; raise InvalidInput naming the expected `shapes` (as the
+    caller words them, e.g. "(B, 2) or (2,)") when it is not numeric. Shape and finiteness are
+    the caller's to check."""
+    try:
+        return np.array(x, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise InvalidInput(f"{name} must be numeric, shape {shapes}: {exc}") from None
+
+
 def as_points(x: ArrayLike, dim: int, name: str, min_count: int = 0) -> NDArray[np.float64]:
     """Return `x` as a finite float64 array of shape (N, dim); raise InvalidInput otherwise."""
     try:

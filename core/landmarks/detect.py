@@ -36,7 +36,9 @@ One module per part, behind this one: `_view` (the image, its camera and the len
 from __future__ import annotations
 
 import threading
+from collections.abc import Callable
 from itertools import accumulate
+from typing import ParamSpec, TypeVar
 
 import cv2
 import numpy as np
@@ -107,25 +109,16 @@ def detect_landmarks(
     blue = cv2.subtract(b, cv2.max(g, r, dst=g), dst=b)
     red = cv2.subtract(r, bg, dst=r)
     mask = bg  # (free from here: the thresholded scores' scratch plane)
-    # A candidate whose geometry fails (degenerate fit, distortion not invertible there) is not
-    # a landmark this detector can locate; it is left out, never returned half-made.
-    skip = (DegenerateConfiguration, ConvergenceError, np.linalg.LinAlgError)
     frame_curves: list[FrameCurves] = []
     # (the frames' polygons only; the rings' ellipse test fits every boundary pixel)
     for outer, hole in holed_components(blue, mask, every_pixel=False):
-        try:
-            fc = find_frame_curves(blue, outer, hole)
-        except skip:
-            fc = None
+        fc = _unless_failed(find_frame_curves, blue, outer, hole)
         if fc is not None:
             frame_curves.append(fc)
     frame_edges = [e for e in frame_sides(frame_curves) if e is not None]
     rings: list[RingCurves] = []
     for outer, _hole in holed_components(red, mask):
-        try:
-            edges = ring_edges(red, outer)
-        except skip:
-            edges = None
+        edges = _unless_failed(ring_edges, red, outer)
         rc = None if edges is None else ring_curves(edges)
         if rc is not None and rc.matched:  # (else no ring edge to fit)
             rings.append(rc)
@@ -152,28 +145,38 @@ def detect_landmarks(
     wanted = [(i, k) for i, rc in enumerate(rings) for k in rc.first_choices()]
     try:
         batch = fit_ellipses([rings[i].ideal[k] for i, k in wanted])
-    except skip:
+    except _FAILED:
         batch = []  # (LAPACK failed on one of them: each ring fits its own below)
     for (i, k), fit in zip(wanted, batch, strict=False):
         rings[i].fits[k] = fit if isinstance(fit, ConicFit) else None
     ring_fits: list[RingFit] = []
     for rc in rings:
-        try:
-            rf = ring_fit(ctx, rc, ring_size)
-        except skip:
-            rf = None
+        rf = _unless_failed(ring_fit, ctx, rc, ring_size)
         if rf is not None:
             ring_fits.append(rf)
     for rf, cands in zip(ring_fits, ring_candidates(ring_fits, ctx.K), strict=True):
         if cands is None:
             continue
-        try:
-            det = locate_signpost(ctx, rf, cands, ring_size)
-        except skip:
-            det = None
+        det = _unless_failed(locate_signpost, ctx, rf, cands, ring_size)
         if det is not None:
             out.append(det)
     return out
+
+
+P = ParamSpec("P")
+Out = TypeVar("Out")
+
+# A candidate whose geometry fails (degenerate fit, distortion not invertible there) is not a
+# landmark this detector can locate; it is left out, never returned half-made.
+_FAILED = (DegenerateConfiguration, ConvergenceError, np.linalg.LinAlgError)
+
+
+def _unless_failed(step: Callable[P, Out], *args: P.args, **kwargs: P.kwargs) -> Out | None:
+    """Return step(*args, **kwargs) for one candidate, or None where its geometry fails."""
+    try:
+        return step(*args, **kwargs)
+    except _FAILED:
+        return None
 
 
 _SCRATCH = threading.local()

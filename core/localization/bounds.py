@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from core._validate import as_numeric
 from core.errors import InvalidInput
 from core.localization._checks import as_cameras, check_height
 from core.localization._projection import inv2, project_plane, transposed
@@ -94,10 +95,7 @@ def cramer_rao_bound(
     """
     cams = as_cameras(cameras)
     h = check_height(height)
-    try:
-        p = np.array(xy, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise InvalidInput(f"xy must be numeric, shape (B, 2) or (2,): {exc}") from None
+    p = as_numeric(xy, "xy", "(B, 2) or (2,)")
     batched = p.ndim == 2
     p = p.reshape(-1, 2) if p.ndim in (1, 2) and p.shape[-1] == 2 else p
     if p.ndim != 2 or p.shape[1] != 2 or (not batched and p.shape[0] != 1):

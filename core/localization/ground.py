@@ -42,6 +42,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from core._validate import as_numeric
 from core.errors import DegenerateConfiguration, InvalidInput, NotEnoughPoints
 from core.geometry.camera import project_points, undistort_points
 from core.localization._checks import as_cameras, check_height
@@ -169,10 +170,7 @@ def _parse(
 ) -> _Observations:
     cams = as_cameras(cameras)
     n_cam = len(cams)
-    try:
-        px = np.array(pixels, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise InvalidInput(f"pixels must be numeric, shape (C, B, 2) or (C, 2): {exc}") from None
+    px = as_numeric(pixels, "pixels", "(C, B, 2) or (C, 2)")
     if px.ndim == 2:
         batched = False
         px = px[:, None, :]
@@ -328,10 +326,7 @@ def locate_monocular(
     if not isinstance(camera, NetworkCamera):
         raise InvalidInput(f"camera must be a NetworkCamera, got {type(camera).__name__}")
     height = check_height(height)
-    try:
-        px = np.asarray(pixels, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise InvalidInput(f"pixels must be numeric, shape (B, 2) or (2,): {exc}") from None
+    px = as_numeric(pixels, "pixels", "(B, 2) or (2,)")
     if px.ndim not in (1, 2):
         raise InvalidInput(f"pixels must have shape (B, 2) or (2,), got {px.shape}")
     cov = None if pixel_cov is None else np.asarray(pixel_cov, dtype=np.float64)[None]

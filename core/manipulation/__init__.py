@@ -12,14 +12,9 @@ hand-eye calibration.
   `first_look` / `next_look` (look then move from a taught image of a planar mark).
 """
 
-from core.geometry.poses import invert_pose
-from core.manipulation.arm import (
-    DHArm,
-    IKResult,
-    default_arm,
-    pose_error,
-    puma_like_arm,
-)
+from core.geometry.poses import invert_pose, pose_error
+from core.manipulation.arm import DHArm
+from core.manipulation.arm_models import default_arm, puma_like_arm
 from core.manipulation.chain import (
     BasePlacement,
     MobileManipulator,
@@ -28,6 +23,7 @@ from core.manipulation.chain import (
 from core.manipulation.errors import DegenerateMotions, TooFewMotions, Unreachable
 from core.manipulation.grasp import ModeSwitch, PlaneEstimate, first_look, gaze_step, next_look
 from core.manipulation.hand_eye import METHODS, HandEyeCalibration, calibrate_hand_eye
+from core.manipulation.numerical_ik import IKResult
 
 __all__ = [
     "METHODS",

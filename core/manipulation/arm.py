@@ -1,6 +1,6 @@
 """A serial arm in Denavit-Hartenberg form: forward kinematics, the geometric Jacobian, the
-closed-form inverse kinematics of a wrist-partitioned (Puma-type) arm, and a numerical
-Levenberg-Marquardt inverse kinematics with joint limits.
+closed-form inverse kinematics of a wrist-partitioned (Puma-type) arm, and the arm's numerical
+inverse kinematics (the solver itself is core.manipulation.numerical_ik's).
 
 Convention: standard (distal) DH parameters, link i's transform
 A_i = Rz(theta_i) Tz(d_i) Tx(a_i) Rx(alpha_i), theta_i = q_i + offset_i (Spong, Hutchinson &
@@ -9,9 +9,7 @@ Vidyasagar, "Robot Modeling and Control", 2006, eq. 3.10; Corke, "Robotics, Visi
 followed by a fixed tool transform T_flange_ee. Poses are 4x4, metres and radians; batch
 dimensions come first everywhere.
 
-The default arm (`default_arm()`) is the Puma 560's geometry (Corke's standard-DH model, the
-same numbers as roboticstoolbox's `models.DH.Puma560` with its shoulder height d1 moved into the
-robot's mount), with that model's joint limits and a 0.12 m gripper as its tool. Its last three
+The closed form is for the Puma type (core.manipulation.arm_models' default arm): its last three
 axes intersect at the wrist centre (a spherical wrist), so its inverse kinematics splits into
 the wrist centre's position (joints 1-3) and the wrist's orientation (joints 4-6): eight
 branches at most, each shifted by 2 pi where the limits allow (Paul & Zhang, "Computationally
@@ -21,7 +19,6 @@ efficient kinematics for manipulators with spherical wrists", IJRR 5(2), 1986).
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from itertools import product
 
@@ -29,66 +26,14 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from core.errors import InvalidInput
-from core.geometry.poses import invert_pose
+from core.geometry.poses import as_pose, invert_pose
 from core.geometry.rotations import matrix_to_rotvec, wrap_angle
+from core.manipulation.numerical_ik import IKResult, levenberg_marquardt, rotvec_one
 
 Array = NDArray[np.float64]
 
 # The Puma's DH structure for which `ik_analytic` has a closed form.
-_PUMA_ALPHA = np.array([np.pi / 2, 0.0, -np.pi / 2, np.pi / 2, -np.pi / 2, 0.0])
-
-
-def as_pose(T: ArrayLike, name: str = "T") -> Array:
-    """Return T as a finite (..., 4, 4) float array with a rotation block; raise InvalidInput."""
-    try:
-        a = np.asarray(T, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise InvalidInput(f"{name} must be a numeric 4x4 pose: {exc}") from None
-    if a.ndim < 2 or a.shape[-2:] != (4, 4):
-        raise InvalidInput(f"{name} must have shape (..., 4, 4), got {a.shape}")
-    if not np.all(np.isfinite(a)):
-        raise InvalidInput(f"{name} contains NaN or infinite values")
-    R = a[..., :3, :3]
-    ortho = np.abs(np.swapaxes(R, -1, -2) @ R - np.eye(3)).max(initial=0.0)
-    if (
-        ortho > 1e-6
-        or np.any(np.linalg.det(R) < 0)
-        or np.any(np.abs(a[..., 3, :] - [0, 0, 0, 1]) > 0)
-    ):
-        raise InvalidInput(
-            f"{name} must be a rigid transform: an orthonormal rotation block with det +1 and a "
-            "last row (0, 0, 0, 1)"
-        )
-    return a
-
-
-def pose_error(T: ArrayLike, T_target: ArrayLike) -> tuple[Array, Array]:
-    """Return (position error (...,) metres, rotation error (...,) radians) between poses: the
-    distance between their origins and the angle of R^T R_target."""
-    a = np.asarray(T, dtype=np.float64)
-    b = np.asarray(T_target, dtype=np.float64)
-    dp = np.linalg.norm(a[..., :3, 3] - b[..., :3, 3], axis=-1)
-    rel = np.swapaxes(a[..., :3, :3], -1, -2) @ b[..., :3, :3]
-    dr = np.linalg.norm(matrix_to_rotvec(rel), axis=-1)
-    return dp, dr
-
-
-@dataclass(frozen=True)
-class IKResult:
-    """A numerical inverse kinematics solution.
-
-    q: (n,) joint values (radians, metres for prismatic base joints); success: both true errors
-    within the tolerance; position_error (m) and rotation_error (rad): the errors of fk(q)
-    against the target, computed afresh from forward kinematics (not the solver's residual);
-    iterations: LM iterations over all starts; restarts: random starts used after the first.
-    """
-
-    q: Array
-    success: bool
-    position_error: float
-    rotation_error: float
-    iterations: int
-    restarts: int
+PUMA_ALPHA = np.array([np.pi / 2, 0.0, -np.pi / 2, np.pi / 2, -np.pi / 2, 0.0])
 
 
 @dataclass(frozen=True, eq=False)
@@ -202,7 +147,7 @@ class DHArm:
         """True when the geometry is the Puma type `ik_analytic` solves: alpha = (pi/2, 0,
         -pi/2, pi/2, -pi/2, 0), a1 = a4 = a5 = a6 = 0, d2 = d5 = d6 = 0, zero offsets."""
         return bool(
-            np.allclose(self.alpha, _PUMA_ALPHA, atol=1e-12)
+            np.allclose(self.alpha, PUMA_ALPHA, atol=1e-12)
             and np.all(self.a[[0, 3, 4, 5]] == 0)
             and np.all(self.d[[1, 4, 5]] == 0)
             and np.all(self.offset == 0)
@@ -364,7 +309,7 @@ class DHArm:
                 q_start = gen.uniform(lo, hi)
                 restarts += 1
             budget = min(per_start, max_iterations - iters)
-            q, cost, used, ok = _lm(residual, q_start, lo, hi, ones, tol, budget)
+            q, cost, used, ok = levenberg_marquardt(residual, q_start, lo, hi, ones, tol, budget)
             iters += used
             if cost < best_cost:
                 best_q, best_cost = q, cost
@@ -374,15 +319,8 @@ class DHArm:
         # tests check against the batched fk to 1e-14).
         p, R, _ = self._kinematics_one(best_q)
         dp = float(np.linalg.norm(p - Tm[:3, 3]))
-        dr = float(np.linalg.norm(_rotvec_one(R.T @ Tm[:3, :3])))
-        return IKResult(
-            q=best_q,
-            success=bool(dp <= tol and dr <= tol),
-            position_error=float(dp),
-            rotation_error=float(dr),
-            iterations=iters,
-            restarts=restarts,
-        )
+        dr = float(np.linalg.norm(rotvec_one(R.T @ Tm[:3, :3])))
+        return IKResult.from_errors(best_q, dp, dr, tol, iters, restarts)
 
     def _nearest_seeds(self, T: Array, k: int) -> list[Array]:
         """Return the k configurations of a fixed bank (1024 configurations drawn uniformly
@@ -489,113 +427,6 @@ class DHArm:
         return (x, y, z), r, jac
 
 
-def _into_limits(q: Array, lo: Array, hi: Array, periodic: NDArray[np.bool_]) -> Array:
-    """Return q with each out-of-limit periodic joint shifted by the multiple of 2 pi that
-    brings it inside [lo, hi] (the same orientation of that link), and what is still outside
-    clipped to the nearest limit."""
-    out = (q < lo) | (q > hi)
-    if not out.any():
-        return q
-    r = q.copy()
-    two_pi = 2.0 * math.pi
-    k = np.where(q < lo, np.ceil((lo - q) / two_pi), np.floor((hi - q) / two_pi))
-    shifted = q + two_pi * k
-    ok = out & periodic & (shifted >= lo) & (shifted <= hi)
-    r[ok] = shifted[ok]
-    return np.clip(r, lo, hi)
-
-
-def _rotvec_one(M: Array) -> Array:
-    """Return the rotation vector (3,) of one rotation matrix (matrix_to_rotvec's formula,
-    its near-pi branch delegated)."""
-    cos_t = (M[0, 0] + M[1, 1] + M[2, 2] - 1.0) * 0.5
-    if cos_t < -0.99:
-        out: Array = matrix_to_rotvec(M)
-        return out
-    theta = math.acos(min(1.0, cos_t))
-    w = np.array([M[2, 1] - M[1, 2], M[0, 2] - M[2, 0], M[1, 0] - M[0, 1]])
-    if theta < 1e-6:
-        return w * (0.5 + theta * theta / 12.0)
-    return w * (theta / (2.0 * math.sin(theta)))
-
-
-def _pose_residual(
-    kinematics: Callable[[Array], tuple[Array, Array, Array]], T_target: Array
-) -> Callable[[Array], tuple[Array, Array, float, float]]:
-    """Return residual(q) -> (e, J, |e_p|^2, |e_r|^2) for `_lm` from kinematics(q) -> (p (3,),
-    R (3, 3), J (6, n)): e = (p* - p, log(R* R^T)) towards T_target (4, 4)."""
-    pt, Rt = T_target[:3, 3], T_target[:3, :3]
-
-    def residual(q: Array) -> tuple[Array, Array, float, float]:
-        p, R, J = kinematics(q)
-        e = np.concatenate([pt - p, _rotvec_one(Rt @ R.T)])
-        return e, J, float(e[:3] @ e[:3]), float(e[3:] @ e[3:])
-
-    return residual
-
-
-def _lm(
-    residual: Callable[[Array], tuple[Array, Array, float, float]],
-    q0: Array,
-    lo: Array,
-    hi: Array,
-    D: Array,
-    tol: float,
-    max_iterations: int,
-    periodic: NDArray[np.bool_] | None = None,
-    pinned_patience: int = 3,
-) -> tuple[Array, float, int, bool]:
-    """Run Levenberg-Marquardt from q0 on the pose error; return (q, cost, iterations, reached).
-
-    residual(q) -> (e (6,), J (6, n), |e_p|^2, |e_r|^2), e the pose error (`_pose_residual`).
-    Steps (J^T J + mu D) dq = J^T e, brought into [lo, hi] by `_into_limits` (periodic joints:
-    all revolute by default); mu / 3 after a step that lowers the cost, mu * 4 after one that
-    does not. Gives up (reached False) when mu exceeds 1e4, when 12 steps in a row gain less
-    than 0.1 %, or when more than `pinned_patience` steps in a row end with a joint clipped
-    to a limit: a local minimum, or a branch whose solution lies past a limit, where a new
-    start does better than more iterations (on the default arm, a start pinned for 3 steps
-    almost never recovers, and stopping there halves the iterations of the starts that fail).
-    """
-    q = q0.copy()
-    e, J, ep2, er2 = residual(q)
-    E = ep2 + er2
-    mu = 1e-3
-    stall = 0
-    pinned = 0
-    tol2 = tol * tol
-    it = 0
-    n = q.shape[0]
-    diag = (np.arange(n), np.arange(n))
-    lo_l, hi_l = lo.tolist(), hi.tolist()
-    wraps = np.ones(n, dtype=bool) if periodic is None else periodic
-    while it < max_iterations:
-        if ep2 <= tol2 and er2 <= tol2:
-            return q, E, it, True
-        it += 1
-        Jt = J.T
-        A = Jt @ J
-        A[diag] += mu * D
-        qn = q + np.linalg.solve(A, Jt @ e)
-        # The limit check in Python floats: for a few joints it costs less than numpy's.
-        clipped = False
-        if any(v < a or v > b for v, a, b in zip(qn.tolist(), lo_l, hi_l, strict=True)):
-            qn = _into_limits(qn, lo, hi, wraps)
-            clipped = any(v == a or v == b for v, a, b in zip(qn.tolist(), lo_l, hi_l, strict=True))
-        en, Jn, epn, ern = residual(qn)
-        En = epn + ern
-        if En < E:
-            stall = 0 if En < 0.999 * E else stall + 1
-            q, J, e, E, ep2, er2 = qn, Jn, en, En, epn, ern
-            mu = max(mu / 3.0, 1e-15)
-        else:
-            stall += 1
-            mu *= 4.0
-        pinned = pinned + 1 if clipped else 0
-        if mu > 1e4 or stall > 12 or pinned > pinned_patience:
-            break
-    return q, E, it, ep2 <= tol2 and er2 <= tol2
-
-
 def _geometric_jacobian(F: Array) -> Array:
     """Return the geometric Jacobian (..., 6, 6) from frames (..., 8, 4, 4) of `DHArm.frames`."""
     z = F[..., :6, :3, 2]  # axes z_0 .. z_5
@@ -625,36 +456,3 @@ def _unique(sols: list[Array], tol: float = 1e-9) -> list[Array]:
         if not any(np.max(np.abs(s - o)) < tol for o in out):
             out.append(s)
     return out
-
-
-def puma_like_arm() -> DHArm:
-    """Return the Puma-560-geometry arm of the twin's mobile manipulator.
-
-    Standard DH (Corke, RVC 2nd ed., tab. 7.1): a = (0, 0.4318, 0.0203, 0, 0, 0) m,
-    d = (0, 0, 0.15005, 0.4318, 0, 0) m, alpha = (90, 0, -90, 90, -90, 0) deg; the shoulder
-    height is the mount's, not d1. Limits (deg): (+-160, -45..225, -225..45, -110..170, +-100,
-    +-266), those of roboticstoolbox's Puma560. Tool: a parallel gripper whose fingertip centre
-    (the end effector) is 0.12 m along the flange's z axis. Home: (0, 45, -160, 0, 45, 0) deg,
-    elbow up with the gripper pointing forward and down.
-    """
-    deg = np.pi / 180.0
-    tool = np.eye(4)
-    tool[2, 3] = 0.12
-    return DHArm(
-        name="puma-like",
-        a=np.array([0.0, 0.4318, 0.0203, 0.0, 0.0, 0.0]),
-        d=np.array([0.0, 0.0, 0.15005, 0.4318, 0.0, 0.0]),
-        alpha=_PUMA_ALPHA.copy(),
-        offset=np.zeros(6),
-        limits=np.array(
-            [[-160, 160], [-45, 225], [-225, 45], [-110, 170], [-100, 100], [-266, 266]]
-        )
-        * deg,
-        tool=tool,
-        home=np.array([0.0, 45.0, -160.0, 0.0, 45.0, 0.0]) * deg,
-    )
-
-
-def default_arm() -> DHArm:
-    """Return the twin's arm (`puma_like_arm()`)."""
-    return puma_like_arm()

@@ -17,18 +17,16 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from core.errors import InvalidInput
-from core.geometry.poses import invert_pose, planar_pose
-from core.manipulation.arm import (
-    DHArm,
-    IKResult,
-    _lm,
-    _pose_residual,
-    _rotvec_one,
-    as_pose,
-    default_arm,
-    pose_error,
-)
+from core.geometry.poses import as_pose, invert_pose, planar_pose, pose_error
+from core.manipulation.arm import DHArm
+from core.manipulation.arm_models import default_arm
 from core.manipulation.errors import Unreachable
+from core.manipulation.numerical_ik import (
+    IKResult,
+    levenberg_marquardt,
+    pose_residual,
+    rotvec_one,
+)
 
 Array = NDArray[np.float64]
 
@@ -178,7 +176,7 @@ class MobileManipulator:
         iters = 0
         for _ in range(redundancy_iterations):
             p, R, J = self._kinematics_one(x)
-            e = np.concatenate([pt - p, _rotvec_one(Rt @ R.T)])
+            e = np.concatenate([pt - p, rotvec_one(Rt @ R.T)])
             JW = J * w_inv
             M = JW @ J.T + 1e-6 * np.eye(6)
             task = JW.T @ np.linalg.solve(M, e)
@@ -198,8 +196,10 @@ class MobileManipulator:
         periodic = np.array([False, False, True] + [True] * 6)
         gen = np.random.default_rng(rng)
         restarts = 0
-        residual = _pose_residual(self._kinematics_one, Tm)
-        xf, cost, used, ok = _lm(residual, x, lo, hi, w, tol, max_iterations, periodic=periodic)
+        residual = pose_residual(self._kinematics_one, Tm)
+        xf, cost, used, ok = levenberg_marquardt(
+            residual, x, lo, hi, w, tol, max_iterations, periodic=periodic
+        )
         iters += used
         # A polish stuck at an arm limit restarts from the arm's nearest seeds at the base
         # reached, then from random arm configurations: the base stays where it was.
@@ -208,7 +208,7 @@ class MobileManipulator:
             xs = x.copy()
             xs[3:] = starts.pop(0) if starts else gen.uniform(*self.arm.limits.T)
             restarts += 1
-            xr, cr, used, ok = _lm(
+            xr, cr, used, ok = levenberg_marquardt(
                 residual,
                 xs,
                 lo,
@@ -222,14 +222,7 @@ class MobileManipulator:
             if cr < cost:
                 xf, cost = xr, cr
         dp, dr = pose_error(self.fk(xf), Tm)
-        return IKResult(
-            q=xf,
-            success=bool(dp <= tol and dr <= tol),
-            position_error=float(dp),
-            rotation_error=float(dr),
-            iterations=iters,
-            restarts=restarts,
-        )
+        return IKResult.from_errors(xf, dp, dr, tol, iters, restarts)
 
     def place_base(
         self,

@@ -29,10 +29,10 @@ from numpy.typing import ArrayLike, NDArray
 
 from core.errors import DegenerateConfiguration, InvalidInput
 from core.geometry.camera import undistort_points
-from core.geometry.poses import invert_pose
+from core.geometry.poses import as_pose, invert_pose
 from core.geometry.rotations import matrix_to_rotvec
 from core.homography import PlaneMotion, decompose_homography, fit_homography
-from core.manipulation.arm import DHArm, as_pose
+from core.manipulation.arm import DHArm
 
 Array = NDArray[np.float64]
 

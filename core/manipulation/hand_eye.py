@@ -50,7 +50,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from core.errors import InvalidInput
 from core.geometry.camera import as_distortion, project_points
-from core.geometry.poses import invert_pose
+from core.geometry.poses import as_pose, invert_pose
 from core.geometry.rotations import (
     matrix_to_quaternion,
     matrix_to_rotvec,
@@ -58,7 +58,6 @@ from core.geometry.rotations import (
     rotvec_to_matrix,
     skew,
 )
-from core.manipulation.arm import as_pose
 from core.manipulation.errors import DegenerateMotions, TooFewMotions
 from core.optim import solve_sparse_lm
 

@@ -28,7 +28,9 @@ from core.geometry.camera import project_points
 from core.geometry.poses import invert_pose, planar_pose
 from core.geometry.rotations import matrix_to_rotvec
 from core.manipulation import (
+    HandEyeCalibration,
     MobileManipulator,
+    calibrate_hand_eye,
     default_manipulator,
 )
 from core.sim.intrinsics import NOISE as INTRINSICS_NOISE
@@ -83,6 +85,22 @@ class HandEyeViews:
     translations: int
     true_X: Array = field(repr=False)
     true_T_base_target: Array = field(repr=False)
+
+    def calibrate(self, method: str, *, refine: bool = False) -> HandEyeCalibration:
+        """Return the hand-eye calibration of these views by `method` (core.manipulation's
+        calibrate_hand_eye); with `refine`, refined by the board corners' reprojection error on
+        the calibrated intrinsics."""
+        if not refine:
+            return calibrate_hand_eye(self.T_base_ee, self.T_cam_target, method=method)
+        return calibrate_hand_eye(
+            self.T_base_ee,
+            self.T_cam_target,
+            method=method,
+            object_points=self.object_points,
+            image_points=self.image_points,
+            K=self.K,
+            dist=self.dist,
+        )
 
 
 def board_on_table(manipulator: MobileManipulator, park: Array = PARK) -> tuple[Array, Array]:

@@ -415,29 +415,23 @@ def calibrate_network_board(
     cams = []
     sq = 0.0
     for k, ini in enumerate(inits):
-        K, d, rv, t = problem.unpack(g, k)
+        params = problem.unpack(g, k)
+        K, d, rv, t = params
         proj = project_points(X[ini.used], rv, t, K, d).points  # (m, N, 2)
         resid = (proj - ini.corners[ini.used]).reshape(-1, 2)
         sq += float(np.sum(resid**2))
-        K0, _, rv0, t0 = problem.unpack(g0, k)
-        s = slice(problem.P * k, problem.P * (k + 1))
         cams.append(
-            CalibratedCamera(
-                name=ini.name,
-                K=K,
-                dist=d,
-                R=rotvec_to_matrix(rv),
-                t=t.copy(),
-                std=np.sqrt(np.maximum(np.diag(gcov)[s], 0.0)),
+            CalibratedCamera.refined(
+                ini.name,
+                params,
+                problem.unpack(g0, k),
+                gcov,
+                slice(problem.P * k, problem.P * (k + 1)),
                 residuals=resid,
-                pose_index=np.repeat(np.flatnonzero(ini.used), N),
-                covariance=gcov[s, s].copy(),
                 poses_seen=int(vis[ini.index].sum()),
                 outliers=ini.outliers,
-                initial_K=K0,
-                initial_R=rotvec_to_matrix(rv0),
-                initial_t=t0.copy(),
                 parameter_names=names_p,
+                pose_index=np.repeat(np.flatnonzero(ini.used), N),
             )
         )
     if problem.free:

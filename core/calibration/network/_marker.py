@@ -68,7 +68,7 @@ from core.calibration.network._records import CalibratedCamera, NetworkCalibrati
 from core.calibration.pose import estimate_plane_pose
 from core.errors import ConvergenceError, DegenerateConfiguration, InvalidInput, NotEnoughPoints
 from core.geometry.camera import project_points
-from core.geometry.rotations import matrix_to_rotvec, rotvec_to_matrix
+from core.geometry.rotations import matrix_to_rotvec
 from core.optim import solve_sparse_lm
 
 Array = NDArray[np.float64]
@@ -311,32 +311,26 @@ def calibrate_network_marker(
     sq_px = sq_w = 0.0
     x0 = problem.x0()
     for k, cm in enumerate(cams):
-        K, d, rv, t = problem.unpack(g, k)
+        params = problem.unpack(g, k)
+        K, d, rv, t = params
         u = used[k]
         pred = project_points(X[u], rv, t, K, d).points
         pred = pred + disc_centre_offset(X[u], rv, t, K, d, layout.radius[u])
         resid = pred - uv[cm.index][u]
         sq_px += float(np.sum(resid**2))
         sq_w += float(np.sum(np.einsum("mij,mj->mi", W[k][u], resid) ** 2))
-        K0, _, rv0, t0 = problem.unpack(x0, k)
-        sl = slice(problem.start[k], problem.start[k + 1])
         out.append(
-            CalibratedCamera(
-                name=cm.name,
-                K=K,
-                dist=d,
-                R=rotvec_to_matrix(rv),
-                t=t.copy(),
-                std=np.sqrt(np.maximum(np.diag(gcov)[sl], 0.0)),
+            CalibratedCamera.refined(
+                cm.name,
+                params,
+                problem.unpack(x0, k),
+                gcov,
+                slice(problem.start[k], problem.start[k + 1]),
                 residuals=resid,
                 poses_seen=int(vis[cm.index].reshape(M, -1).any(axis=1).sum()),
                 outliers=int(vis[cm.index].sum() - u.sum()),
-                initial_K=K0,
-                initial_R=rotvec_to_matrix(rv0),
-                initial_t=t0.copy(),
                 parameter_names=(*cm.prior.names, *_POSE_NAMES),
                 pose_index=layout.stop[u],
-                covariance=gcov[sl, sl].copy(),
                 detections=int(vis[cm.index].sum()),
             )
         )

@@ -8,6 +8,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from core.errors import InvalidInput
+from core.geometry.rotations import rotvec_to_matrix
 
 Array = NDArray[np.float64]
 
@@ -45,6 +46,46 @@ class CalibratedCamera:
     pose_index: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, np.int64), repr=False)
     covariance: Array = field(default_factory=lambda: np.zeros((0, 0)), repr=False)
     detections: int = 0
+
+    @classmethod
+    def refined(
+        cls,
+        name: str,
+        params: tuple[Array, Array, Array, Array],
+        initial: tuple[Array, Array, Array, Array],
+        covariance: Array,
+        block: slice,
+        *,
+        residuals: Array,
+        poses_seen: int,
+        outliers: int,
+        parameter_names: tuple[str, ...],
+        pose_index: NDArray[np.int64],
+        detections: int = 0,
+    ) -> CalibratedCamera:
+        """Return a camera of a joint refinement: its refined and initial parameters (K, dist,
+        rotation vector, t), and its block of the refinement's global covariance (`std` its
+        diagonal's roots, negative round-off clipped to zero)."""
+        K, d, rv, t = params
+        K0, _, rv0, t0 = initial
+        return cls(
+            name=name,
+            K=K,
+            dist=d,
+            R=rotvec_to_matrix(rv),
+            t=t.copy(),
+            std=np.sqrt(np.maximum(np.diag(covariance)[block], 0.0)),
+            residuals=residuals,
+            pose_index=pose_index,
+            covariance=covariance[block, block].copy(),
+            poses_seen=poses_seen,
+            outliers=outliers,
+            initial_K=K0,
+            initial_R=rotvec_to_matrix(rv0),
+            initial_t=t0.copy(),
+            parameter_names=parameter_names,
+            detections=detections,
+        )
 
     @property
     def focal(self) -> float:

@@ -24,7 +24,6 @@ from core.geometry.poses import invert_pose
 from core.geometry.rotations import matrix_to_rotvec
 from core.manipulation import (
     METHODS,
-    calibrate_hand_eye,
     default_manipulator,
     pose_error,
 )
@@ -128,17 +127,9 @@ def hand_eye(
     measured = float(np.sqrt(np.mean((v.image_points - truth) ** 2)))
     rows = []
     for m in METHODS:
-        r = calibrate_hand_eye(v.T_base_ee, v.T_cam_target, method=m)
+        r = v.calibrate(m)
         rows.append(_score(m, r.X, v.true_X, r.rotation_std_deg, r.translation_std_m))
-    ref = calibrate_hand_eye(
-        v.T_base_ee,
-        v.T_cam_target,
-        method="park",
-        object_points=v.object_points,
-        image_points=v.image_points,
-        K=v.K,
-        dist=v.dist,
-    )
+    ref = v.calibrate("park", refine=True)
     return HandEyeResult(
         scenario="hand-eye",
         seed=seed,

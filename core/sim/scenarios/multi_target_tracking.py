@@ -56,7 +56,14 @@ from core.sim.network_cameras import (
 )
 from core.sim.occluders import scene_occluders
 from core.sim.scene import Scene, Walker, default_scene
-from core.sim.tracking_score import SCORE_HZ, TrackLog, score_tracks, transformed, truth_instants
+from core.sim.tracking_score import (
+    SCORE_HZ,
+    TrackingScore,
+    TrackLog,
+    score_tracks,
+    transformed,
+    truth_instants,
+)
 
 Array = NDArray[np.float64]
 
@@ -137,6 +144,45 @@ class TrackingResult:
         return asdict(self)
 
 
+def _scored(
+    scenario: str,
+    seed: int,
+    minutes: float,
+    *,
+    targets: int,
+    camera_count: int,
+    frames: int,
+    detections: int,
+    score: TrackingScore,
+    in_frame: TrackingScore,
+    frame_error: tuple[float, float],
+    conditions: dict[str, float],
+) -> TrackingResult:
+    """Return a tracking scenario's record from its scores against the twin (`score`) and in
+    the calibrated home frame (`in_frame`), and that frame's own error (metres, degrees)."""
+    shift, turn = frame_error
+    return TrackingResult(
+        scenario=scenario,
+        seed=seed,
+        minutes=minutes,
+        targets=targets,
+        camera_count=camera_count,
+        frames=frames,
+        detections=detections,
+        idf1=score.idf1,
+        mota=score.mota,
+        id_switches=score.id_switches,
+        false_positives=score.false_positives,
+        misses=score.misses,
+        max_live_targets=score.max_live_targets,
+        person_rmse_m=score.class_rmse_m,
+        person_rmse_in_frame_m=in_frame.class_rmse_m,
+        frame_error_m=shift,
+        frame_error_deg=turn,
+        conditions=conditions,
+    )
+
+
 def _overlap(scene: Scene, duration_s: float) -> float:
     # Seconds two bodies overlapped (a script that makes people meet head-on; 0 in the
     # scenarios' homes): reported so a figure never hides people passing through each other.
@@ -177,25 +223,17 @@ def tracking_async(
     in_frame = score_tracks(
         truth_t, truth_xy, transformed(log, T), truth_at=lambda t: walkers_at(scene, t)
     )
-    shift, turn = frame_error(calibrated.cameras, T)
-    return TrackingResult(
-        scenario="tracking-async",
-        seed=seed,
-        minutes=minutes,
+    return _scored(
+        "tracking-async",
+        seed,
+        minutes,
         targets=len(scene.people),
         camera_count=len(calibrated.cameras),
         frames=len(frames),
         detections=int(sum(len(f.pixels) for f in frames)),
-        idf1=score.idf1,
-        mota=score.mota,
-        id_switches=score.id_switches,
-        false_positives=score.false_positives,
-        misses=score.misses,
-        max_live_targets=score.max_live_targets,
-        person_rmse_m=score.class_rmse_m,
-        person_rmse_in_frame_m=in_frame.class_rmse_m,
-        frame_error_m=shift,
-        frame_error_deg=turn,
+        score=score,
+        in_frame=in_frame,
+        frame_error=frame_error(calibrated.cameras, T),
         conditions={
             "rate_hz": ASYNC_RATE_HZ,
             "noise_px": ASYNC_NOISE_PX,
@@ -292,25 +330,17 @@ def track_rendered(
     score = score_tracks(truth_t, truth_xy, log, **options)
     T = frame_alignment(cameras, [truth[i] for i in calibrated.index])
     in_frame = score_tracks(truth_t, truth_xy, transformed(log, T), **options)
-    shift, turn = frame_error(cameras, T)
-    return TrackingResult(
-        scenario="tracking",
-        seed=seed,
-        minutes=minutes,
+    return _scored(
+        "tracking",
+        seed,
+        minutes,
         targets=truth_xy.shape[1],
         camera_count=len(cameras),
         frames=len(frames),
         detections=detections,
-        idf1=score.idf1,
-        mota=score.mota,
-        id_switches=score.id_switches,
-        false_positives=score.false_positives,
-        misses=score.misses,
-        max_live_targets=score.max_live_targets,
-        person_rmse_m=score.class_rmse_m,
-        person_rmse_in_frame_m=in_frame.class_rmse_m,
-        frame_error_m=shift,
-        frame_error_deg=turn,
+        score=score,
+        in_frame=in_frame,
+        frame_error=frame_error(cameras, T),
         conditions={
             "rate_hz": rate_hz,
             "noise": 1.0,

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from dataclasses import replace
 from typing import Any
 
 import cv2
@@ -28,6 +29,7 @@ from core.calibration.detect import (
     find_chessboard_on_background,
 )
 from core.calibration.network import (
+    CalibratedCamera,
     calibrate_network_board,
     calibrate_network_marker,
     registered,
@@ -78,6 +80,21 @@ INTRINSICS_FROM_BOARD = (
 # Marker kind
 
 
+def _camera_error(cal: CalibratedCamera, true: CameraModel) -> CameraCalibrationError:
+    """Return the errors every calibration kind reports for one camera against the twin's
+    (focal, position, rotation, poses seen, reprojection RMS); each kind adds its own fields
+    (scoring)."""
+    err = calibration_errors(cal, true)
+    return CameraCalibrationError(
+        name=cal.name,
+        focal_error_pct=err.focal_pct,
+        position_error_m=err.position_m,
+        rotation_error_deg=err.rotation_deg,
+        poses_seen=cal.poses_seen,
+        rms_px=cal.rms,
+    )
+
+
 def camera_errors(
     calibration: Any,
     cameras: Sequence[CameraModel],
@@ -95,17 +112,11 @@ def camera_errors(
     before = {} if start_frame is None else {c.name: c for c in start_frame.cameras}
     out = []
     for cal, true, (ap, ar) in zip(cals, trues, aligned, strict=True):
-        err = calibration_errors(cal, true)
         b = b_of.get(cal.name)
         s = calibration_errors(before[cal.name], true) if cal.name in before else None
         out.append(
-            CameraCalibrationError(
-                name=cal.name,
-                focal_error_pct=err.focal_pct,
-                position_error_m=err.position_m,
-                rotation_error_deg=err.rotation_deg,
-                poses_seen=cal.poses_seen,
-                rms_px=cal.rms,
+            replace(
+                _camera_error(cal, true),
                 aligned_position_error_m=ap,
                 aligned_rotation_error_deg=ar,
                 bound_focal_pct=None if b is None else b.focal_pct,
@@ -487,15 +498,9 @@ def network_calibration_board(
     k_of = {cm.name: k for k, cm in enumerate(cams)}
     for cal in net.cameras:
         true = next(cm for cm in cams if cm.name == cal.name)
-        err = calibration_errors(cal, true)
         errors.append(
-            CameraCalibrationError(
-                name=cal.name,
-                focal_error_pct=err.focal_pct,
-                position_error_m=err.position_m,
-                rotation_error_deg=err.rotation_deg,
-                poses_seen=cal.poses_seen,
-                rms_px=cal.rms,
+            replace(
+                _camera_error(cal, true),
                 principal_point_error_px=float(np.linalg.norm(cal.K[:2, 2] - true.K[:2, 2])),
                 distortion_error_px=_distortion_error_px(
                     cal.dist, true, corners[k_of[cal.name]][seen[k_of[cal.name]]].reshape(-1, 2)
