@@ -1,6 +1,7 @@
-"""Tentative tracks (core.localization.tracking, "Life cycle"): their births at the detections
-no track takes and that no existing body explains, and the misses that lower their score, by
-each camera that had one in view and did not detect it."""
+"""Tracks started at detections (core.localization.tracking, "Life cycle"): tentative tracks born
+at the detections no track takes and that no existing body explains, the misses that lower
+their score, by each camera that had one in view and did not detect it, and a track too vague
+to update started again at its detection."""
 
 from __future__ import annotations
 
@@ -79,6 +80,16 @@ def births(
     return out
 
 
+def _start(xy: Array, C: Array, cfg: TrackerConfig) -> tuple[Array, Array]:
+    """Return the state (4,) and covariance (4, 4) of a body at `xy` (2,) with covariance C
+    (2, 2), its speed unknown: N(0, initial_speed_std^2) per axis."""
+    x = np.array([xy[0], xy[1], 0.0, 0.0])
+    P = np.zeros((4, 4))
+    P[:2, :2] = C
+    P[2, 2] = P[3, 3] = cfg.initial_speed_std**2
+    return x, P
+
+
 def _birth(
     tracks: TrackTable,
     cfg: TrackerConfig,
@@ -91,16 +102,32 @@ def _birth(
     t: float,
     gap: float,
 ) -> None:
-    x = np.array([xy[0], xy[1], 0.0, 0.0])
-    P = np.zeros((4, 4))
-    P[:2, :2] = C
-    P[2, 2] = P[3, 3] = cfg.initial_speed_std**2
+    x, P = _start(xy, C, cfg)
     tracks.x = np.concatenate([tracks.x, x[None]])
     tracks.P = np.concatenate([tracks.P, P[None]])
     # A label is an identity the sender is sure of: nothing left to confirm.
     confirmed = cfg.confirm_hits <= 1 or label is not None
     state = TrackState.CONFIRMED if confirmed else TrackState.TENTATIVE
     tracks.append(tid, kind, label, state, hits=1, first=t, last=t, height=height, moved=t, gap=gap)
+
+
+def restart(
+    cam: NetworkCamera,
+    tracks: TrackTable,
+    rows: NDArray[np.intp],
+    detections: tuple[Array, Array, Array],
+    cols: NDArray[np.intp],
+    cfg: TrackerConfig,
+) -> None:
+    """Put tracks `rows` at the back-projections of their detections `cols` (of `detections`:
+    pixels, covariances and heights), speed unknown, keeping their ids: a labelled body back
+    after a long absence, its track too vague to linearise about."""
+    px, R, h = detections
+    for i, j in zip(rows.tolist(), cols.tolist(), strict=True):
+        est = locate_monocular(cam, px[j][None], float(h[j]), pixel_cov=R[j][None])
+        if not est.valid[0]:
+            continue
+        tracks.x[i], tracks.P[i] = _start(est.xy[0], est.cov[0], cfg)
 
 
 def score_misses(

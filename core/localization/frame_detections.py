@@ -154,3 +154,32 @@ def with_camera_error(
         good = np.all(np.isfinite(add), axis=(1, 2))
         out[sel[ok][good]] += add[good]
     return out, floor_std
+
+
+def inside_a_robot(
+    cam: NetworkCamera,
+    px: Array,
+    R: Array,
+    h: Array,
+    kind: list[str],
+    robots: Array,
+    body_radius: float,
+) -> NDArray[np.bool_]:
+    """Return which detections are "person" ones whose floor point lies within
+    `body_radius` (m) of a robot (`robots` (R, 2): where the robots' tracks are, m): a camera
+    that missed the robot's marker fits its body (with a person beside it, or its mast) as a
+    person, and nobody stands inside the robot. Such detections are left out like vague
+    ones."""
+    out = np.zeros(px.shape[0], dtype=bool)
+    person = np.array([k == "person" for k in kind], dtype=bool)
+    if not robots.shape[0] or not person.any():
+        return out
+    for value in np.unique(h[person]):
+        sel = np.flatnonzero(person & (h == value))
+        try:
+            est = locate_monocular(cam, px[sel], float(value), pixel_cov=R[sel])
+        except InvalidInput:
+            continue
+        d = np.linalg.norm(est.xy[:, None] - robots[None], axis=2)  # NaN: ray missed
+        out[sel] = np.any(np.nan_to_num(d, nan=np.inf) < body_radius, axis=1)
+    return out

@@ -112,11 +112,20 @@ from numpy.typing import ArrayLike, NDArray
 from core.errors import InvalidInput
 from core.localization._checks import check_time
 from core.localization._projection import inv2, project_plane, transposed
-from core.localization.association import ambiguous_pairs, assign_pairs, mahalanobis
-from core.localization.births import births, score_misses
+from core.localization.association import (
+    ambiguous_pairs,
+    assign_pairs,
+    mahalanobis,
+    project_tracks,
+)
+from core.localization.births import births, restart, score_misses
 from core.localization.cameras import NetworkCamera
-from core.localization.frame_detections import as_looks, parse_frame, with_camera_error
-from core.localization.ground import locate_monocular
+from core.localization.frame_detections import (
+    as_looks,
+    inside_a_robot,
+    parse_frame,
+    with_camera_error,
+)
 from core.localization.life_cycle import move_life_cycle
 from core.localization.looks import TrackLooks
 from core.localization.motion import cv_process_noise, cv_transition
@@ -363,7 +372,7 @@ class Tracker:
                 | (self.config.located_std == 0)
                 | np.array([v is not None for v in lab], dtype=bool)
             )
-            & ~self._inside_a_robot(cam, t, px, R, h, kind)
+            & ~inside_a_robot(cam, px, R, h, kind, self._robots_at(t), self.config.body_radius)
         )
         left_out = np.setdiff1d(np.arange(n_all), used)
         vague = (px[left_out], R[left_out], h[left_out])
@@ -391,9 +400,8 @@ class Tracker:
                 # absence) starts again at its detection, keeping its id.
                 lost = self._tracks.vague(rows, self.config.max_position_std)
                 if (sure & lost).any():
-                    self._restart(
-                        cam, rows[sure & lost], px[cols[sure & lost]], R, h, cols[sure & lost]
-                    )
+                    again = sure & lost
+                    restart(cam, self._tracks, rows[again], (px, R, h), cols[again], self.config)
                 upd = sure & ~lost
                 if upd.any():
                     self._ekf_update(cam, rows[upd], px[cols[upd]], R[cols[upd]], h[cols[upd]])
@@ -458,57 +466,17 @@ class Tracker:
             track_ids, started = all_ids, all_started
         return FrameResult(t, camera, track_ids, started, updated, ended, dropped)
 
-    def _inside_a_robot(
-        self, cam: NetworkCamera, t: float, px: Array, R: Array, h: Array, kind: list[str]
-    ) -> NDArray[np.bool_]:
-        """Return which detections are "person" ones whose floor point lies within
-        `body_radius` of a robot's confirmed track at time t: a camera that missed the robot's
-        marker fits its body (with a person beside it, or its mast) as a person, and nobody
-        stands inside the robot. Such detections are left out like vague ones."""
-        out = np.zeros(px.shape[0], dtype=bool)
+    def _robots_at(self, t: float) -> Array:
+        """Return where the robots' confirmed or coasting tracks are at time t (R, 2), m."""
         robots = [
             i
             for i, (k, st) in enumerate(zip(self._tracks.kinds, self._tracks.states, strict=True))
             if k == "robot" and st is not TrackState.TENTATIVE
         ]
-        person = np.array([k == "person" for k in kind], dtype=bool)
-        if not robots or not person.any():
-            return out
+        if not robots:
+            return np.zeros((0, 2))
         x, _ = self._predicted(t)
-        where = x[robots, :2]
-        for value in np.unique(h[person]):
-            sel = np.flatnonzero(person & (h == value))
-            try:
-                est = locate_monocular(cam, px[sel], float(value), pixel_cov=R[sel])
-            except InvalidInput:
-                continue
-            d = np.linalg.norm(est.xy[:, None] - where[None], axis=2)  # NaN: ray missed
-            out[sel] = np.any(np.nan_to_num(d, nan=np.inf) < self.config.body_radius, axis=1)
-        return out
-
-    def _project(self, cam: NetworkCamera, h: Array) -> tuple[Array, Array, NDArray[np.bool_]]:
-        """Return every track projected at each detection's height: pixels (T, D, 2), the
-        Jacobians d pixel / d(x, y) (T, D, 2, 2) and whether the camera can see the point
-        (T, D): in front and within the field of view. The last matters: outside the field of
-        view the distortion polynomial folds points back into the image, where a track could
-        take a detection that is not its own."""
-        T, D = len(self._tracks), h.size
-        u = np.empty((T, D, 2))
-        J = np.empty((T, D, 2, 2))
-        seen = np.empty((T, D), dtype=bool)
-        xy = self._tracks.x[:, :2]
-        for value in np.unique(h):
-            sel = np.flatnonzero(h == value)
-            proj = project_plane(cam, xy, float(value), jacobian=True)
-            assert proj.jacobian is not None
-            u[:, sel] = proj.pixels[:, None]
-            J[:, sel] = proj.jacobian[:, None]
-            Xc = np.column_stack([xy, np.full(T, float(value))]) @ cam.R.T + cam.t
-            z = np.where(Xc[:, 2] > 1e-6, Xc[:, 2], 1.0)
-            r2 = (Xc[:, 0] ** 2 + Xc[:, 1] ** 2) / z**2
-            ok = (Xc[:, 2] > 1e-6) & (r2 <= cam.fov_radius**2)
-            seen[:, sel] = ok[:, None]
-        return u, J, seen
+        return x[robots, :2]
 
     def _associate(
         self,
@@ -527,7 +495,7 @@ class Tracker:
             empty = np.zeros(0, dtype=np.intp)
             return empty, empty, np.zeros(0), np.zeros(0, dtype=bool)
         cam = self.cameras[camera]
-        u, J, front = self._project(cam, h)
+        u, J, front = project_tracks(cam, self._tracks.x[:, :2], h)
         S = J @ self._tracks.P[:, None, :2, :2] @ transposed(J) + R[None]
         d2, logdet = mahalanobis(px[None] - u, S)
         cost = d2 + logdet + self._look_cost(camera, look)
@@ -583,25 +551,6 @@ class Tracker:
         return np.nan_to_num(
             weight * self._looks.distances(self._tracks.ids, camera, look), nan=0.0
         )
-
-    def _restart(
-        self,
-        cam: NetworkCamera,
-        rows: NDArray[np.intp],
-        px: Array,
-        R: Array,
-        h: Array,
-        cols: NDArray[np.intp],
-    ) -> None:
-        """Put tracks `rows` at their detections' back-projections, speed unknown."""
-        for i, z, j in zip(rows.tolist(), px, cols.tolist(), strict=True):
-            est = locate_monocular(cam, z[None], float(h[j]), pixel_cov=R[j][None])
-            if not est.valid[0]:
-                continue
-            self._tracks.x[i] = [est.xy[0, 0], est.xy[0, 1], 0.0, 0.0]
-            self._tracks.P[i] = 0.0
-            self._tracks.P[i, :2, :2] = est.cov[0]
-            self._tracks.P[i, 2, 2] = self._tracks.P[i, 3, 3] = self.config.initial_speed_std**2
 
     def _ekf_update(
         self, cam: NetworkCamera, rows: NDArray[np.intp], z: Array, R: Array, h: Array
