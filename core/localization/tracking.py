@@ -208,7 +208,7 @@ class Tracker:
         self._camera_last: dict[Hashable, float] = {}
         self._camera_gap: dict[Hashable, float] = {}
         # Each track's look (module docstring, "Appearance"), and the lost tracks recognised
-        # in the current frame (`_take_over`).
+        # in the current frame (core.localization.recognition).
         self._looks = TrackLooks(self.config.appearance_rate)
         self._recognised_ids: list[int] = []
 
@@ -489,7 +489,7 @@ class Tracker:
         look: Array | None,
     ) -> tuple[NDArray[np.intp], NDArray[np.intp], Array, NDArray[np.bool_]]:
         """Return the (track rows, detection columns) of this frame's assignment, each pair's
-        log-likelihood ln N(nu; 0, S), and whether the pair is ambiguous (`_ambiguous`)."""
+        log-likelihood ln N(nu; 0, S), and whether the pair is ambiguous (`ambiguous_pairs`)."""
         T, D = len(self._tracks), px.shape[0]
         if T == 0:
             empty = np.zeros(0, dtype=np.intp)
