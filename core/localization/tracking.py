@@ -207,10 +207,8 @@ class Tracker:
         # track's interval of the camera that last updated it (module docstring, life cycle).
         self._camera_last: dict[Hashable, float] = {}
         self._camera_gap: dict[Hashable, float] = {}
-        # Each track's look (module docstring, "Appearance"), and the lost tracks recognised
-        # in the current frame (core.localization.recognition).
+        # Each track's look (module docstring, "Appearance").
         self._looks = TrackLooks(self.config.appearance_rate)
-        self._recognised_ids: list[int] = []
 
     # -- cameras and state ---------------------------------------------------------------------
 
@@ -272,8 +270,7 @@ class Tracker:
         t = check_time(t)
         self._tracks.x, self._tracks.P = self._predicted(t)
         self._t = t
-        ended, _ = self._manage()
-        return ended
+        return self._manage()[0]
 
     def shift(self, dt: float) -> None:
         """Move the tracker's clock and every track's times on by dt seconds without any
@@ -450,9 +447,8 @@ class Tracker:
                     touched.append(tid)
                     if look is not None:
                         self._looks.learn(tid, camera, look[j], self._tracks.x[-1])
-        self._recognised_ids = []
-        ended, dropped = self._manage()
-        touched += self._recognised_ids
+        ended, dropped, recognised = self._manage()
+        touched += recognised
         index = {tid: i for i, tid in enumerate(self._tracks.ids)}
         updated = tuple(
             self._tracks.snapshot(index[tid], self._tracks.x, self._tracks.P, t)
@@ -587,9 +583,8 @@ class Tracker:
             self._camera_gap[camera] = t - last if old is None else 0.5 * (old + t - last)
         return self._camera_gap.get(camera, 0.0)
 
-    def _manage(self) -> tuple[tuple[TrackSnapshot, ...], tuple[int, ...]]:
-        """Move the life cycle on at the tracker's time; return (ended, dropped ids)."""
+    def _manage(self) -> tuple[tuple[TrackSnapshot, ...], tuple[int, ...], list[int]]:
+        """Move the life cycle on at the tracker's time; return (ended, dropped ids, ids of
+        the lost tracks recognised: core.localization.life_cycle)."""
         t = float(self._t) if self._t is not None else 0.0
-        ended, dropped, found = move_life_cycle(self._tracks, self._looks, self.config, t)
-        self._recognised_ids += found
-        return ended, dropped
+        return move_life_cycle(self._tracks, self._looks, self.config, t)
