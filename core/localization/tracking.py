@@ -99,6 +99,11 @@ Life cycle, by elapsed time (never by frame count, since cameras report at their
 
 Time is Unix seconds (or any one clock): frames must come in time order; core.localization.reorder
 puts frames of several cameras that arrive out of order back in order within a latency window.
+
+This module holds the loop (predict, associate, update); each rule above lives in a module named
+for it: the tracks' table (track_table), a frame's checks (frame_detections), the assignment
+(association), what a camera can see (occlusion), births and misses (births), the life cycle
+(life_cycle), looks (looks) and recognition (recognition), stored tracks (track_restore).
 """
 
 from __future__ import annotations
