@@ -1,5 +1,6 @@
-"""Associating detections with tracks: Gaussian innovation costs, the minimum-cost assignment
-over allowed pairs, and which assigned pairs another track could take almost as well."""
+"""Associating detections with tracks: the tracks' predicted pixels, Gaussian innovation
+costs, the minimum-cost assignment over allowed pairs, and which assigned pairs another track
+could take almost as well."""
 
 from __future__ import annotations
 
@@ -7,7 +8,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import linear_sum_assignment
 
-from core.localization._projection import inv2
+from core.localization._projection import inv2, project_plane
+from core.localization.cameras import NetworkCamera
 
 Array = NDArray[np.float64]
 
@@ -66,3 +68,29 @@ def assign_pairs(
     r, c = linear_sum_assignment(sub)
     keep = sub_ok[r, c]
     return rows_any[r[keep]], cols_any[c[keep]]
+
+
+def project_tracks(
+    cam: NetworkCamera, xy: Array, h: Array
+) -> tuple[Array, Array, NDArray[np.bool_]]:
+    """Return the tracks at `xy` (T, 2) projected at each detection's height `h` (D,): pixels
+    (T, D, 2), the Jacobians d pixel / d(x, y) (T, D, 2, 2) and whether the camera can see the
+    point (T, D): in front and within the field of view. The last matters: outside the field
+    of view the distortion polynomial folds points back into the image, where a track could
+    take a detection that is not its own."""
+    T, D = xy.shape[0], h.size
+    u = np.empty((T, D, 2))
+    J = np.empty((T, D, 2, 2))
+    seen = np.empty((T, D), dtype=bool)
+    for value in np.unique(h):
+        sel = np.flatnonzero(h == value)
+        proj = project_plane(cam, xy, float(value), jacobian=True)
+        assert proj.jacobian is not None
+        u[:, sel] = proj.pixels[:, None]
+        J[:, sel] = proj.jacobian[:, None]
+        Xc = np.column_stack([xy, np.full(T, float(value))]) @ cam.R.T + cam.t
+        z = np.where(Xc[:, 2] > 1e-6, Xc[:, 2], 1.0)
+        r2 = (Xc[:, 0] ** 2 + Xc[:, 1] ** 2) / z**2
+        ok = (Xc[:, 2] > 1e-6) & (r2 <= cam.fov_radius**2)
+        seen[:, sel] = ok[:, None]
+    return u, J, seen
