@@ -1,5 +1,5 @@
-// The dashboard's colours are one table of CSS custom properties (the `:root` block at the top
-// of web/css/app.css). The stylesheet uses them by name; what the scripts paint (plots, the
+// The dashboard's colours are one table of CSS custom properties (the `:root` block of
+// web/css/tokens.css). The stylesheet uses them by name; what the scripts paint (plots, the
 // coverage heat map, legends) reads the same table here, so no colour is written twice.
 
 const cache = new Map();
@@ -9,7 +9,7 @@ export function colour(name) {
   let value = cache.get(name);
   if (value === undefined) {
     value = getComputedStyle(document.documentElement).getPropertyValue(`--${name}`).trim();
-    if (!value) throw new Error(`no colour token --${name} in app.css`);
+    if (!value) throw new Error(`no colour token --${name} in tokens.css`);
     cache.set(name, value);
   }
   return value;

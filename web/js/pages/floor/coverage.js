@@ -7,7 +7,7 @@ import { eventToWorld } from "../../plan.js";
 import { fmt, h, mount, s } from "../../ui.js";
 
 // Viridis (matplotlib), dark to bright, and the colours of 1, 2, 3 and 4+ cameras: tokens of
-// app.css. The accuracy map runs bright (precise) to dark.
+// tokens.css. The accuracy map runs bright (precise) to dark.
 const VIRIDIS = Array.from({ length: 10 }, (_, i) => `viridis-${i}`);
 const COUNT_COLOURS = [null, "coverage-1", "coverage-2", "coverage-3", "coverage-4"];
 const NOT_SEEN_ALPHA = 70; // no camera sees the cell: the muted grey, faint
