@@ -293,7 +293,7 @@ def test_ml_agrees_with_scipy_least_squares_per_target(cams):
 
 
 def test_chunked_batches_equal_one_pass(cams, monkeypatch):
-    import core.localization.ground as ground
+    import core.localization.ground._batch as batch
 
     rng = np.random.default_rng(23)
     P = floor_points(rng, 50, H)
@@ -306,7 +306,7 @@ def test_chunked_batches_equal_one_pass(cams, monkeypatch):
         "ml": locate_ml(cams, px, H, visible=vis),
         "mono": locate_monocular(cams[0], px[0, vis[0]], H),
     }
-    monkeypatch.setattr(ground, "_CHUNK", 7)
+    monkeypatch.setattr(batch, "_CHUNK", 7)
     parts = {
         "linear": triangulate_linear(cams, px, visible=vis),
         "constrained": triangulate_on_plane(cams, px, H, visible=vis),
