@@ -12,6 +12,7 @@ calibration.
   readings and each view's pose estimated from its pixels (core.calibration.estimate_plane_pose)
   on the camera's calibrated intrinsics; the true hand-eye transform, board pose and lens are
   kept apart for scoring.
+* `hand_eye_error(...)`: one method's hand-eye estimate scored against the true transform.
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ from core.manipulation import (
     MobileManipulator,
     calibrate_hand_eye,
     default_manipulator,
+    pose_error,
 )
 from core.sim.intrinsics import NOISE as INTRINSICS_NOISE
 from core.sim.intrinsics import RenderedCalibration, calibrate_from_board_views
@@ -58,6 +60,33 @@ TABLE_TOP = 0.75
 # TRANSLATION_M metres; with the first view they give 6 motions without rotation.
 TRANSLATIONS = 3
 TRANSLATION_M = (0.04, 0.07)
+
+
+@dataclass(frozen=True)
+class HandEyeMethodError:
+    """One method's hand-eye estimate against the truth: rotation error degrees (angle of
+    R_est^T R_true), translation error millimetres, and its own predicted standard deviations."""
+
+    method: str
+    rotation_error_deg: float
+    translation_error_mm: float
+    rotation_std_deg: float
+    translation_std_mm: float
+
+
+def hand_eye_error(
+    method: str, X: Array, true_X: Array, rotation_std_deg: float, translation_std_m: float
+) -> HandEyeMethodError:
+    """Return the errors of hand-eye estimate `X` (4x4 T_ee_camera) of `method` against the
+    true `true_X`, with the estimate's own standard deviations (degrees, metres; scoring)."""
+    dp, dr = pose_error(X, true_X)
+    return HandEyeMethodError(
+        method=method,
+        rotation_error_deg=math.degrees(float(dr)),
+        translation_error_mm=1e3 * float(dp),
+        rotation_std_deg=rotation_std_deg,
+        translation_std_mm=1e3 * translation_std_m,
+    )
 
 
 @dataclass(frozen=True)

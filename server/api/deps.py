@@ -20,7 +20,7 @@ import hmac
 import re
 from collections.abc import AsyncIterator
 from dataclasses import dataclass
-from typing import Annotated, Any
+from typing import Annotated, Any, TypeVar
 
 from fastapi import Depends, HTTPException, Query, Request, WebSocket, status
 from fastapi.security import APIKeyCookie, HTTPAuthorizationCredentials, HTTPBearer
@@ -46,6 +46,8 @@ from server.services.tracking import TrackingService
 from server.services.twin import Twin
 from server.services.zones import ZoneService
 from server.settings import Settings
+
+T = TypeVar("T")
 
 SESSION_COOKIE = "intspace_session"
 CSRF_HEADER = "X-CSRF-Token"
@@ -136,24 +138,24 @@ async def get_twin(connection: HTTPConnection) -> Twin | None:
     return runtime_of(connection).twin
 
 
+def _started(service: T | None, not_started: str) -> T:
+    """Return `service`, raising 503 with the message `not_started` while it is None (the app
+    has not started it yet)."""
+    if service is None:
+        raise HTTPException(status.HTTP_503_SERVICE_UNAVAILABLE, not_started)
+    return service
+
+
 async def get_task_runner(connection: HTTPConnection) -> TaskRunner:
     """Return the runner of robot tasks (fetch, survey) started with the app."""
-    runner = runtime_of(connection).task_runner
-    if runner is None:
-        raise HTTPException(
-            status.HTTP_503_SERVICE_UNAVAILABLE, "the task runner has not started (yet)"
-        )
-    return runner
+    return _started(runtime_of(connection).task_runner, "the task runner has not started (yet)")
 
 
 async def get_follow_tasks(connection: HTTPConnection) -> FollowTasks:
     """Return the follow tasks of planned paths run by this process (started with the app)."""
-    tasks = runtime_of(connection).follow_tasks
-    if tasks is None:
-        raise HTTPException(
-            status.HTTP_503_SERVICE_UNAVAILABLE, "the path follow tasks have not started (yet)"
-        )
-    return tasks
+    return _started(
+        runtime_of(connection).follow_tasks, "the path follow tasks have not started (yet)"
+    )
 
 
 async def get_latest_frames(connection: HTTPConnection) -> LatestFrames:

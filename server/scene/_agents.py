@@ -19,7 +19,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from core.errors import InvalidInput
-from server.scene._geometry import Pose
+from server.scene._geometry import Pose, as_xy_points
 
 AGENT_KINDS = ("robot", "person")
 # Sizes used when a caller leaves them out (m): a small home robot, an adult.
@@ -117,14 +117,7 @@ def parse_agent(agent: Mapping[str, Any]) -> AgentSpec:
 
 def parse_track(points: Sequence[Sequence[float]] | NDArray[np.float64]) -> NDArray[np.float64]:
     """Return a track's newest MAX_TRACK_POINTS points as an (N, 2) float array (N may be 0)."""
-    try:
-        p = np.asarray(points, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise InvalidInput(f"a track must be a list of [x, y] points: {exc}") from None
-    if p.size == 0:
-        return np.zeros((0, 2))
-    if p.ndim != 2 or p.shape[1] != 2:
-        raise InvalidInput(f"a track must be a list of [x, y] points, got shape {p.shape}")
+    p = as_xy_points(points, "a track")
     if not np.all(np.isfinite(p)):
         raise InvalidInput("a track's points must be finite")
     return p[-MAX_TRACK_POINTS:].copy()

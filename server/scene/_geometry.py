@@ -99,6 +99,20 @@ def frustum_from_intrinsics(K: ArrayLike | None, width: int, height: int) -> Fru
     return Frustum(2.0 * math.atan2(float(height), 2.0 * float(k[1, 1])), aspect)
 
 
+def as_xy_points(points: object, name: str) -> Array:
+    """Return `name`'s [x, y] points as an (N, 2) float array (N may be 0); raise InvalidInput
+    for anything else. The caller checks their count and that they are finite."""
+    try:
+        p = np.asarray(points, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise InvalidInput(f"{name} must be a list of [x, y] points: {exc}") from None
+    if p.size == 0:
+        return np.zeros((0, 2))
+    if p.ndim != 2 or p.shape[1] != 2:
+        raise InvalidInput(f"{name} must be a list of [x, y] points, got shape {p.shape}")
+    return p
+
+
 def as_polygon(points: object, name: str) -> Array:
     """Return a floor polygon as an (N, 2) float array, N >= 3; raise InvalidInput otherwise
     (whatever the caller was given is checked here)."""

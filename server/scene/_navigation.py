@@ -18,7 +18,7 @@ from numpy.typing import NDArray
 
 from core.errors import InvalidInput
 from server.scene._entries import ProjectorEntry
-from server.scene._geometry import Pose, pose_from_transform
+from server.scene._geometry import Pose, as_xy_points, pose_from_transform
 
 # Beyond this many points a planned path is a mistake (the planner's paths have tens).
 MAX_PATH_POINTS = 10_000
@@ -41,14 +41,9 @@ class ProjectorView:
 def parse_path(points: Sequence[Sequence[float]] | NDArray[np.float64]) -> NDArray[np.float64]:
     """Return a planned path as an (N, 2) float array of world (x, y) metres (N may be 0, which
     clears it); raise InvalidInput for anything else, or a single point."""
-    try:
-        p = np.asarray(points, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise InvalidInput(f"a planned path must be a list of [x, y] points: {exc}") from None
-    if p.size == 0:
-        return np.zeros((0, 2))
-    if p.ndim != 2 or p.shape[1] != 2:
-        raise InvalidInput(f"a planned path must be a list of [x, y] points, got shape {p.shape}")
+    p = as_xy_points(points, "a planned path")
+    if len(p) == 0:
+        return p
     if len(p) < 2 or len(p) > MAX_PATH_POINTS:
         raise InvalidInput(
             f"a planned path has 2 to {MAX_PATH_POINTS} points, got {len(p)}; an empty list "

@@ -30,6 +30,8 @@ from core.manipulation import (
 from core.sim.eye_in_hand import (
     EYE_DIST,
     EYE_K,
+    HandEyeMethodError,
+    hand_eye_error,
     hand_eye_views,
 )
 from core.sim.fetch import (
@@ -45,18 +47,6 @@ from core.sim.scene import Scene, default_scene
 Array = NDArray[np.float64]
 
 __all__ = ["GraspResult", "HandEyeMethodError", "HandEyeResult", "grasp", "hand_eye"]
-
-
-@dataclass(frozen=True)
-class HandEyeMethodError:
-    """One method's hand-eye estimate against the truth: rotation error degrees (angle of
-    R_est^T R_true), translation error millimetres, and its own predicted standard deviations."""
-
-    method: str
-    rotation_error_deg: float
-    translation_error_mm: float
-    rotation_std_deg: float
-    translation_std_mm: float
 
 
 @dataclass(frozen=True)
@@ -88,17 +78,6 @@ class HandEyeResult:
         return asdict(self)
 
 
-def _score(name: str, X: Array, true_X: Array, rot_std: float, tr_std: float) -> HandEyeMethodError:
-    dp, dr = pose_error(X, true_X)
-    return HandEyeMethodError(
-        method=name,
-        rotation_error_deg=math.degrees(float(dr)),
-        translation_error_mm=1e3 * float(dp),
-        rotation_std_deg=rot_std,
-        translation_std_mm=1e3 * tr_std,
-    )
-
-
 def hand_eye(
     scene: Scene | None = None,
     seed: int = 0,
@@ -128,7 +107,7 @@ def hand_eye(
     rows = []
     for m in METHODS:
         r = v.calibrate(m)
-        rows.append(_score(m, r.X, v.true_X, r.rotation_std_deg, r.translation_std_m))
+        rows.append(hand_eye_error(m, r.X, v.true_X, r.rotation_std_deg, r.translation_std_m))
     ref = v.calibrate("park", refine=True)
     return HandEyeResult(
         scenario="hand-eye",
@@ -141,7 +120,9 @@ def hand_eye(
         sigma_px=sigma_px,
         measured_sigma_px=measured,
         methods=tuple(rows),
-        refined=_score("park+refine", ref.X, v.true_X, ref.rotation_std_deg, ref.translation_std_m),
+        refined=hand_eye_error(
+            "park+refine", ref.X, v.true_X, ref.rotation_std_deg, ref.translation_std_m
+        ),
         refined_rms_px=float(ref.rms_px if ref.rms_px is not None else math.nan),
     )
 

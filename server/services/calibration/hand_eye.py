@@ -11,7 +11,6 @@ core.sim.scenarios.manipulation: no estimate reads it.
 
 from __future__ import annotations
 
-import math
 import secrets
 from collections.abc import Sequence
 from typing import Any
@@ -20,9 +19,9 @@ import numpy as np
 from sqlalchemy import or_, update
 from sqlalchemy.orm import Session
 
-from core.manipulation import METHODS, DegenerateMotions, calibrate_hand_eye, pose_error
+from core.manipulation import METHODS, DegenerateMotions, calibrate_hand_eye
 from core.manipulation.hand_eye import check_motions, relative_motions
-from core.sim.eye_in_hand import hand_eye_views
+from core.sim.eye_in_hand import hand_eye_error, hand_eye_views
 from server.db.base import utcnow
 from server.db.models import Arm, CalibrationRun, Camera, HandEyeCalibration
 from server.schemas.calibration import HandEyeMethodRow, HandEyeRunResult
@@ -155,19 +154,6 @@ def pose_pairs_problem(
     return None
 
 
-def _method_row(
-    name: str, X: np.ndarray, truth: np.ndarray, rs: float, ts: float
-) -> HandEyeMethodRow:
-    dp, dr = pose_error(X, truth)
-    return HandEyeMethodRow(
-        method=name,
-        rotation_error_deg=math.degrees(float(dr)),
-        translation_error_mm=1e3 * float(dp),
-        rotation_std_deg=rs,
-        translation_std_mm=1e3 * ts,
-    )
-
-
 def calibrate_hand_eye_run(
     inputs: dict[str, Any], options: dict[str, Any], progress: Progress
 ) -> HandEyeRunResult:
@@ -221,11 +207,13 @@ def calibrate_hand_eye_run(
         methods = []
         for m in METHODS:
             r = calibrate_hand_eye(E, C, method=m)
-            methods.append(_method_row(m, r.X, truth, r.rotation_std_deg, r.translation_std_m))
+            error = hand_eye_error(m, r.X, truth, r.rotation_std_deg, r.translation_std_m)
+            methods.append(HandEyeMethodRow.model_validate(error))
         twin["methods"] = methods
-        twin["truth"] = _method_row(
+        error = hand_eye_error(
             result.method, result.X, truth, result.rotation_std_deg, result.translation_std_m
         )
+        twin["truth"] = HandEyeMethodRow.model_validate(error)
     progress("done", 1.0)
     return HandEyeRunResult(
         kind="hand-eye",
