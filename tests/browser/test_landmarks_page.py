@@ -16,11 +16,13 @@ import cv2
 import numpy as np
 import pytest
 
-from core.geometry.rotations import rotvec_to_matrix
 from core.landmarks import ObjectMark, Signpost, encode_payload
 from core.landmarks.artwork import make_artwork
 from core.sim.render import SensorNoise
-from core.sim.render.landmarks import LandmarkCamera, artwork_texture, render_landmarks
+from core.sim.render.landmarks import artwork_texture, render_landmarks
+from tests.support.landmark_views import HEAD_CAMERA, mark_pose
+from tests.support.landmark_views import HEAD_DIST as DIST
+from tests.support.landmark_views import HEAD_K as K
 
 try:
     from playwright.sync_api import Page, expect
@@ -29,30 +31,19 @@ except ImportError:  # pragma: no cover - depends on the environment
         raise  # in CI the browser tests must run
     pytest.skip("playwright is not installed (pip install -e '.[dev]')", allow_module_level=True)
 
-K = [[600.0, 0.0, 321.5], [0.0, 600.0, 242.0], [0.0, 0.0, 1.0]]
-DIST = [-0.12, 0.05, 0.001, -0.0005, 0.0]
 CUP = ObjectMark(7, "cup", "blue cup", "kitchen", (0.08, 0.08, 0.1))
 DOOR = Signpost(3, "kitchen door", "kitchen", (1.0, 2.0, 1.2, 0, 0, 0, 1), (4,))
-
-
-def _pose(axis_deg: float, obliquity_deg: float, t: list[float], psi: float) -> np.ndarray:
-    a = np.radians(axis_deg)
-    T = np.eye(4)
-    T[:3, :3] = (
-        rotvec_to_matrix(np.radians(obliquity_deg) * np.array([np.cos(a), np.sin(a), 0]))
-        @ rotvec_to_matrix([np.pi, 0, 0])
-        @ rotvec_to_matrix([0, 0, psi])
-    )
-    T[:3, 3] = t
-    return T
 
 
 def _photo(path: Path) -> np.ndarray:
     """Write the photo (PNG) of both landmarks at 30 deg; return the cup's true corners (4, 2)
     in distorted pixels."""
-    cam = LandmarkCamera(np.array(K), np.array(DIST), 640, 480)
+    cam = HEAD_CAMERA
     arts = [make_artwork(CUP), make_artwork(DOOR)]
-    poses = [_pose(20.0, 30.0, [-0.12, 0.0, 0.45], 0.3), _pose(80.0, 30.0, [0.16, 0.0, 0.55], -0.4)]
+    poses = [
+        mark_pose(20.0, 30.0, [-0.12, 0.0, 0.45], 0.3),
+        mark_pose(80.0, 30.0, [0.16, 0.0, 0.55], -0.4),
+    ]
     view = render_landmarks(
         cam,
         [(artwork_texture(a), T, a.size, None) for a, T in zip(arts, poses, strict=True)],
@@ -123,7 +114,7 @@ def test_landmarks_page_prints_and_draws_detections(service, browser_page: Page,
     # places, one edge, drawn on the plan.
     service.api("POST", "/spaces", {"name": "home"})
     hall = Signpost(4, "hall door", "hall", (3.0, 2.0, 1.2, 0, 0, 0, 1), (3,))
-    T = _pose(20.0, 30.0, [-0.12, 0.0, 0.45], 0.3).tolist()
+    T = mark_pose(20.0, 30.0, [-0.12, 0.0, 0.45], 0.3).tolist()
     cov = np.diag([1e-4] * 3 + [1e-6] * 3).tolist()
     eye = np.eye(4).tolist()
     service.api(

@@ -8,15 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from core.calibration.io import (
-    CalibrationRecord,
-    from_opencv_json,
-    from_opencv_yaml,
-    from_ros_yaml,
-    to_opencv_json,
-    to_opencv_yaml,
-    to_ros_yaml,
-)
+import core.calibration.io as calibration_io
 from core.errors import InvalidInput
 
 K = np.array([[832.5, 0.204494, 303.959], [0.0, 832.53, 206.585], [0.0, 0.0, 1.0]])
@@ -24,7 +16,7 @@ K = np.array([[832.5, 0.204494, 303.959], [0.0, 832.53, 206.585], [0.0, 0.0, 1.0
 DIST = np.array([-0.228601, 0.190353, 1e-05, -3.0e-17, 1.0 / 3.0])
 
 
-def record(**kw: object) -> CalibrationRecord:
+def record(**kw: object) -> calibration_io.CalibrationRecord:
     args: dict[str, object] = {
         "K": K,
         "dist": DIST,
@@ -33,10 +25,10 @@ def record(**kw: object) -> CalibrationRecord:
         "camera_name": 'ceiling "north" #1, Küche',
     }
     args.update(kw)
-    return CalibrationRecord(**args)  # type: ignore[arg-type]
+    return calibration_io.CalibrationRecord(**args)  # type: ignore[arg-type]
 
 
-def assert_same(a: CalibrationRecord, b: CalibrationRecord) -> None:
+def assert_same(a: calibration_io.CalibrationRecord, b: calibration_io.CalibrationRecord) -> None:
     # Exact: the writers use the shortest text that reads back as the same double.
     assert np.array_equal(a.K, b.K)
     assert np.array_equal(a.dist, b.dist)
@@ -46,7 +38,10 @@ def assert_same(a: CalibrationRecord, b: CalibrationRecord) -> None:
 
 @pytest.mark.parametrize(
     ("write", "read"),
-    [(to_opencv_yaml, from_opencv_yaml), (to_opencv_json, from_opencv_json)],
+    [
+        (calibration_io.to_opencv_yaml, calibration_io.from_opencv_yaml),
+        (calibration_io.to_opencv_json, calibration_io.from_opencv_json),
+    ],
     ids=["yaml", "json"],
 )
 @pytest.mark.parametrize("n_dist", [4, 5, 8, 14])
@@ -62,7 +57,7 @@ def test_ros_round_trip_is_exact_and_keeps_R_and_P() -> None:
     R = cv2.Rodrigues(np.array([0.01, -0.02, 0.005]))[0]
     P = np.array([[800.0, 0.0, 300.0, -48.0], [0.0, 800.0, 200.0, 0.0], [0.0, 0.0, 1.0, 0.0]])
     r = record(rectification=R, projection=P)
-    back = from_ros_yaml(to_ros_yaml(r))
+    back = calibration_io.from_ros_yaml(calibration_io.to_ros_yaml(r))
     assert_same(r, back)
     assert np.array_equal(back.R, R)
     assert np.array_equal(back.P, P)
@@ -70,15 +65,17 @@ def test_ros_round_trip_is_exact_and_keeps_R_and_P() -> None:
 
 
 def test_ros_defaults_and_distortion_models() -> None:
-    text = to_ros_yaml(record(dist=DIST[:4]))
+    text = calibration_io.to_ros_yaml(record(dist=DIST[:4]))
     assert "distortion_model: plumb_bob" in text
-    back = from_ros_yaml(text)
+    back = calibration_io.from_ros_yaml(text)
     assert np.array_equal(back.dist, [*DIST[:4], 0.0])  # plumb_bob holds 5: k3 = 0 added
     assert np.array_equal(back.R, np.eye(3))
     assert np.array_equal(back.P, np.hstack([K, np.zeros((3, 1))]))
-    assert "distortion_model: rational_polynomial" in to_ros_yaml(record(dist=np.resize(DIST, 8)))
+    assert "distortion_model: rational_polynomial" in calibration_io.to_ros_yaml(
+        record(dist=np.resize(DIST, 8))
+    )
     with pytest.raises(InvalidInput, match="no distortion model for 14"):
-        to_ros_yaml(record(dist=np.resize(DIST, 14)))
+        calibration_io.to_ros_yaml(record(dist=np.resize(DIST, 14)))
 
 
 def test_reads_a_ros_camera_info_file() -> None:
@@ -106,7 +103,7 @@ projection_matrix:
   cols: 4
   data: [650.12, 0., 333.41, 0., 0., 651.5, 232.6, 0., 0., 0., 1., 0.]
 """
-    r = from_ros_yaml(text)
+    r = calibration_io.from_ros_yaml(text)
     assert r.camera_name == "narrow_stereo"
     assert r.image_size == (640, 480)
     assert r.K[0, 0] == 635.96179 and r.K[1, 2] == 233.70566
@@ -118,7 +115,9 @@ projection_matrix:
 def test_cv2_filestorage_reads_what_we_write(tmp_path: Path, suffix: str) -> None:
     r = record()
     path = tmp_path / f"camera{suffix}"
-    path.write_text(to_opencv_yaml(r) if suffix == ".yaml" else to_opencv_json(r))
+    path.write_text(
+        calibration_io.to_opencv_yaml(r) if suffix == ".yaml" else calibration_io.to_opencv_json(r)
+    )
     fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
     try:
         assert fs.isOpened()
@@ -146,7 +145,11 @@ def test_we_read_what_cv2_filestorage_writes(tmp_path: Path, suffix: str, dtype:
     fs.write("extrinsic_parameters", np.arange(12.0).reshape(2, 6))
     fs.release()
     text = path.read_text()
-    r = from_opencv_yaml(text) if suffix == ".yaml" else from_opencv_json(text)
+    r = (
+        calibration_io.from_opencv_yaml(text)
+        if suffix == ".yaml"
+        else calibration_io.from_opencv_json(text)
+    )
     # OpenCV writes enough digits to give back the same value in the matrix's own precision.
     assert np.array_equal(r.K.astype(dtype), K.astype(dtype))
     assert np.array_equal(r.dist.astype(dtype), DIST.astype(dtype))
@@ -170,13 +173,13 @@ dist_coeffs: !!opencv-matrix
    dt: d
    data: [ -1e-01, 1e-02, 0., 0., 0. ]
 """
-    r = from_opencv_yaml(text)
+    r = calibration_io.from_opencv_yaml(text)
     assert r.image_size == (1280, 720)
     assert r.K[0, 2] == 640.0
     assert np.array_equal(r.dist, [-0.1, 0.01, 0.0, 0.0, 0.0])  # "1e-01" is text to YAML 1.1
 
 
-VALID_YAML = to_opencv_yaml(record())
+VALID_YAML = calibration_io.to_opencv_yaml(record())
 
 
 @pytest.mark.parametrize(
@@ -206,10 +209,10 @@ VALID_YAML = to_opencv_yaml(record())
 )
 def test_malformed_opencv_yaml_raises_with_reason(text: str, reason: str) -> None:
     with pytest.raises(InvalidInput, match=reason):
-        from_opencv_yaml(text)
+        calibration_io.from_opencv_yaml(text)
 
 
-VALID_ROS = to_ros_yaml(record())
+VALID_ROS = calibration_io.to_ros_yaml(record())
 
 
 @pytest.mark.parametrize(
@@ -226,14 +229,14 @@ VALID_ROS = to_ros_yaml(record())
 )
 def test_malformed_ros_yaml_raises_with_reason(text: str, reason: str) -> None:
     with pytest.raises(InvalidInput, match=reason):
-        from_ros_yaml(text)
+        calibration_io.from_ros_yaml(text)
 
 
 def test_malformed_json_raises_with_reason() -> None:
     with pytest.raises(InvalidInput, match="not valid JSON"):
-        from_opencv_json("{")
+        calibration_io.from_opencv_json("{")
     with pytest.raises(InvalidInput, match="opencv-matrix"):
-        from_opencv_json('{"camera_matrix": 3, "distortion_coefficients": 4}')
+        calibration_io.from_opencv_json('{"camera_matrix": 3, "distortion_coefficients": 4}')
 
 
 @pytest.mark.parametrize(

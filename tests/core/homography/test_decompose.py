@@ -7,6 +7,8 @@ of spec 01 ("noise-free data: every estimator exact to 1e-9") and leaves four or
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+
 import cv2
 import numpy as np
 import pytest
@@ -100,6 +102,16 @@ def _homography(R, t, n, K, K2=None, scale: float = 1.0) -> np.ndarray:
     return scale * K2 @ (R + np.outer(t, n)) @ np.linalg.inv(K)
 
 
+def _random_homographies(rng: np.random.Generator, count: int) -> Iterator[tuple[np.ndarray, ...]]:
+    """Yield `count` (R, t, n, K, H): a broad plane motion, random intrinsics and their
+    homography at an arbitrary scale and sign (H is only defined up to a nonzero factor)."""
+    for _ in range(count):
+        R, t, n = _broad_config(rng)
+        K = _random_K(rng)
+        scale = rng.uniform(0.1, 10.0) * rng.choice([-1.0, 1.0])
+        yield R, t, n, K, _homography(R, t, n, K, scale=scale)
+
+
 def _dist(a: PlaneMotion, R, t, n) -> float:
     return float(max(np.abs(a.R - R).max(), np.abs(a.t - t).max(), np.abs(a.n - n).max()))
 
@@ -112,12 +124,8 @@ def _opencv(H: np.ndarray, K: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, 
 def test_truth_is_among_candidates_in_every_random_configuration():
     rng = np.random.default_rng(20260101)
     worst = 0.0
-    for _ in range(500):
-        R, t, n = _broad_config(rng)
-        K = _random_K(rng)
-        # Arbitrary scale and sign: H is only defined up to a nonzero factor.
-        scale = rng.uniform(0.1, 10.0) * rng.choice([-1.0, 1.0])
-        sols = decompose_homography(_homography(R, t, n, K, scale=scale), K)
+    for R, t, n, K, H in _random_homographies(rng, 500):
+        sols = decompose_homography(H, K)
         assert len(sols) == 4
         assert all(s.case == "general" for s in sols)
         for s in sols:  # every candidate is a rotation and reproduces H_e exactly
@@ -133,10 +141,7 @@ def test_truth_is_among_candidates_in_every_random_configuration():
 def test_same_candidate_set_as_opencv():
     rng = np.random.default_rng(7)
     worst = 0.0
-    for _ in range(500):
-        R, t, n = _broad_config(rng)
-        K = _random_K(rng)
-        H = _homography(R, t, n, K, scale=rng.uniform(0.1, 10.0) * rng.choice([-1.0, 1.0]))
+    for _, _, _, K, H in _random_homographies(rng, 500):
         ours = decompose_homography(H, K)
         theirs = _opencv(H, K)
         assert len(ours) == len(theirs) == 4
@@ -215,10 +220,7 @@ def test_points_behind_a_camera_leave_no_candidate():
 def test_known_normal_gives_the_single_exact_solution():
     rng = np.random.default_rng(13)
     worst = 0.0
-    for _ in range(500):
-        R, t, n = _broad_config(rng)
-        K = _random_K(rng)
-        H = _homography(R, t, n, K, scale=rng.uniform(0.1, 10.0) * rng.choice([-1.0, 1.0]))
+    for R, t, n, K, H in _random_homographies(rng, 500):
         sols = decompose_homography(H, K, normal=n * rng.uniform(0.5, 2.0))
         assert len(sols) == 1 and sols[0].case == "known_normal"
         worst = max(worst, _dist(sols[0], R, t, n))

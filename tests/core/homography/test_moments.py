@@ -7,17 +7,7 @@ import numpy as np
 import pytest
 
 from core.errors import DegenerateConfiguration, InvalidInput
-from core.homography.moments import (
-    Moments,
-    affine_from_moments,
-    estimate_affine_from_moments,
-    homogeneous_moments,
-    image_moments,
-    mask_moments,
-    point_moments,
-    polygon_moments,
-    transform_moments,
-)
+from core.homography import moments
 from tests.support.letters import LETTER_F, LETTER_L, raster_polygon
 
 SIZE = 200
@@ -35,7 +25,7 @@ def _random_affine(rng: np.random.Generator) -> np.ndarray:
     return np.array([[c, -s], [s, c]]) @ S @ np.array([[1.0, rng.uniform(-0.2, 0.2)], [0, 1]])
 
 
-def _assert_like_opencv(ours: Moments, theirs: dict[str, float], rtol: float) -> None:
+def _assert_like_opencv(ours: moments.Moments, theirs: dict[str, float], rtol: float) -> None:
     d = ours.as_cv_dict()
     assert len(d) == 24
     m00 = theirs["m00"]
@@ -67,16 +57,20 @@ def test_mask_moments_equal_opencv():
             cv2.fillPoly(mask, [pts], 255)
         if not mask.any():
             continue
-        _assert_like_opencv(mask_moments(mask), cv2.moments(mask, binaryImage=True), RTOL_CV)
-        _assert_like_opencv(mask_moments(mask > 0), cv2.moments(mask, binaryImage=True), RTOL_CV)
+        _assert_like_opencv(
+            moments.mask_moments(mask), cv2.moments(mask, binaryImage=True), RTOL_CV
+        )
+        _assert_like_opencv(
+            moments.mask_moments(mask > 0), cv2.moments(mask, binaryImage=True), RTOL_CV
+        )
 
 
 def test_image_moments_equal_opencv():
     rng = np.random.default_rng(1)
     img = rng.uniform(0.0, 1.0, size=(120, 90))
-    _assert_like_opencv(image_moments(img), cv2.moments(img), RTOL_CV)
+    _assert_like_opencv(moments.image_moments(img), cv2.moments(img), RTOL_CV)
     grey = rng.integers(0, 256, size=(64, 80)).astype(np.uint8)
-    _assert_like_opencv(image_moments(grey), cv2.moments(grey), RTOL_CV)
+    _assert_like_opencv(moments.image_moments(grey), cv2.moments(grey), RTOL_CV)
 
 
 def test_polygon_moments_equal_opencv_in_both_orientations():
@@ -90,14 +84,14 @@ def test_polygon_moments_equal_opencv_in_both_orientations():
         P32 = P.astype(np.float32)  # OpenCV takes float32 vertices: compare on identical input
         theirs = cv2.moments(P32.reshape(-1, 1, 2))
         for V in (P32, P32[::-1]):
-            _assert_like_opencv(polygon_moments(V.astype(np.float64)), theirs, RTOL_CV)
+            _assert_like_opencv(moments.polygon_moments(V.astype(np.float64)), theirs, RTOL_CV)
 
 
 def test_orders_and_layout():
-    m = polygon_moments(LETTER_F, order=5)
+    m = moments.polygon_moments(LETTER_F, order=5)
     assert m.raw.shape == (6, 6) and m.order == 5
     assert np.isnan(m.raw[3, 3]) and not np.isnan(m.raw[2, 3])
-    m3 = polygon_moments(LETTER_F)
+    m3 = moments.polygon_moments(LETTER_F)
     held = ~np.isnan(m3.raw)
     assert np.allclose(m.raw[:4, :4][held], m3.raw[held], rtol=1e-12)
     assert m3.mu2.shape == (2, 2) and m3.mu3.shape == (2, 2, 2)
@@ -118,8 +112,8 @@ def test_polygon_moments_agree_with_point_moments_of_a_fine_grid():
     # The F: its stem, its top bar and its middle bar.
     inside = (X < -14) | (Y < -36) | ((Y > -10) & (Y < 4) & (X < 18))
     pts = np.column_stack([X[inside], Y[inside]])
-    grid = point_moments(pts, order=5, weights=np.full(len(pts), h * h))
-    poly = polygon_moments(LETTER_F, order=5)
+    grid = moments.point_moments(pts, order=5, weights=np.full(len(pts), h * h))
+    poly = moments.polygon_moments(LETTER_F, order=5)
     scale = np.abs(poly.central[~np.isnan(poly.central)]).max()
     diff = np.nan_to_num(grid.central - poly.central)
     assert np.abs(diff).max() < 1e-5 * scale
@@ -139,10 +133,13 @@ def test_affine_rules_are_exact_on_point_sets_and_polygons():
         b = rng.normal(size=2) * 50.0
         P = rng.normal(size=(40, 2)) * [30.0, 10.0] + [100.0, 50.0]
         for before, after in (
-            (point_moments(P, order=4), point_moments(P @ A.T + b, order=4)),
-            (polygon_moments(LETTER_F, order=4), polygon_moments(LETTER_F @ A.T + b, order=4)),
+            (moments.point_moments(P, order=4), moments.point_moments(P @ A.T + b, order=4)),
+            (
+                moments.polygon_moments(LETTER_F, order=4),
+                moments.polygon_moments(LETTER_F @ A.T + b, order=4),
+            ),
         ):
-            mapped = transform_moments(before, A, b)
+            mapped = moments.transform_moments(before, A, b)
             # Same polynomial sums evaluated two ways: agreement to rounding (1e-12 relative to
             # the largest moment of each order).
             for arr in ("raw", "central"):
@@ -156,8 +153,8 @@ def test_affine_rules_are_exact_on_point_sets_and_polygons():
             assert np.allclose(after.cov, A @ before.cov @ A.T, rtol=1e-10)
             M3 = np.einsum("il,jm,kn,lmn->ijk", A, A, A, before.skew3)
             assert np.allclose(after.skew3, M3, rtol=1e-9, atol=1e-9 * np.abs(M3).max())
-        assert mapped.is_area and polygon_moments(LETTER_F @ A.T).m00 == pytest.approx(
-            abs(np.linalg.det(A)) * polygon_moments(LETTER_F).m00, rel=1e-12
+        assert mapped.is_area and moments.polygon_moments(LETTER_F @ A.T).m00 == pytest.approx(
+            abs(np.linalg.det(A)) * moments.polygon_moments(LETTER_F).m00, rel=1e-12
         )
 
 
@@ -168,12 +165,12 @@ def test_homogeneous_moment_tensors_transform_linearly():
     T = np.eye(3)
     T[:2, :2], T[:2, 2] = A, b
     for region, mapped, f in (
-        (point_moments(rng.normal(size=(30, 2))), None, 1.0),
-        (polygon_moments(LETTER_L), None, abs(np.linalg.det(A))),
+        (moments.point_moments(rng.normal(size=(30, 2))), None, 1.0),
+        (moments.polygon_moments(LETTER_L), None, abs(np.linalg.det(A))),
     ):
-        mapped = transform_moments(region, A, b)
-        M2, M3 = homogeneous_moments(region)
-        N2, N3 = homogeneous_moments(mapped)
+        mapped = moments.transform_moments(region, A, b)
+        M2, M3 = moments.homogeneous_moments(region)
+        N2, N3 = moments.homogeneous_moments(mapped)
         assert M2[2, 2] == region.m00 and M2[0, 2] == region.raw[1, 0]
         assert np.allclose(N2, f * T @ M2 @ T.T, rtol=1e-10, atol=1e-10 * np.abs(N2).max())
         N3_ref = f * np.einsum("il,jm,kn,lmn->ijk", T, T, T, M3)
@@ -187,7 +184,9 @@ def test_affine_from_moments_is_exact_on_point_sets():
         P = _skewed_points(rng)
         A = _random_affine(rng) * rng.uniform(0.5, 2.0)
         b = rng.normal(size=2) * 100.0
-        fit = estimate_affine_from_moments(point_moments(P), point_moments(P @ A.T + b))
+        fit = moments.estimate_affine_from_moments(
+            moments.point_moments(P), moments.point_moments(P @ A.T + b)
+        )
         worst = max(worst, np.abs(fit.A - A).max(), np.abs(fit.b - b).max() / 100.0)
         assert fit.misfit < 1e-9
     assert worst < 1e-9
@@ -198,17 +197,19 @@ def test_reflection_only_when_allowed():
     P = _skewed_points(rng)
     A = _random_affine(rng) @ np.diag([1.0, -1.0])  # det < 0
     b = np.array([3.0, -4.0])
-    ma, mb = point_moments(P), point_moments(P @ A.T + b)
-    fit = estimate_affine_from_moments(ma, mb, allow_reflection=True)
+    ma, mb = moments.point_moments(P), moments.point_moments(P @ A.T + b)
+    fit = moments.estimate_affine_from_moments(ma, mb, allow_reflection=True)
     assert np.abs(fit.A - A).max() < 1e-9 and np.abs(fit.b - b).max() < 1e-7
     # Without reflection no rotation explains a mirrored shape: the best one leaves a large
     # misfit between the aligned third-order tensors (exact fits leave < 1e-9).
-    no = estimate_affine_from_moments(ma, mb)
+    no = moments.estimate_affine_from_moments(ma, mb)
     assert np.linalg.det(no.A) > 0
     assert no.misfit > 0.1
     # A proper rotation is still found when reflections are allowed.
     A2 = _random_affine(rng)
-    fit2 = estimate_affine_from_moments(ma, point_moments(P @ A2.T), allow_reflection=True)
+    fit2 = moments.estimate_affine_from_moments(
+        ma, moments.point_moments(P @ A2.T), allow_reflection=True
+    )
     assert np.abs(fit2.A - A2).max() < 1e-9
 
 
@@ -226,7 +227,7 @@ def test_affine_from_masks_matches_point_based_estimate(letter: np.ndarray):
         # Point-based reference on the known correspondences (the letter's vertices).
         src = (letter + CENTRE).astype(np.float32)
         ref, _ = cv2.estimateAffine2D(src, src @ A.T.astype(np.float32) + b.astype(np.float32))
-        ours = affine_from_moments(a, warped)
+        ours = moments.affine_from_moments(a, warped)
         assert ours.shape == (2, 3)
         assert np.linalg.det(ours[:, :2]) > 0
         errs_A.append(np.linalg.norm(ours[:, :2] - ref[:, :2]) / np.linalg.norm(ref[:, :2]))
@@ -267,7 +268,7 @@ def test_error_grows_with_perspective():
             P[2, :2] = eps / radius * np.array([np.cos(phi), np.sin(phi)])
             H = Tc @ P @ np.linalg.inv(Tc)
             b = cv2.warpPerspective(a, H, (size, size), flags=cv2.INTER_NEAREST)
-            ours = affine_from_moments(a, b)
+            ours = moments.affine_from_moments(a, b)
             h = np.column_stack([pix, np.ones(len(pix))]) @ H.T
             truth = h[:, :2] / h[:, 2:]
             ls, _ = cv2.estimateAffine2D(
@@ -297,36 +298,38 @@ def test_symmetric_shapes_raise():
         M = np.hstack([A, (CENTRE - A @ CENTRE)[:, None]])
         warped = cv2.warpAffine(mask, M, (SIZE, SIZE), flags=cv2.INTER_NEAREST)
         with pytest.raises(DegenerateConfiguration, match="third-order"):
-            affine_from_moments(mask, warped)
+            moments.affine_from_moments(mask, warped)
     # Every triangle is affinely 3-fold symmetric: the orientation is ambiguous.
     tri = _raster(np.array([[40.0, 40.0], [160.0, 70.0], [80.0, 170.0]]))
     with pytest.raises(DegenerateConfiguration, match="ambiguous"):
-        affine_from_moments(tri, tri)
+        moments.affine_from_moments(tri, tri)
 
 
 def test_typed_errors():
     a = _raster(LETTER_F + CENTRE)
     with pytest.raises(InvalidInput, match="equal shape"):
-        affine_from_moments(a, a[:-1])
+        moments.affine_from_moments(a, a[:-1])
     with pytest.raises(DegenerateConfiguration, match="empty"):
-        affine_from_moments(a, np.zeros_like(a))
+        moments.affine_from_moments(a, np.zeros_like(a))
     with pytest.raises(InvalidInput):
-        mask_moments(np.zeros(10))
+        moments.mask_moments(np.zeros(10))
     with pytest.raises(InvalidInput):
-        image_moments(np.full((4, 4), np.nan))
+        moments.image_moments(np.full((4, 4), np.nan))
     with pytest.raises(InvalidInput):
-        mask_moments(a, order=-1)
+        moments.mask_moments(a, order=-1)
     with pytest.raises(DegenerateConfiguration, match="zero area"):
-        polygon_moments([[0.0, 0.0], [1.0, 1.0], [2.0, 2.0]])
+        moments.polygon_moments([[0.0, 0.0], [1.0, 1.0], [2.0, 2.0]])
     with pytest.raises(InvalidInput):
-        polygon_moments([[0.0, 0.0], [1.0, 1.0]])
+        moments.polygon_moments([[0.0, 0.0], [1.0, 1.0]])
     with pytest.raises(InvalidInput):
-        point_moments(np.zeros((3, 2)), weights=[1.0, 2.0])
+        moments.point_moments(np.zeros((3, 2)), weights=[1.0, 2.0])
     with pytest.raises(DegenerateConfiguration):
-        transform_moments(point_moments(np.eye(2)), np.zeros((2, 2)), np.zeros(2))
+        moments.transform_moments(moments.point_moments(np.eye(2)), np.zeros((2, 2)), np.zeros(2))
     with pytest.raises(InvalidInput, match="order 3"):
-        estimate_affine_from_moments(mask_moments(a, order=2), mask_moments(a))
+        moments.estimate_affine_from_moments(
+            moments.mask_moments(a, order=2), moments.mask_moments(a)
+        )
     line = np.zeros((50, 50), np.uint8)
     line[10, 5:40] = 1
     with pytest.raises(DegenerateConfiguration, match="extent"):
-        affine_from_moments(line, line)
+        moments.affine_from_moments(line, line)

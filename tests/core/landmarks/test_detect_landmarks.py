@@ -7,45 +7,24 @@ import pytest
 
 from core.errors import InvalidInput
 from core.geometry.camera import as_distortion, undistort_points
-from core.geometry.rotations import rotvec_to_matrix
 from core.landmarks import ObjectMark, Signpost
 from core.landmarks._view import ImageView
 from core.landmarks.artwork import make_artwork
 from core.landmarks.detect import detect_landmarks
 from core.sim.render import SensorNoise
 from core.sim.render.landmarks import (
-    LandmarkCamera,
     artwork_texture,
     lens_canvas_size,
     render_landmarks,
     wall_background,
 )
+from tests.support.landmark_views import HEAD_CAMERA as CAM
+from tests.support.landmark_views import mark_pose
 
-# A head camera: 640x480, 600 px focal length, barrel distortion; noise as the twin's default
-# (0.5 px blur, sigma 2 grey levels).
-CAM = LandmarkCamera(
-    np.array([[600.0, 0, 321.5], [0, 600.0, 242.0], [0, 0, 1]]),
-    np.array([-0.12, 0.05, 0.001, -0.0005, 0.0]),
-    640,
-    480,
-)
 CUP = ObjectMark(7, "cup", "blue cup", "kitchen", (0.08, 0.08, 0.1), hints=("fragile",))
 DOOR = Signpost(3, "kitchen door", "kitchen", (1.0, 2.0, 1.2, 0, 0, 0, 1), (1, 2))
+# Noise as the twin's default (0.5 px blur, sigma 2 grey levels).
 NOISE = SensorNoise()
-
-
-def _pose(axis_deg: float, obliquity_deg: float, t: list[float], psi: float = 0.3) -> np.ndarray:
-    """Return T_cam_mark: the mark facing the camera, turned by `obliquity_deg` about an in-plane
-    axis at `axis_deg` from the image x axis, and by psi about its normal."""
-    a = np.radians(axis_deg)
-    T = np.eye(4)
-    T[:3, :3] = (
-        rotvec_to_matrix(np.radians(obliquity_deg) * np.array([np.cos(a), np.sin(a), 0]))
-        @ rotvec_to_matrix([np.pi, 0, 0])
-        @ rotvec_to_matrix([0, 0, psi])
-    )
-    T[:3, 3] = t
-    return T
 
 
 def _errors(det, T: np.ndarray) -> tuple[float, float]:  # type: ignore[no-untyped-def]
@@ -64,7 +43,7 @@ def test_located_at_the_far_limit_at_45_deg(record: ObjectMark | Signpost, dista
     # error < 1 % of distance and normal error < 2 deg at 45 deg obliquity.
     art = make_artwork(record)
     t = np.array([0.2, -0.1, 1.0])
-    T = _pose(70.0, 45.0, list(distance * t / np.linalg.norm(t)))
+    T = mark_pose(70.0, 45.0, list(distance * t / np.linalg.norm(t)))
     view = render_landmarks(CAM, [(artwork_texture(art), T, art.size, None)], noise=NOISE, rng=5)
     dets = detect_landmarks(view.image, CAM.K, CAM.dist)
     assert len(dets) == 1 and dets[0].kind == record.kind
@@ -83,7 +62,7 @@ def test_read_on_the_rectified_patch_at_60_deg(record: ObjectMark | Signpost) ->
     # Modules of ~2 px across the foreshortened direction at 60 deg: read after rectification.
     art = make_artwork(record)
     d = 0.28 if record.kind == "object" else 0.40
-    T = _pose(20.0, 60.0, [0.02, -0.03, d], psi=2.0)
+    T = mark_pose(20.0, 60.0, [0.02, -0.03, d], psi=2.0)
     view = render_landmarks(
         CAM, [(artwork_texture(art), T, art.size, art.module_mm / 1000)], noise=NOISE, rng=2
     )
@@ -106,7 +85,7 @@ def test_position_error_within_the_reported_covariance() -> None:
     # reported standard deviations allow (3 sigma per axis; the renderer's own edge bias is
     # ~0.1 % of the distance, inside it at 1.5 m).
     art = make_artwork(CUP)
-    T = _pose(10.0, 40.0, [0.1, 0.05, 1.5])
+    T = mark_pose(10.0, 40.0, [0.1, 0.05, 1.5])
     tex = artwork_texture(art)
     errs, stds = [], []
     for seed in range(6):
@@ -121,7 +100,7 @@ def test_position_error_within_the_reported_covariance() -> None:
 
 def test_foreign_payload_is_reported_not_mapped() -> None:
     art = make_artwork("https://example.com/p/42", kind="object", label="foreign")
-    T = _pose(0.0, 10.0, [0.0, 0.0, 0.3])
+    T = mark_pose(0.0, 10.0, [0.0, 0.0, 0.3])
     view = render_landmarks(CAM, [(artwork_texture(art), T, art.size, None)], noise=NOISE, rng=1)
     (det,) = detect_landmarks(view.image, CAM.K, CAM.dist)
     assert det.record is None and det.reason == "foreign payload"
@@ -146,7 +125,7 @@ def test_frame_with_large_modules_read_on_a_coarser_patch(psi: float) -> None:
     # Modules of ~3.5 px facing the camera: the frame's patch has 4 px modules, about one patch
     # pixel per image pixel (not 2.5), and still reads with the rotation about the normal right.
     art = make_artwork(CUP)
-    T = _pose(30.0, 15.0, [0.01, 0.02, 0.33], psi=psi)
+    T = mark_pose(30.0, 15.0, [0.01, 0.02, 0.33], psi=psi)
     view = render_landmarks(
         CAM, [(artwork_texture(art), T, art.size, art.module_mm / 1000)], noise=NOISE, rng=4
     )
@@ -189,7 +168,7 @@ def test_threads_and_frame_sizes_do_not_share_the_full_frame_planes() -> None:
     art = make_artwork(CUP)
     views = [
         render_landmarks(
-            CAM, [(artwork_texture(art), _pose(a, 20.0, t), art.size, None)], noise=NOISE, rng=k
+            CAM, [(artwork_texture(art), mark_pose(a, 20.0, t), art.size, None)], noise=NOISE, rng=k
         ).image
         for k, (a, t) in enumerate([(0.0, [-0.05, 0.02, 0.35]), (60.0, [0.06, -0.03, 0.45])])
     ]

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from core.errors import InvalidInput
-from core.geometry.rotations import matrix_to_rotvec
 from core.manipulation import DHArm, default_arm, pose_error
+from tests.support.kinematics import pose_jacobian_by_differences
 
 ARM = default_arm()
 LO, HI = ARM.limits[:, 0], ARM.limits[:, 1]
@@ -47,13 +47,7 @@ def test_jacobian_matches_finite_differences() -> None:
     h = 1e-6
     for q in rng.uniform(LO, HI, (5, 6)):
         J = ARM.jacobian(q)
-        Jn = np.zeros((6, 6))
-        for i in range(6):
-            dq = np.zeros(6)
-            dq[i] = h
-            Tp, Tm = ARM.fk(q + dq), ARM.fk(q - dq)
-            Jn[:3, i] = (Tp[:3, 3] - Tm[:3, 3]) / (2 * h)
-            Jn[3:, i] = matrix_to_rotvec(Tp[:3, :3] @ Tm[:3, :3].T) / (2 * h)
+        Jn = pose_jacobian_by_differences(ARM.fk, q, h)
         # Central differences: truncation O(h^2) ~ 1e-12, rounding ~1e-16 / h ~ 1e-10.
         np.testing.assert_allclose(J, Jn, atol=1e-8)
         # The scalar path the numerical IK uses agrees with the batched one.

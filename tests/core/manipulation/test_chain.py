@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from core.geometry.poses import planar_pose
-from core.geometry.rotations import matrix_to_rotvec
 from core.manipulation import Unreachable, default_manipulator, pose_error
+from tests.support.kinematics import pose_jacobian_by_differences
 
 MM = default_manipulator()
 
@@ -27,13 +27,7 @@ def test_chain_jacobian_matches_finite_differences() -> None:
     x = np.concatenate([[1.0, -0.5, 2.0], MM.arm.home + 0.2])
     J = MM.jacobian(x)
     h = 1e-6
-    Jn = np.zeros((6, 9))
-    for i in range(9):
-        d = np.zeros(9)
-        d[i] = h
-        Tp, Tm = MM.fk(x + d), MM.fk(x - d)
-        Jn[:3, i] = (Tp[:3, 3] - Tm[:3, 3]) / (2 * h)
-        Jn[3:, i] = matrix_to_rotvec(Tp[:3, :3] @ Tm[:3, :3].T) / (2 * h)
+    Jn = pose_jacobian_by_differences(MM.fk, x, h)
     # Central differences, h = 1e-6: error ~1e-10.
     np.testing.assert_allclose(J, Jn, atol=1e-8)
     np.testing.assert_allclose(MM._kinematics_one(x)[2], J, atol=1e-14)

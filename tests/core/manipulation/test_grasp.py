@@ -11,6 +11,7 @@ from core.geometry.camera import project_points
 from core.geometry.rotations import matrix_to_rotvec
 from core.manipulation import default_manipulator, invert_pose, pose_error
 from core.manipulation.grasp import ModeSwitch, first_look, gaze_step, next_look
+from tests.support.camera_poses import look_at
 
 K = np.array([[520.0, 0.0, 319.5], [0.0, 520.0, 239.5], [0.0, 0.0, 1.0]])
 DIST = np.array([-0.08, 0.02, 0.0, 0.0, 0.0])
@@ -20,24 +21,13 @@ T_MARK = np.eye(4)
 T_MARK[:3, 3] = [0.6, 0.1, 0.25]  # mark in the arm's frame, face up
 
 
-def _looking(pos: list[float], at: np.ndarray) -> np.ndarray:
-    z = at - np.asarray(pos)
-    z /= np.linalg.norm(z)
-    x = np.cross(z, [0.0, 1.0, 0.0])
-    x /= np.linalg.norm(x)
-    T = np.eye(4)
-    T[:3, :3] = np.column_stack([x, np.cross(z, x), z])
-    T[:3, 3] = pos
-    return T
-
-
 def _pixels(F: np.ndarray, rng: np.random.Generator, sigma: float, dist=DIST):  # type: ignore[no-untyped-def]
     C = invert_pose(F) @ T_MARK
     uv = project_points(MARK, matrix_to_rotvec(C[:3, :3]), C[:3, 3], K, dist).points
     return uv + rng.normal(0.0, sigma, uv.shape)
 
 
-F_TAUGHT = _looking([0.62, 0.08, 0.48], T_MARK[:3, 3])
+F_TAUGHT = look_at([0.62, 0.08, 0.48], T_MARK[:3, 3], up=(0.0, 1.0, 0.0))
 TAUGHT = _pixels(F_TAUGHT, np.random.default_rng(0), 0.0, dist=None)  # ideal pixels
 
 
@@ -71,7 +61,7 @@ def test_gaze_step_centres_the_mark_and_keeps_the_camera_centre() -> None:
 
 def test_look_then_move_exact_without_noise() -> None:
     rng = np.random.default_rng(1)
-    F1 = _looking([0.5, 0.0, 0.55], T_MARK[:3, 3] + [0.02, 0.0, 0.0])
+    F1 = look_at([0.5, 0.0, 0.55], T_MARK[:3, 3] + [0.02, 0.0, 0.0], up=(0.0, 1.0, 0.0))
     M = np.eye(4)
     M[:3, 3] = [0.04, 0.0, -0.03]
     F2 = F1 @ M
@@ -89,7 +79,7 @@ def test_look_then_move_exact_without_noise() -> None:
 
 def test_look_then_move_with_noise_and_degenerate_probe() -> None:
     rng = np.random.default_rng(2)
-    F1 = _looking([0.5, 0.0, 0.55], T_MARK[:3, 3])
+    F1 = look_at([0.5, 0.0, 0.55], T_MARK[:3, 3], up=(0.0, 1.0, 0.0))
     M = np.eye(4)
     M[:3, 3] = [0.04, 0.0, -0.03]
     F2 = F1 @ M

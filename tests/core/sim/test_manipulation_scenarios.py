@@ -13,7 +13,6 @@ from core.geometry.camera import project_points
 from core.geometry.rotations import matrix_to_rotvec
 from core.manipulation import (
     METHODS,
-    calibrate_hand_eye,
     default_arm,
     default_manipulator,
     invert_pose,
@@ -104,14 +103,7 @@ def test_rendered_views_detect_the_board() -> None:
             v.object_points, matrix_to_rotvec(c[:3, :3]), c[:3, 3], EYE_K, EYE_DIST
         )
         assert np.sqrt(np.mean((uv - truth.points) ** 2)) < 0.2
-    r = calibrate_hand_eye(
-        v.T_base_ee,
-        v.T_cam_target,
-        object_points=v.object_points,
-        image_points=v.image_points,
-        K=v.K,
-        dist=v.dist,
-    )
+    r = v.calibrate("park", refine=True)
     dp, dr = pose_error(r.X, v.true_X)
     # Three views at ~0.03 px: well inside spec 05's 1 mm / 0.1 deg.
     assert dp < 1e-3 and dr < np.radians(0.1)

@@ -12,6 +12,7 @@ from core.errors import InvalidInput
 from core.localization import NetworkCamera
 from core.navigation import AdaptiveLaw, Limits, detect_laser_spot, occupancy_grid, segment_is_free
 from core.projector import project_path
+from core.sim import spot_following
 from core.sim.floor_camera import FLOOR_CAMERA_EXPOSURE, calibrate_floor_camera, floor_camera_at
 from core.sim.motion import WorldState
 from core.sim.projector import nominal_projector, twin_projector
@@ -19,15 +20,6 @@ from core.sim.render import Renderer, camera_model
 from core.sim.scenarios.path_following import path_following, plan_tour
 from core.sim.scenarios.projector_calibration import projector_calibration
 from core.sim.scene import default_scene
-from core.sim.spot_following import (
-    CONTROL_DT,
-    CORNER_RADIUS,
-    LOOKAHEAD,
-    PLAN_MARGIN,
-    SPOT_ACCELERATION,
-    simulate_following,
-    start_pose,
-)
 
 
 @pytest.fixture(scope="module")
@@ -79,7 +71,7 @@ def test_planned_tour_is_collision_free_on_the_inflated_plan() -> None:
     assert 10.0 < np.sum(np.linalg.norm(np.diff(path, axis=0), axis=1)) < 11.5
     # The simplified tour may leave the grid's cells by up to PLAN_SIMPLIFY, which the
     # planning margin covers: it is free on the grid inflated by the bare robot radius.
-    grid = occupancy_grid(scene, scene.robot.base_radius + PLAN_MARGIN - 0.03, 0.05)
+    grid = occupancy_grid(scene, scene.robot.base_radius + spot_following.PLAN_MARGIN - 0.03, 0.05)
     o = np.asarray(grid.origin)
     for a, b in itertools.pairwise(path):
         assert segment_is_free(grid.free, (a - o) / 0.05, (b - o) / 0.05)
@@ -168,17 +160,17 @@ def test_simulate_following_reports_every_step_live() -> None:
         nominal_projector(scene),
         np.array([[1.6, 1.2], [2.6, 1.2]]),
         0.3,
-        spot_acceleration=SPOT_ACCELERATION,
-        corner_radius=CORNER_RADIUS,
+        spot_acceleration=spot_following.SPOT_ACCELERATION,
+        corner_radius=spot_following.CORNER_RADIUS,
     )
     limits = Limits(scene.robot.limits.max_speed, scene.robot.limits.max_turn_rate)
     seen: list[tuple[float, np.ndarray, np.ndarray, float]] = []
-    run = simulate_following(
-        AdaptiveLaw(LOOKAHEAD, limits),
+    run = spot_following.simulate_following(
+        AdaptiveLaw(spot_following.LOOKAHEAD, limits),
         traj,
         twin_projector(scene, 1),
         calibrate_floor_camera(np.random.default_rng([1, 7])),
-        start_pose(traj),
+        spot_following.start_pose(traj),
         scene,
         1,
         on_step=lambda t, pose, spot, error: seen.append((t, pose.copy(), spot.copy(), error)),
@@ -189,11 +181,11 @@ def test_simulate_following_reports_every_step_live() -> None:
     assert np.array_equal(np.array([s[1] for s in seen]), run.pose)
     assert np.array_equal(np.array([s[2] for s in seen]), run.spot)
     assert np.array_equal([s[3] for s in seen], run.error)
-    assert np.allclose(np.diff(run.time), CONTROL_DT)
+    assert np.allclose(np.diff(run.time), spot_following.CONTROL_DT)
     # The recorded error is the control point's distance to the recorded spot (recomputed
     # here from the pose, vectorised, to float precision).
     c, s = np.cos(run.pose[:, 2]), np.sin(run.pose[:, 2])
-    P = run.pose[:, :2] + LOOKAHEAD * np.column_stack([c, s])
+    P = run.pose[:, :2] + spot_following.LOOKAHEAD * np.column_stack([c, s])
     assert np.allclose(np.linalg.norm(P - run.spot, axis=1), run.error, atol=1e-12)
     # The spot ends where the twin's true projector draws the leg's end (its mount error puts
     # it a few cm off the plan: the spec's 3 cm / 1 deg per axis at 3-4 m, under 0.2 m), and

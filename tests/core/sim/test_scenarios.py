@@ -21,6 +21,7 @@ from core.sim.scenarios import (
     run_scenario,
 )
 from core.sim.scenarios.network import drive_programme
+from core.sim.scene import Board, Scene
 
 
 def test_shown_chessboard_calibrates_each_camera() -> None:
@@ -225,12 +226,17 @@ def test_board_network_calibration_meets_the_targets(seed: int) -> None:
         assert c.poses_seen >= 20
 
 
-def test_board_mounting_matches_the_rendered_board() -> None:
+def _scene_with_mounted_board() -> tuple[Scene, Board]:
+    """Return the default scene with its robot's board mounted, and that board."""
     scene = default_scene()
     assert scene.robot is not None and scene.robot.board is not None
     scene = mount_board(scene)
     assert scene.robot is not None and scene.robot.board is not None
-    board = scene.robot.board
+    return scene, scene.robot.board
+
+
+def test_board_mounting_matches_the_rendered_board() -> None:
+    scene, board = _scene_with_mounted_board()
     P, T = board_mounting(board)
     pose = Pose2D(2.0, 2.2, 0.7)
     frame = Renderer(scene).render("cam_living_ne", WorldState(0.0, pose, ((0.8, 2.4),)))
@@ -242,11 +248,7 @@ def test_board_mounting_matches_the_rendered_board() -> None:
 
 
 def test_board_detection_against_the_rendered_corners() -> None:
-    scene = default_scene()
-    assert scene.robot is not None and scene.robot.board is not None
-    scene = mount_board(scene)
-    assert scene.robot is not None and scene.robot.board is not None
-    board = scene.robot.board
+    scene, board = _scene_with_mounted_board()
     r = Renderer(scene)
     noise = SensorNoise()
     people = ((0.8, 2.4),)

@@ -13,39 +13,24 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from core.geometry.rotations import rotvec_to_matrix
 from core.landmarks import ObjectMark, Signpost, encode_payload
 from core.landmarks.artwork import make_artwork
 from core.sim.render import SensorNoise
-from core.sim.render.landmarks import LandmarkCamera, artwork_texture, render_landmarks
+from core.sim.render.landmarks import artwork_texture, render_landmarks
 from server.app import create_app
+from tests.support.landmark_views import HEAD_CAMERA as CAM
+from tests.support.landmark_views import HEAD_DIST as DIST
+from tests.support.landmark_views import HEAD_K as K
+from tests.support.landmark_views import mark_pose
 
-# A head camera as in tests/core/landmarks: 640x480, 600 px focal length, barrel distortion.
-K = [[600.0, 0.0, 321.5], [0.0, 600.0, 242.0], [0.0, 0.0, 1.0]]
-DIST = [-0.12, 0.05, 0.001, -0.0005, 0.0]
-CAM = LandmarkCamera(np.array(K), np.array(DIST), 640, 480)
 CUP = ObjectMark(7, "cup", "blue cup", "kitchen", (0.08, 0.08, 0.1), hints=("fragile",))
 DOOR = Signpost(3, "kitchen door", "kitchen", (1.0, 2.0, 1.2, 0, 0, 0, 1), (4,))
 HALL = Signpost(4, "hall door", "hall", (3.0, 2.0, 1.2, 0, 0, 0, 1), (3,))
 BED = Signpost(9, "bedroom door", "bedroom", (6.0, 5.0, 1.2, 0, 0, 0, 1), ())
 
 
-def _pose(axis_deg: float, obliquity_deg: float, t: list[float], psi: float) -> np.ndarray:
-    """Return T_cam_mark: the mark facing the camera, turned by `obliquity_deg` about an
-    in-plane axis at `axis_deg` from the image x axis, and by psi about its normal."""
-    a = np.radians(axis_deg)
-    T = np.eye(4)
-    T[:3, :3] = (
-        rotvec_to_matrix(np.radians(obliquity_deg) * np.array([np.cos(a), np.sin(a), 0]))
-        @ rotvec_to_matrix([np.pi, 0, 0])
-        @ rotvec_to_matrix([0, 0, psi])
-    )
-    T[:3, 3] = t
-    return T
-
-
-T_CUP = _pose(20.0, 30.0, [-0.12, 0.0, 0.45], 0.3)
-T_DOOR = _pose(80.0, 30.0, [0.16, 0.0, 0.55], -0.4)
+T_CUP = mark_pose(20.0, 30.0, [-0.12, 0.0, 0.45], 0.3)
+T_DOOR = mark_pose(80.0, 30.0, [0.16, 0.0, 0.55], -0.4)
 
 
 @cache

@@ -16,15 +16,9 @@ from core.geometry.rotations import rotvec_to_matrix
 from core.landmarks import ObjectMark, decode_payload
 from core.landmarks.artwork import make_artwork
 from core.sim.render import SensorNoise
-from core.sim.render.landmarks import LandmarkCamera, artwork_texture, render_landmarks
+from core.sim.render.landmarks import artwork_texture, render_landmarks
 from server.commands import landmark
-
-CAM = LandmarkCamera(
-    np.array([[600.0, 0, 321.5], [0, 600.0, 242.0], [0, 0, 1]]),
-    np.array([-0.12, 0.05, 0.001, -0.0005, 0.0]),
-    640,
-    480,
-)
+from tests.support.landmark_views import HEAD_CAMERA as CAM
 
 
 def run(*argv: str) -> int:
@@ -34,26 +28,36 @@ def run(*argv: str) -> int:
     return int(args.func(args))
 
 
+def make(kind: str, mark_id: str, name: str, *options: str, out: Path) -> int:
+    """Run `intspace landmark make` for a mark of `kind`, `mark_id` and `name` with `options`,
+    written to `out`; return its exit code."""
+    return run(
+        "landmark",
+        "make",
+        "--kind",
+        kind,
+        "--id",
+        mark_id,
+        "--name",
+        name,
+        *options,
+        "--out",
+        str(out),
+    )
+
+
+def camera_file(folder: Path) -> Path:
+    """Write the head camera's calibration (OpenCV YAML) into `folder`; return its path."""
+    cam = folder / "head.yaml"
+    cam.write_text(to_opencv_yaml(CalibrationRecord(CAM.K, CAM.dist, (640, 480))))
+    return cam
+
+
 def test_make_writes_every_format(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     for ext in ("svg", "pdf", "png"):
         out = tmp_path / f"cup.{ext}"
         assert (
-            run(
-                "landmark",
-                "make",
-                "--kind",
-                "object",
-                "--id",
-                "7",
-                "--name",
-                "blue cup",
-                "--room",
-                "kitchen",
-                "--object-class",
-                "cup",
-                "--out",
-                str(out),
-            )
+            make("object", "7", "blue cup", "--room", "kitchen", "--object-class", "cup", out=out)
             == 0
         )
         assert out.stat().st_size > 500
@@ -63,14 +67,9 @@ def test_make_writes_every_format(tmp_path: Path, capsys: pytest.CaptureFixture[
     rec = decode_payload(read.text)
     assert rec == ObjectMark(7, "cup", "blue cup", "kitchen")
     assert (
-        run(
-            "landmark",
-            "make",
-            "--kind",
+        make(
             "signpost",
-            "--id",
             "3",
-            "--name",
             "hall door",
             "--size",
             "0.3",
@@ -78,8 +77,7 @@ def test_make_writes_every_format(tmp_path: Path, capsys: pytest.CaptureFixture[
             "1,2,1.4,0,0,0,1",
             "--neighbours",
             "1,2",
-            "--out",
-            str(tmp_path / "door.svg"),
+            out=tmp_path / "door.svg",
         )
         == 0
     )
@@ -96,8 +94,7 @@ def test_detect_reads_a_rendered_photo(tmp_path: Path, capsys: pytest.CaptureFix
     view = render_landmarks(CAM, [(artwork_texture(art), T)], noise=SensorNoise(), rng=4)
     photo = tmp_path / "photo.png"
     cv2.imwrite(str(photo), view.image)
-    cam = tmp_path / "head.yaml"
-    cam.write_text(to_opencv_yaml(CalibrationRecord(CAM.K, CAM.dist, (640, 480))))
+    cam = camera_file(tmp_path)
     assert run("landmark", "detect", str(photo), "--camera", str(cam), "--json") == 0
     out = json.loads(capsys.readouterr().out)
     (det,) = out["detections"]
@@ -113,40 +110,11 @@ def test_detect_reads_a_rendered_photo(tmp_path: Path, capsys: pytest.CaptureFix
 def test_bad_input_exits_2_with_a_reason(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    assert (
-        run(
-            "landmark",
-            "make",
-            "--kind",
-            "object",
-            "--id",
-            "1",
-            "--name",
-            "x",
-            "--out",
-            str(tmp_path / "x.jpg"),
-        )
-        == 2
-    )
+    assert make("object", "1", "x", out=tmp_path / "x.jpg") == 2
     assert "must end in .svg" in capsys.readouterr().err
-    assert (
-        run(
-            "landmark",
-            "make",
-            "--kind",
-            "object",
-            "--id",
-            "-4",
-            "--name",
-            "x",
-            "--out",
-            str(tmp_path / "x.svg"),
-        )
-        == 2
-    )
+    assert make("object", "-4", "x", out=tmp_path / "x.svg") == 2
     assert "id must be" in capsys.readouterr().err
-    cam = tmp_path / "head.yaml"
-    cam.write_text(to_opencv_yaml(CalibrationRecord(CAM.K, CAM.dist, (640, 480))))
+    cam = camera_file(tmp_path)
     junk = tmp_path / "junk.png"
     junk.write_bytes(b"not an image")
     assert run("landmark", "detect", str(junk), "--camera", str(cam)) == 2
