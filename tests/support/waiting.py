@@ -1,4 +1,5 @@
-"""Waiting on work that reports its progress (calibration runs, tasks, path following).
+"""Waiting on work that reports its progress (calibration runs, tasks, path following), and on
+what a test can see happen (a message arrived, a row stored, a frame taken).
 
 A test waits as long as the work advances and fails when it has not advanced for a stated
 time, never at a fixed total deadline: a busy machine slows a run down, it does not stop it,
@@ -52,6 +53,29 @@ def wait_while_advancing(
         time.sleep(poll_s)
 
 
+def wait_until(
+    condition: Callable[[], T],
+    *,
+    what: str,
+    stalled_after_s: float,
+    progress: Callable[[], Hashable] | None = None,
+    poll_s: float = 0.1,
+) -> T:
+    """Return condition()'s value once it is true (a value that is not false, 0, None or
+    empty); raise Stalled when it has not become so and `progress()` (when given: what moves
+    while the work goes on, a count of frames or rows) has not changed for `stalled_after_s`
+    seconds (polling every `poll_s`). Without `progress` nothing is seen to advance: the
+    condition must hold within `stalled_after_s` seconds."""
+    return wait_while_advancing(
+        condition,
+        done=bool,
+        progress=(lambda _: progress()) if progress is not None else (lambda _: None),
+        stalled_after_s=stalled_after_s,
+        poll_s=poll_s,
+        what=what,
+    )
+
+
 def run_progress(run: dict[str, Any]) -> Hashable:
     """Return what moves while a calibration run advances: its status, its attempt and the
     stage and fraction it reported."""
@@ -64,14 +88,7 @@ def wait_for_run(
 ) -> dict[str, Any]:
     """Return the calibration run `read` returns (its JSON) once it is no longer queued or
     running; raise Stalled when its progress stays the same for `stalled_after_s` seconds."""
-    return wait_while_advancing(
-        read,
-        done=lambda run: run["status"] not in UNFINISHED,
-        progress=run_progress,
-        stalled_after_s=stalled_after_s,
-        poll_s=poll_s,
-        what="the calibration run",
-    )
+    return _wait_finished(read, run_progress, stalled_after_s, poll_s, "the calibration run")
 
 
 def task_progress(task: dict[str, Any]) -> Hashable:
@@ -85,11 +102,21 @@ def wait_for_task(
 ) -> dict[str, Any]:
     """Return the task `read` returns once it is no longer queued or running; raise Stalled
     when its phase and progress stay the same for `stalled_after_s` seconds."""
+    return _wait_finished(read, task_progress, stalled_after_s, poll_s, "the task")
+
+
+def _wait_finished(
+    read: Callable[[], dict[str, Any]],
+    progress: Callable[[dict[str, Any]], Hashable],
+    stalled_after_s: float,
+    poll_s: float,
+    what: str,
+) -> dict[str, Any]:
     return wait_while_advancing(
         read,
-        done=lambda task: task["status"] not in UNFINISHED,
-        progress=task_progress,
+        done=lambda work: work["status"] not in UNFINISHED,
+        progress=progress,
         stalled_after_s=stalled_after_s,
         poll_s=poll_s,
-        what="the task",
+        what=what,
     )

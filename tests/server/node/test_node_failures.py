@@ -20,9 +20,9 @@ import numpy as np
 import pytest
 
 from core.sim import Scene, WorldState, default_scene
-from core.sim.installation import installed_calibration
 from core.sim.motion import Pose2D
 from core.sim.render import renderer_for
+from tests.support.camera_node import installed_camera
 from tests.support.ports import free_port
 from tests.support.service import WITHOUT_TWIN, clean_env, running_service
 
@@ -50,19 +50,7 @@ def service(repo_root: Path, tmp_path_factory: pytest.TempPathFactory) -> Iterat
             space = http.post("/spaces", json={"name": "replay"}).json()["id"]
             # The robot the clip shows is registered: a space without one makes no robot target.
             http.post("/robots", json={"name": "robot", "space_id": space}).raise_for_status()
-            cal = {c.name: c for c in installed_calibration(scene).cameras}[CAMERA]
-            created = http.post(
-                "/cameras",
-                json={
-                    "name": CAMERA,
-                    "space_id": space,
-                    "width": 640,
-                    "height": 480,
-                    "K": cal.K.tolist(),
-                    "dist": cal.dist.tolist(),
-                    "T_world_camera": cal.T_world_camera.tolist(),
-                },
-            )
+            created = http.post("/cameras", json=installed_camera(scene, CAMERA, space_id=space))
             assert created.status_code == 201, created.text
         yield Service(api, space, scene)
 
