@@ -76,6 +76,24 @@ def wait_until(
     )
 
 
+def wait_until_unchanged(
+    read: Callable[[], T], *, what: str, interval_s: float, stalled_after_s: float
+) -> T:
+    """Return read()'s value once two reads `interval_s` apart give the same (what it reads has
+    stopped moving: a paused clock, a stream no longer read); raise Stalled when it is still
+    moving after `stalled_after_s` seconds."""
+    reads: list[T] = []
+
+    def unchanged() -> bool:
+        reads.append(read())
+        return len(reads) > 1 and reads[-1] == reads[-2]
+
+    wait_until(
+        unchanged, what=f"{what} standing still", stalled_after_s=stalled_after_s, poll_s=interval_s
+    )
+    return reads[-1]
+
+
 def run_progress(run: dict[str, Any]) -> Hashable:
     """Return what moves while a calibration run advances: its status, its attempt and the
     stage and fraction it reported."""
