@@ -12,6 +12,17 @@ from core.sim import Scene
 from core.sim.installation import installed_calibration
 from tests.support.service import clean_env
 
+# `intspace node` as the tests run it: this Python's module, from the repository's root.
+NODE = (sys.executable, "-m", "server.cli", "node")
+
+
+def node_env(token: str) -> dict[str, str]:
+    """Return the environment of a node speaking with `token`: this process's without any
+    INTSPACE_ setting, then INTSPACE_TOKEN."""
+    env = clean_env()
+    env["INTSPACE_TOKEN"] = token
+    return env
+
 
 def start_node(
     repo_root: Path, *args: str, token: str, log: Path | None = None
@@ -19,12 +30,10 @@ def start_node(
     """Start `python -m server.cli node *args` from `repo_root` with INTSPACE_TOKEN `token` (and
     no other INTSPACE_ setting); its stderr goes to `log` (a long run) or a pipe (read at
     exit), its stdout nowhere."""
-    env = clean_env()
-    env["INTSPACE_TOKEN"] = token
     return subprocess.Popen(
-        [sys.executable, "-m", "server.cli", "node", *args],
+        [*NODE, *args],
         cwd=repo_root,
-        env=env,
+        env=node_env(token),
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE if log is None else log.open("w"),
         text=True,

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import json
 import subprocess
-import sys
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -22,9 +21,9 @@ import pytest
 from core.sim import Scene, WorldState, default_scene
 from core.sim.motion import Pose2D
 from core.sim.render import renderer_for
-from tests.support.camera_node import installed_camera
+from tests.support.camera_node import NODE, installed_camera, node_env
 from tests.support.ports import free_port
-from tests.support.service import WITHOUT_TWIN, clean_env, running_service
+from tests.support.service import WITHOUT_TWIN, running_service
 
 TOKEN = "node-failures-test-admin-token"
 HEADERS = {"Authorization": f"Bearer {TOKEN}"}
@@ -56,12 +55,10 @@ def service(repo_root: Path, tmp_path_factory: pytest.TempPathFactory) -> Iterat
 
 
 def _node(repo_root: Path, *args: str, timeout: float = 60) -> subprocess.CompletedProcess:
-    env = clean_env()
-    env["INTSPACE_TOKEN"] = TOKEN
     return subprocess.run(
-        [sys.executable, "-m", "server.cli", "node", *args],
+        [*NODE, *args],
         cwd=repo_root,
-        env=env,
+        env=node_env(TOKEN),
         capture_output=True,
         text=True,
         timeout=timeout,
