@@ -6,6 +6,8 @@ time, never at a fixed total deadline: a busy machine slows a run down, it does 
 and a total deadline fails a run that was advancing (a network calibration still "running"
 after 180 s on a busy machine, while its progress moved). What counts as advancing
 is what the work reports (its status, stage and fraction), never a clock of the test's own.
+A test never sleeps for something to happen: it waits until it has (`wait_until`), while what
+leads to it moves (frames taken, rows stored), or, when nothing shows that, for a stated time.
 """
 
 from __future__ import annotations
@@ -130,6 +132,7 @@ def _wait_finished(
     poll_s: float,
     what: str,
 ) -> dict[str, Any]:
+    """Return read()'s work once it is no longer queued or running (wait_while_advancing)."""
     return wait_while_advancing(
         read,
         done=lambda work: work["status"] not in UNFINISHED,
