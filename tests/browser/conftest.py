@@ -107,25 +107,33 @@ def start_service(tmp_path_factory: pytest.TempPathFactory):
     return start
 
 
-@pytest.fixture
-def browser_page(chromium_executable: str) -> Iterator[Any]:
-    """A fresh page in headless Chromium; JavaScript errors on the page fail the test."""
+@contextlib.contextmanager
+def chromium_page(chromium_executable: str, width: int, height: int) -> Iterator[Any]:
+    """Yield a fresh page (in a context of its own, `page.context`) of a `width` x `height`
+    window in headless Chromium; the browser closes at the end."""
     from playwright.sync_api import expect, sync_playwright
 
-    errors: list[str] = []
     with sync_playwright() as p:
         browser = p.chromium.launch(
             executable_path=chromium_executable, headless=True, args=CHROMIUM_ARGS
         )
         try:
-            context = browser.new_context(viewport={"width": 1440, "height": 900})
+            context = browser.new_context(viewport={"width": width, "height": height})
             page = context.new_page()
             # CI machines are slower than a desk: wait up to 15 s for what the page shows.
             expect.set_options(timeout=15_000)
-            page.on("pageerror", lambda exc: errors.append(str(exc)))
             yield page
         finally:
             browser.close()
+
+
+@pytest.fixture
+def browser_page(chromium_executable: str) -> Iterator[Any]:
+    """A fresh page in headless Chromium; JavaScript errors on the page fail the test."""
+    errors: list[str] = []
+    with chromium_page(chromium_executable, 1440, 900) as page:
+        page.on("pageerror", lambda exc: errors.append(str(exc)))
+        yield page
     assert not errors, f"JavaScript errors on the page: {errors}"
 
 

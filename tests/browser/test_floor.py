@@ -27,7 +27,7 @@ except ImportError:  # pragma: no cover - depends on the environment
         raise  # in CI the browser tests must run
     pytest.skip("playwright is not installed (pip install -e '.[dev]')", allow_module_level=True)
 
-from tests.support.waiting import wait_for_run
+from tests.support.waiting import wait_for_run, wait_until, wait_until_unchanged
 
 DOCS_SCREENSHOT = Path(__file__).resolve().parents[2] / "docs" / "floor.png"
 # Acceptance of a network calibration in the default simulated home (spec 02, sigma 0.5 px).
@@ -118,14 +118,17 @@ def test_floor_page_follows_the_robot_over_the_coverage_map(
 
     # The robot drives: its drawn position changes between two reads.
     first = drawn_position(page, "target-robot")
-    deadline = time.monotonic() + 10.0
-    while True:
-        second = drawn_position(page, "target-robot")
-        moved = np.hypot(second["x"] - first["x"], second["y"] - first["y"])
-        if moved > 0.02 or time.monotonic() > deadline:
-            break
-        time.sleep(0.25)
-    assert moved > 0.02, f"the robot's marker did not move in 10 s ({moved:.4f} m)"
+
+    def moved_from(start: dict, metres: float) -> dict | None:
+        now = drawn_position(page, "target-robot")
+        return now if np.hypot(now["x"] - start["x"], now["y"] - start["y"]) > metres else None
+
+    second = wait_until(
+        lambda: moved_from(first, 0.02),
+        what="the robot's marker moving 2 cm",
+        stalled_after_s=10,
+        poll_s=0.25,
+    )
     # Drawn where the world position maps to, to a hundredth of an SVG unit.
     np.testing.assert_allclose(
         [second["u"], second["v"]], svg_point(second["tf"], second["x"], second["y"]), atol=0.01
@@ -138,11 +141,20 @@ def test_floor_page_follows_the_robot_over_the_coverage_map(
     # Paused, the positions stop; the page then draws exactly what GET /targets says.
     page.get_by_test_id("twin-pause").click()
     expect(page.get_by_test_id("twin-status")).to_have_text("paused")
-    time.sleep(1.2)  # longer than one poll or stream period: the last update has arrived
+
+    # The last update has arrived: what the page draws and GET /targets says stand still for
+    # longer than one poll or stream period.
+    def drawn_and_served() -> tuple:
+        drawn = drawn_position(page, "target-robot")
+        return drawn["x"], drawn["y"], *api_target(twin_service, "robot")["xy"]
+
+    wait_until_unchanged(
+        drawn_and_served, what="the robot drawn and served", interval_s=1.2, stalled_after_s=15
+    )
     held = drawn_position(page, "target-robot")
     target = api_target(twin_service, "robot")
     np.testing.assert_allclose([held["x"], held["y"]], target["xy"], rtol=0, atol=1e-9)
-    time.sleep(0.6)
+    time.sleep(0.6)  # time must pass: the paused robot is drawn nowhere else in it
     assert drawn_position(page, "target-robot")["x"] == held["x"]
 
     # Its 2-sigma ellipse: semi-axes from the eigenvalues of the service's covariance.
@@ -204,7 +216,10 @@ def test_floor_page_follows_the_robot_over_the_coverage_map(
     page.get_by_test_id("twin-resume").click()
     expect(page.get_by_test_id("twin-status")).to_have_text("running")
     page.evaluate("document.getElementById('toasts').replaceChildren()")
-    page.wait_for_timeout(1500)  # a little more track for the picture
+    # A little more track for the picture: the robot drives on 10 cm.
+    wait_until(
+        lambda: moved_from(held, 0.1), what="the robot driving on", stalled_after_s=15, poll_s=0.25
+    )
     page.screenshot(path=tmp_path / "floor.png")
     if os.environ.get("INTSPACE_UPDATE_DOCS") == "1":
         DOCS_SCREENSHOT.parent.mkdir(exist_ok=True)
@@ -323,15 +338,20 @@ def test_the_3d_scene_shows_the_robot_people_tracks_and_camera_images(twin_servi
     # What the viser server sends a viewer that connects: the twin's agents, their tracks and
     # the cameras' latest images on the frusta (pushed at a throttled rate, hence the wait).
     cameras = twin_service.api("GET", "/twin")["cameras"]
-    deadline = time.monotonic() + 15.0
-    while True:
+
+    def scene_ready() -> tuple[dict, list] | None:
         nodes = scene_reader(twin_service.viser_port)
         frusta = [nodes.get(f"/cameras/{i}/frustum") for i in cameras.values()]
         with_image = [f for f in frusta if f and f["props"].get("_image_data") is not None]
         ready = "/agents/robot" in nodes and "/tracks/robot" in nodes and with_image
-        if ready or time.monotonic() > deadline:
-            break
-        time.sleep(0.5)
+        return (nodes, with_image) if ready else None
+
+    nodes, with_image = wait_until(
+        scene_ready,
+        what="the robot, its track and a camera image in the scene",
+        stalled_after_s=15,
+        poll_s=0.5,
+    )
     assert "/agents/robot/body" in nodes and "/agents/robot/heading" in nodes
     assert any(k.startswith("/agents/walker-") and k.endswith("/head") for k in nodes)
     assert nodes["/tracks/robot"]["type"] == "LineSegmentsMessage"
@@ -343,9 +363,14 @@ def test_the_3d_scene_shows_the_robot_people_tracks_and_camera_images(twin_servi
     # times a second, so its last pose may be one frame old: 0.25 s at <= 0.5 m/s, < 0.15 m.
     twin_service.api("POST", "/twin/pause")
     try:
-        time.sleep(0.5)
+        # The scene's last pose has arrived: it stands still for longer than its period.
+        position = wait_until_unchanged(
+            lambda: tuple(scene_reader(twin_service.viser_port)["/agents/robot"]["position"]),
+            what="the robot in the scene",
+            interval_s=0.5,
+            stalled_after_s=10,
+        )
         twin = twin_service.api("GET", "/twin")
-        position = scene_reader(twin_service.viser_port)["/agents/robot"]["position"]
     finally:
         twin_service.api("POST", "/twin/resume")
     assert np.hypot(position[0] - twin["robot"]["x"], position[1] - twin["robot"]["y"]) < 0.15

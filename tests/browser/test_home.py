@@ -13,8 +13,8 @@ import time
 import numpy as np
 import pytest
 
-from core.localization import NetworkCamera
 from tests.support.mqtt_broker import PASSWORD, broker  # noqa: F401
+from tests.support.walking_person import camera_body, corner_cameras
 
 try:
     from playwright.sync_api import expect
@@ -24,8 +24,6 @@ except ImportError:  # pragma: no cover - depends on the environment
     pytest.skip("playwright is not installed (pip install -e '.[dev]')", allow_module_level=True)
 
 from tests.browser.test_floor import sign_in
-
-K = [[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]]
 
 
 def test_overview_shows_the_broker_and_the_floor_draws_zone_occupancy(
@@ -47,23 +45,9 @@ def test_overview_shows_the_broker_and_the_floor_draws_zone_occupancy(
             f"/spaces/{sid}/zones",
             {"name": "Sofa", "polygon": [[0, 0], [2, 0], [2, 3], [0, 3]], "inertia_s": 0.3},
         )
-        cams = [
-            NetworkCamera.looking_at(K, None, pos, [2.0, 1.5, 0.0], (640, 480))
-            for pos in ([0.0, 0.0, 2.8], [4.0, 3.0, 2.8], [4.0, 0.0, 2.8])
-        ]
+        cams = corner_cameras()
         ids = [
-            svc.api(
-                "POST",
-                "/cameras",
-                {
-                    "name": f"cam{k}",
-                    "space_id": sid,
-                    "width": 640,
-                    "height": 480,
-                    "K": K,
-                    "T_world_camera": cam.T_world_camera.tolist(),
-                },
-            )["id"]
+            svc.api("POST", "/cameras", camera_body(f"cam{k}", sid, cam))["id"]
             for k, cam in enumerate(cams)
         ]
         page = browser_page

@@ -16,13 +16,13 @@ from typing import Any
 import pytest
 
 try:
-    from playwright.sync_api import expect, sync_playwright
+    from playwright.sync_api import expect
 except ImportError:  # pragma: no cover - depends on the environment
     if os.environ.get("CI", "").strip().lower() not in ("", "0", "false", "no"):
         raise  # in CI the browser tests must run
     pytest.skip("playwright is not installed (pip install -e '.[dev]')", allow_module_level=True)
 
-from tests.browser.conftest import CHROMIUM_ARGS, assert_scene_frame_is_proxied
+from tests.browser.conftest import assert_scene_frame_is_proxied, chromium_page
 
 
 def test_a_browser_session_leaves_no_token_in_urls_storage_or_logs(
@@ -39,89 +39,83 @@ def test_a_browser_session_leaves_no_token_in_urls_storage_or_logs(
         created = svc.api("POST", "/tokens", {"name": "desk", "scopes": ["write"]})
         secrets["write"] = created["token"]
         camera = svc.api("POST", "/cameras", {"name": "door", "width": 640, "height": 480})
-        with sync_playwright() as p:
-            browser = p.chromium.launch(
-                executable_path=chromium_executable, headless=True, args=CHROMIUM_ARGS
+        with chromium_page(chromium_executable, 1280, 800) as page:
+            context = page.context
+            context.on("request", lambda r: requested.append(r.url))
+            page.on("pageerror", lambda exc: errors.append(str(exc)))
+
+            def on_console(message) -> None:
+                if "Content Security Policy" in message.text:
+                    violations.append(message.text)
+
+            def on_socket(ws) -> None:
+                sockets.append(ws)
+                if ws.url.endswith("/api/v1/scene/view"):
+                    ws.on("framereceived", lambda _payload: scene_frames.append(1))
+
+            page.on("console", on_console)
+            page.on("websocket", on_socket)
+
+            page.goto(f"{svc.base_url}/")
+            page.get_by_test_id("token-input").fill(secrets["write"])
+            page.get_by_test_id("token-submit").click()
+            expect(page.get_by_test_id("sign-out")).to_be_visible()
+            expect(page.get_by_test_id("auth-status")).to_contain_text("write")
+            expect(page.get_by_test_id("count-cameras")).to_contain_text("1")
+
+            # The session lives in a cookie the page cannot read; nothing is stored.
+            (cookie,) = [c for c in context.cookies() if c["name"] == "intspace_session"]
+            assert cookie["httpOnly"] and cookie["sameSite"] == "Strict"
+            secrets["session"] = cookie["value"]
+            kept = page.evaluate(
+                "JSON.stringify([{...localStorage}, {...sessionStorage}, document.cookie])"
             )
-            try:
-                context = browser.new_context(viewport={"width": 1280, "height": 800})
-                page = context.new_page()
-                expect.set_options(timeout=15_000)
-                context.on("request", lambda r: requested.append(r.url))
-                page.on("pageerror", lambda exc: errors.append(str(exc)))
+            assert kept == '[{},{},""]'
 
-                def on_console(message) -> None:
-                    if "Content Security Policy" in message.text:
-                        violations.append(message.text)
+            # A write through the page (the CSRF token rides along): add a camera.
+            page.get_by_test_id("nav-cameras").click()
+            page.get_by_test_id("camera-name").fill("hall")
+            page.get_by_test_id("camera-width").fill("640")
+            page.get_by_test_id("camera-height").fill("480")
+            page.get_by_test_id("camera-create").click()
+            page.wait_for_url(re.compile(r".*#/cameras/\d+$"))
+            page.goto(f"{svc.base_url}/#/cameras/{camera['id']}")
+            expect(page.get_by_test_id("camera-live-missing")).to_be_visible()
 
-                def on_socket(ws) -> None:
-                    sockets.append(ws)
-                    if ws.url.endswith("/api/v1/scene/view"):
-                        ws.on("framereceived", lambda _payload: scene_frames.append(1))
+            # The floor's live positions come over a WebSocket the cookie opened.
+            page.get_by_test_id("nav-floor").click()
+            expect(page.get_by_test_id("positions-source")).to_have_attribute(
+                "data-source", "websocket"
+            )
+            page.get_by_test_id("nav-calibration").click()
+            expect(page.get_by_test_id("page-error")).to_have_count(0)
 
-                page.on("console", on_console)
-                page.on("websocket", on_socket)
+            # The 3D scene: the proxied viser page in the iframe, its WebSocket relayed.
+            page.get_by_test_id("nav-scene").click()
+            iframe = page.get_by_test_id("scene-iframe")
+            expect(iframe).to_have_attribute("src", "/api/v1/scene/view/")
+            frame = iframe.element_handle().content_frame()
+            frame.wait_for_load_state()
+            assert_scene_frame_is_proxied(frame, svc.base_url)
+            frame.locator("canvas").first.wait_for(state="attached")
+            # Playwright hands the socket's frames over only while it waits on the page: the
+            # poll waits there.
+            deadline_ms = 10_000
+            while not scene_frames and deadline_ms > 0:
+                page.wait_for_timeout(100)
+                deadline_ms -= 100
+            assert scene_frames, "the scene's WebSocket received nothing through the proxy"
 
-                page.goto(f"{svc.base_url}/")
-                page.get_by_test_id("token-input").fill(secrets["write"])
-                page.get_by_test_id("token-submit").click()
-                expect(page.get_by_test_id("sign-out")).to_be_visible()
-                expect(page.get_by_test_id("auth-status")).to_contain_text("write")
-                expect(page.get_by_test_id("count-cameras")).to_contain_text("1")
+            # The API docs: Swagger UI from the package, at /docs as the README says.
+            page.goto(f"{svc.base_url}/docs")
+            assert page.url == f"{svc.base_url}/api/v1/docs"
+            expect(page.locator(".swagger-ui .info .title")).to_contain_text("intspace")
+            expect(page.locator(".opblock-tag-section").first).to_be_visible()
 
-                # The session lives in a cookie the page cannot read; nothing is stored.
-                (cookie,) = [c for c in context.cookies() if c["name"] == "intspace_session"]
-                assert cookie["httpOnly"] and cookie["sameSite"] == "Strict"
-                secrets["session"] = cookie["value"]
-                kept = page.evaluate(
-                    "JSON.stringify([{...localStorage}, {...sessionStorage}, document.cookie])"
-                )
-                assert kept == '[{},{},""]'
-
-                # A write through the page (the CSRF token rides along): add a camera.
-                page.get_by_test_id("nav-cameras").click()
-                page.get_by_test_id("camera-name").fill("hall")
-                page.get_by_test_id("camera-width").fill("640")
-                page.get_by_test_id("camera-height").fill("480")
-                page.get_by_test_id("camera-create").click()
-                page.wait_for_url(re.compile(r".*#/cameras/\d+$"))
-                page.goto(f"{svc.base_url}/#/cameras/{camera['id']}")
-                expect(page.get_by_test_id("camera-live-missing")).to_be_visible()
-
-                # The floor's live positions come over a WebSocket the cookie opened.
-                page.get_by_test_id("nav-floor").click()
-                expect(page.get_by_test_id("positions-source")).to_have_attribute(
-                    "data-source", "websocket"
-                )
-                page.get_by_test_id("nav-calibration").click()
-                expect(page.get_by_test_id("page-error")).to_have_count(0)
-
-                # The 3D scene: the proxied viser page in the iframe, its WebSocket relayed.
-                page.get_by_test_id("nav-scene").click()
-                iframe = page.get_by_test_id("scene-iframe")
-                expect(iframe).to_have_attribute("src", "/api/v1/scene/view/")
-                frame = iframe.element_handle().content_frame()
-                frame.wait_for_load_state()
-                assert_scene_frame_is_proxied(frame, svc.base_url)
-                frame.locator("canvas").first.wait_for(state="attached")
-                deadline_ms = 10_000
-                while not scene_frames and deadline_ms > 0:
-                    page.wait_for_timeout(100)
-                    deadline_ms -= 100
-                assert scene_frames, "the scene's WebSocket received nothing through the proxy"
-
-                # The API docs: Swagger UI from the package, at /docs as the README says.
-                page.goto(f"{svc.base_url}/docs")
-                assert page.url == f"{svc.base_url}/api/v1/docs"
-                expect(page.locator(".swagger-ui .info .title")).to_contain_text("intspace")
-                expect(page.locator(".opblock-tag-section").first).to_be_visible()
-
-                page.goto(f"{svc.base_url}/")
-                page.get_by_test_id("sign-out").click()
-                expect(page.get_by_test_id("token-input")).to_be_visible()
-                assert not [c for c in context.cookies() if c["name"] == "intspace_session"]
-            finally:
-                browser.close()
+            page.goto(f"{svc.base_url}/")
+            page.get_by_test_id("sign-out").click()
+            expect(page.get_by_test_id("token-input")).to_be_visible()
+            assert not [c for c in context.cookies() if c["name"] == "intspace_session"]
         # The ended session is refused, even by a client that kept the cookie.
         import urllib.error
         import urllib.request

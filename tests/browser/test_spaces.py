@@ -19,6 +19,7 @@ import pytest
 
 from core.localization import NetworkCamera
 from core.sim import default_scene
+from tests.support.waiting import wait_until
 
 try:
     from playwright.sync_api import Page, expect
@@ -88,13 +89,15 @@ def test_every_page_shows_the_space_picked(start_service, browser_page: Page, sc
 
         # The twin's cameras come online with its first frames (it learns their backgrounds
         # first: seconds on a loaded machine).
-        deadline = time.monotonic() + 90
-        while True:
-            listed = service.api("GET", f"/cameras?space_id={home['id']}")["items"]
-            if all(c["health"]["status"] == "online" for c in listed):
-                break
-            assert time.monotonic() < deadline, [c["health"] for c in listed]
-            time.sleep(0.5)
+        wait_until(
+            lambda: all(
+                c["health"]["status"] == "online"
+                for c in service.api("GET", f"/cameras?space_id={home['id']}")["items"]
+            ),
+            what="the twin's cameras online",
+            stalled_after_s=90,
+            poll_s=0.5,
+        )
 
         page.goto(f"{service.base_url}/")
         page.get_by_test_id("token-input").fill(service.token)
@@ -198,14 +201,15 @@ def test_every_page_shows_the_space_picked(start_service, browser_page: Page, sc
         page.get_by_test_id("nav-scene").click()
         expect(page.get_by_test_id("scene-space")).to_have_text("Flat 2 in 3D")
         assert service.api("GET", "/scene")["space_id"] == flat["id"]
-        deadline = time.monotonic() + 10
-        while True:
+
+        def flat_scene() -> dict | None:
             nodes = scene_reader(service.viser_port)
             shown = {k.split("/")[2] for k in nodes if k.startswith("/cameras/")}
-            if shown == {str(door["id"])} or time.monotonic() > deadline:
-                break
-            time.sleep(0.2)
-        assert shown == {str(door["id"])}
+            return nodes if shown == {str(door["id"])} else None
+
+        nodes = wait_until(
+            flat_scene, what="the flat's camera alone in the scene", stalled_after_s=10, poll_s=0.2
+        )
         assert not any(k.startswith("/agents/") for k in nodes)
 
         # Remembered by this browser, as an id and nothing else.

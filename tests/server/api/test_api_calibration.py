@@ -4,7 +4,9 @@ restart or a shutdown does to queued and running runs."""
 
 from __future__ import annotations
 
+import threading
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -13,6 +15,7 @@ from fastapi.testclient import TestClient
 
 from server.app import create_app
 from tests.support.chessboard_photos import K_TRUE, POSES, SQUARE_M, chessboard_photo
+from tests.support.waiting import run_progress, wait_until, wait_while_advancing
 
 INCH = 0.0254
 
@@ -25,6 +28,19 @@ def _zhang_views(data_dir: Path) -> tuple[list, list]:
         np.loadtxt(data_dir / f"data{i}.txt").reshape(-1, 2).tolist() for i in range(1, 6)
     ]
     return [object_points] * 5, image_points
+
+
+def _zhang_run(data_dir: Path, views: int = 5, **fields: Any) -> dict[str, Any]:
+    """Return the body of an intrinsics run on the first `views` of Zhang's 5 views (640 x 480)
+    with `fields` (its camera_id, options)."""
+    object_points, image_points = _zhang_views(data_dir / "zhang1998")
+    return {
+        "kind": "intrinsics",
+        **fields,
+        "image_size": [640, 480],
+        "object_points": object_points[:views],
+        "image_points": image_points[:views],
+    }
 
 
 def _camera(client: TestClient, admin: dict, width: int = 640, height: int = 480) -> int:
@@ -42,15 +58,8 @@ def test_zhang_data_calibrates_apply_history_export(
     client, admin, run_waiter, shared_data_dir, tmp_path
 ):
     camera_id = _camera(client, admin)
-    object_points, image_points = _zhang_views(shared_data_dir / "zhang1998")
-    body = {
-        "kind": "intrinsics",
-        "camera_id": camera_id,
-        "image_size": [640, 480],
-        "object_points": object_points,
-        "image_points": image_points,
-        "options": {"skew": True, "distortion": "k1k2"},
-    }
+    options = {"skew": True, "distortion": "k1k2"}
+    body = _zhang_run(shared_data_dir, camera_id=camera_id, options=options)
     submitted = client.post("/api/v1/calibration-runs", json=body, headers=admin)
     assert submitted.status_code == 202, submitted.text
     assert submitted.json()["status"] in ("queued", "running", "succeeded")
@@ -184,14 +193,7 @@ def test_upload_of_chessboard_photos_calibrates(client, admin, run_waiter):
 
 def test_runs_are_checked_against_their_camera_at_submit(client, admin, shared_data_dir):
     camera_id = _camera(client, admin, width=1280, height=720)
-    object_points, image_points = _zhang_views(shared_data_dir / "zhang1998")
-    body = {
-        "kind": "intrinsics",
-        "camera_id": camera_id,
-        "image_size": [640, 480],
-        "object_points": object_points,
-        "image_points": image_points,
-    }
+    body = _zhang_run(shared_data_dir, camera_id=camera_id)
     refused = client.post("/api/v1/calibration-runs", json=body, headers=admin)
     assert refused.status_code == 409, refused.text
     error = refused.json()["errors"][0]
@@ -362,13 +364,7 @@ def test_restart_keeps_queued_runs_and_requeues_only_expired_claims(
     from server.db.base import utcnow
     from server.services.jobs import LeasePolicy
 
-    object_points, image_points = _zhang_views(shared_data_dir / "zhang1998")
-    body = {
-        "kind": "intrinsics",
-        "image_size": [640, 480],
-        "object_points": object_points[:3],
-        "image_points": image_points[:3],
-    }
+    body = _zhang_run(shared_data_dir, views=3)
     # With external workers the API only queues: four runs, three of which a worker of another
     # process had claimed: one whose worker died (lease expired), one that died as often as
     # it may, and one whose worker is alive (lease still running).
@@ -410,16 +406,9 @@ def test_worker_claims_queued_runs(make_settings, admin, shared_data_dir):
     from server.services.runs import RUNS, execute_claimed_run
 
     settings = make_settings(run_executor="external")
-    object_points, image_points = _zhang_views(shared_data_dir / "zhang1998")
     with TestClient(create_app(settings)) as client:
         camera_id = _camera(client, admin)
-        body = {
-            "kind": "intrinsics",
-            "camera_id": camera_id,
-            "image_size": [640, 480],
-            "object_points": object_points[:3],
-            "image_points": image_points[:3],
-        }
+        body = _zhang_run(shared_data_dir, views=3, camera_id=camera_id)
         run_id = client.post("/api/v1/calibration-runs", json=body, headers=admin).json()["id"]
 
         engine = make_engine(settings.resolved_database_url, pool_size=1)
@@ -441,12 +430,17 @@ def test_progress_is_reported_and_shutdown_hands_the_run_back(make_settings, adm
 
     from server.services.calibration import intrinsics
 
+    stopped = threading.Event()
+
     def slow_calibration(inputs, options, progress):
         # A long run reporting its progress; each report is a point where it can be stopped.
-        for k in range(400):
-            progress("slow stage", k / 400)
-            time.sleep(0.025)
-        raise AssertionError("the run should have been stopped at shutdown")
+        try:
+            for k in range(400):
+                progress("slow stage", k / 400)
+                time.sleep(0.025)  # time passes between the reports of a long computation
+            raise AssertionError("the run should have been stopped at shutdown")
+        finally:
+            stopped.set()
 
     monkeypatch.setattr(intrinsics, "calibrate_from_correspondences", slow_calibration)
     body = {
@@ -460,18 +454,21 @@ def test_progress_is_reported_and_shutdown_hands_the_run_back(make_settings, adm
         run_id = client.post(
             "/api/v1/calibration-runs", json={**body, "camera_id": camera_id}, headers=admin
         ).json()["id"]
-        deadline = time.monotonic() + 10
-        while True:
-            run = client.get(f"/api/v1/calibration-runs/{run_id}", headers=admin).json()
-            if run["status"] == "running" and (run["progress"] or {}).get("fraction", 0) > 0.05:
-                break
-            assert time.monotonic() < deadline, run
-            time.sleep(0.05)
+        run = wait_while_advancing(
+            lambda: client.get(f"/api/v1/calibration-runs/{run_id}", headers=admin).json(),
+            done=lambda run: (
+                run["status"] == "running" and (run["progress"] or {}).get("fraction", 0) > 0.05
+            ),
+            progress=run_progress,
+            stalled_after_s=10,
+            poll_s=0.05,
+            what="the run (to be past 5 %)",
+        )
         assert run["progress"]["stage"] == "slow stage" and run["progress"]["fraction"] < 1
         assert run["lease_expires_at"] is not None
     # The service stopped with the run computing: the run is back in the queue (its attempt
     # counted) and the attempt, stopped at its next progress report, wrote nothing.
-    time.sleep(0.3)
+    wait_until(stopped.is_set, what="the attempt stopping", stalled_after_s=5)
     with TestClient(create_app(make_settings(run_executor="external"))) as client:
         run = client.get(f"/api/v1/calibration-runs/{run_id}", headers=admin).json()
     assert run["status"] == "queued" and run["attempts"] == 1

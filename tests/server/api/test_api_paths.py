@@ -30,6 +30,7 @@ from server.db.models import PlannedPath
 from server.services import path_following
 from server.services.path_following import FOLLOW_LEASES, follow_view
 from server.services.twin_home import bootstrap_space
+from tests.support.scene_recorder import SceneRecorder
 from tests.support.waiting import task_progress, wait_while_advancing
 
 SCENE = default_scene()
@@ -86,22 +87,9 @@ def _obstacles() -> list[tuple[object, float]]:
     return out
 
 
-class _SceneRecorder:
-    """Stands in for the live 3D scene: records the calls the service makes."""
-
-    def __init__(self) -> None:
-        self.calls: dict[str, list[tuple]] = {}
-
-    def __getattr__(self, name):
-        def record(*args):
-            self.calls.setdefault(name, []).append(args)
-
-        return record
-
-
 def test_plan_in_the_twin_home_with_the_projector_trajectory(client, admin):
     space, projector = _register_home(client, admin)
-    scene = _SceneRecorder()
+    scene = SceneRecorder()
     client.app.state.runtime.scene_sync.scene = scene
     body = {"space_id": space, "start": START, "goal": GOAL, "projector_id": projector}
     response = client.post("/api/v1/paths", json=body, headers=admin)

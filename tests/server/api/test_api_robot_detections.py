@@ -11,27 +11,11 @@ import numpy as np
 import pytest
 
 from core.localization import NetworkCamera
+from tests.support.tracker_clock import HeldClock, wait_processed
 
 K = [[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]]
 MARKER_HEIGHT = 0.36
 PERSON_HEIGHT = 1.0
-
-
-class _Clock:
-    def __init__(self, t: float) -> None:
-        self.t = t
-
-    def __call__(self) -> float:
-        return self.t
-
-
-def _processed(tracking, frames: int, timeout: float = 5.0) -> bool:
-    deadline = time.monotonic() + timeout
-    while tracking.frames_processed < frames:
-        if time.monotonic() > deadline:
-            return False
-        time.sleep(0.005)
-    return True
 
 
 @pytest.mark.parametrize("database_url", ["sqlite"], indirect=True)
@@ -53,7 +37,7 @@ def test_robot_detections_need_a_robot_in_the_space(client, admin):
     t0 = float(np.ceil(time.time())) + 10.0
     # The service's clock follows the frames, as live: the space's one camera releases each of
     # its frames at once by its own watermark.
-    clock = _Clock(t0)
+    clock = HeldClock(t0)
     tracking._clock = clock
 
     def send(k0: int, n: int, with_person: bool) -> list[dict]:
@@ -100,7 +84,7 @@ def test_robot_detections_need_a_robot_in_the_space(client, admin):
     # A frame left with nothing still reaches the tracker, as an empty frame.
     answers = send(10, 10, with_person=False)
     assert {(a["stored"], a["frames"], a["ignored"]) for a in answers} == {(0, 1, 1)}
-    assert _processed(tracking, base + 20), tracking.frames_processed
+    wait_processed(tracking, base + 20)
     assert robot_tracks() == 0
     assert client.get("/api/v1/targets?state=all&kind=robot", headers=admin).json()["total"] == 0
 
@@ -109,5 +93,5 @@ def test_robot_detections_need_a_robot_in_the_space(client, admin):
     assert r.status_code == 201, r.text
     answers = send(20, 10, with_person=False)
     assert {(a["stored"], a["frames"], a["ignored"]) for a in answers} == {(1, 1, 0)}
-    assert _processed(tracking, base + 30), tracking.frames_processed
+    wait_processed(tracking, base + 30)
     assert robot_tracks() >= 1

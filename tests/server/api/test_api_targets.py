@@ -13,6 +13,7 @@ from starlette.websockets import WebSocketDisconnect
 
 from core.localization import NetworkCamera
 from tests.support.cameras import register_cameras
+from tests.support.tracker_clock import HeldClock, wait_processed
 
 K = [[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]]
 DIST = [-0.1, 0.01, 0.0005, -0.0003, 0.0]
@@ -229,26 +230,6 @@ def test_targets_live_by_default_newest_first_and_tracks_page_back(client, admin
 # -- frames in which nothing was detected -------------------------------------------------------
 
 
-class _Clock:
-    """The service's clock, moved by the test."""
-
-    def __init__(self, t: float) -> None:
-        self.t = t
-
-    def __call__(self) -> float:
-        return self.t
-
-
-def _processed(tracking, frames: int, timeout: float = 5.0) -> bool:
-    """Wait until the tracker thread has processed `frames` frames; return whether it did."""
-    deadline = time.monotonic() + timeout
-    while tracking.frames_processed < frames:
-        if time.monotonic() > deadline:
-            return False
-        time.sleep(0.005)
-    return True
-
-
 @pytest.mark.parametrize("database_url", ["sqlite"], indirect=True)
 def test_empty_frames_release_the_other_cameras_frames_at_once(client, admin):
     """A camera that saw nothing says so: the tracker need not wait its reorder window (1 s by
@@ -258,7 +239,7 @@ def test_empty_frames_release_the_other_cameras_frames_at_once(client, admin):
     tracking = client.app.state.runtime.tracking
     assert tracking.latency == 1.0  # the default window; the clock below never reaches it
     T = float(np.ceil(time.time())) + 10.0
-    clock = _Clock(T)
+    clock = HeldClock(T)
     tracking._clock = clock
     X = np.array([[2.0, 1.5, 0.0]])
     px = cameras[0].project(X)[0].tolist()
@@ -277,16 +258,18 @@ def test_empty_frames_release_the_other_cameras_frames_at_once(client, admin):
         }
     )
     assert (first["stored"], first["frames"], first["late"]) == (1, 2, 0)
-    assert _processed(tracking, base + 2)
+    wait_processed(tracking, base + 2)
     # Camera a's next frame waits for camera b, which may still send a frame as old ...
     post({"observations": [{"camera_id": a, "t": T - 0.1, "pixel": px, "target": "cup"}]})
-    time.sleep(0.3)  # the tracker thread wakes every 20 ms; the service's clock stands still
+    # Time must pass: nothing is taken in a window of 15 wake-ups of the tracker thread (every
+    # 20 ms) while the service's clock stands still.
+    time.sleep(0.3)
     assert tracking.frames_processed == base + 2
     # ... until camera b says it saw nothing then: both are taken at once, well inside the
     # window (the clock has not moved: the release is the watermark's, not the window's end).
     empty = post({"empty_frames": [{"camera_id": b, "t": T - 0.1}]})
     assert (empty["stored"], empty["frames"], empty["late"], empty["positions"]) == (0, 1, 0, [])
-    assert _processed(tracking, base + 4)
+    wait_processed(tracking, base + 4)
     state, t, xy = client.app.state.runtime.targets.latest("cup")
     assert state == "confirmed"
     assert t == T - 0.1 and np.linalg.norm(np.array(xy) - [2.0, 1.5]) < 1e-3
@@ -430,7 +413,7 @@ def test_a_notified_empty_frame_moves_the_tracker_on(client, admin):
     a, b = register_cameras(client, admin, cameras)
     tracking = client.app.state.runtime.tracking
     T = float(np.ceil(time.time())) + 10.0
-    tracking._clock = _Clock(T)
+    tracking._clock = HeldClock(T)
     px = cameras[0].project(np.array([[2.0, 1.5, 0.0]]))[0].tolist()
     base = tracking.frames_processed
     body = {
@@ -438,14 +421,14 @@ def test_a_notified_empty_frame_moves_the_tracker_on(client, admin):
         "empty_frames": [{"camera_id": b, "t": T - 0.5}],
     }
     assert client.post("/api/v1/observations", json=body, headers=admin).status_code == 200
-    assert _processed(tracking, base + 2)
+    wait_processed(tracking, base + 2)
     body = {"observations": [{"camera_id": a, "t": T - 0.1, "pixel": px, "target": "cup"}]}
     assert client.post("/api/v1/observations", json=body, headers=admin).status_code == 200
-    time.sleep(0.2)
+    time.sleep(0.2)  # time must pass: nothing is taken in 10 wake-ups of the tracker thread
     assert tracking.frames_processed == base + 2  # camera a's frame waits for camera b
     tracking._on_detections({"space": None, "items": [{"c": b, "t": T - 0.1}]})
     tracking._read_notified()
-    assert _processed(tracking, base + 4)
+    wait_processed(tracking, base + 4)
     assert client.app.state.runtime.targets.latest("cup")[1] == T - 0.1
 
 

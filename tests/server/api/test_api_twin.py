@@ -14,6 +14,8 @@ from fastapi.testclient import TestClient
 from core.sim import default_scene, simulate_patrol
 from core.sim.render import camera_model
 from server.app import create_app
+from tests.support.scene_recorder import SceneRecorder
+from tests.support.waiting import wait_until, wait_until_unchanged
 
 
 @pytest.fixture
@@ -21,16 +23,6 @@ def twin_client(make_settings):
     settings = make_settings(simulation=True, twin_rate_hz=4.0, targets_flush_hz=5.0)
     with TestClient(create_app(settings)) as client:
         yield client
-
-
-def _wait(predicate, timeout=20.0):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        value = predicate()
-        if value:
-            return value
-        time.sleep(0.1)
-    raise AssertionError("timed out")
 
 
 def test_twin_locates_the_robot_and_is_controlled(twin_client, admin):
@@ -54,7 +46,7 @@ def test_twin_locates_the_robot_and_is_controlled(twin_client, admin):
         track = client.get(f"/api/v1/targets/{targets[0]['id']}/track", headers=admin).json()
         return track if len(track["points"]) >= 5 else None
 
-    track = _wait(robot_track)
+    track = wait_until(robot_track, what="the robot's track of 5 points", stalled_after_s=20)
     state = client.get("/api/v1/twin", headers=admin).json()
     assert state["enabled"] and state["running"] and state["sim_time"] > 0
     # The tracked robot against the twin's true pose at each update's own time: the marker
@@ -85,15 +77,24 @@ def test_twin_locates_the_robot_and_is_controlled(twin_client, admin):
 
     paused = client.post("/api/v1/twin/pause", headers=admin).json()
     assert paused["paused"] and not paused["running"]
-    time.sleep(0.3)
-    t0 = client.get("/api/v1/twin", headers=admin).json()["sim_time"]
-    time.sleep(0.5)
+    # The step under way ends: the simulated time stands (two reads more than a step apart).
+    t0 = wait_until_unchanged(
+        lambda: client.get("/api/v1/twin", headers=admin).json()["sim_time"],
+        what="the paused twin's simulated time",
+        interval_s=0.3,
+        stalled_after_s=5,
+    )
+    time.sleep(0.5)  # time must pass: the paused twin does not advance in it
     assert client.get("/api/v1/twin", headers=admin).json()["sim_time"] == t0
     reset = client.post("/api/v1/twin/reset", headers=admin).json()
     assert reset["sim_time"] == 0
     resumed = client.post("/api/v1/twin/resume", headers=admin).json()
     assert resumed["running"]
-    _wait(lambda: client.get("/api/v1/twin", headers=admin).json()["sim_time"] > 0)
+    wait_until(
+        lambda: client.get("/api/v1/twin", headers=admin).json()["sim_time"] > 0,
+        what="the resumed twin's simulated time",
+        stalled_after_s=20,
+    )
     rate = client.post("/api/v1/twin/rate", json={"rate_hz": 2}, headers=admin).json()
     assert rate["rate_hz"] == 2
     assert client.post("/api/v1/twin/rate", json={"rate_hz": 0}, headers=admin).status_code == 422
@@ -188,28 +189,14 @@ def test_network_run_needs_the_twin(client, admin):
         assert response.json()["errors"][0]["field"].endswith("minutes"), response.text
 
 
-class _SceneRecorder:
-    """Stands in for the 3D scene: records every call by method name."""
-
-    def __init__(self) -> None:
-        self.calls: dict[str, list[tuple]] = {}
-
-    def __getattr__(self, name):
-        def record(*args):
-            self.calls.setdefault(name, []).append(args)
-            return True
-
-        return record
-
-
 def test_twin_pushes_agents_tracks_and_images_to_the_scene(twin_client, admin):
-    recorder = _SceneRecorder()
+    recorder = SceneRecorder(answer=True)
     twin_client.app.state.runtime.scene_sync.scene = recorder
 
     def pushed():
         return {"upsert_agent", "set_track", "set_camera_image"} <= set(recorder.calls)
 
-    _wait(pushed)
+    wait_until(pushed, what="agents, tracks and images pushed to the scene", stalled_after_s=20)
     agents = {args[0]["id"]: args[0] for args in recorder.calls["upsert_agent"]}
     assert agents["robot"]["kind"] == "robot" and "theta" in agents["robot"]
     assert any(a["kind"] == "person" for a in agents.values())

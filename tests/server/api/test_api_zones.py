@@ -6,12 +6,11 @@ from __future__ import annotations
 
 import time
 
-import numpy as np
 import pytest
 
-from core.localization import NetworkCamera
+from tests.support.waiting import wait_until
+from tests.support.walking_person import register_corner_cameras, walk
 
-K = [[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]]
 SOFA = [[0.0, 0.0], [2.0, 0.0], [2.0, 3.0], [0.0, 3.0]]
 
 
@@ -72,60 +71,32 @@ def test_zone_crud_validation_and_rooms(client, admin):
 @pytest.mark.parametrize("database_url", ["sqlite"], indirect=True)
 def test_occupancy_follows_a_person_walking_in(client, admin):
     sid = _space(client, admin)
-    cams = [
-        NetworkCamera.looking_at(K, None, pos, [2.0, 1.5, 0.0], (640, 480))
-        for pos in ([0.0, 0.0, 2.8], [4.0, 3.0, 2.8], [4.0, 0.0, 2.8])
-    ]
-    ids = []
-    for k, cam in enumerate(cams):
-        body = {
-            "name": f"cam{k}",
-            "space_id": sid,
-            "width": 640,
-            "height": 480,
-            "K": K,
-            "T_world_camera": cam.T_world_camera.tolist(),
-        }
-        response = client.post("/api/v1/cameras", json=body, headers=admin)
-        assert response.status_code == 201, response.text
-        ids.append(response.json()["id"])
+    ids, cams = register_corner_cameras(client, admin, sid, "cam")
     url = f"/api/v1/spaces/{sid}/zones"
     zone = client.post(url, json={"name": "sofa", "polygon": SOFA, "inertia_s": 0.5}, headers=admin)
     assert zone.status_code == 201
     # A person walks from x = 3.5 (outside) to x = 1.0 (inside) over 2.5 s, then stands for
     # 1.5 s, seen by the three cameras at 10 Hz with 0.5 px noise; its axis point at 1 m.
-    rng = np.random.default_rng(0)
-    t0 = time.time() - 0.1
     occupancy = []
-    for k in range(40):
-        x = max(1.0, 3.5 - k * 0.1)
-        X = np.array([[x, 1.5, 1.0]])
-        obs = [
-            {
-                "camera_id": cid,
-                "t": t0 + 0.1 * k,
-                "pixel": (cam.project(X)[0] + rng.normal(0, 0.5, 2)).tolist(),
-                "sigma_px": 0.5,
-                "kind": "person",
-                "height": 1.0,
-            }
-            for cid, cam in zip(ids, cams, strict=True)
-        ]
-        response = client.post("/api/v1/observations", json={"observations": obs}, headers=admin)
-        assert response.status_code == 200, response.text
+
+    def read_occupancy() -> int:
         occupancy.append(client.get(url, headers=admin).json()[0]["occupancy"])
-        time.sleep(max(0.0, t0 + 0.1 * (k + 1) - time.time()))
+        return occupancy[-1]
+
+    path = [(max(1.0, 3.5 - k * 0.1), 1.5) for k in range(40)]
+    walk(client, admin, ids, cams, path, t0=time.time() - 0.1, after_each=read_occupancy)
     # The tracker releases frames within its latency (1 s): by then the person has been inside
     # (x < 2 from k = 16) for more than the inertia: counted once, never twice.
-    deadline = time.monotonic() + 3
-    while time.monotonic() < deadline and occupancy[-1] != 1:
-        time.sleep(0.1)
-        occupancy.append(client.get(url, headers=admin).json()[0]["occupancy"])
-    assert occupancy[-1] == 1
+    wait_until(
+        lambda: occupancy[-1] == 1 or read_occupancy() == 1,
+        what="the zone occupied",
+        stalled_after_s=3,
+    )
     assert max(occupancy) == 1 and occupancy[0] == 0
     # Ends after the tracker's end_after without detections: the zone empties.
-    deadline = time.monotonic() + 10
-    while time.monotonic() < deadline and occupancy[-1] != 0:
-        time.sleep(0.2)
-        occupancy.append(client.get(url, headers=admin).json()[0]["occupancy"])
-    assert occupancy[-1] == 0
+    wait_until(
+        lambda: occupancy[-1] == 0 or read_occupancy() == 0,
+        what="the zone empty again",
+        stalled_after_s=10,
+        poll_s=0.2,
+    )

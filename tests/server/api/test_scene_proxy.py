@@ -188,7 +188,9 @@ def test_a_viewer_that_goes_away_leaves_no_traceback_in_the_service_log(repo_roo
             else:
                 ws.transport.abort()  # no closing handshake: the TCP connection just ends
             left.append(how)
-            await asyncio.sleep(0.5)  # the relay notices and ends
+            # The relay notices and ends. Time must pass: its end shows nowhere outside the
+            # service (no log line, nothing the API answers) but in a traceback, read at the end.
+            await asyncio.sleep(0.5)
         # The last viewer stays while the service stops (Ctrl-C): its relay is cancelled.
         ws = await connect(
             url, additional_headers=headers, subprotocols=[VISER_PROTOCOL], max_size=None

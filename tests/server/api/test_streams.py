@@ -10,6 +10,7 @@ import numpy as np
 
 from server.node.mjpeg import MjpegParser, boundary_of
 from server.services.twin import TwinFrame
+from tests.support.waiting import wait_until_unchanged
 
 
 class _FakeTwin:
@@ -82,8 +83,10 @@ def test_stream_generator_stops_when_the_client_leaves(client, admin):
     with client.stream("GET", "/api/v1/cameras/3/stream.mjpg", headers=admin) as response:
         for _ in response.iter_bytes():
             break
-    time.sleep(0.3)
-    before = twin.reads
-    time.sleep(0.5)
+    # The generator notices and stops reading the twin (no read in 0.1 s: five frame periods).
+    before = wait_until_unchanged(
+        lambda: twin.reads, what="the twin's reads", interval_s=0.1, stalled_after_s=5
+    )
+    time.sleep(0.5)  # time must pass: nothing reads the twin in it
     # A generator still running would read the twin every 10 ms (about 50 reads here).
     assert twin.reads - before <= 1

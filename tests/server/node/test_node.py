@@ -3,11 +3,8 @@ node's pieces: the MJPEG parser, the newest-frame holder, the clock offset, mask
 
 from __future__ import annotations
 
-import subprocess
-import sys
 import threading
 import time
-from pathlib import Path
 
 import cv2
 import httpx
@@ -22,8 +19,10 @@ from server.node.masks import apply_mask, polygon_mask
 from server.node.mjpeg import MjpegParser, boundary_of
 from server.schemas.registry import CameraHeartbeat
 from server.services.camera_health import CameraHealthBook
+from tests.support.camera_node import start_node
 from tests.support.mjpeg_stream import MjpegStream, flat_jpeg
-from tests.support.service import clean_env, start_service
+from tests.support.service import start_service
+from tests.support.waiting import wait_until
 
 TOKEN = "node-test-admin-token"
 HEADERS = {"Authorization": f"Bearer {TOKEN}"}
@@ -166,33 +165,6 @@ TWIN_FOR_NODES = {
 }
 
 
-def _node(
-    repo_root: Path, *args: str, log: Path | None = None, token: str = TOKEN
-) -> subprocess.Popen:
-    """Start `intspace node` with `token`; its stderr to `log` (a long run) or a pipe (read at
-    exit)."""
-    env = clean_env()
-    env["INTSPACE_TOKEN"] = token
-    return subprocess.Popen(
-        [sys.executable, "-m", "server.cli", "node", *args],
-        cwd=repo_root,
-        env=env,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.PIPE if log is None else log.open("w"),
-        text=True,
-    )
-
-
-def _wait(condition, timeout: float, what: str):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        value = condition()
-        if value:
-            return value
-        time.sleep(0.1)
-    raise AssertionError(f"{what} within {timeout} s")
-
-
 def test_node_tracks_the_twin_robot_through_mjpeg_and_goes_offline_when_killed(repo_root, tmp_path):
     started = time.monotonic()
     service = start_service(tmp_path, token=TOKEN, env=TWIN_FOR_NODES, wait=False)
@@ -227,11 +199,11 @@ def test_node_tracks_the_twin_robot_through_mjpeg_and_goes_offline_when_killed(r
         )
         assert created.status_code == 201, created.text
         node_token = created.json()["token"]
-        unknown = _node(
+        unknown = start_node(
             repo_root, "--camera", "nope", "--source", "0", "--api", service.api, token=node_token
         )
         node_log = tmp_path / "node.log"
-        node = _node(
+        node = start_node(
             repo_root, "--config", str(config), "--api", service.api, log=node_log, token=node_token
         )
         _, err = unknown.communicate(timeout=30)
@@ -247,15 +219,17 @@ def test_node_tracks_the_twin_robot_through_mjpeg_and_goes_offline_when_killed(r
             return get(f"/cameras/{ids[name]}")["health"]
 
         try:
-            _wait(robot, 40, "a live robot target from the node's detections")
+            wait_until(
+                robot, what="a live robot target from the node's detections", stalled_after_s=40
+            )
         except AssertionError as exc:
             raise AssertionError(f"{exc}\nnode:\n{node_log.read_text()}") from None
         print(f"robot target {time.monotonic() - started:.1f} s after the service started")
         # A heartbeat is a snapshot each second: wait for one that counts frames.
-        _wait(
+        wait_until(
             lambda: all(health(n)["status"] == "online" and health(n)["fps"] > 0 for n in names),
-            5,
-            "both cameras online with frames per second > 0",
+            what="both cameras online with frames per second > 0",
+            stalled_after_s=5,
         )
 
         # Score at rest: pause the twin, wait until the robot's track has the last frame
@@ -267,13 +241,13 @@ def test_node_tracks_the_twin_robot_through_mjpeg_and_goes_offline_when_killed(r
             http.post("/twin/pause")
             paused = time.time()
             # The node's first heartbeat half a second after the pause knows its last frame.
-            beats = _wait(
+            beats = wait_until(
                 lambda paused=paused: (
                     all(h["last_heartbeat"] > paused + 0.5 for h in (health(n) for n in names))
                     and [health(n) for n in names]
                 ),
-                5,
-                "a heartbeat after the pause",
+                what="a heartbeat after the pause",
+                stalled_after_s=5,
             )
             last = max(h["last_frame_t"] for h in beats)
             # Posted at once, tracked 0.15 s later, written to the database twice a second.
@@ -291,10 +265,17 @@ def test_node_tracks_the_twin_robot_through_mjpeg_and_goes_offline_when_killed(r
                 # Neither camera saw the marker in the last frame (a walker in the way): no
                 # estimate at the pose's time; rest again.
                 missed.append(None if target is None else last - target["t"])
+            rested = get("/twin")["sim_time"]
             http.post("/twin/resume")
             if len(errors) == 2:
                 break
-            time.sleep(1.0)
+            # The robot drives a second of the twin's time before the next rest.
+            wait_until(
+                lambda rested=rested: get("/twin")["sim_time"] >= rested + 1.0,
+                what="the twin driving on after the rest",
+                stalled_after_s=10,
+                progress=lambda: get("/twin")["steps"],
+            )
         assert len(errors) == 2, (errors, missed, node_log.read_text())
         print(f"robot error at rest: {errors} m; rests without the last frame: {missed}")
         # 5 cm: spec 08's position RMSE for points at a known height (the marker's). At rest
@@ -310,7 +291,7 @@ def test_node_tracks_the_twin_robot_through_mjpeg_and_goes_offline_when_killed(r
         for k in range(8):
             writer.write(np.full((480, 640, 3), 40 + k, np.uint8))
         writer.release()
-        replay = _node(
+        replay = start_node(
             repo_root,
             "--source",
             str(clip),
@@ -319,13 +300,14 @@ def test_node_tracks_the_twin_robot_through_mjpeg_and_goes_offline_when_killed(r
             "--fast",
             "--api",
             service.api,
+            token=TOKEN,
         )
 
         def offline() -> dict | None:
             h = health(names[0])
             return h if h["status"] == "offline" else None
 
-        gone = _wait(offline, 7, "the killed node's camera offline")
+        gone = wait_until(offline, what="the killed node's camera offline", stalled_after_s=7)
         delay = gone["since"] - killed
         print(f"offline {delay:.2f} s after the kill")
         # Heartbeats come every second, so the last one is under 1 s before the kill and the
@@ -361,17 +343,33 @@ def test_mjpeg_source_reconnects_with_backoff_and_reads_again_when_the_camera_re
     source = MjpegHttpSource("flaky", camera.url)
     try:
         source.start()
-        first = _wait(lambda: source.frames.take(timeout=0.5), 5, "a first frame")
+        first = wait_until(
+            lambda: source.frames.take(timeout=0.5), what="a first frame", stalled_after_s=5
+        )
         assert first.jpeg is not None and abs(first.t - time.time()) < 2.0
         image = cv2.imdecode(np.frombuffer(first.jpeg, np.uint8), cv2.IMREAD_COLOR)
         assert image.shape == (24, 32, 3)
-        _wait(lambda: source.stats.reconnects >= 2, 5, "reconnects after the stream ended")
+        wait_until(
+            lambda: source.stats.reconnects >= 2,
+            what="reconnects after the stream ended",
+            stalled_after_s=5,
+        )
         camera.down.set()  # the camera goes away for a second
-        time.sleep(1.0)
+        time.sleep(1.0)  # the outage itself: time must pass with the camera away
+        # ... and the source found it away: an attempt was answered 503.
+        wait_until(
+            lambda: "503" in (source.stats.error or ""),
+            what="an attempt refused while the camera is away",
+            stalled_after_s=5,
+        )
         frames_before = source.stats.frames
         camera.down.clear()
         back = time.monotonic()
-        _wait(lambda: source.stats.frames > frames_before, 5, "frames after the camera returned")
+        wait_until(
+            lambda: source.stats.frames > frames_before,
+            what="frames after the camera returned",
+            stalled_after_s=5,
+        )
         # Back-off is capped at 1 s: the camera is read again well within spec 08's 5 s.
         assert time.monotonic() - back < 3.0
         assert source.stats.stalls >= 2  # each dropped connection is a stall

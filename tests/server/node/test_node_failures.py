@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import json
 import subprocess
-import sys
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -20,11 +19,11 @@ import numpy as np
 import pytest
 
 from core.sim import Scene, WorldState, default_scene
-from core.sim.installation import installed_calibration
 from core.sim.motion import Pose2D
 from core.sim.render import renderer_for
+from tests.support.camera_node import NODE, installed_camera, node_env
 from tests.support.ports import free_port
-from tests.support.service import WITHOUT_TWIN, clean_env, running_service
+from tests.support.service import WITHOUT_TWIN, running_service
 
 TOKEN = "node-failures-test-admin-token"
 HEADERS = {"Authorization": f"Bearer {TOKEN}"}
@@ -50,30 +49,16 @@ def service(repo_root: Path, tmp_path_factory: pytest.TempPathFactory) -> Iterat
             space = http.post("/spaces", json={"name": "replay"}).json()["id"]
             # The robot the clip shows is registered: a space without one makes no robot target.
             http.post("/robots", json={"name": "robot", "space_id": space}).raise_for_status()
-            cal = {c.name: c for c in installed_calibration(scene).cameras}[CAMERA]
-            created = http.post(
-                "/cameras",
-                json={
-                    "name": CAMERA,
-                    "space_id": space,
-                    "width": 640,
-                    "height": 480,
-                    "K": cal.K.tolist(),
-                    "dist": cal.dist.tolist(),
-                    "T_world_camera": cal.T_world_camera.tolist(),
-                },
-            )
+            created = http.post("/cameras", json=installed_camera(scene, CAMERA, space_id=space))
             assert created.status_code == 201, created.text
         yield Service(api, space, scene)
 
 
 def _node(repo_root: Path, *args: str, timeout: float = 60) -> subprocess.CompletedProcess:
-    env = clean_env()
-    env["INTSPACE_TOKEN"] = TOKEN
     return subprocess.run(
-        [sys.executable, "-m", "server.cli", "node", *args],
+        [*NODE, *args],
         cwd=repo_root,
-        env=env,
+        env=node_env(TOKEN),
         capture_output=True,
         text=True,
         timeout=timeout,

@@ -15,6 +15,7 @@ import pytest
 from server.node.config import CameraConfig, NodeConfig
 from server.node.frames import Frame
 from server.node.runner import Node
+from tests.support.waiting import wait_until
 
 
 # The node's side is the same on both databases (the service's side runs on both in
@@ -46,17 +47,25 @@ def test_node_uploads_an_unplaced_cameras_frames_at_most_once_a_second(client, a
         loop = threading.Thread(target=node._detect_loop, args=(run,), daemon=True)
         loop.start()
         sent, served = [], []
+        started = time.monotonic()
         for k in range(1, 5):
             image = np.full((240, 320, 3), 40 * k, np.uint8)
             run.source.frames.put(Frame(seq=k, received=time.time(), image=image))
-            time.sleep(0.2)  # the detector takes it
+            # The detector takes it and keeps it for the upload.
+            wait_until(
+                lambda image=image: node.frames._newest.get(cid, (None,))[0] is image,
+                what=f"frame {k} taken by the detector",
+                stalled_after_s=5,
+                poll_s=0.01,
+            )
+            # Time must pass between the heartbeats: the uploads' pace is the scenario.
+            time.sleep(max(0.0, started + 0.65 * k - time.monotonic()))
             node._heartbeat()  # the heartbeat thread's work: health, and the frame when due
             got = client.get(f"/api/v1/cameras/{cid}/frame.jpg", headers=admin)
             assert got.status_code == 200, got.text
             served.append(float(got.headers["X-Frame-Received"]))
             shown = cv2.imdecode(np.frombuffer(got.content, np.uint8), cv2.IMREAD_GRAYSCALE)
             sent.append(round(float(shown.mean()) / 40))
-            time.sleep(0.45)
         # Heartbeats ~0.65 s apart: frames 1 and 3 are sent (1.1 s between uploads), 2 and 4
         # come too soon after them and wait; the image served is the last one uploaded.
         assert sent == [1, 1, 3, 3], sent

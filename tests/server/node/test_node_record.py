@@ -13,7 +13,6 @@ from __future__ import annotations
 import json
 import sqlite3
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -32,8 +31,10 @@ from server.node.record import (
     is_recording,
     recorded_frames,
 )
+from tests.support.camera_node import installed_camera, start_node
 from tests.support.mjpeg_stream import MjpegStream
-from tests.support.service import WITHOUT_TWIN, clean_env, start_service
+from tests.support.service import WITHOUT_TWIN, start_service
+from tests.support.waiting import wait_until
 
 TOKEN = "node-record-admin-token"
 HEADERS = {"Authorization": f"Bearer {TOKEN}"}
@@ -116,7 +117,6 @@ def _robot_frames(n: int) -> tuple[list[bytes], dict]:
     """Return `n` JPEG frames of CAMERA with the robot driving 4 cm a frame across its view,
     the walkers far away, and the camera's registry row (the home's installed calibration)."""
     from core.sim import default_scene
-    from core.sim.installation import installed_calibration
     from core.sim.motion import Pose2D, WorldState
     from core.sim.render import renderer_for
 
@@ -130,29 +130,11 @@ def _robot_frames(n: int) -> tuple[list[bytes], dict]:
         ok, jpeg = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 85])
         assert ok
         frames.append(jpeg.tobytes())
-    cal = next(c for c in installed_calibration(scene).cameras if c.name == CAMERA)
-    row = {
-        "name": CAMERA,
-        "width": 640,
-        "height": 480,
-        "K": cal.K.tolist(),
-        "dist": cal.dist.tolist(),
-        "T_world_camera": cal.T_world_camera.tolist(),
-    }
-    return frames, row
+    return frames, installed_camera(scene, CAMERA)
 
 
 def _node(repo_root: Path, *args: str) -> subprocess.Popen:
-    env = clean_env()
-    env["INTSPACE_TOKEN"] = TOKEN
-    return subprocess.Popen(
-        [sys.executable, "-m", "server.cli", "node", *args],
-        cwd=repo_root,
-        env=env,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
+    return start_node(repo_root, *args, token=TOKEN)
 
 
 def _stored(data_dir: Path) -> tuple[np.ndarray, list[str]]:
@@ -163,6 +145,20 @@ def _stored(data_dir: Path) -> tuple[np.ndarray, list[str]]:
             "SELECT t, u, v, cxx, cxy, cyy, height, kind FROM detections ORDER BY id"
         ).fetchall()
     return np.array([r[:-1] for r in rows], dtype=np.float64).reshape(-1, 7), [r[-1] for r in rows]
+
+
+def _recorded(recording: Path) -> tuple[np.ndarray, list[str]]:
+    """Return the detections of the frames recorded in `recording` so far (t, u, v, cxx, cxy,
+    cyy, height) in the order they were recorded, and their kinds."""
+    recorded = list(recorded_frames(recording, CAMERA))
+    kept = np.array(
+        [
+            [d["t"], *d["pixel"], d["cov"][0][0], d["cov"][0][1], d["cov"][1][1], d["height"]]
+            for f in recorded
+            for d in f.detections
+        ]
+    )
+    return kept, [d["kind"] for f in recorded for d in f.detections]
 
 
 def _distinct(rows: np.ndarray, kinds: list[str]) -> set[tuple]:
@@ -205,25 +201,31 @@ def test_a_recorded_stream_replayed_posts_the_same_detections(repo_root, tmp_pat
             *common[2:],
         )
         index = recording / folder_name(0, CAMERA) / "index.jsonl"
-        deadline = time.monotonic() + 60
-        while not index.is_file() or index.read_text().count("\n") < 25:
-            assert time.monotonic() < deadline, "the node did not record 25 frames in 60 s"
+
+        def frames_recorded() -> int:
             assert recorder.poll() is None, recorder.communicate()[1]
-            time.sleep(0.2)
-        time.sleep(1.0)  # the last frames' detections reach the service
+            return index.read_text().count("\n") if index.is_file() else 0
+
+        wait_until(
+            lambda: frames_recorded() >= 25,
+            what="25 frames recorded",
+            stalled_after_s=60,
+            progress=frames_recorded,
+            poll_s=0.2,
+        )
+        # The detections of the frames recorded so far reach the service.
+        sent = _distinct(*_recorded(recording))
+        wait_until(
+            lambda: sent <= _distinct(*_stored(data_dir)),
+            what="the recorded frames' detections stored",
+            stalled_after_s=10,
+            progress=lambda: len(_stored(data_dir)[1]),
+        )
         # Killed, not stopped: what a recording holds must not depend on a clean exit (its
         # index is flushed a frame at a time; a line cut short ends it).
         recorder.kill()
         recorder.communicate(timeout=30)
-        recorded = list(recorded_frames(recording, CAMERA))
-        kept = np.array(
-            [
-                [d["t"], *d["pixel"], d["cov"][0][0], d["cov"][0][1], d["cov"][1][1], d["height"]]
-                for f in recorded
-                for d in f.detections
-            ]
-        )
-        kept_kinds = [d["kind"] for f in recorded for d in f.detections]
+        kept, kept_kinds = _recorded(recording)
         posted, kinds = _stored(data_dir)
         assert kinds.count("robot") >= 20, kinds
         # Every detection the node posted while recording is in the recording, at its time

@@ -14,7 +14,6 @@ import os
 import re
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -24,11 +23,12 @@ import numpy as np
 import pytest
 
 from core.sim import WorldState, default_scene
-from core.sim.installation import installed_calibration
 from core.sim.motion import Pose2D
 from core.sim.render import renderer_for
+from tests.support.camera_node import installed_camera, start_node
 from tests.support.ports import free_port
-from tests.support.service import WITHOUT_TWIN, clean_env, start_service
+from tests.support.service import WITHOUT_TWIN, start_service
+from tests.support.waiting import wait_until
 
 TOKEN = "rtsp-test-admin-token"
 HEADERS = {"Authorization": f"Bearer {TOKEN}"}
@@ -113,16 +113,6 @@ class _RtspCamera:
                 self.process.wait()
 
 
-def _wait(condition, timeout: float, what: str):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        value = condition()
-        if value:
-            return value
-        time.sleep(0.1)
-    raise AssertionError(f"{what} within {timeout} s")
-
-
 def test_node_reads_an_rtsp_camera_tracks_its_robot_and_reconnects(rtsp_ready, repo_root, tmp_path):
     clip = tmp_path / "clip.avi"
     _clip(clip)
@@ -138,35 +128,19 @@ def test_node_reads_an_rtsp_camera_tracks_its_robot_and_reconnects(rtsp_ready, r
         # The robot the camera sees is registered: a space without one makes no robot target.
         http.post("/robots", json={"name": "robot", "space_id": space}).raise_for_status()
         # The camera as its installation calibrated it (not the twin's true camera).
-        cal = {c.name: c for c in installed_calibration(default_scene()).cameras}[CAMERA]
-        created = http.post(
-            "/cameras",
-            json={
-                "name": CAMERA,
-                "space_id": space,
-                "width": 640,
-                "height": 480,
-                "K": cal.K.tolist(),
-                "dist": cal.dist.tolist(),
-                "T_world_camera": cal.T_world_camera.tolist(),
-            },
-        )
+        body = installed_camera(default_scene(), CAMERA, space_id=space)
+        created = http.post("/cameras", json=body)
         assert created.status_code == 201, created.text
         camera_id = created.json()["id"]
-        env = clean_env()
-        env["INTSPACE_TOKEN"] = TOKEN
-        node = subprocess.Popen(
-            [
-                *(sys.executable, "-m", "server.cli", "node", "--source", camera.url),
-                *("--camera", CAMERA, "--space", str(space), "--api", api),
-                *("--summary", "2"),
-                # The twin's people are coloured cylinders, no people to the neural detector.
-                *("--detector", "background"),
-            ],
-            cwd=repo_root,
-            env=env,
-            stdout=subprocess.DEVNULL,
-            stderr=node_log.open("w"),
+        node = start_node(
+            repo_root,
+            *("--source", camera.url),
+            *("--camera", CAMERA, "--space", str(space), "--api", api),
+            *("--summary", "2"),
+            # The twin's people are coloured cylinders, no people to the neural detector.
+            *("--detector", "background"),
+            token=TOKEN,
+            log=node_log,
         )
 
         def health() -> dict:
@@ -177,10 +151,16 @@ def test_node_reads_an_rtsp_camera_tracks_its_robot_and_reconnects(rtsp_ready, r
             return items[0] if items else None
 
         try:
-            target = _wait(robot, 40, "a robot target from the RTSP camera's frames")
+            target = wait_until(
+                robot, what="a robot target from the RTSP camera's frames", stalled_after_s=40
+            )
         except AssertionError as exc:
             raise AssertionError(f"{exc}\nnode:\n{node_log.read_text()}") from None
-        _wait(lambda: (health()["fps"] or 0) > 0, 5, "a heartbeat counting the camera's frames")
+        wait_until(
+            lambda: (health()["fps"] or 0) > 0,
+            what="a heartbeat counting the camera's frames",
+            stalled_after_s=5,
+        )
         error = float(np.hypot(target["xy"][0] - ROBOT.x, target["xy"][1] - ROBOT.y))
         print(f"robot at {target['xy']}, {100 * error:.2f} cm from where it stands")
         # 5 cm: spec 08's RMSE for points at a known height (the marker's). One camera with its
@@ -190,7 +170,9 @@ def test_node_reads_an_rtsp_camera_tracks_its_robot_and_reconnects(rtsp_ready, r
 
         # The camera goes away for 10 s (an IP camera rebooting), then returns on its address.
         camera.stop()
-        time.sleep(10.0)
+        time.sleep(10.0)  # the outage itself: time must pass with the camera away
+        # ... and the node noticed it: its heartbeat counts the stall.
+        wait_until(lambda: health()["stalls"] >= 1, what="a heartbeat saying so", stalled_after_s=5)
         camera.start()
         back = time.time()
 
@@ -199,10 +181,10 @@ def test_node_reads_an_rtsp_camera_tracks_its_robot_and_reconnects(rtsp_ready, r
             # the service's; this machine's clock is the node's.
             return h["last_frame_t"] - h["clock_offset_s"]
 
-        seen = _wait(
+        seen = wait_until(
             lambda: (h := health())["last_frame_t"] is not None and received(h) > back and h,
-            8,
-            "frames after the camera returned",
+            what="frames after the camera returned",
+            stalled_after_s=8,
         )
         delay = received(seen) - back
         print(f"read again {delay:.2f} s after the camera returned; health {seen}")
@@ -212,17 +194,17 @@ def test_node_reads_an_rtsp_camera_tracks_its_robot_and_reconnects(rtsp_ready, r
         assert seen["reconnects"] >= 1 and seen["stalls"] >= 1
 
         # ... and keeps posting: the robot's track takes frames captured after the return.
-        _wait(
+        wait_until(
             lambda: (r := robot()) is not None and r["t"] > back,
-            8,
-            "the robot tracked from frames after the camera returned",
+            what="the robot tracked from frames after the camera returned",
+            stalled_after_s=8,
         )
         # Its output said each change once: connected, lost, reconnecting, back; summaries
         # every 2 s; never FFmpeg's or OpenCV's own messages, however many attempts failed.
-        _wait(
+        wait_until(
             lambda: "summary so far" in node_log.read_text().split("back after")[-1],
-            5,
-            "a summary after the return",
+            what="a summary after the return",
+            stalled_after_s=5,
         )
         node.send_signal(signal.SIGINT)
         assert node.wait(15) == 0

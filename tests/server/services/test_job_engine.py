@@ -104,7 +104,8 @@ def test_a_task_waiting_for_a_worker_keeps_its_lease_until_its_runner_stops(fact
             session.commit()
             task_id = task.id
         runner.submit(task_id)
-        # Two and a half leases later it is still held: the heartbeat renewed its lease.
+        # Two and a half leases later it is still held: the heartbeat renewed its lease (time
+        # must pass: a lease not renewed would have expired by then).
         time.sleep(2.5 * policy.lease_s)
         with factory() as session:
             assert other.settle(session).total == 0

@@ -19,10 +19,12 @@ from websockets.sync.client import connect
 
 from core.localization import NetworkCamera
 from server.services.fanout import PAYLOAD_LIMIT, Fanout, chunk_payloads
-from server.services.ownership import APPLICATION_NAME, NAMESPACE
+from server.services.ownership import NAMESPACE
+from tests.support.advisory_locks import lock_holder
 from tests.support.cameras import register_cameras
 from tests.support.room import CAPTURE_DELAY_S, HEIGHT, SIGMA_PX, ceiling_cameras
 from tests.support.service import WITHOUT_TWIN, start_service
+from tests.support.waiting import wait_until
 
 TOKEN = "multi-process-admin-token"
 ADMIN = {"Authorization": f"Bearer {TOKEN}"}
@@ -168,24 +170,12 @@ def _latencies(stream: Stream, sender: Sender, t0: float) -> np.ndarray:
 
 def _tracker_owner(database_url: str) -> int | None:
     """Return the process id holding the tracker lock of the space of unassigned cameras."""
-    engine = create_engine(database_url)
-    try:
-        with engine.connect() as c:
-            name = c.execute(
-                text(
-                    "SELECT a.application_name FROM pg_locks l JOIN pg_stat_activity a "
-                    "USING (pid) WHERE l.locktype = 'advisory' AND l.classid = :ns "
-                    "AND l.granted AND l.database = (SELECT oid FROM pg_database "
-                    "WHERE datname = current_database())"
-                ),
-                {"ns": NAMESPACE},
-            ).scalar()
-    finally:
-        engine.dispose()
-    if name is None:
-        return None
-    assert name.startswith(APPLICATION_NAME + ":")
-    return int(name.split(":")[1])
+    return lock_holder(
+        database_url,
+        "l.classid = :ns AND l.database = (SELECT oid FROM pg_database "
+        "WHERE datname = current_database())",
+        {"ns": NAMESPACE},
+    )
 
 
 def _live(serve: Serve) -> list[dict]:
@@ -194,15 +184,20 @@ def _live(serve: Serve) -> list[dict]:
     return response.json()["items"]
 
 
-def _wait(predicate, timeout: float, what: str):
-    deadline = time.monotonic() + timeout
-    while True:
-        value = predicate()
-        if value:
-            return value
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out after {timeout} s waiting for {what}")
-        time.sleep(0.05)
+def _wait_for_posts(sender: Sender, since: float, posts: int = 30) -> None:
+    """Wait until `posts` of the sender's posts have returned since `since` (1.5 s of them at
+    FRAME_PERIOD_S on an idle machine)."""
+
+    def returned() -> int:
+        return len({r for r in list(sender.returned.values()) if r >= since})
+
+    wait_until(
+        lambda: returned() >= posts,
+        what=f"{posts} posts returned",
+        stalled_after_s=5,
+        progress=returned,
+        poll_s=0.05,
+    )
 
 
 # Several processes share one PostgreSQL database: this runs on it only.
@@ -226,24 +221,26 @@ def test_processes_share_live_targets_and_survive_a_kill(database_url, tmp_path)
         sender = Sender(ids, cameras, seed=3)
         # The first post makes a tracker owner: the process it reached, or another.
         sender.start(procs[1])
-        owner_pid = _wait(lambda: _tracker_owner(database_url), 5, "a tracker owner")
+        owner_pid = wait_until(
+            lambda: _tracker_owner(database_url), what="a tracker owner", stalled_after_s=5
+        )
         owner = next(p for p in procs if p.pid == owner_pid)
         other, spare = [p for p in procs if p is not owner]
         s_owner, s_other = streams[owner.port], streams[other.port]
-        target = _wait(
+        target = wait_until(
             lambda: next((t for t in _live(other) if t["id"] is not None), None),
-            5,
-            "the target in the other process's list",
+            what="the target in the other process's list",
+            stalled_after_s=5,
         )
         # Posted to the owner, streamed by the other (the targets fanned out) ...
         sender.to = owner
         t1 = time.time()
-        time.sleep(1.5)
+        _wait_for_posts(sender, t1)
         to_other = _latencies(s_other, sender, t1)
         # ... and posted to the other, streamed by the owner (the detections fanned out).
         sender.to = other
         t2 = time.time()
-        time.sleep(1.5)
+        _wait_for_posts(sender, t2)
         to_owner = _latencies(s_owner, sender, t2)
         same_process = _latencies(s_other, sender, t2)
         print(
@@ -253,7 +250,7 @@ def test_processes_share_live_targets_and_survive_a_kill(database_url, tmp_path)
             f"p95 {np.percentile(to_owner, 95) * 1e3:.0f} ms, max {to_owner.max() * 1e3:.0f} "
             f"ms; post->own WS p50 {np.median(same_process) * 1e3:.0f} ms"
         )
-        # Posts every 50 ms for 1.5 s: about 30 updates, of which the streams (at most 30
+        # 30 posts, one every 50 ms: about 30 updates, of which the streams (at most 30
         # messages a second) carry at least a quarter each way.
         assert to_other.size >= 7 and to_owner.size >= 7
         assert np.percentile(to_other, 95) <= 0.2 and np.percentile(to_owner, 95) <= 0.2
@@ -265,25 +262,40 @@ def test_processes_share_live_targets_and_survive_a_kill(database_url, tmp_path)
         sender.to = owner
         other.kill()
         t3 = time.time()
-        time.sleep(0.6)
+        wait_until(
+            lambda: max((t["t"] for t in _live(owner)), default=0.0) > t3 - CAPTURE_DELAY_S,
+            what="the owner tracking frames captured after the kill",
+            stalled_after_s=5,
+        )
         assert [t["id"] for t in _live(owner)] == [target["id"]]
-        assert max(t["t"] for t in _live(owner)) > t3 - CAPTURE_DELAY_S
 
         # The owner killed outright: the spare takes the space over (it tries the lock every
         # second) and keeps the target's id.
         sender.to = spare
         owner.kill()
         killed = time.time()
-        time.sleep(3.0)
+
+        def streamed_since_the_kill() -> list[tuple[float, dict]]:
+            return [
+                (received, t)
+                for received, m in streams[spare.port].since(killed)
+                for t in m["targets"]
+                if sender.returned.get(m["t"], 0.0) > killed
+            ]
+
+        def stored_since_the_kill() -> bool:
+            answer = spare.http.get(f"/api/v1/targets/{target['id']}/track")
+            points = answer.json()["points"] if answer.status_code == 200 else []
+            return bool(points) and points[-1]["t"] > killed - CAPTURE_DELAY_S
+
+        wait_until(
+            lambda: streamed_since_the_kill() and stored_since_the_kill(),
+            what="the survivor streaming and storing new positions after the owner died",
+            stalled_after_s=10,
+        )
         sender.stop()
         assert _tracker_owner(database_url) == spare.pid
-        fresh = [
-            (received, t)
-            for received, m in streams[spare.port].since(killed)
-            for t in m["targets"]
-            if sender.returned.get(m["t"], 0.0) > killed
-        ]
-        assert fresh, "the survivor streamed no new position after the owner died"
+        fresh = streamed_since_the_kill()
         took_over = fresh[0][0] - killed
         print(f"takeover: the survivor streamed new positions {took_over:.2f} s after the kill")
         # The lock is tried every 1 s; restoring and replaying take milliseconds: "within a
@@ -338,10 +350,14 @@ def test_fanout_delivers_long_lists_to_the_other_process_only(database_url):
         items = list(range(5000))  # ~24 kB of JSON: four notifications
         sent = a.publish("intspace_test", {"space": None}, items)
         assert sent >= 3
-        _wait(lambda: sum(len(m["items"]) for m in got_b) == len(items), 5, "every item")
+        wait_until(
+            lambda: sum(len(m["items"]) for m in got_b) == len(items),
+            what="every item",
+            stalled_after_s=5,
+        )
         assert [i for m in got_b for i in m["items"]] == items
         assert all(m["space"] is None and m["o"] == a.origin for m in got_b)
-        time.sleep(0.2)
+        time.sleep(0.2)  # time must pass: nothing reaches `a` in a window where `b` heard all
         assert got_a == []  # a process never hears itself
     finally:
         a.stop()
@@ -376,7 +392,7 @@ def test_a_listener_that_loses_its_connection_listens_again(database_url):
         # reads again from the database what it may have missed.
         assert reconnected.wait(5)
         a.publish("intspace_test", {}, ["after"])
-        _wait(lambda: got, 5, "a message after the reconnection")
+        wait_until(lambda: got, what="a message after the reconnection", stalled_after_s=5)
         assert got[0]["items"] == ["after"]
     finally:
         a.stop()

@@ -15,6 +15,7 @@ from core.sim import default_scene
 from server.app import create_app
 from server.services.camera_health import STALLED_AFTER_S
 from server.services.twin_home import bootstrap_space, register_devices
+from tests.support.waiting import wait_until
 
 RATE_HZ = 4.0
 
@@ -24,16 +25,6 @@ def twin_client(make_settings):
     settings = make_settings(simulation=True, twin_rate_hz=RATE_HZ)
     with TestClient(create_app(settings)) as client:
         yield client
-
-
-def _wait(predicate, timeout=30.0):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        value = predicate()
-        if value:
-            return value
-        time.sleep(0.1)
-    raise AssertionError("timed out")
 
 
 # The health book lives in memory: the database backend has no part in it (the registry reads
@@ -51,13 +42,22 @@ def test_twin_cameras_report_their_health(twin_client, admin):
         items = client.get(f"/api/v1/cameras?space_id={space}", headers=admin).json()["items"]
         return items if all(c["health"]["status"] == "online" for c in items) else None
 
-    cameras = _wait(twin_health)
+    cameras = wait_until(twin_health, what="the twin's cameras online", stalled_after_s=30)
     assert {c["name"] for c in cameras} == names
-    # The frame rate over a wall-clock window, counted from the twin's own steps: every step
-    # publishes one frame of every camera.
-    t0, steps0 = time.time(), client.get("/api/v1/twin", headers=admin).json()["steps"]
-    time.sleep(2.5)
-    t1, steps1 = time.time(), client.get("/api/v1/twin", headers=admin).json()["steps"]
+
+    # The frame rate over a wall-clock window of 10 of the twin's own steps (2.5 s at the set
+    # rate): every step publishes one frame of every camera.
+    def steps() -> int:
+        return client.get("/api/v1/twin", headers=admin).json()["steps"]
+
+    t0, steps0 = time.time(), steps()
+    steps1 = wait_until(
+        lambda: (n := steps()) >= steps0 + 10 and n,
+        what="10 steps of the twin",
+        stalled_after_s=10,
+        progress=steps,
+    )
+    t1 = time.time()
     counted = (steps1 - steps0) / (t1 - t0)
     now = time.time()
     for camera in client.get(f"/api/v1/cameras?space_id={space}", headers=admin).json()["items"]:
@@ -69,7 +69,7 @@ def test_twin_cameras_report_their_health(twin_client, admin):
         assert health["stalls"] == 0 and health["reconnects"] == 0 and health["dropped"] >= 0
         # The newest frame is at most a few frame periods old (a loaded machine renders late).
         assert now - 2.0 < health["last_frame_t"] <= now
-        # fps is measured over the last 10 frames, the count over 2.5 s: both near the set rate
+        # fps is measured over the last 10 frames, the count over 10 steps: both near the set rate
         # and never above it by more than the stamps' jitter (5 %); a loaded machine renders
         # fewer frames, so the two agree to 40 % of the set rate.
         assert 0.0 < health["fps"] <= RATE_HZ * 1.05
@@ -87,7 +87,7 @@ def test_twin_cameras_report_their_health(twin_client, admin):
         health = client.get(f"/api/v1/cameras/{camera_id}", headers=admin).json()["health"]
         return health if health["status"] == "stalled" else None
 
-    health = _wait(stalled, timeout=10.0)
+    health = wait_until(stalled, what="the paused twin's camera stalled", stalled_after_s=10)
     quiet = max(STALLED_AFTER_S, 2.0 / health["fps"])
     assert health["since"] == pytest.approx(health["last_frame_t"] + quiet)
     assert health["last_frame_t"] >= last
@@ -99,7 +99,8 @@ def test_twin_cameras_report_their_health(twin_client, admin):
         health = client.get(f"/api/v1/cameras/{camera_id}", headers=admin).json()["health"]
         return health if health["status"] == "online" else None
 
-    assert _wait(online, timeout=10.0)["since"] >= paused_at
+    back = wait_until(online, what="the resumed twin's camera online", stalled_after_s=10)
+    assert back["since"] >= paused_at
 
     # A camera of another space that no node reports on: offline, never seen.
     health = client.get(f"/api/v1/cameras/{foreign}", headers=admin).json()["health"]

@@ -13,14 +13,24 @@ import pytest
 
 from core.sim import default_scene
 from server.services.twin import MAX_CATCH_UP_S, Twin
+from tests.support.waiting import wait_until
 
 PERIOD = 0.2  # 5 Hz
 
 
-def _run(twin: Twin, seconds: float) -> None:
+def _run(twin: Twin, calls: list, steps: int) -> None:
+    """Run `twin` until it has taken `steps` steps (recorded in `calls`)."""
     twin.start()
-    time.sleep(seconds)
-    twin.stop()
+    try:
+        wait_until(
+            lambda: len(calls) >= steps,
+            what=f"{steps} steps of the twin",
+            stalled_after_s=10,
+            progress=lambda: len(calls),
+            poll_s=0.02,
+        )
+    finally:
+        twin.stop()
 
 
 def _twin(step_s: float, calls: list[tuple[float, float]]) -> Twin:
@@ -31,7 +41,7 @@ def _twin(step_s: float, calls: list[tuple[float, float]]) -> Twin:
 
     def step(period: float) -> None:
         calls.append((time.monotonic(), period))
-        time.sleep(step_s)
+        time.sleep(step_s)  # a step's own duration: the lateness is the scenario
 
     twin.step = step  # type: ignore[method-assign]
     return twin
@@ -48,7 +58,7 @@ def test_late_steps_advance_the_world_by_the_time_that_passed() -> None:
     # the time its frames were stamped with; now it advances by the whole periods that have
     # passed: 2 or 3 (the instants stay on the 0.2 s grid), in all the time between the steps.
     calls: list[tuple[float, float]] = []
-    _run(_twin(0.5, calls), 3.2)
+    _run(_twin(0.5, calls), calls, 6)
     assert len(calls) >= 5
     when, periods = np.array(calls).T
     assert periods[0] == pytest.approx(PERIOD)
@@ -60,7 +70,7 @@ def test_late_steps_advance_the_world_by_the_time_that_passed() -> None:
 
 def test_steps_in_time_advance_one_period_and_a_stall_at_most_the_catch_up() -> None:
     calls: list[tuple[float, float]] = []
-    _run(_twin(0.01, calls), 1.5)
+    _run(_twin(0.01, calls), calls, 8)
     when, periods = np.array(calls).T
     assert len(periods) >= 5
     assert np.median(_whole_periods(periods)) == 1
@@ -76,6 +86,6 @@ def test_steps_in_time_advance_one_period_and_a_stall_at_most_the_catch_up() -> 
             release.wait(3.0)
 
     twin.step = stall  # type: ignore[method-assign]
-    _run(twin, 4.0)
+    _run(twin, stalled, 3)
     assert len(stalled) >= 3
     assert stalled[2] == pytest.approx(MAX_CATCH_UP_S)

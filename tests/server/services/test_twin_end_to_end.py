@@ -17,6 +17,7 @@ import numpy as np
 from bench.bench_end_to_end import compare, describe, paired
 from server.node.sources import MjpegHttpSource
 from tests.support.mjpeg_stream import MjpegStream, flat_jpeg
+from tests.support.waiting import wait_until
 
 # Simulated seconds scored: 40 twin steps, enough for an RMSE whose paired ratio is stable
 # (both paths see the same stretch of the patrol, so the calibration's error is common to both),
@@ -81,12 +82,14 @@ def test_a_stream_stopped_for_10_s_is_read_again_within_5_s_of_its_return():
     source = MjpegHttpSource("pausing", camera.url)
     try:
         source.start()
-        deadline = time.monotonic() + 5
-        while source.stats.frames < 5 and time.monotonic() < deadline:
-            time.sleep(0.05)
-        assert source.stats.frames >= 5
+        wait_until(
+            lambda: source.stats.frames >= 5,
+            what="5 frames from the stream",
+            stalled_after_s=5,
+            poll_s=0.05,
+        )
         camera.paused.set()
-        time.sleep(10.0)
+        time.sleep(10.0)  # the outage itself: time must pass with the stream stopped
         # Stalled all along: the read timeout (2 s) cut each held connection, and the reader
         # kept trying with its back-off.
         assert source.stats.stalls >= 3 and source.stats.reconnects >= 3

@@ -8,7 +8,6 @@ import os
 import signal
 import subprocess
 import sys
-import time
 from datetime import datetime, timedelta
 from pathlib import Path
 
@@ -24,6 +23,7 @@ from server.db.session import make_engine, make_session_factory
 from server.services.jobs import JobCancelled, LeasePolicy, claim_next, release_expired, renew
 from server.services.runs import RUNS, Attempt
 from tests.support.chessboard_photos import K_TRUE, POSES, SQUARE_M, chessboard_photo
+from tests.support.waiting import run_progress, wait_for_run, wait_until, wait_while_advancing
 
 REPO_ROOT = Path(__file__).resolve().parents[3]
 PHOTOS = 16
@@ -135,7 +135,7 @@ def test_heartbeats_keep_a_run_longer_than_its_lease(make_settings, admin, facto
         factory, 1, policy, poll_s=0.1, on_finished=lambda r, s: finished.append((r, s))
     )
     try:
-        _wait(lambda: finished, 20, "the run to finish")
+        wait_until(lambda: finished, what="the run to finish", stalled_after_s=20)
     finally:
         executor.shutdown()
     with factory() as session:
@@ -145,17 +145,6 @@ def test_heartbeats_keep_a_run_longer_than_its_lease(make_settings, admin, facto
         assert (run.finished_at - run.started_at).total_seconds() > 2 * policy.lease_s
         assert (run.status, run.attempts, run.lease_owner) == ("succeeded", 1, None)
     assert finished == [(run_id, "succeeded")]
-
-
-def _wait(predicate, timeout: float, what: str):
-    deadline = time.monotonic() + timeout
-    while True:
-        value = predicate()
-        if value:
-            return value
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out after {timeout} s waiting for {what}")
-        time.sleep(0.05)
 
 
 def _worker(database_url: str, log: Path) -> subprocess.Popen:
@@ -209,12 +198,13 @@ def test_a_run_survives_its_worker_killed_and_finishes_once(
             run_id = response.json()["id"]
             url = f"/api/v1/calibration-runs/{run_id}"
 
-            def in_progress():
-                run = client.get(url, headers=admin).json()
-                progress = run["progress"] or {}
-                return run if progress.get("fraction", 0) >= 0.25 else None
-
-            run = _wait(in_progress, 60, "the run to be a quarter done")
+            run = wait_while_advancing(
+                lambda: client.get(url, headers=admin).json(),
+                done=lambda run: (run["progress"] or {}).get("fraction", 0) >= 0.25,
+                progress=run_progress,
+                stalled_after_s=60,
+                what="the run (to be a quarter done)",
+            )
             assert run["status"] == "running" and run["attempts"] == 1
             engine = make_engine(database_url, pool_size=1)
             with make_session_factory(engine)() as session:
@@ -228,11 +218,8 @@ def test_a_run_survives_its_worker_killed_and_finishes_once(
             assert victim.wait(10) == -signal.SIGKILL
             killed_at = utcnow()
 
-            def finished():
-                run = client.get(url, headers=admin).json()
-                return run if run["status"] not in ("queued", "running") else None
-
-            run = _wait(finished, 60, "the run to finish on the other worker")
+            # Its progress stands still until its lease expires and the other worker takes it.
+            run = wait_for_run(lambda: client.get(url, headers=admin).json(), stalled_after_s=60)
         finally:
             for worker in workers:
                 if worker.poll() is None:

@@ -4,12 +4,11 @@ process died and it was restarted) is forgotten after two checks, never at the f
 from __future__ import annotations
 
 import numpy as np
-from sqlalchemy import create_engine
-from sqlalchemy.orm import sessionmaker
 
 from core.localization.tracking import TrackSnapshot, TrackState
 from server.db.models import Room, Space
 from server.services.zones import ZoneService
+from tests.support.sqlite_copy import copied_database
 
 
 def _snap(track_id: int, x: float, t: float) -> TrackSnapshot:
@@ -28,11 +27,7 @@ def _snap(track_id: int, x: float, t: float) -> TrackSnapshot:
 
 
 def test_targets_whose_end_never_came_are_forgotten(tmp_path, sqlite_template):
-    import shutil
-
-    path = tmp_path / "db.sqlite3"
-    shutil.copyfile(sqlite_template, path)
-    factory = sessionmaker(create_engine(f"sqlite:///{path}"), expire_on_commit=False)
+    factory = copied_database(sqlite_template, tmp_path)
     with factory() as session:
         space = Space(name="Flat")
         session.add(space)

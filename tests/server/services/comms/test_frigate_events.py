@@ -7,11 +7,9 @@ camera registered later picked up, and `frigate/stats` giving the camera's healt
 from __future__ import annotations
 
 import json
-import shutil
 
 import numpy as np
-from sqlalchemy import create_engine, select
-from sqlalchemy.orm import sessionmaker
+from sqlalchemy import select
 
 from core.localization import NetworkCamera, locate_monocular
 from core.localization.boxes import box_foot, foot_on_axis
@@ -22,6 +20,7 @@ from server.services.targets import LiveTargets
 from server.services.tracking import TrackingService
 from server.settings import FrigateCamera
 from tests.support.frigate_replay import body_box
+from tests.support.sqlite_copy import copied_database
 
 K = [[700.0, 0.0, 640.0], [0.0, 700.0, 360.0], [0.0, 0.0, 1.0]]
 
@@ -51,9 +50,7 @@ def _event(kind, camera, box, t, **extra):
 
 
 def test_frigate_events_become_detections_of_the_mapped_camera(tmp_path, sqlite_template):
-    path = tmp_path / "db.sqlite3"
-    shutil.copyfile(sqlite_template, path)
-    factory = sessionmaker(create_engine(f"sqlite:///{path}"), expire_on_commit=False)
+    factory = copied_database(sqlite_template, tmp_path)
     with factory() as session:
         space = Space(name="Flat")
         session.add(space)

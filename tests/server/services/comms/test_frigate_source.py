@@ -117,7 +117,7 @@ class SteadyPoster(threading.Thread):
         while k < len(self.frames):
             wait = self.frames[k][0] + self.delay - time.time()
             if wait > 0:
-                time.sleep(wait)
+                time.sleep(wait)  # time must pass: a node posts a frame once it falls due
             now = time.time()
             due = []
             while k < len(self.frames) and self.frames[k][0] + self.delay <= now:
@@ -259,6 +259,8 @@ def test_frigate_replay_two_cameras_three_walkers(broker, make_settings, admin):
         sampler.start()
         replay.join(DURATION + 10)
         steady.join(10)
+        # Time must pass: the sampler goes on watching through the tracker's latency and the
+        # zones' inertia after the last frame, when a double count would show.
         time.sleep(2.0)
         stop.set()
         sampler.join(2)

@@ -14,61 +14,12 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from core.localization import NetworkCamera
 from server.app import create_app
 from tests.support.ha_discovery import problems
 from tests.support.mqtt_broker import PASSWORD, broker, subscribe  # noqa: F401
+from tests.support.walking_person import register_corner_cameras, walk
 
-K = [[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]]
 SOFA = [[0.0, 0.0], [2.0, 0.0], [2.0, 3.0], [0.0, 3.0]]
-
-
-def _cameras(client, admin, sid) -> tuple[list[int], list[NetworkCamera]]:
-    cams = [
-        NetworkCamera.looking_at(K, None, pos, [2.0, 1.5, 0.0], (640, 480))
-        for pos in ([0.0, 0.0, 2.8], [4.0, 3.0, 2.8], [4.0, 0.0, 2.8])
-    ]
-    ids = []
-    for k, cam in enumerate(cams):
-        body = {
-            "name": f"Ceiling {k}",
-            "space_id": sid,
-            "width": 640,
-            "height": 480,
-            "K": K,
-            "T_world_camera": cam.T_world_camera.tolist(),
-        }
-        response = client.post("/api/v1/cameras", json=body, headers=admin)
-        assert response.status_code == 201, response.text
-        ids.append(response.json()["id"])
-    return ids, cams
-
-
-def _walk(client, admin, ids, cams, path, rate=10.0):
-    """Post the three cameras' detections of a person along `path` (list of (x, y)) in real
-    time; return the capture times."""
-    rng = np.random.default_rng(0)
-    t0 = time.time()
-    times = []
-    for k, (x, y) in enumerate(path):
-        t = t0 + k / rate
-        X = np.array([[x, y, 1.0]])
-        obs = [
-            {
-                "camera_id": cid,
-                "t": t,
-                "pixel": (cam.project(X)[0] + rng.normal(0, 0.5, 2)).tolist(),
-                "sigma_px": 0.5,
-                "kind": "person",
-                "height": 1.0,
-            }
-            for cid, cam in zip(ids, cams, strict=True)
-        ]
-        response = client.post("/api/v1/observations", json={"observations": obs}, headers=admin)
-        assert response.status_code == 200, response.text
-        times.append(t)
-        time.sleep(max(0.0, t0 + (k + 1) / rate - time.time()))
-    return times
 
 
 # The MQTT side does not depend on the database: run on PostgreSQL, the database of several
@@ -85,7 +36,7 @@ def test_home_assistant_sees_zones_occupancy_events_and_survives_the_broker(
     settings = make_settings(mqtt_url=broker.url, tracker_latency_s=0.3)
     with TestClient(create_app(settings)) as client:
         sid = client.post("/api/v1/spaces", json={"name": "Our Flat"}, headers=admin).json()["id"]
-        ids, cams = _cameras(client, admin, sid)
+        ids, cams = register_corner_cameras(client, admin, sid, "Ceiling ")
         zone = client.post(
             f"/api/v1/spaces/{sid}/zones",
             json={"name": "Sofa", "polygon": SOFA, "inertia_s": 0.5},
@@ -135,7 +86,7 @@ def test_home_assistant_sees_zones_occupancy_events_and_survives_the_broker(
 
         # A person walks in from x = 3.5 to x = 1.0 and stands: enter, count 1.
         path = [(max(1.0, 3.5 - 0.1 * k), 1.5) for k in range(40)]
-        times = _walk(client, admin, ids, cams, path)
+        times = walk(client, admin, ids, cams, path)
         assert rec.wait(lambda: rec.latest(occ_topic) == b"1", timeout=3)
         events = [json.loads(p) for _, t, p, _ in rec.on(lambda t: t == "intspace/our-flat/events")]
         types = [(e["type"], e["zone"]) for e in events]
@@ -163,7 +114,7 @@ def test_home_assistant_sees_zones_occupancy_events_and_survives_the_broker(
         assert rec.wait(
             lambda: not client.get("/api/v1/home/status", headers=admin).json()["mqtt"]["connected"]
         )
-        time.sleep(1.0)
+        time.sleep(1.0)  # the outage itself: time must pass with the broker away
         broker.start()
         back = time.monotonic()
         sub2, rec2 = subscribe(broker, ["intspace/#", "homeassistant/#"])

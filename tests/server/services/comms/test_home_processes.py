@@ -14,13 +14,14 @@ import time
 
 import pytest
 from fastapi.testclient import TestClient
-from sqlalchemy import create_engine, text
 
 from server.app import create_app
 from server.services.comms.home import AVAILABLE_KEY
-from server.services.ownership import APPLICATION_NAME, NAMESPACE
+from server.services.ownership import NAMESPACE
+from tests.support.advisory_locks import lock_holder
 from tests.support.mqtt_broker import broker, subscribe  # noqa: F401
 from tests.support.service import WITHOUT_TWIN, Service, start_service
+from tests.support.waiting import wait_until
 
 TOPIC = "intspace/available"
 TOKEN = "home-processes-admin-token"
@@ -28,34 +29,11 @@ TOKEN = "home-processes-admin-token"
 
 def _available_owner(database_url: str) -> int | None:
     """Return the process id holding the availability's advisory lock, None when nobody does."""
-    engine = create_engine(database_url)
-    try:
-        with engine.connect() as c:
-            name = c.execute(
-                text(
-                    "SELECT a.application_name FROM pg_locks l JOIN pg_stat_activity a "
-                    "USING (pid) WHERE l.locktype = 'advisory' AND l.classid = :ns "
-                    "AND l.objid = :key AND l.objsubid = 2 AND l.granted"
-                ),
-                {"ns": NAMESPACE, "key": AVAILABLE_KEY & 0xFFFFFFFF},
-            ).scalar()
-    finally:
-        engine.dispose()
-    if name is None:
-        return None
-    assert name.startswith(APPLICATION_NAME + ":")
-    return int(name.split(":")[1])
-
-
-def _wait(predicate, timeout: float, what: str):
-    deadline = time.monotonic() + timeout
-    while True:
-        value = predicate()
-        if value:
-            return value
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out after {timeout} s waiting for {what}")
-        time.sleep(0.05)
+    return lock_holder(
+        database_url,
+        "l.classid = :ns AND l.objid = :key AND l.objsubid = 2",
+        {"ns": NAMESPACE, "key": AVAILABLE_KEY & 0xFFFFFFFF},
+    )
 
 
 @pytest.mark.parametrize("database_url", ["postgresql"], indirect=True)
@@ -76,7 +54,11 @@ def test_availability_follows_the_processes(
     serve: Service | None = None
     try:
         with TestClient(create_app(make_settings(mqtt_url=broker.url))):
-            _wait(lambda: _available_owner(database_url) == os.getpid(), 5, "this process")
+            wait_until(
+                lambda: _available_owner(database_url) == os.getpid(),
+                what="this process owning the topic",
+                stalled_after_s=5,
+            )
             assert rec.wait(lambda: rec.latest(TOPIC) == b"online", 5)
             start = time.monotonic()
             # The twin and the 3D scene run in one designated process; the other runs neither.
@@ -88,8 +70,13 @@ def test_availability_follows_the_processes(
         # A clean stop of the owner: the other takes the topic over, nobody says offline.
         print(f"the owner stopped in {time.time() - stopped:.1f} s")
         other = serve.process.pid
-        _wait(lambda: _available_owner(database_url) == other, 5, "the other process")
-        time.sleep(1.0)  # the new owner's reconnection with its last will has landed
+        wait_until(
+            lambda: _available_owner(database_url) == other,
+            what="the other process owning the topic",
+            stalled_after_s=5,
+        )
+        # The new owner reconnected with its last will and said it is online.
+        assert rec.wait(lambda: bool(said(b"online", stopped)), 5), rec.on(lambda tp: tp == TOPIC)
         assert said(b"offline", stopped) == [], rec.on(lambda tp: tp == TOPIC)
         assert rec.latest(TOPIC) == b"online"
 

@@ -141,7 +141,7 @@ def test_broker_killed_and_restarted(broker, caplog):  # noqa: F811
         # The broker returns without persistence: it has lost every retained topic. A
         # subscriber is on it (its own message back says it is subscribed) before the link can
         # reach it: the events the link sends on its return are not lost to a late subscriber.
-        time.sleep(1.0)
+        time.sleep(1.0)  # the outage itself: time must pass with the broker away
         broker.start()
         client, rec = subscribe(broker, "s/#")
         try:
