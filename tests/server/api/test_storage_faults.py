@@ -17,11 +17,11 @@ from pathlib import Path
 
 import pytest
 from fastapi.testclient import TestClient
-from test_hostile_input import AUTH, TOKEN, connect, make_home
 
 from server.app import create_app
 from server.cli import main
 from server.settings import Settings
+from tests.support.hostile_requests import AUTH, TOKEN, connect, make_home
 from tests.support.service import WITHOUT_TWIN, start_service
 
 
