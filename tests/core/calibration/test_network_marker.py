@@ -136,7 +136,13 @@ def test_a_partly_hidden_marker_is_dropped_by_its_area() -> None:
     unseen[k, j] = False
     ref = calibrate_network_marker(NAMES, pri, px, unseen, odo, H, **kw)
     for a, b in zip(net.cameras, ref.cameras, strict=True):
-        np.testing.assert_allclose(a.position, b.position, atol=1e-9)
+        # One minimum, reached from two starts (the first solve had the hidden marker): the
+        # sparse LM stops on its step rule with costs equal to 1e-10 relative, and where in
+        # that flat bottom it stops depends on the path and on the processor's BLAS kernels
+        # (measured 0.2-2 um apart on an AVX-512 processor, with OpenBLAS's AVX2 and its
+        # Sandybridge kernels alike). The same answer is the same to a thousandth of the
+        # position's standard deviation (2-5 cm here).
+        np.testing.assert_allclose(a.position, b.position, atol=1e-3 * float(np.min(a.std[-3:])))
     # Without the areas only the residuals tell, after the hidden marker has pulled the
     # stop's pose: good detections go with it.
     blind = calibrate_network_marker(NAMES, pri, px, vis, odo, H, **kw)

@@ -32,12 +32,19 @@ def test_shipped_calibration_is_the_drive_made_again() -> None:
             np.linalg.inv(ref_b) @ b.T_world_camera,
             atol=1e-7,
         )
-        # Its move into the world (the signpost tour's registration, from rendered images)
-        # is less repeatable across processors: the file made on one machine and the drive
-        # made again on another differed by 4.4 um and 6e-7 rad there, a thousandth of the
-        # registration's own deviation (~1 cm, 0.16 deg). A stale file, from another drive,
-        # is millimetres off.
-        np.testing.assert_allclose(a.T_world_camera, b.T_world_camera, atol=2e-5)
+        # Its move into the world comes from the signpost tour, a closed loop: the robot drives
+        # on its own estimates, so a last-bit difference (another processor's BLAS kernels)
+        # can change the frame a signpost is read in, and the tour goes on with other frames.
+        # Made again here with OpenBLAS's AVX2 kernels signpost 26 was read at 45.6 s, with its
+        # Sandybridge kernels at 41.4 s, and the registration moved by up to 1.9 mm and 0.020
+        # deg (5 um and 2e-4 deg when the tour stays the same): a fifth of the registration's
+        # own deviation (~1 cm, 0.16 deg). What a processor may change is bounded at half that
+        # deviation (5 mm, 0.08 deg); the network above, which the tour does not move, still
+        # holds the file to 1e-7.
+        d = np.linalg.inv(b.T_world_camera) @ a.T_world_camera
+        assert np.linalg.norm(d[:3, 3]) < 5e-3, a.name
+        cos = np.clip((np.trace(d[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)
+        assert np.degrees(np.arccos(cos)) < 0.08, a.name
 
 
 def test_installed_cameras_against_the_twin() -> None:
