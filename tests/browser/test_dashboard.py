@@ -24,6 +24,8 @@ import pytest
 import yaml
 
 from tests.browser.conftest import assert_scene_frame_is_proxied
+from tests.support.camera_poses import look_at
+from tests.support.dashboard import add_camera, sign_in
 from tests.support.waiting import wait_for_run
 
 try:
@@ -52,26 +54,6 @@ def _wait_for_run(service, run_id: int) -> None:
         stalled_after_s=60.0,
         poll_s=0.25,
     )
-
-
-def sign_in(page: Page, base_url: str, token: str) -> None:
-    page.goto(f"{base_url}/")
-    page.get_by_test_id("token-input").fill(token)
-    page.get_by_test_id("token-submit").click()
-    expect(page.get_by_test_id("sign-out")).to_be_visible()
-
-
-def look_at(position, target) -> np.ndarray:
-    """Return the camera-to-world transform of a camera at `position` looking at `target`
-    (OpenCV axes: z forward, x right, y down; world Z up)."""
-    p, t = np.asarray(position, float), np.asarray(target, float)
-    z = (t - p) / np.linalg.norm(t - p)
-    x = np.cross(z, [0.0, 0.0, 1.0])
-    x /= np.linalg.norm(x)
-    T = np.eye(4)
-    T[:3, :3] = np.column_stack([x, np.cross(z, x), z])
-    T[:3, 3] = p
-    return T
 
 
 def wait_for_scene(read_scene, port: int, predicate, timeout: float = 3.0) -> dict:
@@ -157,13 +139,7 @@ def test_calibrate_apply_export_and_see_the_camera_in_the_scene(
     sign_in(page, service.base_url, service.token)
 
     # Add the camera through the form; the page moves to its detail.
-    page.get_by_test_id("nav-cameras").click()
-    page.get_by_test_id("camera-name").fill("pulnix-zhang")
-    page.get_by_test_id("camera-width").fill("640")
-    page.get_by_test_id("camera-height").fill("480")
-    page.get_by_test_id("camera-create").click()
-    page.wait_for_url(re.compile(r".*#/cameras/\d+$"))
-    camera_id = int(page.url.rsplit("/", 1)[1])
+    camera_id = add_camera(page, "pulnix-zhang")
     expect(page.get_by_test_id("camera-uncalibrated")).to_be_visible()
     expect(page.get_by_test_id("camera-no-pose")).to_be_visible()
 

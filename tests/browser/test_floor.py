@@ -27,6 +27,7 @@ except ImportError:  # pragma: no cover - depends on the environment
         raise  # in CI the browser tests must run
     pytest.skip("playwright is not installed (pip install -e '.[dev]')", allow_module_level=True)
 
+from tests.support.dashboard import sign_in
 from tests.support.waiting import wait_for_run, wait_until, wait_until_unchanged
 
 DOCS_SCREENSHOT = Path(__file__).resolve().parents[2] / "docs" / "floor.png"
@@ -47,13 +48,6 @@ def twin_service(start_service):
     with start_service(TWIN_ENV) as svc:
         assert svc.api("GET", "/twin")["enabled"], "INTSPACE_SIMULATION=true runs the twin"
         yield svc
-
-
-def sign_in(page: Page, base_url: str, token: str) -> None:
-    page.goto(f"{base_url}/")
-    page.get_by_test_id("token-input").fill(token)
-    page.get_by_test_id("token-submit").click()
-    expect(page.get_by_test_id("sign-out")).to_be_visible()
 
 
 def drawn_position(page: Page, testid: str) -> dict:

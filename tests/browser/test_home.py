@@ -23,7 +23,7 @@ except ImportError:  # pragma: no cover - depends on the environment
         raise
     pytest.skip("playwright is not installed (pip install -e '.[dev]')", allow_module_level=True)
 
-from tests.browser.test_floor import sign_in
+from tests.support.dashboard import sign_in
 
 
 def test_overview_shows_the_broker_and_the_floor_draws_zone_occupancy(

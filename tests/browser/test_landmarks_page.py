@@ -20,6 +20,7 @@ from core.landmarks import ObjectMark, Signpost, encode_payload
 from core.landmarks.artwork import make_artwork
 from core.sim.render import SensorNoise
 from core.sim.render.landmarks import artwork_texture, render_landmarks
+from tests.support.dashboard import sign_in
 from tests.support.landmark_views import HEAD_CAMERA, mark_pose
 from tests.support.landmark_views import HEAD_DIST as DIST
 from tests.support.landmark_views import HEAD_K as K
@@ -52,13 +53,6 @@ def _photo(path: Path) -> np.ndarray:
     )
     cv2.imwrite(str(path), view.image)
     return view.truth[0].corners
-
-
-def sign_in(page: Page, base_url: str, token: str) -> None:
-    page.goto(f"{base_url}/")
-    page.get_by_test_id("token-input").fill(token)
-    page.get_by_test_id("token-submit").click()
-    expect(page.get_by_test_id("sign-out")).to_be_visible()
 
 
 def test_landmarks_page_prints_and_draws_detections(service, browser_page: Page, tmp_path: Path):

@@ -27,14 +27,8 @@ except ImportError:  # pragma: no cover - depends on the environment
         raise  # in CI the browser tests must run
     pytest.skip("playwright is not installed (pip install -e '.[dev]')", allow_module_level=True)
 
+from tests.support.dashboard import sign_in
 from tests.support.waiting import task_progress, wait_for_run, wait_while_advancing
-
-
-def sign_in(page: Page, base_url: str, token: str) -> None:
-    page.goto(f"{base_url}/")
-    page.get_by_test_id("token-input").fill(token)
-    page.get_by_test_id("token-submit").click()
-    expect(page.get_by_test_id("sign-out")).to_be_visible()
 
 
 def test_manipulation_page_calibrates_and_fetches(start_service, browser_page: Page):

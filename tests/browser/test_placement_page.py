@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from core.localization import NetworkCamera
+from tests.support.dashboard import sign_in
 
 try:
     from playwright.sync_api import Page, expect
@@ -22,13 +23,6 @@ except ImportError:  # pragma: no cover - depends on the environment
     pytest.skip("playwright is not installed (pip install -e '.[dev]')", allow_module_level=True)
 
 K = [[600.0, 0.0, 319.5], [0.0, 600.0, 239.5], [0.0, 0.0, 1.0]]
-
-
-def sign_in(page: Page, base_url: str, token: str) -> None:
-    page.goto(f"{base_url}/")
-    page.get_by_test_id("token-input").fill(token)
-    page.get_by_test_id("token-submit").click()
-    expect(page.get_by_test_id("sign-out")).to_be_visible()
 
 
 def _click_svg(page: Page, testid: str, x: float, y: float) -> None:

@@ -23,6 +23,7 @@ except ImportError:  # pragma: no cover - depends on the environment
     pytest.skip("playwright is not installed (pip install -e '.[dev]')", allow_module_level=True)
 
 from tests.browser.conftest import assert_scene_frame_is_proxied, chromium_page
+from tests.support.dashboard import add_camera
 
 
 def test_a_browser_session_leaves_no_token_in_urls_storage_or_logs(
@@ -73,12 +74,7 @@ def test_a_browser_session_leaves_no_token_in_urls_storage_or_logs(
             assert kept == '[{},{},""]'
 
             # A write through the page (the CSRF token rides along): add a camera.
-            page.get_by_test_id("nav-cameras").click()
-            page.get_by_test_id("camera-name").fill("hall")
-            page.get_by_test_id("camera-width").fill("640")
-            page.get_by_test_id("camera-height").fill("480")
-            page.get_by_test_id("camera-create").click()
-            page.wait_for_url(re.compile(r".*#/cameras/\d+$"))
+            add_camera(page, "hall")
             page.goto(f"{svc.base_url}/#/cameras/{camera['id']}")
             expect(page.get_by_test_id("camera-live-missing")).to_be_visible()
 

@@ -8,7 +8,7 @@ waiting on progress or on what a test can see happen (`waiting`), a real MQTT br
 SQLite template (`sqlite_copy`), the tracking service's clock held by the test (`tracker_clock`), a
 stand-in scene that records the service's calls (`scene_recorder`), hostile requests and the peak
 memory they cost (`hostile_requests`), a package's import graph read from its source
-(`import_graph`).
+(`import_graph`), the dashboard signed in and driven as a user drives it (`dashboard`).
 
 Homes, cameras and people: cameras registered through the API (`cameras`), the room of ceiling
 cameras synthetic observations come from (`room`), a person walking in it (`walking_person`),

@@ -10,21 +10,10 @@ from typing import get_args
 import cv2
 import numpy as np
 import pytest
-from fastapi.testclient import TestClient
 
 from core.geometry.rotations import rotvec_to_matrix
 from core.manipulation import METHODS, default_manipulator, pose_error
-from server.app import create_app
 from server.schemas.manipulation import HandEyeMethod
-
-
-@pytest.fixture
-def twin_client(make_settings, admin):
-    settings = make_settings(simulation=True, twin_rate_hz=0.5)
-    with TestClient(create_app(settings)) as client:
-        # Nothing here needs the twin's cameras: paused, they leave the CPU to the tasks.
-        client.post("/api/v1/twin/pause", headers=admin)
-        yield client
 
 
 def _robot(client, admin, name="fetcher") -> int:
@@ -282,8 +271,8 @@ def test_hand_eye_refuses_degenerate_and_malformed_input(client, admin):
     assert response.status_code == 409 and "INTSPACE_SIMULATION" in response.json()["detail"]
 
 
-def test_hand_eye_on_the_twin(twin_client, admin, run_waiter):
-    client = twin_client
+def test_hand_eye_on_the_twin(paused_twin_client, admin, run_waiter):
+    client = paused_twin_client
     robot = _robot(client, admin)
     arm = _arm(client, admin, robot)
     body = {

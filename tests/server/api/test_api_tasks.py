@@ -9,7 +9,6 @@ from datetime import timedelta
 
 import numpy as np
 import pytest
-from fastapi.testclient import TestClient
 
 from core.landmarks import ObjectMark, decode_payload, encode_payload
 from core.manipulation import default_manipulator
@@ -19,21 +18,11 @@ from core.sim.gripper import GRIPPER_OPEN
 from core.sim.render.landmarks import scene_landmarks
 from core.sim.scenarios.manipulation import grasp
 from core.sim.scene import default_scene
-from server.app import create_app
 from server.db.base import utcnow
 from server.db.models import Task
 from server.services.jobs import LeasePolicy
 from server.services.manipulation import PHASES, episode_phases
 from tests.support.waiting import wait_for_task
-
-
-@pytest.fixture
-def twin_client(make_settings, admin):
-    settings = make_settings(simulation=True, twin_rate_hz=0.5)
-    with TestClient(create_app(settings)) as client:
-        # Nothing here needs the twin's cameras: paused, they leave the CPU to the tasks.
-        client.post("/api/v1/twin/pause", headers=admin)
-        yield client
 
 
 def _arm(client, admin, **fields) -> dict:
@@ -64,8 +53,8 @@ def _wait(client, admin, task_id: int, stalled_after_s: float = 180.0) -> dict:
 # The episodes render every image (seconds each) and do the same on either database; the
 # tasks' storage on PostgreSQL is exercised by the other tests of this module.
 @pytest.mark.parametrize("database_url", ["sqlite"], indirect=True)
-def test_fetch_on_the_twin(twin_client, admin):
-    client = twin_client
+def test_fetch_on_the_twin(paused_twin_client, admin):
+    client = paused_twin_client
     arm = _arm(client, admin)
     # One episode: each renders some 50 eye-in-hand images (the scenario's test runs more).
     body = {"kind": "fetch", "arm_id": arm["id"], "episodes": 1, "seed": 0}
@@ -212,8 +201,8 @@ def test_a_task_whose_process_stopped_reads_interrupted(client, admin):
     assert task["finished_at"] is not None
 
 
-def test_survey_on_the_twin_fills_the_maps(twin_client, admin):
-    client = twin_client
+def test_survey_on_the_twin_fills_the_maps(paused_twin_client, admin):
+    client = paused_twin_client
     # 25 simulated seconds of the survey: the sweep at the start (the living room's west
     # side), then PBVS reads of the thermostat (at about 11 s) and the kitchen-door signpost
     # (about 21 s): one entry in each map.
@@ -327,8 +316,8 @@ def _read_mark(client, admin, space: int, mark_id: int, name: str, T: np.ndarray
 
 
 @pytest.mark.parametrize("database_url", ["sqlite"], indirect=True)
-def test_fetch_an_object_of_the_semantic_map(twin_client, admin):
-    client = twin_client
+def test_fetch_an_object_of_the_semantic_map(paused_twin_client, admin):
+    client = paused_twin_client
     arm = _arm(client, admin)
     space = client.app.state.runtime.twin.space_id
     # A tea box on the dining table, its mark on its top (table 0.75 m + box 0.10 m), as the

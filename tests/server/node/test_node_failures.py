@@ -54,9 +54,13 @@ def service(repo_root: Path, tmp_path_factory: pytest.TempPathFactory) -> Iterat
         yield Service(api, space, scene)
 
 
-def _node(repo_root: Path, *args: str, timeout: float = 60) -> subprocess.CompletedProcess:
+def _node(
+    repo_root: Path, service, source: str, *args: str, timeout: float = 60
+) -> subprocess.CompletedProcess:
+    """Run the node on `source` as CAMERA of `service`'s space, with `args` besides, to its end."""
+    where = ("--camera", CAMERA, "--space", str(service.space), "--api", service.api)
     return subprocess.run(
-        [*NODE, *args],
+        [*NODE, "--source", source, *where, *args],
         cwd=repo_root,
         env=node_env(TOKEN),
         capture_output=True,
@@ -85,17 +89,7 @@ def test_a_source_that_cannot_be_opened_at_start_is_one_line_and_exit_code_3(
     port = free_port()  # bound and released: nothing listens there
     source, shown = (s.format(tmp=tmp_path, port=port) for s in (source, shown))
     started = time.monotonic()
-    done = _node(
-        repo_root,
-        "--source",
-        source,
-        "--camera",
-        CAMERA,
-        "--space",
-        str(service.space),
-        "--api",
-        service.api,
-    )
+    done = _node(repo_root, service, source)
     print(f"exit {done.returncode} after {time.monotonic() - started:.1f} s: {done.stderr}")
     assert done.returncode == 3, done.stderr
     lines = done.stderr.splitlines()
@@ -108,18 +102,7 @@ def test_a_source_that_cannot_be_opened_at_start_is_one_line_and_exit_code_3(
 
 def test_a_live_camera_is_not_replayed_fast(repo_root, service):
     url = f"rtsp://127.0.0.1:{free_port()}/cam"
-    done = _node(
-        repo_root,
-        "--source",
-        url,
-        "--camera",
-        CAMERA,
-        "--space",
-        str(service.space),
-        "--api",
-        service.api,
-        "--fast",
-    )
+    done = _node(repo_root, service, url, "--fast")
     assert done.returncode == 2, done.stderr
     assert done.stderr.count("\n") == 1 and "is a live camera" in done.stderr
 
@@ -150,8 +133,8 @@ def test_a_file_replayed_fast_is_processed_frame_by_frame_with_the_clips_timing(
         record = tmp_path / "recording"
         done = _node(
             repo_root,
-            *("--source", str(clip), "--camera", CAMERA, "--space", str(service.space)),
-            *("--api", service.api),
+            service,
+            str(clip),
             *("--fast", "--record", str(record)),
             # The twin's people are coloured cylinders, no people to the neural detector.
             *("--detector", "background"),
